@@ -1,0 +1,4 @@
+[
+  inputs: ["mix.exs", "config/*.exs", "bench/**/*.{ex,exs}", "test/**/*.{ex,exs}"],
+  subdirectories: ["apps/*"]
+]

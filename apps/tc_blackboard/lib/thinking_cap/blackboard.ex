@@ -1,0 +1,288 @@
+defmodule ThinkingCap.Blackboard do
+  @moduledoc """
+  The communication layer: a Linda tuple space shared by every process of
+  every connected node, with event subscriptions.
+
+  Modules never talk to each other directly; they write tuples and read,
+  take or subscribe to the tuples they need. By convention a tuple is
+  `{tag, robot_id, payload_map}`, so `{:scan, :_, :_}` selects every robot's
+  scans:
+
+      :ok = Blackboard.out({:pose, :r1, %{x: 1.0, y: 2.0, theta: 0.0}}, key: {:pose, :r1})
+      {:ok, {:pose, :r1, pose}} = Blackboard.rd({:pose, :r1, :_})
+      {:ok, ref} = Blackboard.subscribe({:scan, :r1, :_})
+      receive do
+        {:blackboard, ^ref, {:scan, :r1, scan}} -> scan
+      end
+
+  Templates are described in `ThinkingCap.Blackboard.Template`. Bad input
+  (a non-tuple, a malformed template or match specification, an unknown
+  option) raises `ArgumentError` saying what was wrong.
+
+  ## Consistency model
+
+  **Ownership.** Every tuple is owned by the node where it was written. The
+  owner's table is the authority on whether it still exists; every other
+  node holds a replica for reading and for its own subscribers.
+
+  **Local writes are visible at once.** When `out/2` returns, every process
+  on the same node can read or take the tuple, and local subscribers have
+  been sent it.
+
+  **Other nodes see a write after one message hop.** The owner node's
+  blackboard server forwards each write to every other node's server,
+  which applies it and delivers it to its subscribers and blocked waiters.
+  `out/2` never waits for other nodes; there is no cluster-wide commit.
+
+  **Order.** Each server forwards writes and takes to each other server
+  over one ordered channel, so the tuples of one writer reach every reader,
+  subscriber and node in the order they were written. No order is promised
+  between different writers.
+
+  **Exactly-once take.** Whoever takes a tuple, on whichever node, the
+  owner's atomic table operation decides: exactly one taker gets it. A
+  taker prefers its own node's tuples (no round trip), then the oldest of
+  the others', which it takes through a call to the owner node. Such a
+  call ends when the owner answers or its node disconnects.
+
+  **Read and take.** A tuple may be taken on its owner before a reader on
+  another node saw it. Subscribers on every connected node still receive
+  every write, taken or not.
+
+  **Latest-value keys.** `out(tuple, key: k)` replaces the tuple written
+  last with key `k`. Writers of one key on different nodes resolve by
+  last-writer-wins (wall-clock time, then node name), so every node keeps
+  the same one. A reader sees the new tuple, the old one, or for an instant
+  both, never neither.
+
+  **Time to live.** `out(tuple, ttl: ms)` expires `ms` milliseconds after
+  each node received the tuple, by that node's monotonic clock. An expired
+  tuple is never returned; it is removed within half a second.
+
+  **A node that dies takes its tuples with it.** When a node goes down,
+  every other node forgets the tuples it owned, so that a dead sensor node's
+  last scan cannot steer the robot; their subscribers are not told. Every
+  other tuple stays, takes stay exactly-once, blocked waiters keep waiting.
+
+  **Partitions.** While nodes are cut off from each other, each side sees
+  only the tuples owned on its side (the others are forgotten, as for a
+  dead node), and takes only those: nothing is taken twice. When the nodes
+  reconnect their servers exchange full snapshots of the tuples they own:
+  each side then holds the other side's current tuples, including those
+  written during the partition, and its subscribers and waiters receive
+  those written during the partition (not again those they saw before it).
+  Tuples taken during the partition stay gone.
+
+  **Server crashes.** The tables belong to a process that runs no other
+  code. The server that serves them can crash without losing a tuple, a
+  subscription or a blocked waiter: on restart it rescans the waiters,
+  monitors the subscribers again and exchanges snapshots with every other
+  node, which repairs whatever was in its mailbox.
+
+  **Subscribers.** Delivery never blocks the writer. Each subscription has
+  a bound, `max_queue` (default 1000): while the subscriber's mailbox
+  holds that many messages, tuples for it are dropped and counted
+  (`on_overflow: :drop`, the default; see `dropped/1`) or it is
+  unsubscribed and sent `{:blackboard_overflow, ref}` (`on_overflow:
+  :disconnect`). The subscriptions of a process that exits are removed.
+
+  Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
+  """
+
+  alias ThinkingCap.Blackboard.Core.{EvalSupervisor, Server, Store, Subscriptions, Waiters}
+  alias ThinkingCap.Blackboard.Template
+  require Logger
+
+  @default_max_queue 1000
+
+  @type template :: Template.t()
+  @type out_option :: {:key, term()} | {:ttl, pos_integer()}
+  @type subscribe_option :: {:max_queue, pos_integer()} | {:on_overflow, :drop | :disconnect}
+
+  @doc """
+  Writes `tuple`.
+
+  Options:
+    * `:key` - latest-value key: replaces the tuple last written with the
+      same key (`nil` means no key);
+    * `:ttl` - time to live in milliseconds.
+  """
+  @spec out(tuple(), [out_option()]) :: :ok
+  def out(tuple, opts \\ [])
+
+  def out(tuple, opts) when is_tuple(tuple) and is_list(opts) do
+    {ukey, ttl} = out_options(opts)
+    record = Store.new_record(tuple, ukey, ttl)
+    Store.insert(record)
+    Subscriptions.deliver(tuple)
+    if Server.wants_out?(), do: Server.notify({:out, record})
+    :ok
+  end
+
+  def out(tuple, opts) when is_tuple(tuple) do
+    raise ArgumentError, "ThinkingCap.Blackboard.out/2 options must be a keyword list, got: #{inspect(opts)}"
+  end
+
+  def out(other, _opts) do
+    raise ArgumentError, "ThinkingCap.Blackboard.out/2 writes tuples, got: #{inspect(other)}"
+  end
+
+  @doc """
+  Reads a tuple matching `template`, waiting up to `timeout` ms for one.
+  """
+  @spec rd(template(), timeout()) :: {:ok, tuple()} | {:error, :timeout}
+  def rd(template, timeout \\ :infinity) do
+    compiled = Template.compile(template)
+    Waiters.await(:rd, compiled, check_timeout(timeout), fn -> Store.first_match(compiled) end)
+  end
+
+  @doc "Reads a tuple matching `template` if there is one; never waits."
+  @spec rdp(template()) :: {:ok, tuple()} | :none
+  def rdp(template), do: template |> Template.compile() |> Store.first_match()
+
+  @doc """
+  Takes (Linda `in`) a tuple matching `template`, waiting up to `timeout`
+  ms for one. Blocked takers of the same template on one node are served in
+  the order they arrived.
+  """
+  @spec take(template(), timeout()) :: {:ok, tuple()} | {:error, :timeout}
+  def take(template, timeout \\ :infinity) do
+    compiled = Template.compile(template)
+    Waiters.await(:take, compiled, check_timeout(timeout), fn -> Store.take_first(compiled) end)
+  end
+
+  @doc """
+  Takes (Linda `inp`) a tuple matching `template` if there is one. It does
+  not wait for one to be written, but taking another node's tuple is a
+  round trip to that node.
+  """
+  @spec takep(template()) :: {:ok, tuple()} | :none
+  def takep(template), do: template |> Template.compile() |> Store.take_first()
+
+  @doc "Every tuple matching `template`."
+  @spec rd_all(template()) :: [tuple()]
+  def rd_all(template), do: template |> Template.compile() |> Store.all_matches()
+
+  @doc """
+  Runs `fun` (a 0-arity function or `{module, function, args}`) in a
+  supervised process and writes the tuple it returns. A crash, or a result
+  that is not a tuple, is logged and written as
+  `{:eval_error, node(), %{pid: pid, function: description, reason: text}}`.
+  """
+  @spec eval((-> tuple()) | {module(), atom(), list()}) :: {:ok, pid()}
+  def eval(fun) when is_function(fun, 0), do: start_eval(fun, inspect(fun))
+
+  def eval({m, f, a} = mfa) when is_atom(m) and is_atom(f) and is_list(a) do
+    start_eval(fn -> apply(m, f, a) end, Exception.format_mfa(m, f, length(a)) <> " " <> inspect(mfa, limit: 5))
+  end
+
+  def eval(other) do
+    raise ArgumentError,
+          "ThinkingCap.Blackboard.eval/1 takes a 0-arity function or {module, function, args}, got: " <>
+            inspect(other)
+  end
+
+  defp start_eval(fun, description) do
+    Task.Supervisor.start_child(EvalSupervisor, fn -> run_eval(fun, description) end)
+  end
+
+  defp run_eval(fun, description) do
+    case fun.() do
+      tuple when is_tuple(tuple) -> out(tuple)
+      other -> report_eval(description, "returned #{inspect(other)}, not a tuple")
+    end
+  catch
+    kind, reason -> report_eval(description, Exception.format(kind, reason, __STACKTRACE__))
+  end
+
+  defp report_eval(description, reason) do
+    Logger.error("blackboard eval of #{description} failed: #{reason}")
+    out({:eval_error, node(), %{pid: self(), function: description, reason: reason}})
+  end
+
+  @doc """
+  Subscribes the calling process to every later write matching `template`,
+  on any node. Each arrives as `{:blackboard, ref, tuple}`.
+
+  Options: `:max_queue` (default #{@default_max_queue}) and `:on_overflow`
+  (`:drop`, the default, or `:disconnect`); see the moduledoc.
+  """
+  @spec subscribe(template(), [subscribe_option()]) :: {:ok, reference()}
+  def subscribe(template, opts \\ []) do
+    compiled = Template.compile(template)
+    {max_queue, on_overflow} = subscribe_options(opts)
+    {:ok, Subscriptions.subscribe(compiled, self(), max_queue, on_overflow)}
+  end
+
+  @doc """
+  Cancels a subscription. Messages for it already in the caller's mailbox
+  are removed.
+  """
+  @spec unsubscribe(reference()) :: :ok
+  def unsubscribe(ref) when is_reference(ref) do
+    Subscriptions.unsubscribe(ref)
+    flush_subscription(ref)
+  end
+
+  defp flush_subscription(ref) do
+    receive do
+      {:blackboard, ^ref, _} -> flush_subscription(ref)
+    after
+      0 -> :ok
+    end
+  end
+
+  @doc "How many tuples were dropped for a subscription (nil if it is gone)."
+  @spec dropped(reference()) :: non_neg_integer() | nil
+  def dropped(ref) when is_reference(ref), do: Subscriptions.dropped(ref)
+
+  @doc "This node's subscriptions."
+  @spec subscriptions() :: [map()]
+  def subscriptions, do: Subscriptions.list()
+
+  @doc "This node's blocked `rd`/`take` requests, oldest first."
+  @spec waiters() :: [map()]
+  def waiters, do: Waiters.list() |> Enum.sort_by(& &1.seq)
+
+  ## Option checking
+
+  defp out_options(opts) do
+    Enum.reduce(opts, {nil, nil}, fn
+      {:key, key}, {_, ttl} ->
+        {key, ttl}
+
+      {:ttl, ttl}, {key, _} when is_integer(ttl) and ttl > 0 ->
+        {key, ttl}
+
+      {:ttl, ttl}, _ ->
+        raise ArgumentError, "out/2 option :ttl must be a positive integer of milliseconds, got: #{inspect(ttl)}"
+
+      other, _ ->
+        raise ArgumentError, "unknown out/2 option #{inspect(other)}; known options are :key and :ttl"
+    end)
+  end
+
+  defp subscribe_options(opts) do
+    unless is_list(opts), do: raise(ArgumentError, "subscribe/2 options must be a keyword list, got: #{inspect(opts)}")
+
+    Enum.reduce(opts, {@default_max_queue, :drop}, fn
+      {:max_queue, n}, {_, policy} when is_integer(n) and n > 0 ->
+        {n, policy}
+
+      {:on_overflow, policy}, {n, _} when policy in [:drop, :disconnect] ->
+        {n, policy}
+
+      other, _ ->
+        raise ArgumentError,
+              "bad subscribe/2 option #{inspect(other)}; expected max_queue: positive integer, " <>
+                "on_overflow: :drop | :disconnect"
+    end)
+  end
+
+  defp check_timeout(:infinity), do: :infinity
+  defp check_timeout(ms) when is_integer(ms) and ms >= 0, do: ms
+
+  defp check_timeout(other) do
+    raise ArgumentError, "a blackboard timeout is a non-negative integer of milliseconds or :infinity, got: #{inspect(other)}"
+  end
+end

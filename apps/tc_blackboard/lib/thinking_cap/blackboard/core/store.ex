@@ -1,0 +1,307 @@
+defmodule ThinkingCap.Blackboard.Core.Store do
+  @moduledoc false
+  # Tuple records in this node's ETS table: the tuples this node owns (it
+  # wrote them) and replicas of every other node's.
+  #
+  # A record is {key, tuple, key_bin, expires, stamp}:
+  #   key      {arity, first_element, seq, owner_node}; seq is strictly
+  #            increasing on the owner, so a range of one tag is walked
+  #            oldest first.
+  #   key_bin  the latest-value key (`out(t, key: k)`) as a binary, or nil.
+  #   expires  monotonic milliseconds on *this* node, or :infinity.
+  #   stamp    {os_time_us, seq, node} for keyed tuples (last-writer-wins).
+  #
+  # Between nodes a record travels as {key, tuple, key_bin, stamp, ttl_left}.
+
+  alias ThinkingCap.Blackboard.Core.Tables
+  alias ThinkingCap.Blackboard.Template
+
+  @type record :: {tuple(), tuple(), binary() | nil, integer() | :infinity, tuple() | nil}
+  @type wire :: {tuple(), tuple(), binary() | nil, tuple() | nil, non_neg_integer() | :infinity}
+
+  @remote_take_timeout :infinity
+
+  def now, do: System.monotonic_time(:millisecond)
+
+  @doc false
+  @spec new_record(tuple(), term(), pos_integer() | nil) :: record()
+  def new_record(tuple, ukey, ttl) do
+    seq = :erlang.unique_integer([:monotonic, :positive])
+    key = {tuple_size(tuple), first(tuple), seq, node()}
+    expires = if ttl, do: now() + ttl, else: :infinity
+
+    case ukey do
+      nil -> {key, tuple, nil, expires, nil}
+      _ -> {key, tuple, :erlang.term_to_binary(ukey), expires, {System.os_time(:microsecond), seq, node()}}
+    end
+  end
+
+  defp first({}), do: nil
+  defp first(tuple), do: elem(tuple, 0)
+
+  @doc false
+  def owner({_key = {_, _, _, owner}, _, _, _, _}), do: owner
+  def seq({{_, _, seq, _}, _, _, _, _}), do: seq
+
+  ## Writing
+
+  @doc false
+  # Inserts a record; for a keyed one, replaces the older tuple with the same
+  # key. The new record is inserted before the old one is removed, so a
+  # reader sees one or (for an instant) both, never neither.
+  @spec insert(record()) :: :ok | :stale
+  def insert({_key, _tuple, nil, _expires, _stamp} = record) do
+    :ets.insert(Tables.tuples(), record)
+    :ok
+  end
+
+  def insert({key, _tuple, key_bin, _expires, stamp} = record) do
+    :ets.insert(Tables.tuples(), record)
+
+    case claim_key(key_bin, key, stamp) do
+      :fresh ->
+        :ok
+
+      {:replaced, old_key} ->
+        :ets.delete(Tables.tuples(), old_key)
+        :ok
+
+      :stale ->
+        :ets.delete(Tables.tuples(), key)
+        :stale
+    end
+  end
+
+  # Lock-free compare-and-swap on the latest-value index.
+  defp claim_key(key_bin, key, stamp) do
+    keys = Tables.keys()
+
+    if :ets.insert_new(keys, {key_bin, key, stamp}) do
+      :fresh
+    else
+      case :ets.lookup(keys, key_bin) do
+        [] ->
+          claim_key(key_bin, key, stamp)
+
+        [{^key_bin, old_key, old_stamp}] ->
+          if newer?(stamp, old_stamp) or not :ets.member(Tables.tuples(), old_key) do
+            swap = [
+              {{key_bin, :"$1", :"$2"}, [{:"=:=", :"$1", {:const, old_key}}, {:"=:=", :"$2", {:const, old_stamp}}],
+               [{{key_bin, {:const, key}, {:const, stamp}}}]}
+            ]
+
+            case :ets.select_replace(keys, swap) do
+              1 -> {:replaced, old_key}
+              0 -> claim_key(key_bin, key, stamp)
+            end
+          else
+            :stale
+          end
+      end
+    end
+  end
+
+  # Same writer node: its sequence decides. Different nodes: wall-clock time,
+  # then node name, so that every node picks the same winner.
+  defp newer?({_, seq_a, node}, {_, seq_b, node}), do: seq_a > seq_b
+  defp newer?({time_a, _, node_a}, {time_b, _, node_b}), do: {time_a, node_a} > {time_b, node_b}
+
+  defp forget_key(nil, _key), do: 0
+
+  defp forget_key(key_bin, key) do
+    :ets.select_delete(Tables.keys(), [{{key_bin, :"$1", :_}, [{:"=:=", :"$1", {:const, key}}], [true]}])
+  end
+
+  @doc false
+  # Removes a record (a replica told of a take, a stale replica).
+  @spec delete(tuple()) :: :ok
+  def delete(key) do
+    case :ets.take(Tables.tuples(), key) do
+      [{^key, _tuple, key_bin, _expires, _stamp}] -> forget_key(key_bin, key)
+      [] -> :ok
+    end
+
+    :ok
+  end
+
+  ## Reading
+
+  @doc false
+  @spec first_match(Template.compiled()) :: {:ok, tuple()} | :none
+  def first_match(template) do
+    case :ets.select(Tables.tuples(), Template.record_match_spec(template, now(), :"$_"), 1) do
+      {[{_key, tuple, _, _, _}], _cont} -> {:ok, tuple}
+      :"$end_of_table" -> :none
+    end
+  end
+
+  @doc false
+  @spec all_matches(Template.compiled()) :: [tuple()]
+  def all_matches(template) do
+    :ets.select(Tables.tuples(), Template.record_match_spec(template, now(), {:element, 2, :"$_"}))
+  end
+
+  @doc false
+  @spec all_tuples() :: [tuple()]
+  def all_tuples do
+    :ets.select(Tables.tuples(), [{{:_, :"$1", :_, :"$2", :_}, [{:>, :"$2", now()}], [:"$1"]}])
+  end
+
+  @doc false
+  @spec exists?(Template.compiled()) :: boolean()
+  def exists?(template), do: first_match(template) != :none
+
+  ## Taking
+
+  @doc false
+  # Linda `inp`: the oldest matching tuple this node owns, else the oldest of
+  # another node's, taken through its owner so that exactly one taker in the
+  # cluster gets it.
+  @spec take_first(Template.compiled()) :: {:ok, tuple()} | :none
+  def take_first(template) do
+    ms = Template.record_match_spec(template, now(), {:element, 1, :"$_"})
+    take_from(:ets.select(Tables.tuples(), ms, 16))
+  end
+
+  defp take_from(:"$end_of_table"), do: :none
+
+  defp take_from({keys, cont}) do
+    {local, remote} = Enum.split_with(keys, fn {_, _, _, owner} -> owner == node() end)
+
+    case take_any(local ++ remote) do
+      {:ok, tuple} -> {:ok, tuple}
+      :none -> take_from(:ets.select(cont))
+    end
+  end
+
+  defp take_any([]), do: :none
+
+  defp take_any([{_, _, _, owner} = key | rest]) do
+    case take_at(owner, key) do
+      {:ok, tuple} -> {:ok, tuple}
+      :gone -> take_any(rest)
+    end
+  end
+
+  defp take_at(owner, key) when owner == node(), do: take_owned(key)
+
+  defp take_at(owner, key) do
+    # The owner's atomic ets:take decides who gets the tuple. The call runs
+    # in a process erpc spawns on the owner, not in its server, so a crash
+    # of that server cannot lose a tuple between take and reply; erpc ends
+    # with :noconnection when the owner's node goes away.
+    case :erpc.call(owner, __MODULE__, :take_owned, [key], @remote_take_timeout) do
+      {:ok, tuple} ->
+        delete(key)
+        {:ok, tuple}
+
+      :gone ->
+        delete(key)
+        :gone
+    end
+  catch
+    :error, {:erpc, _reason} ->
+      # The owner is unreachable: its tuples are purged on nodedown.
+      delete(key)
+      :gone
+  end
+
+  @doc false
+  # Runs on the owner node. The only place where an owned tuple is taken.
+  @spec take_owned(tuple()) :: {:ok, tuple()} | :gone
+  def take_owned(key) do
+    case :ets.take(Tables.tuples(), key) do
+      [{^key, tuple, key_bin, expires, _stamp}] ->
+        forget_key(key_bin, key)
+        ThinkingCap.Blackboard.Core.Server.notify({:taken, key})
+        if expires > now(), do: {:ok, tuple}, else: :gone
+
+      [] ->
+        :gone
+    end
+  end
+
+  ## Replication
+
+  @doc false
+  @spec to_wire(record()) :: wire()
+  def to_wire({key, tuple, key_bin, expires, stamp}) do
+    ttl_left = if expires == :infinity, do: :infinity, else: max(expires - now(), 0)
+    {key, tuple, key_bin, stamp, ttl_left}
+  end
+
+  @doc false
+  @spec from_wire(wire()) :: record()
+  def from_wire({key, tuple, key_bin, stamp, ttl_left}) do
+    expires = if ttl_left == :infinity, do: :infinity, else: now() + ttl_left
+    {key, tuple, key_bin, expires, stamp}
+  end
+
+  @doc false
+  @spec member?(tuple()) :: boolean()
+  def member?(key), do: :ets.member(Tables.tuples(), key)
+
+  @doc false
+  # Every live record this node owns, as wire records, oldest first.
+  @spec owned_snapshot() :: [wire()]
+  def owned_snapshot do
+    now = now()
+    ms = [{{{:_, :_, :_, node()}, :_, :_, :"$1", :_}, [{:>, :"$1", now}], [:"$_"]}]
+
+    Tables.tuples()
+    |> :ets.select(ms)
+    |> Enum.map(&to_wire/1)
+    |> Enum.sort_by(fn {{_, _, seq, _}, _, _, _, _} -> seq end)
+  end
+
+  @doc false
+  # Makes this node's replicas of `owner`'s tuples equal to its snapshot.
+  # Returns the records that were not here before, oldest first.
+  @spec sync(node(), [wire()]) :: [record()]
+  def sync(owner, snapshot) do
+    have = MapSet.new(owned_keys(owner))
+    incoming = MapSet.new(snapshot, &elem(&1, 0))
+
+    for key <- have, not MapSet.member?(incoming, key), do: delete(key)
+
+    for wire <- snapshot, not MapSet.member?(have, elem(wire, 0)), reduce: [] do
+      acc ->
+        record = from_wire(wire)
+        insert(record)
+        [record | acc]
+    end
+    |> Enum.reverse()
+  end
+
+  defp owned_keys(owner) do
+    :ets.select(Tables.tuples(), [{{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}])
+  end
+
+  @doc false
+  # Forgets every tuple owned by `owner` (its node went away).
+  @spec purge(node()) :: non_neg_integer()
+  def purge(owner) do
+    count =
+      :ets.select_delete(Tables.tuples(), [{{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [true]}])
+
+    :ets.select_delete(Tables.keys(), [{{:_, {:_, :_, :_, owner}, :_}, [], [true]}])
+    count
+  end
+
+  @doc false
+  # Deletes expired records; returns how many.
+  @spec sweep() :: non_neg_integer()
+  def sweep do
+    now = now()
+    ms = [{{:"$1", :_, :"$2", :"$3", :_}, [{:"=<", :"$3", now}], [{{:"$1", :"$2"}}]}]
+
+    expired = :ets.select(Tables.tuples(), ms)
+
+    for {key, key_bin} <- expired do
+      :ets.delete(Tables.tuples(), key)
+      forget_key(key_bin, key)
+    end
+
+    length(expired)
+  end
+end

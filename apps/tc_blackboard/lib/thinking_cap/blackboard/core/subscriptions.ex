@@ -1,0 +1,113 @@
+defmodule ThinkingCap.Blackboard.Core.Subscriptions do
+  @moduledoc false
+  # This node's subscriptions, indexed by template index, and delivery of a
+  # tuple to the local subscribers it matches. Delivery runs in the writer
+  # (local outs) or in the node's server (replicated outs) and never blocks:
+  # a subscriber whose mailbox holds `max_queue` messages or more is not
+  # sent the tuple (policy :drop, counted) or is unsubscribed and told
+  # (policy :disconnect).
+
+  alias ThinkingCap.Blackboard.Core.{Server, Tables}
+  alias ThinkingCap.Blackboard.Template
+
+  @type policy :: :drop | :disconnect
+
+  @spec subscribe(Template.compiled(), pid(), pos_integer(), policy()) :: reference()
+  def subscribe(template, pid, max_queue, on_overflow) do
+    ref = make_ref()
+    :ets.insert(Tables.sub_refs(), {ref, template.index, pid, 0, template.source})
+    :ets.insert(Tables.subs(), {template.index, ref, pid, template.matcher, max_queue, on_overflow})
+    Server.notify({:monitor, pid})
+    ref
+  end
+
+  @spec unsubscribe(reference()) :: boolean()
+  def unsubscribe(ref) do
+    case :ets.take(Tables.sub_refs(), ref) do
+      [{^ref, index, _pid, _dropped, _source}] ->
+        for {_, ^ref, _, _, _, _} = sub <- :ets.lookup(Tables.subs(), index) do
+          :ets.delete_object(Tables.subs(), sub)
+        end
+
+        true
+
+      [] ->
+        false
+    end
+  end
+
+  @doc false
+  # Removes every subscription of a dead process.
+  @spec drop_pid(pid()) :: non_neg_integer()
+  def drop_pid(pid) do
+    refs = :ets.select(Tables.sub_refs(), [{{:"$1", :_, pid, :_, :_}, [], [:"$1"]}])
+    Enum.each(refs, &unsubscribe/1)
+    length(refs)
+  end
+
+  @spec pids() :: [pid()]
+  def pids do
+    Tables.sub_refs() |> :ets.select([{{:_, :_, :"$1", :_, :_}, [], [:"$1"]}]) |> Enum.uniq()
+  end
+
+  @doc false
+  @spec list() :: [map()]
+  def list do
+    for {_index, ref, pid, _matcher, max_queue, on_overflow} <- :ets.tab2list(Tables.subs()),
+        [{^ref, _, _, dropped, source}] <- [:ets.lookup(Tables.sub_refs(), ref)] do
+      %{ref: ref, pid: pid, template: source, max_queue: max_queue, on_overflow: on_overflow, dropped: dropped}
+    end
+  end
+
+  @doc false
+  @spec dropped(reference()) :: non_neg_integer() | nil
+  def dropped(ref) do
+    case :ets.lookup(Tables.sub_refs(), ref) do
+      [{^ref, _, _, dropped, _source}] -> dropped
+      [] -> nil
+    end
+  end
+
+  @doc false
+  @spec deliver(tuple()) :: :ok
+  def deliver(tuple) do
+    subs = Tables.subs()
+
+    case Template.tuple_index(tuple) do
+      {:tag, arity, _} = index ->
+        deliver_all(:ets.lookup(subs, index), tuple)
+        deliver_all(:ets.lookup(subs, {:any, arity}), tuple)
+
+      any ->
+        deliver_all(:ets.lookup(subs, any), tuple)
+    end
+
+    deliver_all(:ets.lookup(subs, :spec), tuple)
+  end
+
+  defp deliver_all([], _tuple), do: :ok
+
+  defp deliver_all([{_index, ref, pid, matcher, max_queue, on_overflow} | rest], tuple) do
+    if Template.matches?(matcher, tuple), do: send_bounded(ref, pid, max_queue, on_overflow, tuple)
+    deliver_all(rest, tuple)
+  end
+
+  defp send_bounded(ref, pid, max_queue, on_overflow, tuple) do
+    case Process.info(pid, :message_queue_len) do
+      {:message_queue_len, queued} when queued < max_queue -> send(pid, {:blackboard, ref, tuple})
+      {:message_queue_len, _queued} -> overflow(on_overflow, ref, pid)
+      nil -> :ok
+    end
+  end
+
+  defp overflow(:drop, ref, _pid) do
+    :ets.update_counter(Tables.sub_refs(), ref, {4, 1})
+  rescue
+    # unsubscribed meanwhile
+    ArgumentError -> :ok
+  end
+
+  defp overflow(:disconnect, ref, pid) do
+    if unsubscribe(ref), do: send(pid, {:blackboard_overflow, ref})
+  end
+end

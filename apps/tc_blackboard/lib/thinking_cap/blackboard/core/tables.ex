@@ -1,0 +1,48 @@
+defmodule ThinkingCap.Blackboard.Core.Tables do
+  @moduledoc false
+  # Owns the blackboard's ETS tables and does nothing else, so that the
+  # tables outlive every process that serves them: a crash of the server
+  # loses no tuple, subscription or blocked waiter.
+  #
+  #   tuples   ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil}
+  #                         key = {arity, first, seq, owner_node}
+  #   keys     set          {key_bin, record_key, stamp}   latest-value index
+  #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow}
+  #   sub_refs set          {ref, index, pid, dropped, template}
+  #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
+  #   meta     set          {:boot, id}, {{:watermark, node}, boot, seq}
+
+  use GenServer
+
+  @tuples :tc_bb_tuples
+  @keys :tc_bb_keys
+  @subs :tc_bb_subs
+  @sub_refs :tc_bb_sub_refs
+  @waiters :tc_bb_waiters
+  @meta :tc_bb_meta
+
+  def tuples, do: @tuples
+  def keys, do: @keys
+  def subs, do: @subs
+  def sub_refs, do: @sub_refs
+  def waiters, do: @waiters
+  def meta, do: @meta
+
+  @doc false
+  def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
+
+  def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
+
+  @impl true
+  def init(:ok) do
+    concurrent = [:public, :named_table, read_concurrency: true, write_concurrency: true]
+    :ets.new(@tuples, [:ordered_set | concurrent])
+    :ets.new(@keys, [:set | concurrent])
+    :ets.new(@subs, [:bag | concurrent])
+    :ets.new(@sub_refs, [:set | concurrent])
+    :ets.new(@waiters, [:ordered_set | concurrent])
+    :ets.new(@meta, [:set | concurrent])
+    :ets.insert(@meta, {:boot, {System.system_time(), :erlang.unique_integer()}})
+    {:ok, nil}
+  end
+end

@@ -1,0 +1,186 @@
+defmodule ThinkingCap.Blackboard.Core.Waiters do
+  @moduledoc false
+  # Blocked rd/take requests. A waiter is a row in an ETS table that the
+  # blocked process writes itself, so no request is lost when the server
+  # restarts. The server only *wakes* waiters ({:tc_bb_wake, ref}); the woken
+  # process makes the attempt itself, so a tuple is never held in flight by
+  # the server. Rows are {{index, wseq}, pid, ref, kind, template, woken?}:
+  # wseq orders waiters by arrival, the woken flag says a wake-up is on its
+  # way so later arrivals go to the next waiter.
+
+  alias ThinkingCap.Blackboard.Core.{Server, Tables}
+  alias ThinkingCap.Blackboard.Template
+
+  @type kind :: :rd | :take
+
+  @doc false
+  # Runs `attempt` until it yields a tuple or `timeout` ms pass.
+  @spec await(kind(), Template.compiled(), timeout(), (-> {:ok, tuple()} | :none)) ::
+          {:ok, tuple()} | {:error, :timeout}
+  def await(kind, template, timeout, attempt) do
+    case attempt.() do
+      {:ok, tuple} ->
+        {:ok, tuple}
+
+      :none when timeout == 0 ->
+        {:error, :timeout}
+
+      :none ->
+        ref = make_ref()
+        wkey = {template.index, :erlang.unique_integer([:monotonic, :positive])}
+        :ets.insert(Tables.waiters(), {wkey, self(), ref, kind, template, false})
+        Server.notify({:kick, wkey})
+        deadline = if timeout == :infinity, do: :infinity, else: System.monotonic_time(:millisecond) + timeout
+        wait(wkey, ref, deadline, attempt)
+    end
+  end
+
+  defp wait(wkey, ref, deadline, attempt) do
+    receive do
+      {:tc_bb_wake, ^ref} ->
+        case attempt.() do
+          {:ok, tuple} ->
+            :ets.delete(Tables.waiters(), wkey)
+            flush(ref)
+            {:ok, tuple}
+
+          :none ->
+            # Somebody else got it: wait again.
+            :ets.update_element(Tables.waiters(), wkey, {6, false})
+            Server.notify({:kick, wkey})
+            wait(wkey, ref, deadline, attempt)
+        end
+    after
+      remaining(deadline) ->
+        case :ets.take(Tables.waiters(), wkey) do
+          # A wake-up was on its way: let the next waiter have that tuple.
+          [{_, _, _, _, _, true}] -> Server.notify(:rescan)
+          _ -> :ok
+        end
+
+        flush(ref)
+        {:error, :timeout}
+    end
+  end
+
+  defp remaining(:infinity), do: :infinity
+  defp remaining(deadline), do: max(deadline - System.monotonic_time(:millisecond), 0)
+
+  defp flush(ref) do
+    receive do
+      {:tc_bb_wake, ^ref} -> flush(ref)
+    after
+      0 -> :ok
+    end
+  end
+
+  ## Server side
+
+  @doc false
+  @spec any?() :: boolean()
+  def any?, do: :ets.info(Tables.waiters(), :size) > 0
+
+  @doc false
+  # On the arrival of `tuple`: wake every matching rd waiter and the
+  # longest-waiting matching take waiter that is not already woken.
+  @spec arrived(tuple()) :: :ok
+  def arrived(tuple) do
+    index = Template.tuple_index(tuple)
+
+    groups =
+      case index do
+        {:tag, arity, _} -> [index, {:any, arity}, :spec]
+        other -> [other, :spec]
+      end
+
+    groups
+    |> Enum.flat_map(&sleeping_in/1)
+    |> Enum.filter(fn {_wkey, _pid, _ref, _kind, template, _} -> Template.matches?(template, tuple) end)
+    |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
+    |> wake_for_arrival(false)
+  end
+
+  defp sleeping_in(index) do
+    :ets.select(Tables.waiters(), [{{{:"$1", :_}, :_, :_, :_, :_, false}, [{:"=:=", :"$1", {:const, index}}], [:"$_"]}])
+  end
+
+  defp wake_for_arrival([], _taker_woken?), do: :ok
+
+  defp wake_for_arrival([{_, _, _, :rd, _, _} = waiter | rest], taker_woken?) do
+    wake(waiter)
+    wake_for_arrival(rest, taker_woken?)
+  end
+
+  defp wake_for_arrival([{_, _, _, :take, _, _} = waiter | rest], false) do
+    wake_for_arrival(rest, wake(waiter))
+  end
+
+  defp wake_for_arrival([_taker | rest], true), do: wake_for_arrival(rest, true)
+
+  @doc false
+  # A new or re-armed waiter: wake it if a matching tuple is there already.
+  @spec kicked(tuple(), (Template.compiled() -> boolean())) :: pid() | nil
+  def kicked(wkey, exists?) do
+    case :ets.lookup(Tables.waiters(), wkey) do
+      [{^wkey, pid, _, _, template, false} = waiter] ->
+        if exists?.(template), do: wake(waiter)
+        pid
+
+      _ ->
+        nil
+    end
+  end
+
+  @doc false
+  # Wakes every sleeping waiter for which a matching tuple exists, in order
+  # of arrival (after a restart, a timed-out or dead woken waiter).
+  @spec rescan((Template.compiled() -> boolean())) :: :ok
+  def rescan(exists?) do
+    Tables.waiters()
+    |> :ets.select([{{:_, :_, :_, :_, :_, false}, [], [:"$_"]}])
+    |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
+    |> Enum.each(fn {_, _, _, _, template, _} = waiter -> if exists?.(template), do: wake(waiter) end)
+  end
+
+  @doc false
+  # Marks every waiter asleep (a restarted server cannot know which wake-ups
+  # reached their waiters; a spare wake-up only costs an attempt).
+  @spec reset() :: non_neg_integer()
+  def reset do
+    :ets.select_replace(Tables.waiters(), [
+      {{:"$1", :"$2", :"$3", :"$4", :"$5", :_}, [], [{{:"$1", :"$2", :"$3", :"$4", :"$5", false}}]}
+    ])
+  end
+
+  @doc false
+  @spec pids() :: [pid()]
+  def pids, do: Tables.waiters() |> :ets.select([{{:_, :"$1", :_, :_, :_, :_}, [], [:"$1"]}]) |> Enum.uniq()
+
+  @doc false
+  # Removes a dead process's waiters; true when one of them had been woken.
+  @spec drop_pid(pid()) :: boolean()
+  def drop_pid(pid) do
+    woken = :ets.select(Tables.waiters(), [{{:_, pid, :_, :_, :_, :"$1"}, [], [:"$1"]}])
+    :ets.select_delete(Tables.waiters(), [{{:_, pid, :_, :_, :_, :_}, [], [true]}])
+    Enum.any?(woken)
+  end
+
+  @doc false
+  @spec list() :: [map()]
+  def list do
+    for {{_, wseq}, pid, _ref, kind, template, woken} <- :ets.tab2list(Tables.waiters()) do
+      %{seq: wseq, pid: pid, kind: kind, template: template.source, woken: woken}
+    end
+  end
+
+  # The woken flag is set first; if the row is gone (the waiter timed out),
+  # nobody is woken and the caller moves on to the next waiter.
+  defp wake({wkey, pid, ref, _kind, _matcher, _woken}) do
+    if :ets.update_element(Tables.waiters(), wkey, {6, true}) do
+      send(pid, {:tc_bb_wake, ref})
+      true
+    else
+      false
+    end
+  end
+end

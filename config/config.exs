@@ -1,0 +1,5 @@
+import Config
+
+config :logger, :console, format: "$time [$level] $metadata$message\n", metadata: [:node]
+
+import_config "#{config_env()}.exs"
