@@ -10,5 +10,4 @@ defmodule ThinkingCap.Umbrella.MixProject do
       deps: []
     ]
   end
-
 end

@@ -120,7 +120,8 @@ defmodule ThinkingCap.Blackboard do
   end
 
   def out(tuple, opts) when is_tuple(tuple) do
-    raise ArgumentError, "ThinkingCap.Blackboard.out/2 options must be a keyword list, got: #{inspect(opts)}"
+    raise ArgumentError,
+          "ThinkingCap.Blackboard.out/2 options must be a keyword list, got: #{inspect(opts)}"
   end
 
   def out(other, _opts) do
@@ -169,11 +170,14 @@ defmodule ThinkingCap.Blackboard do
   that is not a tuple, is logged and written as
   `{:eval_error, node(), %{pid: pid, function: description, reason: text}}`.
   """
-  @spec eval((-> tuple()) | {module(), atom(), list()}) :: {:ok, pid()}
+  @spec eval((() -> tuple()) | {module(), atom(), list()}) :: {:ok, pid()}
   def eval(fun) when is_function(fun, 0), do: start_eval(fun, inspect(fun))
 
   def eval({m, f, a} = mfa) when is_atom(m) and is_atom(f) and is_list(a) do
-    start_eval(fn -> apply(m, f, a) end, Exception.format_mfa(m, f, length(a)) <> " " <> inspect(mfa, limit: 5))
+    start_eval(
+      fn -> apply(m, f, a) end,
+      Exception.format_mfa(m, f, length(a)) <> " " <> inspect(mfa, limit: 5)
+    )
   end
 
   def eval(other) do
@@ -255,15 +259,19 @@ defmodule ThinkingCap.Blackboard do
         {key, ttl}
 
       {:ttl, ttl}, _ ->
-        raise ArgumentError, "out/2 option :ttl must be a positive integer of milliseconds, got: #{inspect(ttl)}"
+        raise ArgumentError,
+              "out/2 option :ttl must be a positive integer of milliseconds, got: #{inspect(ttl)}"
 
       other, _ ->
-        raise ArgumentError, "unknown out/2 option #{inspect(other)}; known options are :key and :ttl"
+        raise ArgumentError,
+              "unknown out/2 option #{inspect(other)}; known options are :key and :ttl"
     end)
   end
 
   defp subscribe_options(opts) do
-    unless is_list(opts), do: raise(ArgumentError, "subscribe/2 options must be a keyword list, got: #{inspect(opts)}")
+    unless is_list(opts),
+      do:
+        raise(ArgumentError, "subscribe/2 options must be a keyword list, got: #{inspect(opts)}")
 
     Enum.reduce(opts, {@default_max_queue, :drop}, fn
       {:max_queue, n}, {_, policy} when is_integer(n) and n > 0 ->
@@ -283,6 +291,7 @@ defmodule ThinkingCap.Blackboard do
   defp check_timeout(ms) when is_integer(ms) and ms >= 0, do: ms
 
   defp check_timeout(other) do
-    raise ArgumentError, "a blackboard timeout is a non-negative integer of milliseconds or :infinity, got: #{inspect(other)}"
+    raise ArgumentError,
+          "a blackboard timeout is a non-negative integer of milliseconds or :infinity, got: #{inspect(other)}"
   end
 end

@@ -37,7 +37,8 @@ defmodule ThinkingCap.Blackboard.Template do
   @type index :: {:tag, non_neg_integer(), term()} | {:any, non_neg_integer()} | :spec
 
   @typedoc "The part of a compiled template that decides a match, small enough to store per subscription."
-  @type matcher :: {:positions, non_neg_integer(), [{pos_integer(), term()}]} | {:spec, reference()}
+  @type matcher ::
+          {:positions, non_neg_integer(), [{pos_integer(), term()}]} | {:spec, reference()}
 
   @typedoc "A validated template."
   @type compiled :: %__MODULE__{
@@ -67,8 +68,7 @@ defmodule ThinkingCap.Blackboard.Template do
     arity = tuple_size(template)
     values = Tuple.to_list(template)
 
-    bound =
-      for {value, pos} <- Enum.with_index(values, 1), value !== :_, do: {pos, value}
+    bound = for {value, pos} <- Enum.with_index(values, 1), value !== :_, do: {pos, value}
 
     {pattern_elems, guards} =
       values
@@ -148,7 +148,8 @@ defmodule ThinkingCap.Blackboard.Template do
   ## Internals
 
   defp compile_spec(template, ms) do
-    unless is_list(ms) and ms != [] and Enum.all?(ms, &match?({_, g, b} when is_list(g) and is_list(b), &1)) do
+    unless is_list(ms) and ms != [] and
+             Enum.all?(ms, &match?({_, g, b} when is_list(g) and is_list(b), &1)) do
       raise ArgumentError,
             "{:spec, match_spec} needs a non-empty list of {head, guards, body} clauses, got: " <>
               inspect(template)
@@ -171,7 +172,13 @@ defmodule ThinkingCap.Blackboard.Template do
                   __STACKTRACE__
       end
 
-    %__MODULE__{source: template, index: :spec, matcher: {:spec, compiled}, pattern: :_, guards: []}
+    %__MODULE__{
+      source: template,
+      index: :spec,
+      matcher: {:spec, compiled},
+      pattern: :_,
+      guards: []
+    }
   end
 
   defp index_of({}), do: {:any, 0}
@@ -199,7 +206,10 @@ defmodule ThinkingCap.Blackboard.Template do
   end
 
   defp literal_pattern?(value) when is_map(value), do: false
-  defp literal_pattern?(value) when is_tuple(value), do: value |> Tuple.to_list() |> literal_pattern?()
+
+  defp literal_pattern?(value) when is_tuple(value),
+    do: value |> Tuple.to_list() |> literal_pattern?()
+
   defp literal_pattern?([]), do: true
   defp literal_pattern?([h | t]), do: literal_pattern?(h) and literal_pattern?(t)
   defp literal_pattern?(_number_binary_pid_ref_fun), do: true

@@ -170,7 +170,10 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   def handle_info(message, state) do
-    Logger.warning("blackboard server ignored an unexpected message: #{inspect(message, limit: 20)}")
+    Logger.warning(
+      "blackboard server ignored an unexpected message: #{inspect(message, limit: 20)}"
+    )
+
     {:noreply, state}
   end
 
@@ -187,7 +190,8 @@ defmodule ThinkingCap.Blackboard.Core.Server do
     state
   end
 
-  defp publish_peer_count(state), do: :ets.insert(Tables.meta(), {:peers, MapSet.size(state.peers)})
+  defp publish_peer_count(state),
+    do: :ets.insert(Tables.meta(), {:peers, MapSet.size(state.peers)})
 
   # Records new to this node are delivered to subscribers unless they were
   # delivered before (a partition healing re-sends what was already seen).
@@ -214,7 +218,8 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   defp raise_watermark(from, boot, seq) do
-    if seq > watermark(from, boot), do: :ets.insert(Tables.meta(), {{:watermark, from}, boot, seq})
+    if seq > watermark(from, boot),
+      do: :ets.insert(Tables.meta(), {{:watermark, from}, boot, seq})
   end
 
   defp monitor(state, pid) do
@@ -227,7 +232,10 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   defp demonitor_idle(state) do
     active = MapSet.new(Subscriptions.pids() ++ Waiters.pids())
-    {idle, busy} = Enum.split_with(state.monitors, fn {pid, _} -> not MapSet.member?(active, pid) end)
+
+    {idle, busy} =
+      Enum.split_with(state.monitors, fn {pid, _} -> not MapSet.member?(active, pid) end)
+
     Enum.each(idle, fn {_pid, mref} -> Process.demonitor(mref, [:flush]) end)
     %{state | monitors: Map.new(busy)}
   end

@@ -31,8 +31,12 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     expires = if ttl, do: now() + ttl, else: :infinity
 
     case ukey do
-      nil -> {key, tuple, nil, expires, nil}
-      _ -> {key, tuple, :erlang.term_to_binary(ukey), expires, {System.os_time(:microsecond), seq, node()}}
+      nil ->
+        {key, tuple, nil, expires, nil}
+
+      _ ->
+        {key, tuple, :erlang.term_to_binary(ukey), expires,
+         {System.os_time(:microsecond), seq, node()}}
     end
   end
 
@@ -86,7 +90,8 @@ defmodule ThinkingCap.Blackboard.Core.Store do
         [{^key_bin, old_key, old_stamp}] ->
           if newer?(stamp, old_stamp) or not :ets.member(Tables.tuples(), old_key) do
             swap = [
-              {{key_bin, :"$1", :"$2"}, [{:"=:=", :"$1", {:const, old_key}}, {:"=:=", :"$2", {:const, old_stamp}}],
+              {{key_bin, :"$1", :"$2"},
+               [{:"=:=", :"$1", {:const, old_key}}, {:"=:=", :"$2", {:const, old_stamp}}],
                [{{key_bin, {:const, key}, {:const, stamp}}}]}
             ]
 
@@ -109,7 +114,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   defp forget_key(nil, _key), do: 0
 
   defp forget_key(key_bin, key) do
-    :ets.select_delete(Tables.keys(), [{{key_bin, :"$1", :_}, [{:"=:=", :"$1", {:const, key}}], [true]}])
+    :ets.select_delete(Tables.keys(), [
+      {{key_bin, :"$1", :_}, [{:"=:=", :"$1", {:const, key}}], [true]}
+    ])
   end
 
   @doc false
@@ -138,7 +145,10 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @doc false
   @spec all_matches(Template.compiled()) :: [tuple()]
   def all_matches(template) do
-    :ets.select(Tables.tuples(), Template.record_match_spec(template, now(), {:element, 2, :"$_"}))
+    :ets.select(
+      Tables.tuples(),
+      Template.record_match_spec(template, now(), {:element, 2, :"$_"})
+    )
   end
 
   @doc false
@@ -274,7 +284,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   defp owned_keys(owner) do
-    :ets.select(Tables.tuples(), [{{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}])
+    :ets.select(Tables.tuples(), [
+      {{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}
+    ])
   end
 
   @doc false

@@ -16,7 +16,12 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   def subscribe(template, pid, max_queue, on_overflow) do
     ref = make_ref()
     :ets.insert(Tables.sub_refs(), {ref, template.index, pid, 0, template.source})
-    :ets.insert(Tables.subs(), {template.index, ref, pid, template.matcher, max_queue, on_overflow})
+
+    :ets.insert(
+      Tables.subs(),
+      {template.index, ref, pid, template.matcher, max_queue, on_overflow}
+    )
+
     Server.notify({:monitor, pid})
     ref
   end
@@ -55,7 +60,14 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   def list do
     for {_index, ref, pid, _matcher, max_queue, on_overflow} <- :ets.tab2list(Tables.subs()),
         [{^ref, _, _, dropped, source}] <- [:ets.lookup(Tables.sub_refs(), ref)] do
-      %{ref: ref, pid: pid, template: source, max_queue: max_queue, on_overflow: on_overflow, dropped: dropped}
+      %{
+        ref: ref,
+        pid: pid,
+        template: source,
+        max_queue: max_queue,
+        on_overflow: on_overflow,
+        dropped: dropped
+      }
     end
   end
 
@@ -88,7 +100,9 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp deliver_all([], _tuple), do: :ok
 
   defp deliver_all([{_index, ref, pid, matcher, max_queue, on_overflow} | rest], tuple) do
-    if Template.matches?(matcher, tuple), do: send_bounded(ref, pid, max_queue, on_overflow, tuple)
+    if Template.matches?(matcher, tuple),
+      do: send_bounded(ref, pid, max_queue, on_overflow, tuple)
+
     deliver_all(rest, tuple)
   end
 

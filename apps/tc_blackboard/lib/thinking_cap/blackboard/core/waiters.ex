@@ -15,7 +15,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   @doc false
   # Runs `attempt` until it yields a tuple or `timeout` ms pass.
-  @spec await(kind(), Template.compiled(), timeout(), (-> {:ok, tuple()} | :none)) ::
+  @spec await(kind(), Template.compiled(), timeout(), (() -> {:ok, tuple()} | :none)) ::
           {:ok, tuple()} | {:error, :timeout}
   def await(kind, template, timeout, attempt) do
     case attempt.() do
@@ -30,7 +30,12 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
         wkey = {template.index, :erlang.unique_integer([:monotonic, :positive])}
         :ets.insert(Tables.waiters(), {wkey, self(), ref, kind, template, false})
         Server.notify({:kick, wkey})
-        deadline = if timeout == :infinity, do: :infinity, else: System.monotonic_time(:millisecond) + timeout
+
+        deadline =
+          if timeout == :infinity,
+            do: :infinity,
+            else: System.monotonic_time(:millisecond) + timeout
+
         wait(wkey, ref, deadline, attempt)
     end
   end
@@ -95,13 +100,17 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
     groups
     |> Enum.flat_map(&sleeping_in/1)
-    |> Enum.filter(fn {_wkey, _pid, _ref, _kind, template, _} -> Template.matches?(template, tuple) end)
+    |> Enum.filter(fn {_wkey, _pid, _ref, _kind, template, _} ->
+      Template.matches?(template, tuple)
+    end)
     |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
     |> wake_for_arrival(false)
   end
 
   defp sleeping_in(index) do
-    :ets.select(Tables.waiters(), [{{{:"$1", :_}, :_, :_, :_, :_, false}, [{:"=:=", :"$1", {:const, index}}], [:"$_"]}])
+    :ets.select(Tables.waiters(), [
+      {{{:"$1", :_}, :_, :_, :_, :_, false}, [{:"=:=", :"$1", {:const, index}}], [:"$_"]}
+    ])
   end
 
   defp wake_for_arrival([], _taker_woken?), do: :ok
@@ -139,7 +148,9 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
     Tables.waiters()
     |> :ets.select([{{:_, :_, :_, :_, :_, false}, [], [:"$_"]}])
     |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
-    |> Enum.each(fn {_, _, _, _, template, _} = waiter -> if exists?.(template), do: wake(waiter) end)
+    |> Enum.each(fn {_, _, _, _, template, _} = waiter ->
+      if exists?.(template), do: wake(waiter)
+    end)
   end
 
   @doc false
@@ -148,13 +159,16 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   @spec reset() :: non_neg_integer()
   def reset do
     :ets.select_replace(Tables.waiters(), [
-      {{:"$1", :"$2", :"$3", :"$4", :"$5", :_}, [], [{{:"$1", :"$2", :"$3", :"$4", :"$5", false}}]}
+      {{:"$1", :"$2", :"$3", :"$4", :"$5", :_}, [],
+       [{{:"$1", :"$2", :"$3", :"$4", :"$5", false}}]}
     ])
   end
 
   @doc false
   @spec pids() :: [pid()]
-  def pids, do: Tables.waiters() |> :ets.select([{{:_, :"$1", :_, :_, :_, :_}, [], [:"$1"]}]) |> Enum.uniq()
+  def pids,
+    do:
+      Tables.waiters() |> :ets.select([{{:_, :"$1", :_, :_, :_, :_}, [], [:"$1"]}]) |> Enum.uniq()
 
   @doc false
   # Removes a dead process's waiters; true when one of them had been woken.
