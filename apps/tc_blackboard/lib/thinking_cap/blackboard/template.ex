@@ -51,7 +51,7 @@ defmodule ThinkingCap.Blackboard.Template do
 
   # Variables the store's own match specifications use; user match
   # specifications are told not to use them.
-  @expires_var :"$1000000"
+  @expires_var :"$0"
 
   @doc """
   Validates `template` and prepares it for matching.
