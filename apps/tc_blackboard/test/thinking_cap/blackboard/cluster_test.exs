@@ -1,0 +1,197 @@
+defmodule ThinkingCap.Blackboard.ClusterTest do
+  @moduledoc false
+  # Real nodes started with :peer; each test gets its own cluster.
+  use ExUnit.Case, async: false
+
+  alias ThinkingCap.Blackboard
+  alias ThinkingCap.Test.NodeWorkers, as: W
+  alias ThinkingCap.Testing.Cluster
+
+  @moduletag :cluster
+  @moduletag timeout: 120_000
+
+  defp start(count) do
+    nodes = Cluster.start(count)
+    on_exit(fn -> Cluster.stop(nodes) end)
+    nodes
+  end
+
+  defp call(node, m, f, a, timeout \\ 15_000), do: Cluster.call(node, m, f, a, timeout)
+  defp bb(node, f, a), do: call(node, Blackboard, f, a)
+
+  defp eventually(fun), do: Cluster.wait_until(fun)
+
+  test "tuples written on one node are readable, takeable and delivered on the others" do
+    [a, b, c] = start(3)
+    on_b = call(b, W, :collector, [{:sensor, :_, :_}])
+    on_c = call(c, W, :collector, [{:sensor, :_, :_}])
+
+    :ok = call(a, W, :write, [:sensor, 1..3])
+
+    expected = for n <- 1..3, do: {:sensor, a.node, n}
+
+    eventually(fn ->
+      call(b, W, :ask, [on_b]) == expected and call(c, W, :ask, [on_c]) == expected
+    end)
+
+    assert bb(b, :rd_all, [{:sensor, :_, :_}]) |> Enum.sort() == expected
+    assert {:ok, {:sensor, _, 1}} = bb(c, :takep, [{:sensor, :_, 1}])
+    # the take is seen everywhere, the owner included
+    eventually(fn -> Enum.all?([a, b, c], &(bb(&1, :rdp, [{:sensor, :_, 1}]) == :none)) end)
+    assert :none = bb(b, :takep, [{:sensor, :_, 1}])
+  end
+
+  test "one writer's tuples reach every node's subscribers in the order written" do
+    [a, b, c] = start(3)
+    on_b = call(b, W, :collector, [{:ordered, :_, :_}])
+    on_c = call(c, W, :collector, [{:ordered, :_, :_}])
+
+    call(a, W, :write, [:ordered, 1..2000])
+    expected = for n <- 1..2000, do: {:ordered, a.node, n}
+
+    eventually(fn ->
+      length(call(b, W, :ask, [on_b])) == 2000 and length(call(c, W, :ask, [on_c])) == 2000
+    end)
+
+    assert call(b, W, :ask, [on_b]) == expected
+    assert call(c, W, :ask, [on_c]) == expected
+  end
+
+  test "a blocked rd and take on one node wake on an out on another" do
+    [a, b] = start(2)
+    reader = call(b, W, :start_blocking, [:rd, {:wake, :_}, 10_000])
+    taker = call(b, W, :start_blocking, [:take, {:wake, :_}, 10_000])
+    eventually(fn -> length(bb(b, :waiters, [])) == 2 end)
+
+    bb(a, :out, [{:wake, 1}])
+
+    assert {:ok, {:wake, 1}} = call(b, W, :ask, [reader])
+    assert {:ok, {:wake, 1}} = call(b, W, :ask, [taker])
+    eventually(fn -> bb(a, :rdp, [{:wake, :_}]) == :none end)
+  end
+
+  test "take is exactly-once with concurrent takers on every node" do
+    nodes = start(3)
+    jobs = 300
+
+    takers =
+      for n <- nodes do
+        Task.async(fn -> call(n, W, :take_all, [{:job, :_, :_}, 4, 1000], 120_000) end)
+      end
+
+    nodes
+    |> Enum.map(&Task.async(fn -> call(&1, W, :write, [:job, 1..jobs]) end))
+    |> Enum.each(&Task.await/1)
+
+    taken = Enum.flat_map(takers, &Task.await(&1, 120_000))
+    written = for n <- nodes, i <- 1..jobs, do: {:job, n.node, i}
+
+    assert length(taken) == length(written), "taken #{length(taken)} of #{length(written)}"
+    assert Enum.sort(taken) == Enum.sort(written)
+    assert Enum.all?(nodes, &(bb(&1, :rd_all, [{:job, :_, :_}]) == []))
+  end
+
+  test "a killed node takes its tuples with it; the rest survive and takes stay exactly-once" do
+    [a, b, c] = start(3)
+    call(c, W, :report_sink, [:sink])
+    call(a, W, :write, [:from_a, 1..50])
+    call(b, W, :write, [:job, 1..400])
+    eventually(fn -> length(bb(c, :rd_all, [{:_, :_, :_}])) >= 450 end)
+
+    # takers on a and c race for b's jobs; a is killed in the middle
+    sink = {:sink, c.node}
+
+    on_a =
+      Task.async(fn ->
+        catch_exit(call(a, W, :take_all, [{:job, :_, :_}, 4, 500, sink], 60_000))
+      end)
+
+    on_c = Task.async(fn -> call(c, W, :take_all, [{:job, :_, :_}, 4, 1500, sink], 60_000) end)
+    eventually(fn -> length(call(c, W, :reports, [:sink])) >= 40 end)
+    Cluster.kill(a)
+
+    taken_on_c = Task.await(on_c, 60_000)
+    Task.await(on_a, 60_000)
+    reported = call(c, W, :reports, [:sink])
+
+    # nothing taken twice; at most one job in flight per killed taker is lost
+    assert length(Enum.uniq(reported)) == length(reported)
+    assert length(reported) in (400 - 4)..400
+    assert Enum.all?(taken_on_c, &(&1 in reported))
+    assert bb(b, :rd_all, [{:job, :_, :_}]) == []
+    # a's tuples are gone from every survivor, b's are untouched
+    eventually(fn ->
+      bb(b, :rd_all, [{:from_a, :_, :_}]) == [] and bb(c, :rd_all, [{:from_a, :_, :_}]) == []
+    end)
+
+    call(b, W, :write, [:after, 1..3])
+    eventually(fn -> length(bb(c, :rd_all, [{:after, :_, :_}])) == 3 end)
+  end
+
+  test "a partition keeps each side to its own tuples; healing merges without resurrecting takes" do
+    [a, b] = start(2)
+    on_b = call(b, W, :collector, [{:p, :_, :_}])
+    bb(a, :out, [{:p, :a, 1}])
+    bb(a, :out, [{:p, :a, 2}])
+    eventually(fn -> length(call(b, W, :ask, [on_b])) == 2 end)
+
+    Cluster.partition(a, b)
+
+    # b no longer sees a's tuples, and cannot take them
+    eventually(fn -> bb(b, :rd_all, [{:p, :_, :_}]) == [] end)
+    assert :none = bb(b, :takep, [{:p, :a, :_}])
+    # each side writes and takes on its own
+    bb(a, :out, [{:p, :a, 3}])
+    bb(b, :out, [{:p, :b, 1}])
+    assert {:ok, {:p, :a, 1}} = bb(a, :takep, [{:p, :a, 1}])
+    assert Enum.sort(bb(a, :rd_all, [{:p, :_, :_}])) == [{:p, :a, 2}, {:p, :a, 3}]
+    assert bb(b, :rd_all, [{:p, :_, :_}]) == [{:p, :b, 1}]
+
+    Cluster.heal(a, b)
+
+    both = [{:p, :a, 2}, {:p, :a, 3}, {:p, :b, 1}]
+    eventually(fn -> Enum.sort(bb(a, :rd_all, [{:p, :_, :_}])) == both end)
+    eventually(fn -> Enum.sort(bb(b, :rd_all, [{:p, :_, :_}])) == both end)
+    # b's subscriber got a's partition-time write once, and nothing twice
+    eventually(fn -> length(call(b, W, :ask, [on_b])) == 4 end)
+    Process.sleep(200)
+
+    assert call(b, W, :ask, [on_b]) == [{:p, :a, 1}, {:p, :a, 2}, {:p, :b, 1}, {:p, :a, 3}]
+    # and exactly-once still holds across the healed pair
+    assert {:ok, {:p, :b, 1}} = bb(a, :takep, [{:p, :b, 1}])
+    assert :none = bb(b, :takep, [{:p, :b, 1}])
+  end
+
+  test "a restarted server resyncs what it missed while down" do
+    [a, b] = start(2)
+    call(a, W, :write, [:before, 1..10])
+    eventually(fn -> length(bb(b, :rd_all, [{:before, :_, :_}])) == 10 end)
+
+    server = call(b, Process, :whereis, [Blackboard.Core.Server])
+    call(b, :erlang, :suspend_process, [server])
+    # replication messages pile up in the suspended server's mailbox: kill it with them
+    call(a, W, :write, [:during, 1..20])
+    call(a, Blackboard, :takep, [{:before, :_, 1}])
+    Process.sleep(100)
+    call(b, Process, :exit, [server, :kill])
+
+    eventually(fn ->
+      length(bb(b, :rd_all, [{:during, :_, :_}])) == 20 and
+        length(bb(b, :rd_all, [{:before, :_, :_}])) == 9
+    end)
+  end
+
+  test "writers of one key on two nodes converge on the same tuple" do
+    [a, b] = start(2)
+    ta = Task.async(fn -> call(a, W, :write, [:pose, 1..300, [key: :shared_pose]]) end)
+    tb = Task.async(fn -> call(b, W, :write, [:pose, 1..300, [key: :shared_pose]]) end)
+    Task.await(ta)
+    Task.await(tb)
+
+    eventually(fn ->
+      on_a = bb(a, :rd_all, [{:pose, :_, :_}])
+      on_b = bb(b, :rd_all, [{:pose, :_, :_}])
+      length(on_a) == 1 and on_a == on_b
+    end)
+  end
+end
