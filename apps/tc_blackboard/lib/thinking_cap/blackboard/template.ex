@@ -123,9 +123,10 @@ defmodule ThinkingCap.Blackboard.Template do
 
   @doc """
   A match specification over the store's records `{key, tuple, _, expires, _}`
-  that selects live records (not expired at `now`) whose tuple matches.
-  The key pattern binds arity and first element when the template does, so
-  an ordered table only walks that range.
+  (key `{arity, first, second, seq, owner}`) that selects live records (not
+  expired at `now`) whose tuple matches. The key pattern binds arity and the
+  first two elements when the template does, so an ordered table only walks
+  that range.
   """
   @spec record_match_spec(compiled(), integer(), term()) :: :ets.match_spec()
   def record_match_spec(%__MODULE__{} = t, now, body \\ :"$_") do
@@ -133,7 +134,7 @@ defmodule ThinkingCap.Blackboard.Template do
 
     case t.matcher do
       {:positions, _arity, _bound} ->
-        key = {key_arity(t), key_first(t), :_, :_}
+        key = {key_arity(t), key_position(t, 1), key_position(t, 2), :_, :_}
         [{{key, t.pattern, :_, @expires_var, :_}, [live | t.guards], [body]}]
 
       {:spec, _} ->
@@ -187,11 +188,15 @@ defmodule ThinkingCap.Blackboard.Template do
 
   defp key_arity(%__MODULE__{matcher: {:positions, arity, _}}), do: arity
 
-  defp key_first(%__MODULE__{index: {:tag, _, first}}) do
-    if literal_pattern?(first), do: first, else: :_
+  # The store's key holds the first two elements (tag and robot id by
+  # convention), so binding them here lets an ordered table walk only their
+  # range; a wildcard or a value ETS would read as a pattern stays unbound.
+  defp key_position(%__MODULE__{source: source}, pos) when tuple_size(source) >= pos do
+    value = elem(source, pos - 1)
+    if value !== :_ and literal_pattern?(value), do: value, else: :_
   end
 
-  defp key_first(%__MODULE__{}), do: :_
+  defp key_position(%__MODULE__{}, _pos), do: :_
 
   defp positions_match?([], _tuple), do: true
 

@@ -75,11 +75,16 @@ defmodule ThinkingCap.Testing.Cluster do
 
   @doc "Calls `apply(m, f, a)` on the node and returns the result."
   @spec call(t(), module(), atom(), list(), timeout()) :: term()
-  def call(%__MODULE__{peer: peer}, m, f, a, timeout \\ 15_000),
-    do: :peer.call(peer, m, f, a, timeout)
+  def call(node, m, f, a, timeout \\ 15_000)
+
+  def call(%__MODULE__{connection: :dist, node: node}, m, f, a, timeout),
+    do: :erpc.call(node, m, f, a, timeout)
+
+  def call(%__MODULE__{peer: peer}, m, f, a, timeout), do: :peer.call(peer, m, f, a, timeout)
 
   @doc "Runs `apply(m, f, a)` on the node without waiting for it."
   @spec cast(t(), module(), atom(), list()) :: :ok
+  def cast(%__MODULE__{connection: :dist, node: node}, m, f, a), do: :erpc.cast(node, m, f, a)
   def cast(%__MODULE__{peer: peer}, m, f, a), do: :peer.cast(peer, m, f, a)
 
   @doc "Connects two nodes (Erlang distribution)."

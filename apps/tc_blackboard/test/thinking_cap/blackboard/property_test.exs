@@ -96,11 +96,12 @@ defmodule ThinkingCap.Blackboard.PropertyTest do
   defp add(state, tuple, key),
     do: %{state | seq: state.seq + 1, tuples: state.tuples ++ [{state.seq, tuple, key}]}
 
-  # The blackboard reads and takes the oldest tuple of a tag; tags in term order.
+  # The blackboard reads and takes the oldest tuple of a tag and robot id;
+  # tags and ids in term order.
   defp first(state, template) do
     state.tuples
     |> Enum.filter(fn {_, t, _} -> model_match?(template, t) end)
-    |> Enum.min_by(fn {seq, t, _} -> {elem(t, 0), seq} end, fn -> nil end)
+    |> Enum.min_by(fn {seq, t, _} -> {elem(t, 0), elem(t, 1), seq} end, fn -> nil end)
   end
 
   defp model_match?(template, tuple) do

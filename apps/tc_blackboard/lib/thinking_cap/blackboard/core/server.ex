@@ -101,7 +101,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
     if from in Node.list() and not Store.member?(key) do
       if alive, do: Store.insert(Store.from_wire(wire))
       Subscriptions.deliver(tuple)
-      raise_watermark(from, boot, elem(key, 2))
+      raise_watermark(from, boot, Store.key_seq(key))
       if alive, do: Waiters.arrived(tuple)
     end
 
@@ -206,7 +206,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
     case snapshot do
       [] -> :ok
-      _ -> raise_watermark(from, boot, snapshot |> List.last() |> elem(0) |> elem(2))
+      _ -> raise_watermark(from, boot, snapshot |> List.last() |> elem(0) |> Store.key_seq())
     end
   end
 

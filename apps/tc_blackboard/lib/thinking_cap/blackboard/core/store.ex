@@ -4,9 +4,10 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # wrote them) and replicas of every other node's.
   #
   # A record is {key, tuple, key_bin, expires, stamp}:
-  #   key      {arity, first_element, seq, owner_node}; seq is strictly
-  #            increasing on the owner, so a range of one tag is walked
-  #            oldest first.
+  #   key      {arity, first, second, seq, owner_node}: the first two
+  #            elements (tag and robot id by convention) index the ordered
+  #            table; seq is strictly increasing on the owner, so the tuples
+  #            of one tag and robot are walked oldest first.
   #   key_bin  the latest-value key (`out(t, key: k)`) as a binary, or nil.
   #   expires  monotonic milliseconds on *this* node, or :infinity.
   #   stamp    {os_time_us, seq, node} for keyed tuples (last-writer-wins).
@@ -27,7 +28,7 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @spec new_record(tuple(), term(), pos_integer() | nil) :: record()
   def new_record(tuple, ukey, ttl) do
     seq = :erlang.unique_integer([:monotonic, :positive])
-    key = {tuple_size(tuple), first(tuple), seq, node()}
+    key = {tuple_size(tuple), element(tuple, 1), element(tuple, 2), seq, node()}
     expires = if ttl, do: now() + ttl, else: :infinity
 
     case ukey do
@@ -40,12 +41,18 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     end
   end
 
-  defp first({}), do: nil
-  defp first(tuple), do: elem(tuple, 0)
+  defp element(tuple, pos) when tuple_size(tuple) >= pos, do: elem(tuple, pos - 1)
+  defp element(_tuple, _pos), do: nil
 
   @doc false
-  def owner({_key = {_, _, _, owner}, _, _, _, _}), do: owner
-  def seq({{_, _, seq, _}, _, _, _, _}), do: seq
+  def key_owner({_, _, _, _, owner}), do: owner
+  @doc false
+  def key_seq({_, _, _, seq, _}), do: seq
+  @doc false
+  def seq({key, _, _, _, _}), do: key_seq(key)
+
+  # a record-key pattern selecting one owner's records
+  defp owner_key(owner), do: {:_, :_, :_, :_, owner}
 
   ## Writing
 
@@ -176,7 +183,7 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   defp take_from(:"$end_of_table"), do: :none
 
   defp take_from({keys, cont}) do
-    {local, remote} = Enum.split_with(keys, fn {_, _, _, owner} -> owner == node() end)
+    {local, remote} = Enum.split_with(keys, &(key_owner(&1) == node()))
 
     case take_any(local ++ remote) do
       {:ok, tuple} -> {:ok, tuple}
@@ -186,8 +193,8 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   defp take_any([]), do: :none
 
-  defp take_any([{_, _, _, owner} = key | rest]) do
-    case take_at(owner, key) do
+  defp take_any([key | rest]) do
+    case take_at(key_owner(key), key) do
       {:ok, tuple} -> {:ok, tuple}
       :gone -> take_any(rest)
     end
@@ -256,12 +263,12 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @spec owned_snapshot() :: [wire()]
   def owned_snapshot do
     now = now()
-    ms = [{{{:_, :_, :_, node()}, :_, :_, :"$1", :_}, [{:>, :"$1", now}], [:"$_"]}]
+    ms = [{{owner_key(node()), :_, :_, :"$1", :_}, [{:>, :"$1", now}], [:"$_"]}]
 
     Tables.tuples()
     |> :ets.select(ms)
     |> Enum.map(&to_wire/1)
-    |> Enum.sort_by(fn {{_, _, seq, _}, _, _, _, _} -> seq end)
+    |> Enum.sort_by(fn {key, _, _, _, _} -> key_seq(key) end)
   end
 
   @doc false
@@ -285,7 +292,7 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   defp owned_keys(owner) do
     :ets.select(Tables.tuples(), [
-      {{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}
+      {{owner_key(owner), :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}
     ])
   end
 
@@ -294,9 +301,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @spec purge(node()) :: non_neg_integer()
   def purge(owner) do
     count =
-      :ets.select_delete(Tables.tuples(), [{{{:_, :_, :_, owner}, :_, :_, :_, :_}, [], [true]}])
+      :ets.select_delete(Tables.tuples(), [{{owner_key(owner), :_, :_, :_, :_}, [], [true]}])
 
-    :ets.select_delete(Tables.keys(), [{{:_, {:_, :_, :_, owner}, :_}, [], [true]}])
+    :ets.select_delete(Tables.keys(), [{{:_, owner_key(owner), :_}, [], [true]}])
     count
   end
 

@@ -5,7 +5,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   # loses no tuple, subscription or blocked waiter.
   #
   #   tuples   ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil}
-  #                         key = {arity, first, seq, owner_node}
+  #                         key = {arity, first, second, seq, owner_node}
   #   keys     set          {key_bin, record_key, stamp}   latest-value index
   #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow}
   #   sub_refs set          {ref, index, pid, dropped, template}

@@ -1,0 +1,295 @@
+defmodule ThinkingCap.Bench.Blackboard do
+  @moduledoc """
+  `mix tc.bench blackboard`: the blackboard against the BEAM's own
+  messaging and against Redis pub/sub, in one run.
+
+    1. local out -> subscriber latency, 1,000 subscriptions over 100 tags,
+       beside a raw `send` between two local processes;
+    2. cross-node out -> subscriber latency beside a raw `send` to a
+       process on the other node;
+    3. Redis PUBLISH -> subscriber latency (local redis-server, eredis);
+    4. out, rd and take operations per second on one node;
+    5. exactly-once: 100,000 tuples taken by 8 takers on each of 2 nodes.
+  """
+
+  alias ThinkingCap.Blackboard
+  alias ThinkingCap.Bench.{Probe, Stats}
+  alias ThinkingCap.Testing.Cluster
+
+  @samples 20_000
+  @warmup 2_000
+  @tags 100
+  @subs_per_tag 10
+  @ops 200_000
+  @exactly_once_tuples 100_000
+  @takers_per_node 8
+  @redis_port 6391
+
+  def run(_args) do
+    start_distribution()
+
+    IO.puts(
+      "ThinkingCap blackboard benchmark (#{System.schedulers_online()} schedulers, OTP #{System.otp_release()})\n"
+    )
+
+    [peer] = Cluster.start(1, connection: :dist)
+    local = local_latency()
+    cross = cross_latency(peer)
+    redis = redis_latency()
+
+    Stats.print_header("µs")
+    Stats.print_row("blackboard local out->subscriber", local.bb)
+    Stats.print_row("raw send, local", local.send)
+    Stats.print_row("blackboard cross-node", cross.bb)
+    Stats.print_row("raw send, cross-node", cross.send)
+    if redis, do: Stats.print_row("redis PUBLISH->subscriber", redis)
+
+    ops = ops_per_second()
+
+    IO.puts(
+      "\none node, one process: out #{round(ops.out)}/s, rd #{round(ops.rd)}/s, take #{round(ops.take)}/s"
+    )
+
+    once = exactly_once(peer)
+
+    IO.puts(
+      "exactly-once: #{@exactly_once_tuples} tuples, #{@takers_per_node} takers on each of 2 nodes: " <>
+        "taken #{once.taken}, lost #{once.lost}, duplicated #{once.duplicated} in #{once.seconds} s"
+    )
+
+    Cluster.stop(peer)
+    IO.puts("")
+
+    Stats.print_summary("blackboard",
+      local_p50_us: local.bb.p50,
+      send_p50_us: local.send.p50,
+      local_ratio: local.bb.p50 / local.send.p50,
+      cross_p50_us: cross.bb.p50,
+      cross_send_p50_us: cross.send.p50,
+      cross_ratio: cross.bb.p50 / cross.send.p50,
+      redis_p50_us: if(redis, do: redis.p50, else: "n/a"),
+      out_per_s: round(ops.out),
+      taken: once.taken,
+      lost: once.lost,
+      duplicated: once.duplicated
+    )
+  end
+
+  defp start_distribution do
+    {_, 0} = System.cmd("epmd", ["-daemon"])
+
+    unless Node.alive?() do
+      {:ok, _} =
+        :net_kernel.start([
+          :"tc_bench_#{System.unique_integer([:positive])}@127.0.0.1",
+          :longnames
+        ])
+
+      Node.set_cookie(:"bench_#{:rand.uniform(1_000_000_000)}")
+    end
+  end
+
+  ## 1. local latency, with 1,000 subscriptions over 100 tags
+
+  defp local_latency do
+    me = self()
+
+    subscribers =
+      for t <- 1..@tags, i <- 1..@subs_per_tag do
+        # one subscriber per tag reports, at a different position each tag
+        Probe.subscriber({tag(t), :_, :_}, me, :bb, i == rem(t, @subs_per_tag) + 1)
+      end
+
+    raw = Probe.raw_receiver(me, :send)
+
+    samples =
+      for k <- 1..(@samples + @warmup) do
+        t = rem(k, @tags) + 1
+        Blackboard.out({tag(t), :bench, Probe.now_ns()})
+        bb = await_latency(:bb)
+        send(raw, {:raw, Probe.now_ns()})
+        {bb, await_latency(:send)}
+      end
+      |> Enum.drop(@warmup)
+
+    Enum.each([raw | subscribers], &send(&1, :stop))
+    %{bb: micro(Enum.map(samples, &elem(&1, 0))), send: micro(Enum.map(samples, &elem(&1, 1)))}
+  end
+
+  defp tag(t), do: :"bench_tag_#{t}"
+
+  ## 2. cross-node latency
+
+  defp cross_latency(peer) do
+    me = self()
+    sub = Cluster.call(peer, Probe, :subscriber, [{:cross, :_, :_}, me, :bb])
+    raw = Cluster.call(peer, Probe, :raw_receiver, [me, :send])
+    # the replication path must be up before timing it
+    Cluster.wait_until(fn -> Blackboard.Core.Server.peers() != [] end)
+
+    samples =
+      for _ <- 1..(@samples + @warmup) do
+        Blackboard.out({:cross, :bench, Probe.now_ns()})
+        bb = await_latency(:bb)
+        send(raw, {:raw, Probe.now_ns()})
+        {bb, await_latency(:send)}
+      end
+      |> Enum.drop(@warmup)
+
+    Enum.each([sub, raw], &send(&1, :stop))
+    %{bb: micro(Enum.map(samples, &elem(&1, 0))), send: micro(Enum.map(samples, &elem(&1, 1)))}
+  end
+
+  ## 3. Redis pub/sub
+
+  defp redis_latency do
+    case System.find_executable("redis-server") do
+      nil ->
+        IO.puts("redis-server not found: run bin/setup")
+        nil
+
+      exe ->
+        port =
+          Port.open({:spawn_executable, exe}, [
+            :binary,
+            args: [
+              "--port",
+              "#{@redis_port}",
+              "--save",
+              "",
+              "--appendonly",
+              "no",
+              "--bind",
+              "127.0.0.1"
+            ]
+          ])
+
+        try do
+          measure_redis()
+        after
+          {:os_pid, os_pid} = Port.info(port, :os_pid)
+          System.cmd("kill", ["#{os_pid}"])
+        end
+    end
+  end
+
+  defp measure_redis do
+    await_port(@redis_port, 100)
+    {:ok, publisher} = :eredis.start_link(~c"127.0.0.1", @redis_port)
+    {:ok, subscriber} = :eredis_sub.start_link(~c"127.0.0.1", @redis_port, ~c"")
+    me = self()
+
+    listener =
+      spawn(fn ->
+        :ok = :eredis_sub.controlling_process(subscriber)
+        :eredis_sub.subscribe(subscriber, ["bench"])
+        redis_loop(subscriber, me)
+      end)
+
+    receive do
+      :redis_subscribed -> :ok
+    after
+      5000 -> raise "redis subscription not confirmed"
+    end
+
+    samples =
+      for _ <- 1..(@samples + @warmup) do
+        {:ok, _} = :eredis.q(publisher, ["PUBLISH", "bench", Integer.to_string(Probe.now_ns())])
+        await_latency(:redis)
+      end
+      |> Enum.drop(@warmup)
+
+    Process.exit(listener, :kill)
+    micro(samples)
+  end
+
+  defp redis_loop(subscriber, report_to) do
+    receive do
+      {:subscribed, _channel, ^subscriber} ->
+        send(report_to, :redis_subscribed)
+        :eredis_sub.ack_message(subscriber)
+
+      {:message, _channel, payload, ^subscriber} ->
+        send(report_to, {:latency, :redis, Probe.now_ns() - String.to_integer(payload)})
+        :eredis_sub.ack_message(subscriber)
+    end
+
+    redis_loop(subscriber, report_to)
+  end
+
+  defp await_port(port, tries) do
+    case :gen_tcp.connect(~c"127.0.0.1", port, [], 100) do
+      {:ok, socket} ->
+        :gen_tcp.close(socket)
+
+      {:error, _} when tries > 0 ->
+        Process.sleep(50)
+        await_port(port, tries - 1)
+
+      {:error, reason} ->
+        raise "redis-server did not open port #{port}: #{inspect(reason)}"
+    end
+  end
+
+  ## 4. operations per second
+
+  defp ops_per_second do
+    out = rate(fn -> for i <- 1..@ops, do: Blackboard.out({:ops, i, :x}) end)
+    rd = rate(fn -> for i <- 1..@ops, do: {:ok, _} = Blackboard.rdp({:ops, i, :_}) end)
+    take = rate(fn -> for _ <- 1..@ops, do: {:ok, _} = Blackboard.takep({:ops, :_, :_}) end)
+    %{out: out, rd: rd, take: take}
+  end
+
+  defp rate(fun) do
+    {us, _} = :timer.tc(fun)
+    @ops / (us / 1_000_000)
+  end
+
+  ## 5. exactly-once take across two nodes
+
+  defp exactly_once(peer) do
+    half = div(@exactly_once_tuples, 2)
+    template = {:once, :_, :_}
+    started = System.monotonic_time(:millisecond)
+
+    remote_takers =
+      Task.async(fn ->
+        Cluster.call(peer, Probe, :take_all, [template, @takers_per_node, 3000], :infinity)
+      end)
+
+    local_takers = Task.async(fn -> Probe.take_all(template, @takers_per_node, 3000) end)
+
+    writers = [
+      Task.async(fn -> Probe.write(:once, 1..half) end),
+      Task.async(fn ->
+        Cluster.call(peer, Probe, :write, [:once, (half + 1)..@exactly_once_tuples], :infinity)
+      end)
+    ]
+
+    Enum.each(writers, &Task.await(&1, :infinity))
+    taken = Task.await(remote_takers, :infinity) ++ Task.await(local_takers, :infinity)
+    seconds = (System.monotonic_time(:millisecond) - started - 3000) / 1000
+
+    unique = taken |> Enum.map(fn {_node, i} -> i end) |> MapSet.new()
+    lost = Enum.count(1..@exactly_once_tuples, &(not MapSet.member?(unique, &1)))
+
+    %{
+      taken: length(taken),
+      lost: lost,
+      duplicated: length(taken) - MapSet.size(unique),
+      seconds: seconds
+    }
+  end
+
+  ## helpers
+
+  defp await_latency(tag) do
+    receive do
+      {:latency, ^tag, ns} -> ns
+    after
+      10_000 -> raise "no #{tag} sample within 10 s"
+    end
+  end
+
+  defp micro(ns_samples), do: ns_samples |> Enum.map(&(&1 / 1000)) |> Stats.summarize()
+end
