@@ -3,10 +3,11 @@ defmodule ThinkingCap.Bench.Blackboard do
   `mix tc.bench blackboard`: the blackboard against the BEAM's own
   messaging and against Redis pub/sub, in one run.
 
-    1. local out -> subscriber latency, 1,000 subscriptions over 100 tags,
-       beside a raw `send` between two local processes;
-    2. cross-node out -> subscriber latency beside a raw `send` to a
-       process on the other node;
+    1. local out -> subscriber latency, 1,000 subscriptions over 100 tags
+       (10 robot ids each), beside a raw `send` from the writer to the same
+       subscriber process;
+    2. cross-node out -> subscriber latency beside a raw `send` to the same
+       subscriber process on the other node;
     3. Redis PUBLISH -> subscriber latency (local redis-server, eredis);
     4. out, rd and take operations per second on one node;
     5. exactly-once: 100,000 tuples taken by 8 takers on each of 2 nodes.
@@ -19,13 +20,13 @@ defmodule ThinkingCap.Bench.Blackboard do
   @samples 20_000
   @warmup 2_000
   @tags 100
-  @subs_per_tag 10
+  @robots 10
   @ops 200_000
   @exactly_once_tuples 100_000
   @takers_per_node 8
-  @redis_port 6391
 
   def run(_args) do
+    Process.flag(:trap_exit, true)
     start_distribution()
 
     IO.puts(
@@ -81,7 +82,7 @@ defmodule ThinkingCap.Bench.Blackboard do
     unless Node.alive?() do
       {:ok, _} =
         :net_kernel.start([
-          :"tc_bench_#{System.unique_integer([:positive])}@127.0.0.1",
+          :"tc_bench_#{System.pid()}@127.0.0.1",
           :longnames
         ])
 
@@ -94,25 +95,25 @@ defmodule ThinkingCap.Bench.Blackboard do
   defp local_latency do
     me = self()
 
+    # 100 stream tags x 10 robots, one subscriber process per stream
+    # ({tag, robot, :_}): each out is matched against the 10 subscriptions
+    # of its tag and wakes one. The raw send goes to that same process.
     subscribers =
-      for t <- 1..@tags, i <- 1..@subs_per_tag do
-        # one subscriber per tag reports, at a different position each tag
-        Probe.subscriber({tag(t), :_, :_}, me, :bb, i == rem(t, @subs_per_tag) + 1)
+      for t <- 1..@tags, r <- 1..@robots, into: %{} do
+        {{t, r}, Probe.subscriber({tag(t), r, :_}, me, :bb)}
       end
-
-    raw = Probe.raw_receiver(me, :send)
 
     samples =
       for k <- 1..(@samples + @warmup) do
-        t = rem(k, @tags) + 1
-        Blackboard.out({tag(t), :bench, Probe.now_ns()})
+        stream = {t, r} = {rem(k, @tags) + 1, rem(div(k, @tags), @robots) + 1}
+        Blackboard.out({tag(t), r, Probe.now_ns()})
         bb = await_latency(:bb)
-        send(raw, {:raw, Probe.now_ns()})
+        send(subscribers[stream], {:raw, Probe.now_ns()})
         {bb, await_latency(:send)}
       end
       |> Enum.drop(@warmup)
 
-    Enum.each([raw | subscribers], &send(&1, :stop))
+    Enum.each(subscribers, fn {_, pid} -> send(pid, :stop) end)
     %{bb: micro(Enum.map(samples, &elem(&1, 0))), send: micro(Enum.map(samples, &elem(&1, 1)))}
   end
 
@@ -123,7 +124,6 @@ defmodule ThinkingCap.Bench.Blackboard do
   defp cross_latency(peer) do
     me = self()
     sub = Cluster.call(peer, Probe, :subscriber, [{:cross, :_, :_}, me, :bb])
-    raw = Cluster.call(peer, Probe, :raw_receiver, [me, :send])
     # the replication path must be up before timing it
     Cluster.wait_until(fn -> Blackboard.Core.Server.peers() != [] end)
 
@@ -131,12 +131,12 @@ defmodule ThinkingCap.Bench.Blackboard do
       for _ <- 1..(@samples + @warmup) do
         Blackboard.out({:cross, :bench, Probe.now_ns()})
         bb = await_latency(:bb)
-        send(raw, {:raw, Probe.now_ns()})
+        send(sub, {:raw, Probe.now_ns()})
         {bb, await_latency(:send)}
       end
       |> Enum.drop(@warmup)
 
-    Enum.each([sub, raw], &send(&1, :stop))
+    send(sub, :stop)
     %{bb: micro(Enum.map(samples, &elem(&1, 0))), send: micro(Enum.map(samples, &elem(&1, 1)))}
   end
 
@@ -149,34 +149,34 @@ defmodule ThinkingCap.Bench.Blackboard do
         nil
 
       exe ->
-        port =
-          Port.open({:spawn_executable, exe}, [
-            :binary,
-            args: [
-              "--port",
-              "#{@redis_port}",
-              "--save",
-              "",
-              "--appendonly",
-              "no",
-              "--bind",
-              "127.0.0.1"
-            ]
-          ])
+        port_number = free_port()
+        # redis-server does not notice its port closing: the shell kills it
+        # when its stdin closes, which happens however this VM ends
+        script =
+          "#{exe} --port #{port_number} --save '' --appendonly no --bind 127.0.0.1 >/dev/null & " <>
+            "r=$!; read _; kill $r"
+
+        port = Port.open({:spawn_executable, "/bin/sh"}, [:binary, args: ["-c", script]])
 
         try do
-          measure_redis()
+          measure_redis(port_number)
         after
-          {:os_pid, os_pid} = Port.info(port, :os_pid)
-          System.cmd("kill", ["#{os_pid}"])
+          Port.close(port)
         end
     end
   end
 
-  defp measure_redis do
-    await_port(@redis_port, 100)
-    {:ok, publisher} = :eredis.start_link(~c"127.0.0.1", @redis_port)
-    {:ok, subscriber} = :eredis_sub.start_link(~c"127.0.0.1", @redis_port, ~c"")
+  defp free_port do
+    {:ok, socket} = :gen_tcp.listen(0, ip: {127, 0, 0, 1})
+    {:ok, port} = :inet.port(socket)
+    :gen_tcp.close(socket)
+    port
+  end
+
+  defp measure_redis(redis_port) do
+    await_port(redis_port, 100)
+    {:ok, publisher} = :eredis.start_link(~c"127.0.0.1", redis_port)
+    {:ok, subscriber} = :eredis_sub.start_link(~c"127.0.0.1", redis_port, ~c"")
     me = self()
 
     listener =
@@ -286,6 +286,8 @@ defmodule ThinkingCap.Bench.Blackboard do
   defp await_latency(tag) do
     receive do
       {:latency, ^tag, ns} -> ns
+      {:EXIT, _pid, :normal} -> await_latency(tag)
+      {:EXIT, pid, reason} -> raise "#{inspect(pid)} exited: #{inspect(reason)}"
     after
       10_000 -> raise "no #{tag} sample within 10 s"
     end

@@ -29,15 +29,16 @@ defmodule ThinkingCap.Blackboard do
   on the same node can read or take the tuple, and local subscribers have
   been sent it.
 
-  **Other nodes see a write after one message hop.** The owner node's
-  blackboard server forwards each write to every other node's server,
-  which applies it and delivers it to its subscribers and blocked waiters.
-  `out/2` never waits for other nodes; there is no cluster-wide commit.
+  **Other nodes see a write after one message hop.** Each write goes to
+  every other node's blackboard server (through this node's replicator, so
+  that the writer never waits on the network), which applies it and
+  delivers it to its subscribers and blocked waiters. `out/2` never waits
+  for other nodes; there is no cluster-wide commit.
 
-  **Order.** Each server forwards writes and takes to each other server
-  over one ordered channel, so the tuples of one writer reach every reader,
-  subscriber and node in the order they were written. No order is promised
-  between different writers.
+  **Order.** Erlang keeps the order of messages between two processes, and
+  each node has one replicator, so the tuples of one writer reach every
+  reader, subscriber and node in the order they were written. No order is promised between different
+  writers.
 
   **Exactly-once take.** Whoever takes a tuple, on whichever node, the
   owner's atomic table operation decides: exactly one taker gets it. A
@@ -114,9 +115,10 @@ defmodule ThinkingCap.Blackboard do
     {ukey, ttl} = out_options(opts)
     record = Store.new_record(tuple, ukey, ttl)
     Store.insert(record)
+    if Waiters.any?(), do: Server.notify({:arrived, tuple})
+    # local subscribers are queued to run before the replicator
     Subscriptions.deliver(tuple)
-    if Server.wants_out?(), do: Server.notify({:out, record})
-    :ok
+    Server.replicate(record)
   end
 
   def out(tuple, opts) when is_tuple(tuple) do

@@ -14,8 +14,10 @@ defmodule ThinkingCap.Bench.Probe do
 
   @doc """
   Subscribes to `template` and reports the latency of every tuple whose
-  last element is a send time from `now_ns/0`. With `report?: false` it only
-  receives (a bystander subscription).
+  last element is a send time from `now_ns/0` (tag `tag`), and of every
+  `{:raw, sent_ns}` sent to it directly (tag `:send`): the same receiving
+  process for both paths. With `report?: false` it only receives (a
+  bystander subscription).
   """
   @spec subscriber(Blackboard.template(), pid(), term(), boolean()) :: pid()
   def subscriber(template, report_to, tag, report? \\ true) do
@@ -41,22 +43,9 @@ defmodule ThinkingCap.Bench.Probe do
 
         subscriber_loop(ref, report_to, tag, report?)
 
-      :stop ->
-        :ok
-    end
-  end
-
-  @doc "A process that reports the latency of every `{:raw, sent_ns}` it is sent."
-  @spec raw_receiver(pid(), term()) :: pid()
-  def raw_receiver(report_to, tag) do
-    spawn(fn -> raw_loop(report_to, tag) end)
-  end
-
-  defp raw_loop(report_to, tag) do
-    receive do
       {:raw, sent} ->
-        send(report_to, {:latency, tag, now_ns() - sent})
-        raw_loop(report_to, tag)
+        send(report_to, {:latency, :send, now_ns() - sent})
+        subscriber_loop(ref, report_to, tag, report?)
 
       :stop ->
         :ok

@@ -5,7 +5,9 @@ defmodule ThinkingCap.Blackboard.Application do
   #   :pg scope           cluster membership of the blackboard servers
   #   Core.Tables         owns the ETS tables, runs no other code
   #   Core.EvalSupervisor Task.Supervisor for eval/1
-  #   Core.Server         replication, waiter wake-ups, monitors, expiry
+  #   Core.Replicator     sends this node's writes to the other nodes
+  #   Core.Server         applies other nodes' writes, replicates takes,
+  #                       snapshots, waiter wake-ups, monitors, expiry
   use Application
 
   alias ThinkingCap.Blackboard.Core
@@ -16,6 +18,7 @@ defmodule ThinkingCap.Blackboard.Application do
       %{id: :pg, start: {:pg, :start_link, [Core.Server.scope()]}},
       Core.Tables,
       {Task.Supervisor, name: Core.EvalSupervisor},
+      Core.Replicator,
       Core.Server
     ]
 

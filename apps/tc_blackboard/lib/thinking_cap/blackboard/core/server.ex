@@ -1,12 +1,17 @@
 defmodule ThinkingCap.Blackboard.Core.Server do
   @moduledoc false
-  # One per node. Replicates this node's writes and takes to the other
-  # nodes' servers (found through :pg), applies theirs, wakes blocked
-  # waiters, monitors subscribers and waiters, expires tuples, and resyncs
-  # with a peer from a full snapshot whenever either of them (re)joins.
+  # One per node. Applies the other nodes' writes and takes to this node's
+  # replicas, replicates this node's takes, wakes blocked waiters, monitors
+  # subscribers and waiters, expires tuples, and resyncs with a peer from a
+  # full snapshot whenever either of them (re)joins.
   #
-  # All traffic from server A to server B goes over one ordered channel, so
-  # B sees A's snapshot, then A's writes and takes, in A's order.
+  # Writes go to the other nodes' servers through this node's replicator
+  # (in each writer's order); takes and snapshots come from the owner's
+  # server. Where the two paths race, a tombstone (a delete that
+  # overtook its insert) and the snapshot's high-water mark (writes newer
+  # than the snapshot that overtook it) keep replicas exact. A new peer is
+  # published to writers *before* the snapshot is taken, so every write is
+  # either in the snapshot or sent to the peer.
   #
   # The server holds no state that matters beyond its monitors: tuples,
   # subscriptions and waiters are in ETS tables it does not own. A restart
@@ -44,19 +49,23 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   @doc false
-  # Whether a local write must be passed to the server (peers to replicate
-  # to, or blocked waiters to wake).
-  @spec wants_out?() :: boolean()
-  def wants_out? do
-    Waiters.any?() or :ets.lookup_element(Tables.meta(), :peers, 2) > 0
+  # The other nodes' blackboard servers that writers replicate to.
+  @spec peers() :: [pid()]
+  def peers do
+    :ets.lookup_element(Tables.meta(), :peers, 2)
   rescue
-    ArgumentError -> false
+    ArgumentError -> []
   end
 
   @doc false
-  # The other nodes' blackboard servers this server replicates to.
-  @spec peers() :: [pid()]
-  def peers, do: GenServer.call(__MODULE__, :peers)
+  # Passes a local write on to every other node (called by the writer).
+  @spec replicate(Store.record()) :: :ok
+  def replicate(record) do
+    case peers() do
+      [] -> :ok
+      peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)
+    end
+  end
 
   ## Callbacks
 
@@ -67,8 +76,8 @@ defmodule ThinkingCap.Blackboard.Core.Server do
     :ok = :net_kernel.monitor_nodes(true)
 
     state = %{peers: MapSet.new(), monitors: %{}, pg_ref: pg_ref}
+    publish_peers(state)
     state = Enum.reduce(members, state, &add_peer(&2, &1))
-    publish_peer_count(state)
 
     Waiters.reset()
     state = Enum.reduce(Subscriptions.pids() ++ Waiters.pids(), state, &monitor(&2, &1))
@@ -78,31 +87,23 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   @impl true
-  def handle_call(:peers, _from, state), do: {:reply, MapSet.to_list(state.peers), state}
-
-  @impl true
-  def handle_info({:out, record}, state) do
-    {key, tuple, _, _, _} = record
-    alive = Store.member?(key)
-
-    unless MapSet.size(state.peers) == 0 do
-      message = {:replica_out, node(), Tables.boot_id(), Store.to_wire(record), alive}
-      Enum.each(state.peers, &send(&1, message))
-    end
-
-    if alive, do: Waiters.arrived(tuple)
+  def handle_info({:arrived, tuple}, state) do
+    Waiters.arrived(tuple)
     {:noreply, state}
   end
 
   def handle_info({:replica_out, from, boot, wire, alive}, state) do
     {key, tuple, _, _, _} = wire
 
-    # A node that is no longer connected has been (or is being) purged.
+    # A node that is no longer connected has been (or is being) purged; a
+    # record already here came with a snapshot and was delivered then.
     if from in Node.list() and not Store.member?(key) do
-      if alive, do: Store.insert(Store.from_wire(wire))
+      stored = alive and not Store.tombstoned?(key)
+      # stored before it is delivered: a subscriber can read what it is sent
+      if stored, do: Store.insert(Store.from_wire(wire))
       Subscriptions.deliver(tuple)
+      if stored and Waiters.any?(), do: Waiters.arrived(tuple)
       raise_watermark(from, boot, Store.key_seq(key))
-      if alive, do: Waiters.arrived(tuple)
     end
 
     {:noreply, state}
@@ -114,12 +115,12 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   def handle_info({:replica_delete, key}, state) do
-    Store.delete(key)
+    Store.delete_replica(key)
     {:noreply, state}
   end
 
-  def handle_info({:snapshot, from, boot, snapshot}, state) do
-    if from in Node.list(), do: apply_snapshot(from, boot, snapshot)
+  def handle_info({:snapshot, from, boot, high, snapshot}, state) do
+    if from in Node.list(), do: apply_snapshot(from, boot, high, snapshot)
     {:noreply, state}
   end
 
@@ -149,7 +150,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   def handle_info({ref, :leave, @group, pids}, %{pg_ref: ref} = state) do
     state = %{state | peers: Enum.reduce(pids, state.peers, &MapSet.delete(&2, &1))}
-    publish_peer_count(state)
+    publish_peers(state)
     {:noreply, state}
   end
 
@@ -157,7 +158,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
     purged = Store.purge(node)
     if purged > 0, do: Logger.info("blackboard: #{node} went down, forgot its #{purged} tuples")
     state = %{state | peers: MapSet.reject(state.peers, &(node(&1) == node))}
-    publish_peer_count(state)
+    publish_peers(state)
     {:noreply, state}
   end
 
@@ -179,24 +180,24 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   ## Helpers
 
-  # A new peer server gets this node's snapshot before any later write, so
-  # its replicas start complete and in order.
+  # A new peer is published to writers first, then sent this node's
+  # snapshot: a write is in the snapshot or sent after it was published.
   defp add_peer(state, pid) when node(pid) == node(), do: state
 
   defp add_peer(state, pid) do
-    send(pid, {:snapshot, node(), Tables.boot_id(), Store.owned_snapshot()})
     state = %{state | peers: MapSet.put(state.peers, pid)}
-    publish_peer_count(state)
+    publish_peers(state)
+    high = Store.high_water()
+    send(pid, {:snapshot, node(), Tables.boot_id(), high, Store.owned_snapshot()})
     state
   end
 
-  defp publish_peer_count(state),
-    do: :ets.insert(Tables.meta(), {:peers, MapSet.size(state.peers)})
+  defp publish_peers(state), do: :ets.insert(Tables.meta(), {:peers, MapSet.to_list(state.peers)})
 
   # Records new to this node are delivered to subscribers unless they were
   # delivered before (a partition healing re-sends what was already seen).
-  defp apply_snapshot(from, boot, snapshot) do
-    new = Store.sync(from, snapshot)
+  defp apply_snapshot(from, boot, high, snapshot) do
+    new = Store.sync(from, high, snapshot)
     seen = watermark(from, boot)
 
     for {_, tuple, _, _, _} = record <- new, Store.seq(record) > seen do

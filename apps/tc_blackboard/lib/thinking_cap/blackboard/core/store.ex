@@ -127,16 +127,35 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   @doc false
-  # Removes a record (a replica told of a take, a stale replica).
-  @spec delete(tuple()) :: :ok
+  # Removes a record (a replica told of a take, a stale replica); true if
+  # it was here.
+  @spec delete(tuple()) :: boolean()
   def delete(key) do
     case :ets.take(Tables.tuples(), key) do
-      [{^key, _tuple, key_bin, _expires, _stamp}] -> forget_key(key_bin, key)
-      [] -> :ok
-    end
+      [{^key, _tuple, key_bin, _expires, _stamp}] ->
+        forget_key(key_bin, key)
+        true
 
+      [] ->
+        false
+    end
+  end
+
+  @doc false
+  # A replica told of a take: the writer sends its insert straight to the
+  # other nodes while takes travel through the owner's server, so the
+  # delete may arrive first. It then leaves a tombstone that stops the late
+  # insert.
+  @spec delete_replica(tuple()) :: :ok
+  def delete_replica(key) do
+    unless delete(key), do: :ets.insert(Tables.tombs(), {key, now()})
     :ok
   end
+
+  @doc false
+  # True (and the tombstone gone) when a delete for `key` came first.
+  @spec tombstoned?(tuple()) :: boolean()
+  def tombstoned?(key), do: :ets.take(Tables.tombs(), key) != []
 
   ## Reading
 
@@ -272,16 +291,27 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   @doc false
-  # Makes this node's replicas of `owner`'s tuples equal to its snapshot.
-  # Returns the records that were not here before, oldest first.
-  @spec sync(node(), [wire()]) :: [record()]
-  def sync(owner, snapshot) do
+  # The snapshot's high-water mark: every record with a lower seq that is
+  # not in a snapshot taken after it had been taken or had expired.
+  @spec high_water() :: pos_integer()
+  def high_water, do: :erlang.unique_integer([:monotonic, :positive])
+
+  @doc false
+  # Makes this node's replicas of `owner`'s tuples equal to its snapshot,
+  # except for records newer than the snapshot (`high` and above), which
+  # writers may have sent ahead of it. Returns the records that were not
+  # here before, oldest first.
+  @spec sync(node(), pos_integer(), [wire()]) :: [record()]
+  def sync(owner, high, snapshot) do
     have = MapSet.new(owned_keys(owner))
     incoming = MapSet.new(snapshot, &elem(&1, 0))
 
-    for key <- have, not MapSet.member?(incoming, key), do: delete(key)
+    for key <- have, key_seq(key) < high, not MapSet.member?(incoming, key), do: delete(key)
 
-    for wire <- snapshot, not MapSet.member?(have, elem(wire, 0)), reduce: [] do
+    for wire <- snapshot,
+        not MapSet.member?(have, elem(wire, 0)),
+        not tombstoned?(elem(wire, 0)),
+        reduce: [] do
       acc ->
         record = from_wire(wire)
         insert(record)
@@ -308,10 +338,11 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   @doc false
-  # Deletes expired records; returns how many.
+  # Deletes expired records and old tombstones; returns how many records.
   @spec sweep() :: non_neg_integer()
   def sweep do
     now = now()
+    :ets.select_delete(Tables.tombs(), [{{:_, :"$1"}, [{:<, :"$1", now - 60_000}], [true]}])
     ms = [{{:"$1", :_, :"$2", :"$3", :_}, [{:"=<", :"$3", now}], [{{:"$1", :"$2"}}]}]
 
     expired = :ets.select(Tables.tuples(), ms)

@@ -22,6 +22,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
       {template.index, ref, pid, template.matcher, max_queue, on_overflow}
     )
 
+    count(template.index, 1)
     Server.notify({:monitor, pid})
     ref
   end
@@ -34,6 +35,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
           :ets.delete_object(Tables.subs(), sub)
         end
 
+        count(index, -1)
         true
 
       [] ->
@@ -80,21 +82,30 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     end
   end
 
+  @any_counter 1
+  @spec_counter 2
+
+  defp count({:tag, _, _}, _delta), do: :ok
+  defp count({:any, _}, delta), do: :atomics.add(Tables.sub_counters(), @any_counter, delta)
+  defp count(:spec, delta), do: :atomics.add(Tables.sub_counters(), @spec_counter, delta)
+
   @doc false
   @spec deliver(tuple()) :: :ok
   def deliver(tuple) do
     subs = Tables.subs()
+    counters = Tables.sub_counters()
+    index = Template.tuple_index(tuple)
 
-    case Template.tuple_index(tuple) do
-      {:tag, arity, _} = index ->
-        deliver_all(:ets.lookup(subs, index), tuple)
-        deliver_all(:ets.lookup(subs, {:any, arity}), tuple)
-
-      any ->
-        deliver_all(:ets.lookup(subs, any), tuple)
+    case index do
+      {:tag, _arity, _} -> deliver_all(:ets.lookup(subs, index), tuple)
+      {:any, _arity} -> :ok
     end
 
-    deliver_all(:ets.lookup(subs, :spec), tuple)
+    if :atomics.get(counters, @any_counter) > 0,
+      do: deliver_all(:ets.lookup(subs, {:any, tuple_size(tuple)}), tuple)
+
+    if :atomics.get(counters, @spec_counter) > 0, do: deliver_all(:ets.lookup(subs, :spec), tuple)
+    :ok
   end
 
   defp deliver_all([], _tuple), do: :ok

@@ -10,7 +10,9 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow}
   #   sub_refs set          {ref, index, pid, dropped, template}
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
-  #   meta     set          {:boot, id}, {{:watermark, node}, boot, seq}
+  #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
+  #   meta     set          {:boot, id}, {:peers, [server_pid]},
+  #                         {{:watermark, node}, boot, seq}
 
   use GenServer
 
@@ -19,6 +21,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @subs :tc_bb_subs
   @sub_refs :tc_bb_sub_refs
   @waiters :tc_bb_waiters
+  @tombs :tc_bb_tombs
   @meta :tc_bb_meta
 
   def tuples, do: @tuples
@@ -26,10 +29,18 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   def subs, do: @subs
   def sub_refs, do: @sub_refs
   def waiters, do: @waiters
+  def tombs, do: @tombs
   def meta, do: @meta
 
   @doc false
   def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
+
+  @doc false
+  # Counts of subscriptions indexed by arity only ({:any, n}) and by match
+  # specification (:spec), so delivery skips those lookups when there are
+  # none. One atomics array per table set, found through persistent_term
+  # (written once per start of this process, never on the hot path).
+  def sub_counters, do: :persistent_term.get({__MODULE__, :sub_counters})
 
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
 
@@ -41,8 +52,10 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     :ets.new(@subs, [:bag | concurrent])
     :ets.new(@sub_refs, [:set | concurrent])
     :ets.new(@waiters, [:ordered_set | concurrent])
+    :ets.new(@tombs, [:set | concurrent])
     :ets.new(@meta, [:set | concurrent])
-    :ets.insert(@meta, {:boot, {System.system_time(), :erlang.unique_integer()}})
+    :ets.insert(@meta, [{:boot, {System.system_time(), :erlang.unique_integer()}}, {:peers, []}])
+    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(2, signed: true))
     {:ok, nil}
   end
 end
