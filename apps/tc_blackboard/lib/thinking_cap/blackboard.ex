@@ -40,11 +40,17 @@ defmodule ThinkingCap.Blackboard do
   reader, subscriber and node in the order they were written. No order is promised between different
   writers.
 
+  **Which tuple.** Tuples are indexed by arity and their first two
+  elements (tag and robot id by convention): `rd`/`rdp` return the oldest
+  matching tuple of the first matching tag and robot id in Erlang term
+  order, so the tuples of one stream come oldest first. A template that
+  binds the first two elements walks only that stream.
+
   **Exactly-once take.** Whoever takes a tuple, on whichever node, the
   owner's atomic table operation decides: exactly one taker gets it. A
-  taker prefers its own node's tuples (no round trip), then the oldest of
-  the others', which it takes through a call to the owner node. Such a
-  call ends when the owner answers or its node disconnects.
+  taker prefers its own node's tuples (no round trip), in the order above,
+  then the others', which it takes through a call to the owner node. Such
+  a call ends when the owner answers or its node disconnects.
 
   **Read and take.** A tuple may be taken on its owner before a reader on
   another node saw it. Subscribers on every connected node still receive

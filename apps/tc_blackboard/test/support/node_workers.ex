@@ -70,6 +70,16 @@ defmodule ThinkingCap.Test.NodeWorkers do
     end
   end
 
+  @doc "Writes `{tag, node(), n}` and takes it straight back, for each n."
+  def write_and_take(tag, range) do
+    for n <- range do
+      :ok = Blackboard.out({tag, node(), n})
+      {:ok, _} = Blackboard.takep({tag, node(), n})
+    end
+
+    :ok
+  end
+
   @doc "Starts a registered process that keeps `{:taken, node, tuple}` reports."
   def report_sink(name) do
     pid = spawn(fn -> sink([]) end)

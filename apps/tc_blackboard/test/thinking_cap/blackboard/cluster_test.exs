@@ -194,4 +194,40 @@ defmodule ThinkingCap.Blackboard.ClusterTest do
       length(on_a) == 1 and on_a == on_b
     end)
   end
+
+  test "a tuple taken on its owner at once still reaches other nodes' subscribers, and is never stored there" do
+    [a, b] = start(2)
+    on_b = call(b, W, :collector, [{:brief, :_, :_}])
+    call(a, W, :write_and_take, [:brief, 1..200])
+
+    eventually(fn -> length(call(b, W, :ask, [on_b])) == 200 end)
+    assert call(b, W, :ask, [on_b]) == for(n <- 1..200, do: {:brief, a.node, n})
+    assert bb(b, :rd_all, [{:brief, :_, :_}]) == []
+    assert bb(a, :rd_all, [{:brief, :_, :_}]) == []
+  end
+
+  test "a tuple's time to live runs out on every node" do
+    [a, b] = start(2)
+    bb(a, :out, [{:short, :lived}, [ttl: 300]])
+    bb(a, :out, [{:short, :kept}])
+    eventually(fn -> length(bb(b, :rd_all, [{:short, :_}])) == 2 end)
+    eventually(fn -> bb(b, :rd_all, [{:short, :_}]) == [{:short, :kept}] end)
+    assert bb(a, :rd_all, [{:short, :_}]) == [{:short, :kept}]
+  end
+
+  test "killing a node's replicator loses nothing: the server restarts and resyncs every peer" do
+    [a, b] = start(2)
+    on_b = call(b, W, :collector, [{:rep, :_, :_}])
+    replicator = call(a, Process, :whereis, [Blackboard.Core.Replicator])
+    call(a, :erlang, :suspend_process, [replicator])
+    # these writes wait in the suspended replicator's mailbox and die with it
+    call(a, W, :write, [:rep, 1..50])
+    call(a, Process, :exit, [replicator, :kill])
+
+    eventually(fn -> length(bb(b, :rd_all, [{:rep, :_, :_}])) == 50 end)
+    eventually(fn -> length(call(b, W, :ask, [on_b])) == 50 end)
+    call(a, W, :write, [:rep, 51..60])
+    eventually(fn -> length(call(b, W, :ask, [on_b])) == 60 end)
+    assert Enum.sort(call(b, W, :ask, [on_b])) == for(n <- 1..60, do: {:rep, a.node, n})
+  end
 end
