@@ -128,6 +128,22 @@ defmodule ThinkingCap.BlackboardTest do
       assert Enum.map([taker | readers], &Task.await/1) == List.duplicate({:ok, {:one, id}}, 4)
     end
 
+    test "blocked readers see a tuple even when a blocked taker takes it first", %{id: id} do
+      readers = for _ <- 1..3, do: Task.async(fn -> Blackboard.rd({:raced, id}, 5000) end)
+      wait_for_waiters(id, 3)
+      taker = Task.async(fn -> Blackboard.take({:raced, id}, 5000) end)
+      wait_for_waiters(id, 4)
+
+      # the readers cannot act on their wake-up before the taker has taken
+      Enum.each(readers, &:erlang.suspend_process(&1.pid))
+      Blackboard.out({:raced, id})
+      assert {:ok, {:raced, ^id}} = Task.await(taker)
+      assert :none = Blackboard.rdp({:raced, id})
+      Enum.each(readers, &:erlang.resume_process(&1.pid))
+
+      assert Enum.map(readers, &Task.await/1) == List.duplicate({:ok, {:raced, id}}, 3)
+    end
+
     test "blocked takers of one template are served in arrival order", %{id: id} do
       parent = self()
 
@@ -150,7 +166,7 @@ defmodule ThinkingCap.BlackboardTest do
       # the tuple written afterwards is not consumed by the gone taker
       Blackboard.out({:never, id})
       assert {:ok, {:never, ^id}} = Blackboard.takep({:never, id})
-      refute_received {:tc_bb_wake, _}
+      refute_received {:tc_bb_wake, _, _}
     end
 
     test "a woken taker that times out passes the tuple on to the next", %{id: id} do

@@ -31,10 +31,15 @@ defmodule ThinkingCap.Blackboard.Template do
 
   @typedoc """
   Where subscriptions and waiters for a template are indexed: by arity and
-  first element when the first element is bound, by arity alone when it is
-  a wildcard, and in one group for match specifications.
+  the first two elements (a stream: tag and robot id) when both are bound,
+  by arity and first element when only that is, by arity alone when the
+  first is a wildcard, and in one group for match specifications.
   """
-  @type index :: {:tag, non_neg_integer(), term()} | {:any, non_neg_integer()} | :spec
+  @type index ::
+          {:stream, non_neg_integer(), term(), term()}
+          | {:tag, non_neg_integer(), term()}
+          | {:any, non_neg_integer()}
+          | :spec
 
   @typedoc "The part of a compiled template that decides a match, small enough to store per subscription."
   @type matcher ::
@@ -114,12 +119,20 @@ defmodule ThinkingCap.Blackboard.Template do
   end
 
   @doc """
-  The index key under which a tuple is looked up: `{:tag, arity, first}`,
-  or `{:any, 0}` for the empty tuple.
+  The indexes under which templates that bind a tuple's first elements are
+  found: its stream `{:stream, arity, first, second}` and its tag
+  `{:tag, arity, first}` (as far as its arity allows). Templates indexed
+  `{:any, arity}` or `:spec` may match any tuple.
   """
-  @spec tuple_index(tuple()) :: index()
-  def tuple_index({}), do: {:any, 0}
-  def tuple_index(tuple), do: {:tag, tuple_size(tuple), elem(tuple, 0)}
+  @spec bound_indexes(tuple()) :: [index()]
+  def bound_indexes(tuple) when tuple_size(tuple) >= 2 do
+    n = tuple_size(tuple)
+    first = elem(tuple, 0)
+    [{:stream, n, first, elem(tuple, 1)}, {:tag, n, first}]
+  end
+
+  def bound_indexes({first}), do: [{:tag, 1, first}]
+  def bound_indexes({}), do: []
 
   @doc """
   A match specification over the store's records `{key, tuple, _, expires, _}`
@@ -184,6 +197,10 @@ defmodule ThinkingCap.Blackboard.Template do
 
   defp index_of({}), do: {:any, 0}
   defp index_of(template) when elem(template, 0) === :_, do: {:any, tuple_size(template)}
+
+  defp index_of(template) when tuple_size(template) >= 2 and elem(template, 1) !== :_,
+    do: {:stream, tuple_size(template), elem(template, 0), elem(template, 1)}
+
   defp index_of(template), do: {:tag, tuple_size(template), elem(template, 0)}
 
   defp key_arity(%__MODULE__{matcher: {:positions, arity, _}}), do: arity

@@ -81,7 +81,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
     Waiters.reset()
     state = Enum.reduce(Subscriptions.pids() ++ Waiters.pids(), state, &monitor(&2, &1))
-    Waiters.rescan(&Store.exists?/1)
+    Waiters.rescan(&Store.first_match/1)
     schedule_sweep()
     {:ok, state}
   end
@@ -125,14 +125,14 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   def handle_info({:kick, wkey}, state) do
-    case Waiters.kicked(wkey, &Store.exists?/1) do
+    case Waiters.kicked(wkey, &Store.first_match/1) do
       nil -> {:noreply, state}
       pid -> {:noreply, monitor(state, pid)}
     end
   end
 
   def handle_info(:rescan, state) do
-    Waiters.rescan(&Store.exists?/1)
+    Waiters.rescan(&Store.first_match/1)
     {:noreply, state}
   end
 
@@ -140,7 +140,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   def handle_info({:DOWN, _mref, :process, pid, _reason}, state) do
     Subscriptions.drop_pid(pid)
-    if Waiters.drop_pid(pid), do: Waiters.rescan(&Store.exists?/1)
+    if Waiters.drop_pid(pid), do: Waiters.rescan(&Store.first_match/1)
     {:noreply, %{state | monitors: Map.delete(state.monitors, pid)}}
   end
 

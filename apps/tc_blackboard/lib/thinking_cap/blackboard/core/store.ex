@@ -183,10 +183,6 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     :ets.select(Tables.tuples(), [{{:_, :"$1", :_, :"$2", :_}, [{:>, :"$2", now()}], [:"$1"]}])
   end
 
-  @doc false
-  @spec exists?(Template.compiled()) :: boolean()
-  def exists?(template), do: first_match(template) != :none
-
   ## Taking
 
   @doc false

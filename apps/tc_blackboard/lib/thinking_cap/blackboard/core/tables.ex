@@ -7,7 +7,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   tuples   ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil}
   #                         key = {arity, first, second, seq, owner_node}
   #   keys     set          {key_bin, record_key, stamp}   latest-value index
-  #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow}
+  #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow, sent}
   #   sub_refs set          {ref, index, pid, dropped, template}
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert

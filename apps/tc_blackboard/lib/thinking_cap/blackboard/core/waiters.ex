@@ -2,9 +2,11 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   @moduledoc false
   # Blocked rd/take requests. A waiter is a row in an ETS table that the
   # blocked process writes itself, so no request is lost when the server
-  # restarts. The server only *wakes* waiters ({:tc_bb_wake, ref}); the woken
-  # process makes the attempt itself, so a tuple is never held in flight by
-  # the server. Rows are {{index, wseq}, pid, ref, kind, template, woken?}:
+  # restarts. The server wakes waiters with {:tc_bb_wake, ref, tuple}: a
+  # reader is handed the tuple that woke it (reading consumes nothing, and
+  # every blocked reader must see it even if a taker is faster); a taker is
+  # woken with nil and makes the take itself, so a tuple is never held in
+  # flight by the server. Rows are {{index, wseq}, pid, ref, kind, template, woken?}:
   # wseq orders waiters by arrival, the woken flag says a wake-up is on its
   # way so later arrivals go to the next waiter.
 
@@ -42,7 +44,12 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   defp wait(wkey, ref, deadline, attempt) do
     receive do
-      {:tc_bb_wake, ^ref} ->
+      {:tc_bb_wake, ^ref, tuple} when tuple != nil ->
+        :ets.delete(Tables.waiters(), wkey)
+        flush(ref)
+        {:ok, tuple}
+
+      {:tc_bb_wake, ^ref, nil} ->
         case attempt.() do
           {:ok, tuple} ->
             :ets.delete(Tables.waiters(), wkey)
@@ -73,7 +80,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   defp flush(ref) do
     receive do
-      {:tc_bb_wake, ^ref} -> flush(ref)
+      {:tc_bb_wake, ^ref, _} -> flush(ref)
     after
       0 -> :ok
     end
@@ -87,17 +94,11 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   def any?, do: :ets.first(Tables.waiters()) != :"$end_of_table"
 
   @doc false
-  # On the arrival of `tuple`: wake every matching rd waiter and the
-  # longest-waiting matching take waiter that is not already woken.
+  # On the arrival of `tuple`: hand it to every matching rd waiter and wake
+  # the longest-waiting matching take waiter that is not already woken.
   @spec arrived(tuple()) :: :ok
   def arrived(tuple) do
-    index = Template.tuple_index(tuple)
-
-    groups =
-      case index do
-        {:tag, arity, _} -> [index, {:any, arity}, :spec]
-        other -> [other, :spec]
-      end
+    groups = Template.bound_indexes(tuple) ++ [{:any, tuple_size(tuple)}, :spec]
 
     groups
     |> Enum.flat_map(&sleeping_in/1)
@@ -105,7 +106,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
       Template.matches?(template, tuple)
     end)
     |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
-    |> wake_for_arrival(false)
+    |> wake_for_arrival(tuple, false)
   end
 
   defp sleeping_in(index) do
@@ -114,26 +115,27 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
     ])
   end
 
-  defp wake_for_arrival([], _taker_woken?), do: :ok
+  defp wake_for_arrival([], _tuple, _taker_woken?), do: :ok
 
-  defp wake_for_arrival([{_, _, _, :rd, _, _} = waiter | rest], taker_woken?) do
-    wake(waiter)
-    wake_for_arrival(rest, taker_woken?)
+  defp wake_for_arrival([{_, _, _, :rd, _, _} = waiter | rest], tuple, taker_woken?) do
+    wake(waiter, tuple)
+    wake_for_arrival(rest, tuple, taker_woken?)
   end
 
-  defp wake_for_arrival([{_, _, _, :take, _, _} = waiter | rest], false) do
-    wake_for_arrival(rest, wake(waiter))
+  defp wake_for_arrival([{_, _, _, :take, _, _} = waiter | rest], tuple, false) do
+    wake_for_arrival(rest, tuple, wake(waiter, tuple))
   end
 
-  defp wake_for_arrival([_taker | rest], true), do: wake_for_arrival(rest, true)
+  defp wake_for_arrival([_taker | rest], tuple, true), do: wake_for_arrival(rest, tuple, true)
 
   @doc false
-  # A new or re-armed waiter: wake it if a matching tuple is there already.
-  @spec kicked(tuple(), (Template.compiled() -> boolean())) :: pid() | nil
-  def kicked(wkey, exists?) do
+  # A new or re-armed waiter: wake it if a matching tuple is there already
+  # (`find` returns one).
+  @spec kicked(tuple(), (Template.compiled() -> {:ok, tuple()} | :none)) :: pid() | nil
+  def kicked(wkey, find) do
     case :ets.lookup(Tables.waiters(), wkey) do
       [{^wkey, pid, _, _, template, false} = waiter] ->
-        if exists?.(template), do: wake(waiter)
+        with {:ok, tuple} <- find.(template), do: wake(waiter, tuple)
         pid
 
       _ ->
@@ -144,13 +146,13 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   @doc false
   # Wakes every sleeping waiter for which a matching tuple exists, in order
   # of arrival (after a restart, a timed-out or dead woken waiter).
-  @spec rescan((Template.compiled() -> boolean())) :: :ok
-  def rescan(exists?) do
+  @spec rescan((Template.compiled() -> {:ok, tuple()} | :none)) :: :ok
+  def rescan(find) do
     Tables.waiters()
     |> :ets.select([{{:_, :_, :_, :_, :_, false}, [], [:"$_"]}])
     |> Enum.sort_by(fn {{_, wseq}, _, _, _, _, _} -> wseq end)
     |> Enum.each(fn {_, _, _, _, template, _} = waiter ->
-      if exists?.(template), do: wake(waiter)
+      with {:ok, tuple} <- find.(template), do: wake(waiter, tuple)
     end)
   end
 
@@ -190,9 +192,9 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   # The woken flag is set first; if the row is gone (the waiter timed out),
   # nobody is woken and the caller moves on to the next waiter.
-  defp wake({wkey, pid, ref, _kind, _matcher, _woken}) do
+  defp wake({wkey, pid, ref, kind, _template, _woken}, tuple) do
     if :ets.update_element(Tables.waiters(), wkey, {6, true}) do
-      send(pid, {:tc_bb_wake, ref})
+      send(pid, {:tc_bb_wake, ref, if(kind == :rd, do: tuple)})
       true
     else
       false
