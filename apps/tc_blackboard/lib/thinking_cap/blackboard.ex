@@ -81,10 +81,12 @@ defmodule ThinkingCap.Blackboard do
   Tuples taken during the partition stay gone.
 
   **Server crashes.** The tables belong to a process that runs no other
-  code. The server that serves them can crash without losing a tuple, a
-  subscription or a blocked waiter: on restart it rescans the waiters,
-  monitors the subscribers again and exchanges snapshots with every other
-  node, which repairs whatever was in its mailbox.
+  code. The server and the replicator that serve them can crash without
+  losing a tuple, a subscription or a blocked waiter: blocked waiters are
+  rows in a table, and a woken taker takes for itself, so no tuple is ever
+  in a server's hands. On restart the server rescans the waiters, monitors
+  the subscribers again and exchanges snapshots with every other node,
+  which repairs whatever was in its own or the replicator's mailbox.
 
   **Subscribers.** Delivery never blocks the writer. Each subscription has
   a bound, `max_queue` (default 1000): while the subscriber's mailbox

@@ -142,10 +142,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   @doc false
-  # A replica told of a take: the writer sends its insert straight to the
-  # other nodes while takes travel through the owner's server, so the
-  # delete may arrive first. It then leaves a tombstone that stops the late
-  # insert.
+  # A replica told of a take: writes travel through the writer node's
+  # replicator while takes travel through the owner's server, so the delete
+  # may arrive first. It then leaves a tombstone that stops the late insert.
   @spec delete_replica(tuple()) :: :ok
   def delete_replica(key) do
     unless delete(key), do: :ets.insert(Tables.tombs(), {key, now()})
