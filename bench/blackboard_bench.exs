@@ -106,10 +106,12 @@ defmodule ThinkingCap.Bench.Blackboard do
     samples =
       for k <- 1..(@samples + @warmup) do
         stream = {t, r} = {rem(k, @tags) + 1, rem(div(k, @tags), @robots) + 1}
-        Blackboard.out({tag(t), r, Probe.now_ns()})
-        bb = await_latency(:bb)
-        send(subscribers[stream], {:raw, Probe.now_ns()})
-        {bb, await_latency(:send)}
+
+        pair(
+          k,
+          fn -> Blackboard.out({tag(t), r, Probe.now_ns()}) end,
+          fn -> send(subscribers[stream], {:raw, Probe.now_ns()}) end
+        )
       end
       |> Enum.drop(@warmup)
 
@@ -128,11 +130,12 @@ defmodule ThinkingCap.Bench.Blackboard do
     Cluster.wait_until(fn -> Blackboard.Core.Server.peers() != [] end)
 
     samples =
-      for _ <- 1..(@samples + @warmup) do
-        Blackboard.out({:cross, :bench, Probe.now_ns()})
-        bb = await_latency(:bb)
-        send(sub, {:raw, Probe.now_ns()})
-        {bb, await_latency(:send)}
+      for k <- 1..(@samples + @warmup) do
+        pair(
+          k,
+          fn -> Blackboard.out({:cross, :bench, Probe.now_ns()}) end,
+          fn -> send(sub, {:raw, Probe.now_ns()}) end
+        )
       end
       |> Enum.drop(@warmup)
 
@@ -282,6 +285,23 @@ defmodule ThinkingCap.Bench.Blackboard do
   end
 
   ## helpers
+
+  # One blackboard and one raw sample to the same process. Whichever goes
+  # first may find the receiver cold (asleep on the other scheduler), so
+  # the order alternates.
+  defp pair(k, out, raw) do
+    if rem(k, 2) == 0 do
+      out.()
+      bb = await_latency(:bb)
+      raw.()
+      {bb, await_latency(:send)}
+    else
+      raw.()
+      send_ns = await_latency(:send)
+      out.()
+      {await_latency(:bb), send_ns}
+    end
+  end
 
   defp await_latency(tag) do
     receive do

@@ -26,6 +26,8 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   @scope :thinking_cap_blackboard
   @group :servers
   @sweep_ms 500
+  # index in Tables.sub_counters/0
+  @peer_count 3
 
   @doc false
   def scope, do: @scope
@@ -61,10 +63,14 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   # Passes a local write on to every other node (called by the writer).
   @spec replicate(Store.record()) :: :ok
   def replicate(record) do
-    case peers() do
-      [] -> :ok
-      peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)
+    if :atomics.get(Tables.sub_counters(), @peer_count) > 0 do
+      case peers() do
+        [] -> :ok
+        peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)
+      end
     end
+
+    :ok
   end
 
   ## Callbacks
@@ -192,7 +198,10 @@ defmodule ThinkingCap.Blackboard.Core.Server do
     state
   end
 
-  defp publish_peers(state), do: :ets.insert(Tables.meta(), {:peers, MapSet.to_list(state.peers)})
+  defp publish_peers(state) do
+    :ets.insert(Tables.meta(), {:peers, MapSet.to_list(state.peers)})
+    :atomics.put(Tables.sub_counters(), @peer_count, MapSet.size(state.peers))
+  end
 
   # Records new to this node are delivered to subscribers unless they were
   # delivered before (a partition healing re-sends what was already seen).

@@ -36,10 +36,11 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
 
   @doc false
-  # Counts of subscriptions indexed by arity only ({:any, n}) and by match
-  # specification (:spec), so delivery skips those lookups when there are
-  # none. One atomics array per table set, found through persistent_term
-  # (written once per start of this process, never on the hot path).
+  # Counters the write path reads instead of probing tables: subscriptions
+  # indexed by arity only ({:any, n}) and by match specification (:spec),
+  # so delivery skips those lookups when there are none, and the number of
+  # peer servers. One atomics array per table set, found through
+  # persistent_term (written once per start of this process).
   def sub_counters, do: :persistent_term.get({__MODULE__, :sub_counters})
 
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
@@ -55,7 +56,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     :ets.new(@tombs, [:set | concurrent])
     :ets.new(@meta, [:set | concurrent])
     :ets.insert(@meta, [{:boot, {System.system_time(), :erlang.unique_integer()}}, {:peers, []}])
-    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(2, signed: true))
+    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(3, signed: true))
     {:ok, nil}
   end
 end
