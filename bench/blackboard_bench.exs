@@ -203,6 +203,8 @@ defmodule ThinkingCap.Bench.Blackboard do
       |> Enum.drop(@warmup)
 
     Process.exit(listener, :kill)
+    :eredis_sub.stop(subscriber)
+    :eredis.stop(publisher)
     micro(samples)
   end
 

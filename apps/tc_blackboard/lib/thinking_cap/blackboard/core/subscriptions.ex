@@ -82,11 +82,13 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     end
   end
 
+  # indexes in Tables.sub_counters/0 (3 is the server's peer count)
   @any_counter 1
   @spec_counter 2
+  @tag_counter 4
 
   defp count({:stream, _, _, _}, _delta), do: :ok
-  defp count({:tag, _, _}, _delta), do: :ok
+  defp count({:tag, _, _}, delta), do: :atomics.add(Tables.sub_counters(), @tag_counter, delta)
   defp count({:any, _}, delta), do: :atomics.add(Tables.sub_counters(), @any_counter, delta)
   defp count(:spec, delta), do: :atomics.add(Tables.sub_counters(), @spec_counter, delta)
 
@@ -95,7 +97,20 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   def deliver(tuple) do
     subs = Tables.subs()
     counters = Tables.sub_counters()
-    for index <- Template.bound_indexes(tuple), do: deliver_all(:ets.lookup(subs, index), tuple)
+
+    case Template.bound_indexes(tuple) do
+      [stream, tag] ->
+        deliver_all(:ets.lookup(subs, stream), tuple)
+
+        if :atomics.get(counters, @tag_counter) > 0,
+          do: deliver_all(:ets.lookup(subs, tag), tuple)
+
+      [tag] ->
+        deliver_all(:ets.lookup(subs, tag), tuple)
+
+      [] ->
+        :ok
+    end
 
     if :atomics.get(counters, @any_counter) > 0,
       do: deliver_all(:ets.lookup(subs, {:any, tuple_size(tuple)}), tuple)

@@ -37,9 +37,9 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
 
   @doc false
   # Counters the write path reads instead of probing tables: subscriptions
-  # indexed by arity only ({:any, n}) and by match specification (:spec),
-  # so delivery skips those lookups when there are none, and the number of
-  # peer servers. One atomics array per table set, found through
+  # indexed by tag only ({:tag, n, first}), by arity only ({:any, n}) and
+  # by match specification (:spec), so delivery skips those lookups when
+  # there are none, and the number of peer servers. One atomics array per table set, found through
   # persistent_term (written once per start of this process).
   def sub_counters, do: :persistent_term.get({__MODULE__, :sub_counters})
 
@@ -56,7 +56,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     :ets.new(@tombs, [:set | concurrent])
     :ets.new(@meta, [:set | concurrent])
     :ets.insert(@meta, [{:boot, {System.system_time(), :erlang.unique_integer()}}, {:peers, []}])
-    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(3, signed: true))
+    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(4, signed: true))
     {:ok, nil}
   end
 end
