@@ -32,9 +32,6 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   @doc false
   def scope, do: @scope
 
-  @doc false
-  def group, do: @group
-
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
 
   @doc false
