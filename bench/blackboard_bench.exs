@@ -5,7 +5,8 @@ defmodule ThinkingCap.Bench.Blackboard do
 
     1. local out -> subscriber latency, 1,000 subscriptions over 100 tags
        (10 robot ids each), beside a raw `send` from the writer to the same
-       subscriber process;
+       subscriber process: on a lone node (the summary figures), then again
+       with a peer node connected;
     2. cross-node out -> subscriber latency beside a raw `send` to the same
        subscriber process on the other node;
     3. Redis PUBLISH -> subscriber latency (local redis-server, eredis);
@@ -33,14 +34,19 @@ defmodule ThinkingCap.Bench.Blackboard do
       "ThinkingCap blackboard benchmark (#{System.schedulers_online()} schedulers, OTP #{System.otp_release()})\n"
     )
 
-    [peer] = Cluster.start(1, connection: :dist)
+    # local figures on a lone node first, then again with a peer connected
+    # (every write then also goes to the replicator and the other VM)
     local = local_latency()
+    [peer] = Cluster.start(1, connection: :dist)
+    local_with_peer = local_latency()
     cross = cross_latency(peer)
     redis = redis_latency()
 
     Stats.print_header("µs")
     Stats.print_row("blackboard local out->subscriber", local.bb)
     Stats.print_row("raw send, local", local.send)
+    Stats.print_row("  same, with a peer node connected", local_with_peer.bb)
+    Stats.print_row("  raw send, same run", local_with_peer.send)
     Stats.print_row("blackboard cross-node", cross.bb)
     Stats.print_row("raw send, cross-node", cross.send)
     if redis, do: Stats.print_row("redis PUBLISH->subscriber", redis)

@@ -125,9 +125,10 @@ defmodule ThinkingCap.Blackboard do
     {ukey, ttl} = out_options(opts)
     record = Store.new_record(tuple, ukey, ttl)
     Store.insert(record)
-    if Waiters.any?(), do: Server.notify({:arrived, tuple})
-    # local subscribers are queued to run before the replicator
+    # subscribers first: nothing but the insert stands before their send,
+    # and they are queued to run before the replicator
     Subscriptions.deliver(tuple)
+    if Waiters.any?(), do: Server.notify({:arrived, tuple})
     Server.replicate(record)
   end
 
