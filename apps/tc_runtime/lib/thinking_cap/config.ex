@@ -1,0 +1,94 @@
+defmodule ThinkingCap.Config do
+  @moduledoc """
+  Reads and validates the three description files of a run:
+
+    * `*.adf` - architecture: modules, where and how they run
+      (`ThinkingCap.Config.ADF`);
+    * `*.rdf` - robot: footprint, kinematics, sensors, error models
+      (`ThinkingCap.Config.RDF`);
+    * `*.wdf` - world: walls, rooms, doors, beacons, waypoints, an optional
+      ROS occupancy map (`ThinkingCap.Config.WDF`).
+
+  A description file holds one keyword list written in Elixir's term syntax
+  (the syntax of `mix.exs` keyword lists). It is read with
+  `Code.string_to_quoted/2` and **never evaluated**: anything but literal
+  data (numbers, atoms, strings, lists, tuples, maps, module names) is
+  refused. Every problem is reported as `file:line:column: message`, all of
+  a file's problems at once; unknown keys are errors, with a "did you mean"
+  when a known key is close. Each kind's module documents its keys and
+  defaults, in one table per section.
+
+      {:ok, %ThinkingCap.Config.ADF{}} = ThinkingCap.Config.read("priv/examples/office.adf")
+      {:error, [%ThinkingCap.Config.Error{} | _]} = ThinkingCap.Config.read("broken.rdf")
+  """
+
+  alias ThinkingCap.Config.{ADF, Error, Literal, RDF, WDF}
+
+  @kinds %{".adf" => ADF, ".rdf" => RDF, ".wdf" => WDF}
+
+  @type description :: ADF.t() | RDF.t() | WDF.t()
+
+  @doc "Reads and validates a description file; the kind comes from its extension."
+  @spec read(Path.t()) :: {:ok, description()} | {:error, [Error.t()]}
+  def read(path) do
+    with {:ok, kind} <- kind(path),
+         {:ok, source} <- read_file(path),
+         {:ok, data, positions} <- Literal.parse(source, path) do
+      kind.from_data(data, path, positions)
+    end
+  end
+
+  @doc "Like `read/1`, but raises `ArgumentError` with every error."
+  @spec read!(Path.t()) :: description()
+  def read!(path) do
+    case read(path) do
+      {:ok, description} ->
+        description
+
+      {:error, errors} ->
+        raise ArgumentError, "invalid description file:\n" <> format_errors(errors)
+    end
+  end
+
+  @doc "Validates any number of description files; returns every error of every file."
+  @spec check([Path.t()]) :: [Error.t()]
+  def check(paths) do
+    Enum.flat_map(paths, fn path ->
+      case read(path) do
+        {:ok, _} -> []
+        {:error, errors} -> errors
+      end
+    end)
+  end
+
+  @doc "One `file:line:column: message` line per error."
+  @spec format_errors([Error.t()]) :: String.t()
+  def format_errors(errors), do: Enum.map_join(errors, "\n", &to_string/1)
+
+  defp kind(path) do
+    case Map.fetch(@kinds, Path.extname(path)) do
+      {:ok, kind} ->
+        {:ok, kind}
+
+      :error ->
+        {:error,
+         [
+           Error.new(
+             path,
+             {0, 0},
+             "unknown kind of description file: expected a .adf, .rdf or .wdf file"
+           )
+         ]}
+    end
+  end
+
+  defp read_file(path) do
+    case File.read(path) do
+      {:ok, source} ->
+        {:ok, source}
+
+      {:error, reason} ->
+        {:error, [Error.new(path, {0, 0}, "cannot read the file: #{:file.format_error(reason)}")]}
+    end
+  end
+end

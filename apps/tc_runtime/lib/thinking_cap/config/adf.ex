@@ -1,0 +1,239 @@
+defmodule ThinkingCap.Config.ADF do
+  @dashboard_fields [
+    enabled: {:boolean, default: false, doc: "serve the web dashboard"},
+    host: {:string, default: "127.0.0.1", doc: "interface to bind"},
+    port: {:port, default: 4000, doc: "HTTP and WebSocket port"},
+    rosbridge_port: {:port, default: 9090, doc: "rosbridge v2 endpoint port"},
+    public_view:
+      {:boolean,
+       default: false, doc: "let viewers without the access token watch (never control)"}
+  ]
+
+  @module_fields [
+    module: {:module, required: true, doc: "the Elixir module implementing it"},
+    node:
+      {:atom,
+       default: :local,
+       doc:
+         "the logical node (a key of `nodes`) it runs on; `:local`: the node that reads the ADF"},
+    standby: {{:list, :atom}, default: [], doc: "logical nodes it fails over to, in order"},
+    activity:
+      {{:one_of, [:periodic, :event, :background]}, required: true, doc: "how it is released"},
+    period: {:pos_number, doc: "seconds between releases (periodic only; required there)"},
+    deadline:
+      {:pos_number,
+       doc:
+         "seconds after a release by which the result is due (periodic only; default: the period)"},
+    priority:
+      {{:int_range, 1, 99}, default: 50, doc: "periodic releases of higher priority go first"},
+    fallback:
+      {:any, default: :stop, doc: "the command applied when a result misses its deadline"},
+    subscribe:
+      {{:list, :template}, default: [], doc: "blackboard templates whose tuples it handles"},
+    params: {:params, default: [], doc: "passed to the module's `init/2`"}
+  ]
+
+  @fields [
+    robot:
+      {:atom,
+       required: true, doc: "the robot's id in blackboard tuples (`{tag, robot, payload}`)"},
+    rdf: {:string, doc: "the robot description file, relative to this file"},
+    wdf: {:string, doc: "the world description file, relative to this file"},
+    nodes:
+      {{:keyword_of, :atom},
+       default: [], doc: "`logical_name: :\"name@host\"`; empty: everything on one node"},
+    dashboard:
+      {{:keyword, @dashboard_fields}, default: [], doc: "web dashboard settings (below)"},
+    modules:
+      {{:keyword_of, {:keyword, @module_fields}},
+       required: true, doc: "`name: [module keys]` (below)"}
+  ]
+
+  @moduledoc """
+  The architecture description file (`*.adf`): which modules run, the
+  module implementing each (`module: ThinkingCap.Sim.Robot` or a real
+  robot's driver is the whole switch between simulation and hardware), on
+  which node, with which activity and timing, with which parameters; the
+  nodes of the cluster; the dashboard.
+
+      [
+        robot: :r1,
+        rdf: "office_robot.rdf",
+        wdf: "office.wdf",
+        nodes: [main: :"tc_main@127.0.0.1"],
+        modules: [
+          base: [module: ThinkingCap.Sim.Robot, node: :main, activity: :periodic, period: 0.01, deadline: 0.003, priority: 90]
+        ]
+      ]
+
+  Times are in seconds.
+
+  ## Top-level keys
+
+  #{ThinkingCap.Config.Schema.describe(@fields)}
+
+  ## Module keys
+
+  #{ThinkingCap.Config.Schema.describe(@module_fields)}
+
+  ## Dashboard keys
+
+  #{ThinkingCap.Config.Schema.describe(@dashboard_fields)}
+  """
+
+  alias ThinkingCap.Config.Schema
+
+  defstruct [:file, :robot, :rdf, :wdf, nodes: %{}, dashboard: %{}, modules: []]
+
+  @typedoc "One module entry, with defaults filled in (`deadline` defaults to `period`)."
+  @type module_spec :: %{
+          name: atom(),
+          module: module(),
+          node: atom(),
+          standby: [atom()],
+          activity: :periodic | :event | :background,
+          period: float() | nil,
+          deadline: float() | nil,
+          priority: 1..99,
+          fallback: term(),
+          subscribe: [tuple()],
+          params: keyword() | map()
+        }
+
+  @type t :: %__MODULE__{
+          file: Path.t(),
+          robot: atom(),
+          rdf: Path.t() | nil,
+          wdf: Path.t() | nil,
+          nodes: %{atom() => node()},
+          dashboard: map(),
+          modules: [module_spec()]
+        }
+
+  @doc false
+  @spec fields() :: Schema.fields()
+  def fields, do: @fields
+
+  @doc false
+  # Validates the data of an ADF read from `file`.
+  @spec from_data(term(), Path.t(), map()) ::
+          {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
+  def from_data(data, file, positions) do
+    {value, errors} = Schema.validate(data, {:keyword, @fields}, file, positions)
+    st = %{file: file, positions: positions, errors: Enum.reverse(errors)}
+
+    modules = for {name, spec} <- value[:modules] || [], do: Map.put(spec, :name, name)
+    nodes = value[:nodes] || []
+
+    st =
+      st
+      |> check_nodes(nodes)
+      |> check_modules(modules, Keyword.keys(nodes))
+      |> check_file(:rdf, value[:rdf])
+      |> check_file(:wdf, value[:wdf])
+
+    case Enum.reverse(st.errors) do
+      [] ->
+        modules = Enum.map(modules, fn m -> %{m | deadline: m.deadline || m.period} end)
+
+        adf = %__MODULE__{
+          file: file,
+          robot: value.robot,
+          rdf: resolve(file, value.rdf),
+          wdf: resolve(file, value.wdf)
+        }
+
+        {:ok, %{adf | nodes: Map.new(nodes), dashboard: value.dashboard, modules: modules}}
+
+      errors ->
+        {:error, errors}
+    end
+  end
+
+  defp check_nodes(st, nodes) do
+    Enum.reduce(nodes, st, fn {name, node}, st ->
+      if is_atom(node) and String.match?(Atom.to_string(node), ~r/^[^@\s]+@[^@\s]+$/),
+        do: st,
+        else:
+          Schema.error(
+            st,
+            [:nodes, name],
+            "nodes.#{name}: expected a node name like :\"name@host\", got #{inspect(node)}"
+          )
+    end)
+  end
+
+  defp check_modules(st, modules, declared) do
+    Enum.reduce(modules, st, fn m, st ->
+      path = [:modules, m.name]
+
+      st
+      |> check_node(path ++ [:node], m.node, declared)
+      |> then(fn st ->
+        Enum.reduce(Enum.with_index(m.standby), st, fn {n, i}, st ->
+          check_node(st, path ++ [:standby, i], n, declared)
+        end)
+      end)
+      |> check_timing(path, m)
+    end)
+  end
+
+  defp check_node(st, path, node, declared) do
+    if node == :local or not is_atom(node) or node in declared,
+      do: st,
+      else: undeclared_node(st, path, node, declared)
+  end
+
+  defp undeclared_node(st, path, node, declared) do
+    known =
+      if declared == [],
+        do: "no nodes are declared, so use :local",
+        else: "declared: #{Enum.map_join(declared, ", ", &":#{&1}")}"
+
+    Schema.error(
+      st,
+      path,
+      "#{Schema.path_string(path)}: node :#{node} is not declared in nodes (#{known})"
+    )
+  end
+
+  defp check_timing(st, path, %{activity: :periodic, period: nil}) do
+    Schema.error(st, path, "#{Schema.path_string(path)}: a periodic module needs period: seconds")
+  end
+
+  defp check_timing(st, path, %{activity: :periodic, period: period, deadline: deadline})
+       when is_number(period) and is_number(deadline) and deadline > period do
+    Schema.error(
+      st,
+      path ++ [:deadline],
+      "#{Schema.path_string(path)}.deadline: #{deadline} s is longer than the period #{period} s"
+    )
+  end
+
+  defp check_timing(st, path, %{activity: activity} = m) when activity in [:event, :background] do
+    Enum.reduce([:period, :deadline], st, fn key, st ->
+      if Map.get(m, key),
+        do:
+          Schema.error(
+            st,
+            path ++ [key],
+            "#{Schema.path_string(path)}.#{key}: only periodic modules have a #{key} (this one is #{activity})"
+          ),
+        else: st
+    end)
+  end
+
+  defp check_timing(st, _path, _module), do: st
+
+  defp check_file(st, _key, nil), do: st
+
+  defp check_file(st, key, relative) when is_binary(relative) do
+    path = resolve(st.file, relative)
+    if File.regular?(path), do: st, else: Schema.error(st, [key], "#{key}: no such file #{path}")
+  end
+
+  defp check_file(st, _key, _other), do: st
+
+  defp resolve(_file, nil), do: nil
+  defp resolve(file, relative), do: Path.expand(relative, Path.dirname(file))
+end

@@ -1,0 +1,184 @@
+defmodule ThinkingCap.Config.WDF do
+  @named_polygon [
+    name: {:atom, required: true, doc: "unique name"},
+    polygon: {{:list, :point}, required: true, doc: "corners, m (at least 3)"}
+  ]
+
+  @door_fields [
+    name: {:atom, required: true, doc: "unique name"},
+    from: {:point, required: true, doc: "one jamb, m"},
+    to: {:point, required: true, doc: "the other jamb, m"},
+    open:
+      {:boolean,
+       default: true, doc: "open at start (doors can be opened and closed while running)"},
+    connects: {{:list, :atom}, default: [], doc: "the rooms or corridors it joins"}
+  ]
+
+  @beacon_fields [
+    name: {:atom, required: true, doc: "unique name"},
+    at: {:point, required: true, doc: "position, m"}
+  ]
+
+  @area_fields [
+    name: {:atom, required: true, doc: "unique name"},
+    polygon: {{:list, :point}, required: true, doc: "corners, m (at least 3)"},
+    kind: {:atom, default: :area, doc: "what the area is for (`:charging`, `:forbidden`, ...)"}
+  ]
+
+  @waypoint_fields [
+    name: {:atom, required: true, doc: "unique name"},
+    at: {:point_or_pose, required: true, doc: "{x, y} or {x, y, theta}"}
+  ]
+
+  @map_fields [
+    yaml: {:string, required: true, doc: "a ROS map_server YAML file, relative to this file"}
+  ]
+
+  @fields [
+    name: {:string, required: true, doc: "the world"},
+    map: {{:keyword, @map_fields}, doc: "an occupancy map to import (below)"},
+    walls: {{:list, :segment}, default: [], doc: "wall segments"},
+    rooms: {{:list, {:keyword, @named_polygon}}, default: [], doc: "rooms (name, polygon)"},
+    corridors:
+      {{:list, {:keyword, @named_polygon}}, default: [], doc: "corridors (name, polygon)"},
+    doors: {{:list, {:keyword, @door_fields}}, default: [], doc: "doors (below)"},
+    beacons:
+      {{:list, {:keyword, @beacon_fields}},
+       default: [], doc: "reflective beacons for laser localization"},
+    areas: {{:list, {:keyword, @area_fields}}, default: [], doc: "named areas (below)"},
+    waypoints: {{:list, {:keyword, @waypoint_fields}}, default: [], doc: "named places (below)"}
+  ]
+
+  @moduledoc """
+  The world description file (`*.wdf`): walls, rooms, corridors, doors,
+  beacons, areas and waypoints, and optionally an occupancy map imported
+  from a ROS `map_server` YAML + PGM pair (`ThinkingCap.Config.RosMap`). A
+  world may be empty (`[name: "empty"]`).
+
+  ## Top-level keys
+
+  #{ThinkingCap.Config.Schema.describe(@fields)}
+
+  ## Door keys
+
+  #{ThinkingCap.Config.Schema.describe(@door_fields)}
+
+  ## Area keys
+
+  #{ThinkingCap.Config.Schema.describe(@area_fields)}
+
+  ## Waypoint keys
+
+  #{ThinkingCap.Config.Schema.describe(@waypoint_fields)}
+
+  ## Map keys
+
+  #{ThinkingCap.Config.Schema.describe(@map_fields)}
+  """
+
+  alias ThinkingCap.Config.{RosMap, Schema}
+
+  defstruct [
+    :file,
+    :name,
+    :grid,
+    walls: [],
+    rooms: [],
+    corridors: [],
+    doors: [],
+    beacons: [],
+    areas: [],
+    waypoints: []
+  ]
+
+  @type t :: %__MODULE__{
+          file: Path.t(),
+          name: String.t(),
+          grid: RosMap.t() | nil,
+          walls: [{{float(), float()}, {float(), float()}}],
+          rooms: [map()],
+          corridors: [map()],
+          doors: [map()],
+          beacons: [map()],
+          areas: [map()],
+          waypoints: [map()]
+        }
+
+  @named [:rooms, :corridors, :doors, :beacons, :areas, :waypoints]
+
+  @doc false
+  @spec from_data(term(), Path.t(), map()) ::
+          {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
+  def from_data(data, file, positions) do
+    {value, errors} = Schema.validate(data, {:keyword, @fields}, file, positions)
+    st = %{file: file, positions: positions, errors: Enum.reverse(errors)}
+    st = st |> check_names(value) |> check_polygons(value) |> check_doors(value)
+    {grid, st} = load_map(st, value[:map])
+
+    case Enum.reverse(st.errors) do
+      [] ->
+        {:ok,
+         struct!(
+           __MODULE__,
+           value |> Map.take([:name | [:walls | @named]]) |> Map.merge(%{file: file, grid: grid})
+         )}
+
+      errors ->
+        {:error, errors}
+    end
+  end
+
+  defp check_names(st, value) do
+    {st, _} =
+      for key <- @named, {item, i} <- Enum.with_index(value[key] || []), reduce: {st, %{}} do
+        {st, seen} ->
+          case Map.fetch(seen, item.name) do
+            {:ok, {other, j}} ->
+              message =
+                "#{key}[#{i}].name: #{inspect(item.name)} is already the name of #{other}[#{j}]"
+
+              {Schema.error(st, [key, i, :name], message), seen}
+
+            :error ->
+              {st, Map.put(seen, item.name, {key, i})}
+          end
+      end
+
+    st
+  end
+
+  defp check_polygons(st, value) do
+    for key <- [:rooms, :corridors, :areas],
+        {item, i} <- Enum.with_index(value[key] || []),
+        length(item.polygon) in 1..2,
+        reduce: st do
+      st -> Schema.error(st, [key, i, :polygon], "#{key}[#{i}].polygon: needs at least 3 points")
+    end
+  end
+
+  defp check_doors(st, value) do
+    places = MapSet.new(Enum.map((value[:rooms] || []) ++ (value[:corridors] || []), & &1.name))
+
+    for {door, i} <- Enum.with_index(value[:doors] || []),
+        {place, j} <- Enum.with_index(door.connects),
+        not MapSet.member?(places, place),
+        reduce: st do
+      st ->
+        Schema.error(
+          st,
+          [:doors, i, :connects, j],
+          "doors[#{i}].connects: #{inspect(place)} is not a room or corridor of this world"
+        )
+    end
+  end
+
+  defp load_map(st, nil), do: {nil, st}
+  defp load_map(st, %{yaml: nil}), do: {nil, st}
+
+  defp load_map(st, %{yaml: yaml}) do
+    case RosMap.load(Path.expand(yaml, Path.dirname(st.file))) do
+      {:ok, grid} -> {grid, st}
+      {:error, message} -> {nil, Schema.error(st, [:map, :yaml], "map.yaml: #{message}")}
+    end
+  end
+end

@@ -1,0 +1,303 @@
+defmodule ThinkingCap.ConfigTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Config
+  alias ThinkingCap.Config.{ADF, RDF, WDF}
+
+  @examples Path.expand("../../../../priv/examples", __DIR__)
+
+  @moduletag :tmp_dir
+
+  defp write(dir, name, text) do
+    path = Path.join(dir, name)
+    File.write!(path, text)
+    path
+  end
+
+  # "line:column" of the first `token` on `line` of `source`: where an error
+  # about that value must point
+  defp at(source, line, token) do
+    text = source |> String.split("\n") |> Enum.at(line - 1)
+    {col, _} = :binary.match(text, token)
+    "#{line}:#{col + 1}"
+  end
+
+  defp errors(path) do
+    assert {:error, errors} = Config.read(path)
+    Enum.map(errors, &to_string/1)
+  end
+
+  @module_ok "[module: My.Mod, activity: :periodic, period: 0.1]"
+
+  describe "the example set" do
+    test "the office ADF, RDF and WDF load with their defaults" do
+      assert {:ok, %ADF{} = adf} = Config.read(Path.join(@examples, "office.adf"))
+      assert adf.robot == :r1
+      assert adf.rdf == Path.join(@examples, "office_robot.rdf")
+      assert adf.nodes == %{main: :"tc_main@127.0.0.1", nav: :"tc_nav@127.0.0.1"}
+      assert %{port: 4000, public_view: false, rosbridge_port: 9090} = adf.dashboard
+      base = Enum.find(adf.modules, &(&1.name == :base))
+
+      assert %{
+               module: ThinkingCap.Sim.Robot,
+               period: 0.01,
+               deadline: 0.003,
+               priority: 90,
+               fallback: :stop
+             } = base
+
+      planner = Enum.find(adf.modules, &(&1.name == :planner))
+      # deadline defaults to the period
+      assert planner.deadline == 0.5
+
+      assert %{activity: :background, node: :local} =
+               Enum.find(adf.modules, &(&1.name == :logger))
+
+      assert {:ok, %RDF{} = rdf} = Config.read(adf.rdf)
+      assert rdf.kinematics.type == :differential
+      assert [%{name: :sonar, count: 8, range: {0.05, 5.0}} | _] = rdf.sensors
+      assert %{max_reflections: 2, rate: 10.0} = hd(rdf.sensors)
+
+      assert {:ok, %WDF{} = wdf} = Config.read(adf.wdf)
+      assert length(wdf.walls) == 10
+      assert %{name: :b_door, open: false} = Enum.find(wdf.doors, &(&1.name == :b_door))
+      assert %{at: {1.0, 1.0, 0.0}} = Enum.find(wdf.waypoints, &(&1.name == :dock))
+      assert %{at: {3.5, 7.0}} = Enum.find(wdf.waypoints, &(&1.name == :lab_bench))
+      assert wdf.grid == nil
+    end
+
+    test "mix tc.check accepts the examples" do
+      Mix.shell(Mix.Shell.Process)
+      files = for f <- ~w(office.adf office_robot.rdf office.wdf), do: Path.join(@examples, f)
+      Mix.Tasks.Tc.Check.run(files)
+      assert_received {:mix_shell, :info, ["3 description file(s) OK"]}
+    after
+      Mix.shell(Mix.Shell.IO)
+    end
+
+    test "an empty world is a world", %{tmp_dir: dir} do
+      assert {:ok, %WDF{walls: [], doors: []}} =
+               Config.read(write(dir, "empty.wdf", ~s([name: "empty"])))
+    end
+  end
+
+  describe "never evaluated" do
+    test "a call is refused at its position and not run", %{tmp_dir: dir} do
+      sentinel = write(dir, "sentinel", "still here")
+
+      source = """
+      [
+        robot: File.rm!(#{inspect(sentinel)}),
+        modules: []
+      ]
+      """
+
+      path = write(dir, "evil.adf", source)
+      assert [error] = errors(path)
+
+      assert error =~
+               "evil.adf:#{at(source, 2, "File")}: expected a literal value, got the expression File.rm!("
+
+      assert File.exists?(sentinel)
+    end
+
+    test "variables, interpolation, attributes, functions and operators are refused", %{
+      tmp_dir: dir
+    } do
+      path =
+        write(dir, "code.wdf", """
+        [
+          name: "x\#{1 + 1}",
+          walls: [{{a, 0}, {1, 1}}],
+          rooms: @rooms,
+          doors: &IO.puts/1,
+          beacons: 1 + 2
+        ]
+        """)
+
+      assert [interp, var, attr, fun, op] = errors(path)
+      assert interp =~ "code.wdf:2:9: string interpolation"
+      assert var =~ "code.wdf:3:13: variables are not allowed (found a)"
+      assert attr =~ "code.wdf:4:10: module attributes are not allowed"
+      assert fun =~ "code.wdf:5:10: functions are not allowed"
+      assert op =~ "code.wdf:6:14: expected a literal value"
+    end
+
+    test "a syntax error names its place", %{tmp_dir: dir} do
+      assert [error] =
+               errors(write(dir, "broken.rdf", "[\n  name: \"r\",\n  footprint: [radius: ]\n]\n"))
+
+      assert error =~ ~r/^.*broken\.rdf:3:\d+: syntax error/
+    end
+  end
+
+  describe "schema errors" do
+    test "an unknown key says where, and what was meant", %{tmp_dir: dir} do
+      path =
+        write(dir, "typo.adf", """
+        [
+          robot: :r1,
+          modules: [
+            base: [module: My.Mod, activity: :periodic, perod: 0.1]
+          ]
+        ]
+        """)
+
+      assert [unknown, missing] = errors(path)
+      assert unknown =~ "typo.adf:4:49: unknown key :perod in modules.base; did you mean :period?"
+      assert missing =~ "typo.adf:4:11: modules.base: a periodic module needs period: seconds"
+    end
+
+    test "a wrong type says what was expected and what was found", %{tmp_dir: dir} do
+      source = """
+      [
+        name: "r",
+        footprint: [radius: -0.2],
+        kinematics: [type: :hovercraft],
+        sensors: [[name: "laser", type: :laser, range: {8, 1}, fov: 3.14, beams: 0]]
+      ]
+      """
+
+      path = write(dir, "types.rdf", source)
+
+      assert errors(path) == [
+               "#{path}:#{at(source, 3, "-0.2")}: footprint.radius: expected a positive number, got -0.2",
+               "#{path}:#{at(source, 4, ":hover")}: kinematics.type: expected one of :differential, :tricycle, :ackermann, got :hovercraft",
+               "#{path}:#{at(source, 5, "\"laser")}: sensors[0].name: expected an atom like :name, got \"laser\"",
+               "#{path}:#{at(source, 5, "{8")}: sensors[0].range: expected a range {min, max} with 0 <= min < max, got {8, 1}",
+               "#{path}:#{at(source, 5, "0]]")}: sensors[0].beams: expected a positive integer, got 0"
+             ]
+    end
+
+    test "missing required keys and every error of a file are reported at once", %{tmp_dir: dir} do
+      assert [robot, modules] = errors(write(dir, "bare.adf", "[nodes: []]"))
+      assert robot =~ "bare.adf:1:1: the file: missing required key :robot"
+      assert modules =~ "missing required key :modules"
+    end
+
+    test "a file that is not a keyword list", %{tmp_dir: dir} do
+      assert [error] = errors(write(dir, "list.wdf", "[1, 2]"))
+
+      assert error =~
+               "list.wdf:1:1: the file: expected a keyword list like [key: value, ...], got [1, 2]"
+    end
+
+    test "a key given twice", %{tmp_dir: dir} do
+      assert [error] = errors(write(dir, "twice.wdf", ~s([name: "a",\n name: "b"])))
+      assert error =~ "twice.wdf:2:2: key :name given twice in the file"
+    end
+  end
+
+  describe "ADF checks across keys" do
+    test "nodes that are not declared, timing that cannot hold, referenced files that are missing",
+         %{tmp_dir: dir} do
+      source = """
+      [
+        robot: :r1,
+        rdf: "missing.rdf",
+        nodes: [main: :"a@127.0.0.1", bad: :nohost],
+        modules: [
+          a: [module: My.A, node: :nav, activity: :periodic, period: 0.1, deadline: 0.2],
+          b: [module: My.B, activity: :event, period: 1, standby: [:ghost]],
+          c: [module: :not_a_module, activity: :background, subscribe: [[:scan]]]
+        ]
+      ]
+      """
+
+      path = write(dir, "cross.adf", source)
+
+      assert errors(path) == [
+               "#{path}:#{at(source, 8, ":not_a")}: modules.c.module: expected a module name like ThinkingCap.Sim.Robot, got :not_a_module",
+               "#{path}:#{at(source, 8, "[:scan]")}: modules.c.subscribe[0]: expected a blackboard template (a tuple), got [:scan]",
+               "#{path}:#{at(source, 4, ":nohost")}: nodes.bad: expected a node name like :\"name@host\", got :nohost",
+               "#{path}:#{at(source, 6, ":nav")}: modules.a.node: node :nav is not declared in nodes (declared: :main, :bad)",
+               "#{path}:#{at(source, 6, "0.2]")}: modules.a.deadline: 0.2 s is longer than the period 0.1 s",
+               "#{path}:#{at(source, 7, ":ghost")}: modules.b.standby[0]: node :ghost is not declared in nodes (declared: :main, :bad)",
+               "#{path}:#{at(source, 7, "1,")}: modules.b.period: only periodic modules have a period (this one is event)",
+               "#{path}:#{at(source, 3, "\"missing")}: rdf: no such file #{Path.join(dir, "missing.rdf")}"
+             ]
+    end
+
+    test "with no nodes declared, :local is the only node", %{tmp_dir: dir} do
+      path =
+        write(
+          dir,
+          "solo.adf",
+          "[robot: :r1, modules: [a: [module: My.A, node: :main, activity: :background]]]"
+        )
+
+      assert [error] = errors(path)
+      assert error =~ "node :main is not declared in nodes (no nodes are declared, so use :local)"
+      ok = write(dir, "solo_ok.adf", "[robot: :r1, modules: [a: #{@module_ok}]]")
+      assert {:ok, %ADF{modules: [%{node: :local, deadline: 0.1}]}} = Config.read(ok)
+    end
+  end
+
+  describe "RDF and WDF checks across keys" do
+    test "drives need their geometry; sensors their parameters and unique names", %{tmp_dir: dir} do
+      path =
+        write(dir, "drive.rdf", """
+        [
+          name: "r",
+          footprint: [radius: 0.2, polygon: [{0, 0}, {1, 0}, {0, 1}]],
+          kinematics: [type: :ackermann, wheelbase: 1.2],
+          sensors: [[name: :s, type: :sonar, range: {0.1, 5}], [name: :s, type: :bumper]]
+        ]
+        """)
+
+      assert errors(path) == [
+               "#{path}:3:14: footprint: give radius or polygon, not both",
+               "#{path}:4:15: kinematics: a ackermann drive needs track: (m between the steered wheels (ackermann: required))",
+               "#{path}:4:15: kinematics: a ackermann drive needs max_steering: (rad (tricycle, ackermann: required))",
+               "#{path}:5:13: sensors[0]: a sonar sensor needs fov:",
+               "#{path}:5:63: sensors[1].name: :s is used by another sensor"
+             ]
+    end
+
+    test "doors connect known places; polygons have 3 points; names are unique", %{tmp_dir: dir} do
+      source = """
+      [
+        name: "w",
+        rooms: [[name: :a, polygon: [{0, 0}, {1, 0}]]],
+        doors: [[name: :a, from: {0, 0}, to: {1, 0}, connects: [:a, :nowhere]]]
+      ]
+      """
+
+      path = write(dir, "places.wdf", source)
+
+      assert errors(path) == [
+               "#{path}:#{at(source, 4, ":a,")}: doors[0].name: :a is already the name of rooms[0]",
+               "#{path}:#{at(source, 3, "[{0")}: rooms[0].polygon: needs at least 3 points",
+               "#{path}:#{at(source, 4, ":nowhere")}: doors[0].connects: :nowhere is not a room or corridor of this world"
+             ]
+    end
+  end
+
+  describe "files" do
+    test "unknown extensions and unreadable files are errors, not crashes", %{tmp_dir: dir} do
+      assert [error] = errors(write(dir, "robot.yaml", "[]"))
+
+      assert error =~
+               "robot.yaml:0:0: unknown kind of description file: expected a .adf, .rdf or .wdf file"
+
+      assert [error] = errors(Path.join(dir, "absent.adf"))
+      assert error =~ "absent.adf:0:0: cannot read the file: no such file or directory"
+    end
+
+    test "mix tc.check prints every error and fails", %{tmp_dir: dir} do
+      Mix.shell(Mix.Shell.Process)
+      bad = write(dir, "bad.wdf", "[name: :not_a_string, walls: 3]")
+      good = Path.join(@examples, "office.wdf")
+
+      assert_raise Mix.Error, "2 error(s) in description files", fn ->
+        Mix.Tasks.Tc.Check.run([good, bad])
+      end
+
+      assert_received {:mix_shell, :error, [output]}
+      assert output =~ "bad.wdf:1:8: name: expected a string, got :not_a_string"
+      assert output =~ "bad.wdf:1:30: walls: expected a list, got 3"
+    after
+      Mix.shell(Mix.Shell.IO)
+    end
+  end
+end
