@@ -60,6 +60,7 @@ defmodule ThinkingCap.Runtime.MixProject do
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
       compilers: [:tc_timing | Mix.compilers()],
+      elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       deps: [{:tc_blackboard, in_umbrella: true}]
     ]
   end

@@ -20,7 +20,7 @@
  * PROTOCOL (integers big-endian)
  *   BEAM -> worker
  *     'A' u16 id, u64 period_ns, u64 deadline_ns, u8 priority, fallback...  add
- *     'R' u16 id                                                           remove
+ *     'R' u16 id                                      remove (applies its fallback)
  *     'C' u16 id, u32 cycle, command...                                    result
  *   worker -> BEAM
  *     'H' u8 sched_fifo_granted, u8 mlockall_granted, text...               hello
@@ -215,8 +215,14 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
         break;
     }
     case 'R': {
+        /* a removed activity (its module stopped or crashed) will send no
+         * fresh command again: its fallback is the last word */
         activity *a = len >= 3 ? find(get16(p + 1)) : NULL;
-        if (a) a->used = 0;
+        if (a) {
+            a->awaiting = 0;
+            send_applied(a, FALLBACK, 0, a->fallback, a->fallback_len);
+            a->used = 0;
+        }
         wake_timing();
         break;
     }

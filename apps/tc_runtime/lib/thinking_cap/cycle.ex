@@ -20,7 +20,9 @@ defmodule ThinkingCap.Cycle do
       {:tc_cycle, :applied, name, %{cycle: n, kind: :fresh | :fallback | :late, command: term, response_us: float}}
 
   (`:late` reports a result that came after its fallback; it is not
-  applied). If the BEAM dies, the worker applies every fallback and exits.
+  applied). A removed activity's fallback is applied at once (its module
+  stopped or crashed: no fresh command will come). If the BEAM dies, the
+  worker applies every fallback and exits.
   If the worker dies, this process starts a new one, adds every activity
   again, and tells subscribers that each activity's fallback is applied:
   the robot stays stopped until a fresh command.
@@ -303,10 +305,15 @@ defmodule ThinkingCap.Cycle do
     )
   end
 
+  # The worker applies a removed activity's fallback; its subscribers hear
+  # it here, since the activity is gone when the worker's frame arrives.
   defp remove_activity(state, name) do
     case state.ids do
-      %{^name => id} ->
+      %{^name => id} when is_map_key(state.activities, id) ->
+        a = state.activities[id]
         if state.port, do: Port.command(state.port, <<?R, id::16>>)
+        event = %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0}
+        Enum.each(a.subscribers, &send(&1, {:tc_cycle, :applied, name, event}))
         %{state | activities: Map.delete(state.activities, id)}
 
       _ ->

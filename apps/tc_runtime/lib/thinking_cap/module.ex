@@ -1,0 +1,104 @@
+defmodule ThinkingCap.Module do
+  @moduledoc """
+  The behaviour of a ThinkingCap module. A module author writes callbacks
+  that return `{actions, state}`; the framework owns the process, its
+  supervision and restarts, its blackboard subscriptions, its placement on
+  the node the ADF names, and its timing.
+
+      defmodule MyRobot.Cruise do
+        use ThinkingCap.Module
+
+        @impl true
+        def init(params, _context), do: {:ok, %{speed: Keyword.get(params, :speed, 0.2)}}
+
+        @impl true
+        def handle_cycle(_release, state), do: {[command: {:vel, state.speed, 0.0}], state}
+
+        @impl true
+        def handle_tuple({:bumper, _robot, %{pressed: true}}, state), do: {[], %{state | speed: 0.0}}
+        def handle_tuple(_tuple, state), do: {[], state}
+      end
+
+  The activity comes from the ADF:
+
+    * **periodic** - `handle_cycle/2` at every release of the timing worker
+      (`ThinkingCap.Cycle`); a `{:command, term}` action is the cycle's
+      result. A result that misses the deadline is replaced by the ADF's
+      `fallback` in that same cycle.
+    * **event** - `handle_tuple/2` for every tuple matching the ADF's
+      `subscribe` templates (also delivered to periodic modules).
+    * **background** - `handle_background/1` again and again, at low process
+      priority: it runs when nothing else does (logging, map saving).
+
+  Actions (a list, or a keyword list):
+
+    * `{:out, tuple}` / `{:out, {tuple, opts}}` - write to the blackboard;
+    * `{:command, term}` - the result of the current cycle (periodic only);
+    * `{:subscribe, template}` - subscribe to more tuples.
+
+  `init/2` gets the ADF's `params` and a context map (`:name`, `:robot`,
+  `:node`, `:activity`) and returns `{:ok, state}` or `{actions, state}`.
+  When a module is replaced while running (`ThinkingCap.Runtime.swap/2`),
+  the new module's `handle_swap/3` (old module, old state, context) gives
+  its first state; without it, `init/2` does.
+  """
+
+  @type action ::
+          {:out, tuple()}
+          | {:out, {tuple(), keyword()}}
+          | {:command, term()}
+          | {:subscribe, tuple()}
+  @type actions :: [action()]
+  @type context :: %{
+          name: atom(),
+          robot: atom(),
+          node: node(),
+          activity: :periodic | :event | :background
+        }
+  @type release :: ThinkingCap.Cycle.release()
+
+  @callback init(params :: keyword() | map(), context()) :: {:ok, term()} | {actions(), term()}
+  @callback handle_cycle(release(), state :: term()) :: {actions(), term()}
+  @callback handle_tuple(tuple(), state :: term()) :: {actions(), term()}
+  @callback handle_background(state :: term()) :: {actions(), term()}
+  @callback handle_info(term(), state :: term()) :: {actions(), term()}
+  @callback handle_swap(old_module :: module(), old_state :: term(), context()) :: {:ok, term()}
+  @callback terminate(reason :: term(), state :: term()) :: term()
+
+  @optional_callbacks handle_swap: 3
+
+  defmacro __using__(_opts) do
+    quote do
+      @behaviour ThinkingCap.Module
+
+      @impl true
+      def init(_params, _context), do: {:ok, nil}
+
+      @impl true
+      def handle_cycle(_release, state), do: {[], state}
+
+      @impl true
+      def handle_tuple(_tuple, state), do: {[], state}
+
+      @impl true
+      def handle_background(state) do
+        # nothing to do: do not spin
+        Process.sleep(100)
+        {[], state}
+      end
+
+      @impl true
+      def handle_info(_message, state), do: {[], state}
+
+      @impl true
+      def terminate(_reason, _state), do: :ok
+
+      defoverridable init: 2,
+                     handle_cycle: 2,
+                     handle_tuple: 2,
+                     handle_background: 1,
+                     handle_info: 2,
+                     terminate: 2
+    end
+  end
+end

@@ -1,0 +1,187 @@
+defmodule ThinkingCap.Runtime do
+  @moduledoc """
+  Hosts the modules an ADF names, each on the node the ADF assigns, and
+  reports what runs where.
+
+      {:ok, adf} = ThinkingCap.Config.read("priv/examples/office.adf")
+      {:ok, started} = ThinkingCap.Runtime.start(adf)
+      ThinkingCap.Runtime.which_modules()
+      ThinkingCap.Runtime.swap(:control, MyRobot.BetterControl)   # while it runs
+      ThinkingCap.Runtime.stop(:control)
+
+  Each module runs in a process the framework owns
+  (`ThinkingCap.Module`), supervised on its node: a module that crashes is
+  restarted, and while it is down its periodic activity's fallback command
+  holds (the timing worker applies it when the activity goes away). Module
+  processes join a `:pg` group per module name, so every node can find
+  every module.
+
+  ## Scheduling of the BEAM side
+
+  The control activity gets the CPU under load by three means:
+
+    * the timing worker is a separate OS thread at `SCHED_FIFO` priority 80
+      (when granted), so releases and fallbacks never wait for the BEAM;
+    * the cycle's owner process and periodic module processes run at
+      process priority `:high`, event-driven ones at `:normal`, background
+      ones at `:low` (they run only when nothing else is runnable);
+    * a release that queued up behind a slow cycle is dropped in favour of
+      the newest, so a late module catches up instead of falling further
+      behind.
+  """
+
+  alias ThinkingCap.Config.ADF
+  alias ThinkingCap.Runtime.Host
+
+  @scope :thinking_cap_runtime
+
+  @doc false
+  def scope, do: @scope
+
+  @typedoc "A module as the runtime reports it."
+  @type module_info :: %{
+          name: atom(),
+          module: module(),
+          node: node(),
+          pid: pid(),
+          activity: atom(),
+          started_at: integer()
+        }
+
+  @doc """
+  Starts every module of `adf` (a `ThinkingCap.Config.ADF` or the path of
+  an ADF file) on its node. Returns what was started, or every module that
+  could not be, with the reason.
+  """
+  @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
+  def start(%ADF{} = adf) do
+    results = for spec <- adf.modules, do: {spec.name, start_module(adf, spec)}
+
+    case for({name, {:error, reason}} <- results, do: {name, reason}) do
+      [] -> {:ok, for({_name, {:ok, info}} <- results, do: info)}
+      failed -> {:error, failed}
+    end
+  end
+
+  def start(path) when is_binary(path) do
+    case ThinkingCap.Config.read(path) do
+      {:ok, %ADF{} = adf} -> start(adf)
+      {:ok, _other} -> {:error, [{:adf, "#{path} is not an ADF"}]}
+      {:error, errors} -> {:error, [{:adf, ThinkingCap.Config.format_errors(errors)}]}
+    end
+  end
+
+  @doc "Starts one module of `adf` (a module spec of `ThinkingCap.Config.ADF`) on its node."
+  @spec start_module(ADF.t(), ADF.module_spec()) :: {:ok, module_info()} | {:error, term()}
+  def start_module(%ADF{} = adf, spec) do
+    node = node_of(adf, spec.node)
+    spec = Map.put(spec, :robot, adf.robot)
+
+    case :erpc.call(node, __MODULE__, :start_here, [spec], 15_000) do
+      {:ok, pid} -> {:ok, info(pid)}
+      {:error, reason} -> {:error, reason}
+    end
+  catch
+    :error, {:erpc, reason} -> {:error, {:node_unreachable, node_of(adf, spec.node), reason}}
+  end
+
+  @doc false
+  # Runs on the module's node.
+  def start_here(spec) do
+    with :ok <- check_module(spec.module),
+         {:ok, pid} <- start_child(spec) do
+      {:ok, pid}
+    end
+  end
+
+  defp start_child(spec) do
+    case DynamicSupervisor.start_child(ThinkingCap.Runtime.Modules, {Host, spec}) do
+      {:ok, pid} -> {:ok, pid}
+      {:error, {reason, _child}} -> {:error, reason}
+      {:error, reason} -> {:error, reason}
+    end
+  end
+
+  # A module must be loadable on its node and implement ThinkingCap.Module.
+  defp check_module(module) do
+    cond do
+      not Code.ensure_loaded?(module) ->
+        {:error, {:module_not_available, module, node()}}
+
+      not function_exported?(module, :handle_cycle, 2) ->
+        {:error, {:not_a_thinking_cap_module, module, "add `use ThinkingCap.Module`"}}
+
+      true ->
+        :ok
+    end
+  end
+
+  @doc "Stops a module, wherever it runs."
+  @spec stop(atom()) :: :ok | {:error, :not_running}
+  def stop(name) do
+    case whereis(name) do
+      nil ->
+        {:error, :not_running}
+
+      pid ->
+        :erpc.call(node(pid), DynamicSupervisor, :terminate_child, [
+          ThinkingCap.Runtime.Modules,
+          pid
+        ])
+    end
+  end
+
+  @doc """
+  Replaces a running module's implementation in place (hot swap): the new
+  module takes over the same process, periodic slot and subscriptions
+  between two messages, so no release is missed.
+  """
+  @spec swap(atom(), module()) :: :ok | {:error, :not_running | term()}
+  def swap(name, new_module) do
+    case whereis(name) do
+      nil ->
+        {:error, :not_running}
+
+      pid ->
+        with :ok <- :erpc.call(node(pid), __MODULE__, :check_module_here, [new_module]),
+             do: GenServer.call(pid, {:swap, new_module})
+    end
+  end
+
+  @doc false
+  def check_module_here(module), do: check_module(module)
+
+  @doc "The process of a running module (on any node), or nil."
+  @spec whereis(atom()) :: pid() | nil
+  def whereis(name) do
+    case :pg.get_members(@scope, {:module, name}) do
+      [pid | _] -> pid
+      [] -> nil
+    end
+  end
+
+  @doc "Every running module of the cluster: name, module, node, pid, activity."
+  @spec which_modules() :: [module_info()]
+  def which_modules do
+    @scope
+    |> :pg.which_groups()
+    |> Enum.flat_map(fn {:module, _name} = group -> :pg.get_members(@scope, group) end)
+    |> Enum.flat_map(fn pid ->
+      try do
+        [info(pid)]
+      catch
+        :exit, _ -> []
+      end
+    end)
+    |> Enum.sort_by(& &1.name)
+  end
+
+  @doc "Timing statistics of this node's periodic activities (`ThinkingCap.Cycle.timing/0`)."
+  @spec timing() :: %{atom() => map()}
+  def timing, do: ThinkingCap.Cycle.timing()
+
+  defp info(pid), do: GenServer.call(pid, :info)
+
+  defp node_of(_adf, :local), do: node()
+  defp node_of(%ADF{nodes: nodes}, logical), do: Map.fetch!(nodes, logical)
+end

@@ -1,0 +1,200 @@
+defmodule ThinkingCap.Runtime.Host do
+  @moduledoc false
+  # The process that hosts one module: runs its callbacks, executes their
+  # actions, owns its subscriptions and its periodic activity in the cycle.
+  # Process priority follows the activity: periodic high, event normal,
+  # background low (it runs when nothing else does).
+  use GenServer, restart: :permanent
+  require Logger
+
+  alias ThinkingCap.{Blackboard, Cycle}
+
+  def start_link(spec), do: GenServer.start_link(__MODULE__, spec)
+
+  def child_spec(spec),
+    do: %{
+      id: {__MODULE__, spec.name},
+      start: {__MODULE__, :start_link, [spec]},
+      restart: :permanent
+    }
+
+  @impl true
+  def init(spec) do
+    Process.flag(:trap_exit, true)
+    Process.flag(:priority, priority(spec.activity))
+    :ok = :pg.join(ThinkingCap.Runtime.scope(), {:module, spec.name}, self())
+    context = %{name: spec.name, robot: spec.robot, node: node(), activity: spec.activity}
+
+    {actions, module_state} =
+      normalize(spec.module.init(spec.params, context), spec.module, :init)
+
+    state = %{
+      spec: spec,
+      module: spec.module,
+      mstate: module_state,
+      context: context,
+      started: System.system_time(:millisecond)
+    }
+
+    for template <- spec.subscribe,
+        do: {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
+
+    case spec.activity do
+      :periodic ->
+        opts = [
+          period: spec.period,
+          deadline: spec.deadline,
+          priority: spec.priority,
+          fallback: spec.fallback
+        ]
+
+        :ok = Cycle.add(spec.name, opts)
+
+      :background ->
+        send(self(), :tc_background)
+
+      :event ->
+        :ok
+    end
+
+    {:ok, run(actions, state)}
+  end
+
+  @impl true
+  def handle_info({:tc_cycle, :release, name, release}, %{spec: %{name: name}} = state) do
+    # a release that queued up behind a slow cycle is stale: keep the newest
+    release = newest_release(name, release)
+
+    {actions, mstate} =
+      normalize(state.module.handle_cycle(release, state.mstate), state.module, :handle_cycle)
+
+    {command, actions} = take_command(actions)
+    Cycle.result(release, command)
+    {:noreply, run(actions, %{state | mstate: mstate})}
+  end
+
+  def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
+
+  def handle_info({:blackboard, _ref, tuple}, state) do
+    {actions, mstate} =
+      normalize(state.module.handle_tuple(tuple, state.mstate), state.module, :handle_tuple)
+
+    {:noreply, run(actions, %{state | mstate: mstate})}
+  end
+
+  def handle_info(:tc_background, state) do
+    {actions, mstate} =
+      normalize(state.module.handle_background(state.mstate), state.module, :handle_background)
+
+    send(self(), :tc_background)
+    {:noreply, run(actions, %{state | mstate: mstate})}
+  end
+
+  def handle_info({:tc_run_actions, actions}, state), do: {:noreply, run(actions, state)}
+
+  def handle_info({:EXIT, _pid, reason}, state) when reason in [:normal, :shutdown],
+    do: {:noreply, state}
+
+  def handle_info(message, state) do
+    {actions, mstate} =
+      normalize(state.module.handle_info(message, state.mstate), state.module, :handle_info)
+
+    {:noreply, run(actions, %{state | mstate: mstate})}
+  end
+
+  @impl true
+  def handle_call(:info, _from, state) do
+    info = %{
+      name: state.spec.name,
+      module: state.module,
+      node: node(),
+      pid: self(),
+      activity: state.spec.activity,
+      started_at: state.started
+    }
+
+    {:reply, info, state}
+  end
+
+  # Replaced in place, between two messages: the activity, its cycle slot
+  # and its subscriptions stay, so no release is missed.
+  def handle_call({:swap, new_module}, _from, state) do
+    mstate =
+      if Code.ensure_loaded?(new_module) and function_exported?(new_module, :handle_swap, 3) do
+        {:ok, mstate} = new_module.handle_swap(state.module, state.mstate, state.context)
+        mstate
+      else
+        {actions, mstate} =
+          normalize(new_module.init(state.spec.params, state.context), new_module, :init)
+
+        # init's actions run below, with the new module in place
+        send(self(), {:tc_run_actions, actions})
+        mstate
+      end
+
+    state.module.terminate(:swapped, state.mstate)
+
+    {:reply, :ok,
+     %{state | module: new_module, mstate: mstate, spec: %{state.spec | module: new_module}}}
+  end
+
+  @impl true
+  def terminate(reason, state) do
+    state.module.terminate(reason, state.mstate)
+  end
+
+  ## Helpers
+
+  defp priority(:periodic), do: :high
+  defp priority(:event), do: :normal
+  defp priority(:background), do: :low
+
+  defp newest_release(name, release) do
+    receive do
+      {:tc_cycle, :release, ^name, newer} -> newest_release(name, newer)
+    after
+      0 -> release
+    end
+  end
+
+  defp normalize({:ok, state}, _module, _callback), do: {[], state}
+  defp normalize({actions, state}, _module, _callback) when is_list(actions), do: {actions, state}
+
+  defp normalize(other, module, callback) do
+    raise ArgumentError,
+          "#{inspect(module)}.#{callback} must return {actions, state} (or {:ok, state} from init), got: #{inspect(other, limit: 10)}"
+  end
+
+  defp take_command(actions) do
+    case Enum.split_with(actions, &match?({:command, _}, &1)) do
+      {[], rest} -> {nil, rest}
+      {commands, rest} -> {commands |> List.last() |> elem(1), rest}
+    end
+  end
+
+  defp run([], state), do: state
+
+  defp run([action | rest], state) do
+    case action do
+      {:out, {tuple, opts}} when is_tuple(tuple) and is_list(opts) ->
+        Blackboard.out(tuple, opts)
+
+      {:out, tuple} when is_tuple(tuple) ->
+        Blackboard.out(tuple)
+
+      {:subscribe, template} ->
+        {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
+
+      {:command, _} ->
+        Logger.warning(
+          "#{inspect(state.spec.name)}: a :command action only counts in handle_cycle/2"
+        )
+
+      other ->
+        raise ArgumentError,
+              "#{inspect(state.module)}: unknown action #{inspect(other, limit: 10)}"
+    end
+
+    run(rest, state)
+  end
+end

@@ -1,0 +1,72 @@
+defmodule ThinkingCap.Test.Modules do
+  @moduledoc false
+  # Modules the runtime tests host (compiled for peer nodes too).
+
+  defmodule Cruise do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def init(params, ctx),
+      do:
+        {[out: {:started, ctx.robot, %{name: ctx.name, node: ctx.node}}],
+         %{speed: params[:speed] || 0.2}}
+
+    @impl true
+    def handle_cycle(release, state), do: {[command: {:vel, state.speed, release.cycle}], state}
+  end
+
+  defmodule CruiseV2 do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def handle_swap(Cruise, old_state, _ctx), do: {:ok, Map.put(old_state, :v2, true)}
+    @impl true
+    def handle_cycle(release, state), do: {[command: {:vel2, state.speed, release.cycle}], state}
+  end
+
+  defmodule Slow do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def init(params, _ctx), do: {:ok, params[:sleep_ms]}
+    @impl true
+    def handle_cycle(_release, ms) do
+      Process.sleep(ms)
+      {[command: :slow_result], ms}
+    end
+  end
+
+  defmodule Crashy do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def handle_cycle(release, state), do: {[command: {:ok, release.cycle}], state}
+    @impl true
+    def handle_tuple({:crash, _robot}, _state), do: raise("asked to crash")
+  end
+
+  defmodule Echo do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def handle_tuple({:ping, robot, n}, state), do: {[out: {:pong, robot, n}], state}
+  end
+
+  defmodule Idle do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def init(_params, ctx), do: {:ok, %{robot: ctx.robot, n: 0}}
+    @impl true
+    def handle_background(state) do
+      Process.sleep(5)
+      n = state.n + 1
+
+      {[
+         out:
+           {{:bg, state.robot, %{n: n, priority: Process.info(self(), :priority)}},
+            [key: {:bg, state.robot}]}
+       ], %{state | n: n}}
+    end
+  end
+end

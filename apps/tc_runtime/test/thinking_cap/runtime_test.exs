@@ -1,0 +1,225 @@
+defmodule ThinkingCap.RuntimeTest do
+  # Hosts modules in this node's runtime and kills some: not beside other tests.
+  use ExUnit.Case, async: false
+
+  alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
+  alias ThinkingCap.Test.Modules
+  alias ThinkingCap.Testing.Cluster
+
+  @moduletag :tmp_dir
+
+  # An ADF with unique module names (modules are found by name cluster-wide).
+  defp adf(dir, modules, extra \\ "") do
+    robot = :"r#{System.unique_integer([:positive])}"
+    body = Enum.map_join(modules, ",\n", fn {name, spec} -> "    #{name}_#{robot}: #{spec}" end)
+    path = Path.join(dir, "#{robot}.adf")
+    File.write!(path, "[\n  robot: :#{robot},\n#{extra}  modules: [\n#{body}\n  ]\n]\n")
+    adf = Config.read!(path)
+    on_exit(fn -> for m <- adf.modules, do: Runtime.stop(m.name) end)
+    {adf, robot, fn name -> :"#{name}_#{robot}" end}
+  end
+
+  defp applied(name, timeout \\ 2000) do
+    receive do
+      {:tc_cycle, :applied, ^name, event} -> event
+    after
+      timeout -> flunk("nothing applied for #{name} within #{timeout} ms")
+    end
+  end
+
+  defp applied_until(name, fun, timeout \\ 5000) do
+    event = applied(name, timeout)
+    if fun.(event), do: event, else: applied_until(name, fun, timeout)
+  end
+
+  test "an ADF's modules start, report where they run, and each activity kind runs", %{
+    tmp_dir: dir
+  } do
+    {adf, robot, n} =
+      adf(dir,
+        cruise:
+          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.005, params: [speed: 0.3]]",
+        echo:
+          "[module: ThinkingCap.Test.Modules.Echo, activity: :event, subscribe: [{:ping, :_, :_}]]",
+        idle: "[module: ThinkingCap.Test.Modules.Idle, activity: :background]"
+      )
+
+    assert {:ok, started} = Runtime.start(adf)
+    assert Enum.map(started, & &1.name) == [n.(:cruise), n.(:echo), n.(:idle)]
+
+    running =
+      Runtime.which_modules() |> Enum.filter(&(&1.name in [n.(:cruise), n.(:echo), n.(:idle)]))
+
+    assert [
+             %{activity: :periodic, node: node, module: Modules.Cruise},
+             %{activity: :event},
+             %{activity: :background}
+           ] = running
+
+    assert node == node()
+
+    # init's actions ran, with the context
+    assert {:ok, {:started, ^robot, %{node: ^node}}} = Blackboard.rd({:started, robot, :_}, 1000)
+
+    # periodic: its commands are applied fresh, cycle after cycle
+    :ok = Cycle.subscribe(n.(:cruise))
+
+    assert %{kind: :fresh, command: {:vel, 0.3, c1}} =
+             applied_until(n.(:cruise), &(&1.kind == :fresh))
+
+    assert %{kind: :fresh, command: {:vel, 0.3, c2}} = applied(n.(:cruise))
+    assert c2 == c1 + 1
+
+    # event: a subscribed tuple is handled
+    Blackboard.out({:ping, robot, 7})
+    assert {:ok, {:pong, ^robot, 7}} = Blackboard.rd({:pong, robot, 7}, 1000)
+
+    # background: runs, at low priority
+    assert {:ok, {:bg, ^robot, %{priority: {:priority, :low}}}} =
+             Blackboard.rd({:bg, robot, :_}, 1000)
+  end
+
+  test "a slow module misses deadlines: fallbacks are applied and counted, others keep time", %{
+    tmp_dir: dir
+  } do
+    {adf, _robot, n} =
+      adf(dir,
+        slow:
+          "[module: ThinkingCap.Test.Modules.Slow, activity: :periodic, period: 0.02, deadline: 0.005, fallback: :halt, params: [sleep_ms: 30]]",
+        cruise:
+          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.008]"
+      )
+
+    {:ok, _} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:slow))
+    :ok = Cycle.subscribe(n.(:cruise))
+
+    assert %{kind: :fallback, command: :halt} = applied_until(n.(:slow), &(&1.kind == :fallback))
+    Process.sleep(300)
+    timing = Runtime.timing()
+    assert timing[n.(:slow)].fallbacks >= 5
+    assert timing[n.(:slow)].late >= 1
+    # the slow module does not delay the other periodic activity
+    assert timing[n.(:cruise)].fallbacks == 0
+    assert timing[n.(:cruise)].response_us.n >= 20
+  end
+
+  test "a crashing module is restarted, and its fallback holds meanwhile", %{tmp_dir: dir} do
+    {adf, robot, n} =
+      adf(dir,
+        crashy:
+          "[module: ThinkingCap.Test.Modules.Crashy, activity: :periodic, period: 0.01, subscribe: [{:crash, :_}], fallback: :stop]"
+      )
+
+    {:ok, [%{pid: pid}]} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:crashy))
+    assert %{kind: :fresh} = applied_until(n.(:crashy), &(&1.kind == :fresh))
+
+    ExUnit.CaptureLog.capture_log(fn ->
+      Blackboard.out({:crash, robot})
+
+      assert %{kind: :fallback, command: :stop} =
+               applied_until(n.(:crashy), &(&1.kind == :fallback))
+
+      Cluster.wait_until(fn -> Runtime.whereis(n.(:crashy)) not in [nil, pid] end)
+    end)
+
+    # the restarted module adds its activity again: subscribe anew, fresh commands resume
+    Cluster.wait_until(fn -> Cycle.subscribe(n.(:crashy)) == :ok end)
+    assert %{kind: :fresh, command: {:ok, _}} = applied_until(n.(:crashy), &(&1.kind == :fresh))
+  end
+
+  test "a module replaced while running misses no cycle", %{tmp_dir: dir} do
+    {adf, _robot, n} =
+      adf(dir,
+        cruise:
+          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.008]"
+      )
+
+    {:ok, [%{pid: pid}]} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:cruise))
+    applied_until(n.(:cruise), &(&1.kind == :fresh))
+
+    assert {:error, {:module_not_available, No.Such, _}} = Runtime.swap(n.(:cruise), No.Such)
+    :ok = Runtime.swap(n.(:cruise), Modules.CruiseV2)
+
+    events = for _ <- 1..30, do: applied(n.(:cruise))
+    assert Enum.all?(events, &(&1.kind == :fresh)), inspect(events)
+    assert List.last(events).command |> elem(0) == :vel2
+    # the same process, consecutive cycles across the swap
+    assert Runtime.whereis(n.(:cruise)) == pid
+    cycles = Enum.map(events, & &1.cycle)
+    assert cycles == Enum.to_list(hd(cycles)..List.last(cycles))
+
+    assert %{module: Modules.CruiseV2} =
+             Enum.find(Runtime.which_modules(), &(&1.name == n.(:cruise)))
+  end
+
+  test "a stopped module leaves its fallback applied", %{tmp_dir: dir} do
+    {adf, _robot, n} =
+      adf(dir,
+        cruise:
+          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, fallback: :stop]"
+      )
+
+    {:ok, _} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:cruise))
+    applied_until(n.(:cruise), &(&1.kind == :fresh))
+    :ok = Runtime.stop(n.(:cruise))
+
+    assert %{kind: :fallback, command: :stop} =
+             applied_until(n.(:cruise), &(&1.kind == :fallback))
+
+    assert Runtime.whereis(n.(:cruise)) == nil
+    assert {:error, :not_running} = Runtime.stop(n.(:cruise))
+  end
+
+  test "a module that cannot start is reported, not crashed on", %{tmp_dir: dir} do
+    {adf, _robot, _n} = adf(dir, ghost: "[module: No.Such.Module, activity: :event]")
+    assert {:error, [{_name, {:module_not_available, No.Such.Module, node}}]} = Runtime.start(adf)
+    assert node == node()
+    {adf, _robot, n} = adf(dir, plain: "[module: ThinkingCap.Config, activity: :event]")
+
+    assert {:error, [{_, {:not_a_thinking_cap_module, ThinkingCap.Config, _}}]} =
+             Runtime.start(adf)
+
+    assert Runtime.whereis(n.(:plain)) == nil
+  end
+
+  test "modules run on the nodes the ADF names", %{tmp_dir: dir} do
+    [a, b] = nodes = Cluster.start(2, apps: [:tc_runtime])
+    on_exit(fn -> Cluster.stop(nodes) end)
+
+    extra = "  nodes: [main: :\"#{a.node}\", nav: :\"#{b.node}\"],\n"
+
+    {adf, robot, n} =
+      adf(
+        dir,
+        [
+          cruise:
+            "[module: ThinkingCap.Test.Modules.Cruise, node: :main, activity: :periodic, period: 0.05]",
+          echo:
+            "[module: ThinkingCap.Test.Modules.Echo, node: :nav, activity: :event, subscribe: [{:ping, :_, :_}]]"
+        ],
+        extra
+      )
+
+    # started from node a, as a release's boot would
+    assert {:ok, started} = Cluster.call(a, Runtime, :start, [adf])
+    assert Enum.map(started, &{&1.name, &1.node}) == [{n.(:cruise), a.node}, {n.(:echo), b.node}]
+
+    # every node sees where every module runs
+    for node <- nodes do
+      seen = Cluster.call(node, Runtime, :which_modules, []) |> Enum.map(&{&1.name, &1.node})
+      assert {n.(:cruise), a.node} in seen and {n.(:echo), b.node} in seen
+    end
+
+    # the module on b reacts to a tuple written on a; the cycle runs on a
+    Cluster.call(a, Blackboard, :out, [{:ping, robot, 1}])
+    assert {:ok, {:pong, ^robot, 1}} = Cluster.call(a, Blackboard, :rd, [{:pong, robot, 1}, 5000])
+
+    Cluster.wait_until(fn ->
+      (Cluster.call(a, Runtime, :timing, [])[n.(:cruise)] || %{cycles: 0}).cycles > 3
+    end)
+  end
+end
