@@ -1,0 +1,394 @@
+defmodule ThinkingCap.Bench.Timing do
+  @moduledoc """
+  `mix tc.bench timing [--seconds N]`: the execution layer's timing.
+
+    1. The ThinkingCap-II paper's CPU-load simulator on the framework: two
+       periodic activities every 150 ms with about 20 ms of work each
+       (highest priority), three event-driven activities fed by socket-like
+       traffic, one background activity working in 10 ms pieces. Cycle time
+       and CPU time of the periodic activities beside the paper's
+       non-real-time figures.
+    2. A 100 Hz control cycle (deadline 3 ms) for N seconds (default 60)
+       idle, then N seconds with two OS-level CPU hogs (started here).
+    3. `cyclictest` (Debian rt-tests) at the same period and priority,
+       running alongside, as the physical reference for wake-up latency.
+
+  Jitter is the release's wake-up latency measured by the timing worker
+  (actual minus scheduled release), the quantity cyclictest measures. The
+  cycle time is what the control module itself sees between consecutive
+  `handle_cycle/2` calls. On time: the fresh result reached the worker
+  before the deadline. Uncovered: a released cycle with neither a fresh nor
+  a fallback command applied.
+  """
+
+  alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
+  alias ThinkingCap.Bench.Stats
+
+  @collector :tc_timing_bench
+
+  defmodule Control do
+    @moduledoc false
+    use ThinkingCap.Module
+
+    @impl true
+    def init(params, _ctx), do: {:ok, params[:report_to]}
+
+    @impl true
+    def handle_cycle(release, report_to) do
+      send(
+        report_to,
+        {:control, release.cycle, System.monotonic_time(:microsecond),
+         release.released_ns - release.scheduled_ns}
+      )
+
+      {[command: {:vel, 0.2, :math.sin(release.cycle / 100)}], report_to}
+    end
+  end
+
+  defmodule Loaded do
+    @moduledoc false
+    use ThinkingCap.Module
+
+    @impl true
+    def init(params, ctx), do: {:ok, {params[:report_to], ctx.name}}
+
+    @impl true
+    def handle_cycle(_release, {report_to, name} = state) do
+      start = System.monotonic_time(:microsecond)
+      ThinkingCap.Bench.Timing.busy(20_000)
+      send(report_to, {:loaded, name, start, System.monotonic_time(:microsecond) - start})
+      {[command: :done], state}
+    end
+  end
+
+  defmodule EventLoad do
+    @moduledoc false
+    use ThinkingCap.Module
+
+    @impl true
+    def handle_tuple(_tuple, state) do
+      ThinkingCap.Bench.Timing.busy(2_000)
+      {[], state}
+    end
+  end
+
+  defmodule BackgroundLoad do
+    @moduledoc false
+    use ThinkingCap.Module
+
+    @impl true
+    def handle_background(state) do
+      ThinkingCap.Bench.Timing.busy(10_000)
+      {[], state}
+    end
+  end
+
+  @doc false
+  # Burns CPU for `us` microseconds.
+  def busy(us) do
+    until = System.monotonic_time(:microsecond) + us
+    spin(until)
+  end
+
+  defp spin(until),
+    do: if(System.monotonic_time(:microsecond) < until, do: spin(until), else: :ok)
+
+  def run(args) do
+    {opts, _} = OptionParser.parse!(args, strict: [seconds: :integer])
+    seconds = Keyword.get(opts, :seconds, 60)
+    Process.register(self(), @collector)
+    dir = Path.join(System.tmp_dir!(), "tc_timing_bench_#{System.unique_integer([:positive])}")
+    File.mkdir_p!(dir)
+
+    status = Cycle.status()
+
+    IO.puts(
+      "ThinkingCap timing benchmark (#{System.schedulers_online()} schedulers, OTP #{System.otp_release()})"
+    )
+
+    IO.puts("timing worker: #{status.message}\n")
+
+    paper_load(dir, max(div(seconds, 3), 10))
+    idle = control_run(dir, seconds, 0)
+    loaded = control_run(dir, seconds, 2)
+
+    IO.puts("\n100 Hz control cycle, deadline 3 ms   (µs)      p50       p99       max")
+
+    for {label, r} <- [{"idle", idle}, {"two CPU hogs", loaded}] do
+      IO.puts("  #{String.pad_trailing(label, 14)} worker jitter    #{row(r.jitter)}")
+      IO.puts("  #{String.pad_trailing("", 14)} cyclictest       #{row(r.cyclictest)}")
+
+      IO.puts(
+        "  #{String.pad_trailing("", 14)} cycles #{r.cycles}, on time #{Stats.format(r.on_time_pct)} %, fallbacks #{r.fallbacks}, " <>
+          "late #{r.late}, skipped #{r.skipped}, uncovered #{r.uncovered}; module cycle time " <>
+          "#{Stats.format(r.period.mean / 1000)} ms ± #{Stats.format(r.period.std / 1000)} ms (#{Stats.format(r.period_std_pct)} %)"
+      )
+    end
+
+    IO.puts("")
+
+    Stats.print_summary("timing",
+      period_ms: 10,
+      cycles: loaded.cycles,
+      jitter_p99_us: loaded.jitter.p99,
+      cyclictest_p99_us: loaded.cyclictest.p99,
+      jitter_ratio: ratio(loaded.jitter.p99, loaded.cyclictest.p99),
+      on_time_pct: loaded.on_time_pct,
+      fallbacks: loaded.fallbacks,
+      uncovered: loaded.uncovered,
+      period_std_pct: loaded.period_std_pct
+    )
+  end
+
+  ## 1. the paper's CPU-load simulator
+
+  defp paper_load(dir, seconds) do
+    modules = [
+      p1:
+        "[module: #{inspect(Loaded)}, activity: :periodic, period: 0.15, priority: 90, params: [report_to: :#{@collector}]]",
+      p2:
+        "[module: #{inspect(Loaded)}, activity: :periodic, period: 0.15, priority: 90, params: [report_to: :#{@collector}]]",
+      e1: "[module: #{inspect(EventLoad)}, activity: :event, subscribe: [{:socket, :e1, :_}]]",
+      e2: "[module: #{inspect(EventLoad)}, activity: :event, subscribe: [{:socket, :e2, :_}]]",
+      e3: "[module: #{inspect(EventLoad)}, activity: :event, subscribe: [{:socket, :e3, :_}]]",
+      bg: "[module: #{inspect(BackgroundLoad)}, activity: :background]"
+    ]
+
+    names = start_modules(dir, "paper", modules)
+    feeder = spawn_link(fn -> feed(:rand.seed(:exsss, {1, 2, 3})) end)
+    samples = collect_loaded(System.monotonic_time(:millisecond) + seconds * 1000, %{})
+    Process.unlink(feeder)
+    Process.exit(feeder, :kill)
+    Enum.each(names, &Runtime.stop/1)
+
+    IO.puts(
+      "1. The paper's CPU-load simulator, #{seconds} s: 2 periodic (150 ms, 20 ms work), 3 event, 1 background"
+    )
+
+    IO.puts(
+      "   (ms)                         cycle mean   std    min    max | CPU mean   std    min    max"
+    )
+
+    for {name, ticks} <- Enum.sort(samples) do
+      starts = ticks |> Enum.map(&elem(&1, 0)) |> Enum.sort()
+
+      cycle =
+        starts
+        |> Enum.chunk_every(2, 1, :discard)
+        |> Enum.map(fn [a, b] -> (b - a) / 1000 end)
+        |> Stats.summarize()
+
+      cpu = ticks |> Enum.map(&(elem(&1, 1) / 1000)) |> Stats.summarize()
+
+      IO.puts(
+        "   #{String.pad_trailing("ThinkingCap #{name}", 28)} #{cols(cycle)} | #{cols(cpu)}"
+      )
+    end
+
+    IO.puts(
+      "   #{String.pad_trailing("paper, non real-time", 28)} #{cols(%{mean: 146.6, std: 17.5, min: nil, max: 328.0})} |"
+    )
+
+    IO.puts("")
+  end
+
+  # socket-like traffic: bursts of messages at exponential intervals
+  defp feed(seed) do
+    {u, seed} = :rand.uniform_s(seed)
+    Process.sleep(round(-:math.log(u) * 15) + 1)
+    for e <- [:e1, :e2, :e3], do: Blackboard.out({:socket, e, System.monotonic_time()})
+    feed(seed)
+  end
+
+  defp collect_loaded(deadline, acc) do
+    remaining = deadline - System.monotonic_time(:millisecond)
+
+    receive do
+      {:loaded, name, start, cpu} ->
+        collect_loaded(deadline, Map.update(acc, name, [{start, cpu}], &[{start, cpu} | &1]))
+    after
+      max(remaining, 0) -> acc
+    end
+  end
+
+  ## 2. and 3. the 100 Hz control cycle beside cyclictest
+
+  defp control_run(dir, seconds, hogs) do
+    label = if hogs == 0, do: "idle", else: "#{hogs} CPU hogs"
+    IO.puts("2. 100 Hz control cycle, #{seconds} s, #{label}, cyclictest alongside ...")
+    hog_ports = for _ <- 1..hogs//1, do: Port.open({:spawn, "sh -c 'while :; do :; done'"}, [])
+
+    [name] =
+      start_modules(dir, "control_#{hogs}",
+        control:
+          "[module: #{inspect(Control)}, activity: :periodic, period: 0.01, deadline: 0.003, priority: 80, fallback: :stop, params: [report_to: :#{@collector}]]"
+      )
+
+    :ok = Cycle.subscribe(name)
+    cyclictest = start_cyclictest(seconds)
+
+    # one second to settle, then measure
+    drain(System.monotonic_time(:millisecond) + 1000)
+
+    result =
+      measure(name, System.monotonic_time(:millisecond) + seconds * 1000, %{
+        releases: [],
+        jitter: [],
+        fresh: 0,
+        fallback: 0,
+        late: 0
+      })
+
+    reference = finish_cyclictest(cyclictest)
+
+    Runtime.stop(name)
+    drain(System.monotonic_time(:millisecond) + 100)
+
+    for port <- hog_ports do
+      {:os_pid, pid} = Port.info(port, :os_pid)
+      System.cmd("kill", ["#{pid}"])
+    end
+
+    cycles = length(result.releases)
+
+    intervals =
+      result.releases
+      |> Enum.sort()
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.map(fn [{_, a}, {_, b}] -> b - a end)
+
+    period = Stats.summarize(intervals)
+    numbers = Enum.map(result.releases, &elem(&1, 0))
+    skipped = Enum.max(numbers) - Enum.min(numbers) + 1 - cycles
+
+    %{
+      cycles: cycles,
+      jitter: result.jitter |> Enum.map(&(&1 / 1000)) |> Stats.summarize(),
+      cyclictest: reference,
+      on_time_pct: 100 * result.fresh / cycles,
+      fallbacks: result.fallback,
+      late: result.late,
+      skipped: skipped,
+      uncovered: max(cycles - result.fresh - result.fallback, 0) + skipped,
+      period: period,
+      period_std_pct: 100 * period.std / 10_000
+    }
+  end
+
+  defp measure(name, deadline, acc) do
+    remaining = deadline - System.monotonic_time(:millisecond)
+
+    receive do
+      {:control, cycle, at, jitter_ns} ->
+        measure(name, deadline, %{
+          acc
+          | releases: [{cycle, at} | acc.releases],
+            jitter: [jitter_ns | acc.jitter]
+        })
+
+      {:tc_cycle, :applied, ^name, %{kind: kind}} ->
+        measure(name, deadline, Map.update!(acc, kind, &(&1 + 1)))
+
+      _other ->
+        measure(name, deadline, acc)
+    after
+      max(remaining, 0) -> acc
+    end
+  end
+
+  defp drain(deadline) do
+    receive do
+      _ -> drain(deadline)
+    after
+      max(deadline - System.monotonic_time(:millisecond), 0) -> :ok
+    end
+  end
+
+  defp start_cyclictest(seconds) do
+    case System.find_executable("cyclictest") do
+      nil ->
+        IO.puts("   cyclictest not found (Debian rt-tests): run bin/setup")
+        nil
+
+      exe ->
+        args = ["-m", "-p80", "-i10000", "-D", "#{seconds + 1}s", "-q", "-h", "20000"]
+        Port.open({:spawn_executable, exe}, [:binary, :exit_status, args: args])
+    end
+  end
+
+  defp finish_cyclictest(nil), do: %{p50: nil, p99: nil, max: nil}
+
+  defp finish_cyclictest(port) do
+    output = read_port(port, "")
+
+    histogram =
+      for line <- String.split(output, "\n"),
+          [_, us, count] <- [Regex.run(~r/^(\d{6})\s+(\d+)$/, line)],
+          count != "000000",
+          do: {String.to_integer(us), String.to_integer(count)}
+
+    overflows =
+      case Regex.run(~r/# Histogram Overflows: (\d+)/, output),
+        do:
+          (
+            [_, n] -> String.to_integer(n)
+            _ -> 0
+          )
+
+    max =
+      case Regex.run(~r/# Max Latencies: (\d+)/, output),
+        do:
+          (
+            [_, n] -> String.to_integer(n)
+            _ -> nil
+          )
+
+    total = Enum.sum(Enum.map(histogram, &elem(&1, 1))) + overflows
+    %{p50: percentile(histogram, total, 50), p99: percentile(histogram, total, 99), max: max}
+  end
+
+  defp read_port(port, acc) do
+    receive do
+      {^port, {:data, data}} -> read_port(port, acc <> data)
+      {^port, {:exit_status, _}} -> acc
+    after
+      120_000 -> acc
+    end
+  end
+
+  defp percentile(histogram, total, p) do
+    target = Float.ceil(total * p / 100)
+
+    Enum.reduce_while(histogram, 0, fn {us, count}, seen ->
+      if seen + count >= target, do: {:halt, {:found, us}}, else: {:cont, seen + count}
+    end)
+    |> case do
+      {:found, us} -> us
+      _ -> nil
+    end
+  end
+
+  ## helpers
+
+  defp start_modules(dir, tag, modules) do
+    robot = :"bench_#{tag}"
+    body = Enum.map_join(modules, ",\n", fn {name, spec} -> "    #{name}_#{tag}: #{spec}" end)
+    path = Path.join(dir, "#{tag}.adf")
+    File.write!(path, "[\n  robot: :#{robot},\n  modules: [\n#{body}\n  ]\n]\n")
+    {:ok, started} = Runtime.start(Config.read!(path))
+    Enum.map(started, & &1.name)
+  end
+
+  defp row(%{p50: p50, p99: p99, max: max}),
+    do: Enum.map_join([p50, p99, max], "", &String.pad_leading(fmt(&1), 10))
+
+  defp cols(s),
+    do: Enum.map_join([s.mean, s.std, s.min, s.max], " ", &String.pad_leading(fmt(&1), 6))
+
+  defp fmt(nil), do: "-"
+  defp fmt(v), do: Stats.format(v)
+
+  defp ratio(_a, nil), do: "n/a"
+  defp ratio(_a, 0), do: "n/a"
+  defp ratio(a, b), do: a / b
+end
