@@ -13,6 +13,8 @@ defmodule ThinkingCap.Runtime.Application do
 
   @impl true
   def start(_type, _args) do
+    ThinkingCap.Runtime.Scheduling.apply_config()
+
     children = [
       %{id: :pg, start: {:pg, :start_link, [ThinkingCap.Runtime.scope()]}},
       ThinkingCap.Cycle,
