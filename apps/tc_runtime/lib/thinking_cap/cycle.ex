@@ -83,6 +83,13 @@ defmodule ThinkingCap.Cycle do
     ArgumentError -> :ok
   end
 
+  @doc "Records how long the module took to compute the result of `release` (ns)."
+  @spec record_cpu(release(), non_neg_integer()) :: :ok
+  def record_cpu(%{id: id}, ns) do
+    send(__MODULE__, {:cpu, id, ns})
+    :ok
+  end
+
   @doc "Sends the caller every command applied for activity `name`."
   @spec subscribe(name()) :: :ok
   def subscribe(name), do: GenServer.call(__MODULE__, {:subscribe, name, self()})
@@ -201,6 +208,13 @@ defmodule ThinkingCap.Cycle do
       end)
 
     {:noreply, state}
+  end
+
+  def handle_info({:cpu, id, ns}, state) do
+    case state.activities do
+      %{^id => a} -> {:noreply, put_in(state.activities[id].stats, Stats.cpu(a.stats, ns))}
+      _ -> {:noreply, state}
+    end
   end
 
   def handle_info(:publish, state) do

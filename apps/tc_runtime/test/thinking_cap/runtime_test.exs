@@ -102,6 +102,12 @@ defmodule ThinkingCap.RuntimeTest do
     # the slow module does not delay the other periodic activity
     assert timing[n.(:cruise)].fallbacks == 0
     assert timing[n.(:cruise)].response_us.n >= 20
+    # CPU time: the slow module's own 30 ms of work per cycle
+    assert timing[n.(:slow)].cpu_us.min >= 30_000
+    # published on the blackboard once a second
+    slow = n.(:slow)
+    assert {:ok, {:timing, ^slow, %{fallbacks: f}}} = Blackboard.rd({:timing, slow, :_}, 2000)
+    assert f >= 1
   end
 
   test "a crashing module is restarted, and its fallback holds meanwhile", %{tmp_dir: dir} do

@@ -3,7 +3,8 @@ defmodule ThinkingCap.Cycle.Stats do
   Running timing statistics of one periodic activity: the figures of the
   ThinkingCap-II paper's timing tables. Release jitter (how late each
   release left the timing worker), response time (release to result),
-  cycle time (between consecutive releases), with mean, standard deviation,
+  cycle time (between consecutive releases), CPU time (the module's own
+  computation of a result), with mean, standard deviation,
   minimum, maximum and a log2 histogram in microseconds; plus counts of
   cycles, deadline misses (fallbacks applied), late results and releases
   skipped because the worker itself was late.
@@ -17,7 +18,8 @@ defmodule ThinkingCap.Cycle.Stats do
             period_ns: nil,
             jitter: nil,
             response: nil,
-            cycle_time: nil
+            cycle_time: nil,
+            cpu: nil
 
   @typedoc "Welford accumulator with min, max and histogram (µs buckets: <1, <2, <4, ...)."
   @type series :: %{
@@ -37,6 +39,7 @@ defmodule ThinkingCap.Cycle.Stats do
     do: %__MODULE__{
       period_ns: period_ns,
       jitter: series(),
+      cpu: series(),
       response: series(),
       cycle_time: series()
     }
@@ -61,6 +64,10 @@ defmodule ThinkingCap.Cycle.Stats do
   def applied(s, :fallback, _response_ns), do: %{s | fallbacks: s.fallbacks + 1}
   def applied(s, :late, _response_ns), do: %{s | late: s.late + 1}
 
+  @doc "Records the time the module spent computing one cycle's result (ns)."
+  @spec cpu(t(), integer()) :: t()
+  def cpu(s, ns), do: %{s | cpu: add(s.cpu, ns / 1000)}
+
   @doc "A plain map of the figures (times in µs)."
   @spec summary(t()) :: map()
   def summary(%__MODULE__{} = s) do
@@ -72,7 +79,8 @@ defmodule ThinkingCap.Cycle.Stats do
       period_us: s.period_ns / 1000,
       jitter_us: figures(s.jitter),
       response_us: figures(s.response),
-      cycle_us: figures(s.cycle_time)
+      cycle_us: figures(s.cycle_time),
+      cpu_us: figures(s.cpu)
     }
   end
 

@@ -64,12 +64,19 @@ defmodule ThinkingCap.Runtime.Host do
   def handle_info({:tc_cycle, :release, name, release}, %{spec: %{name: name}} = state) do
     # a release that queued up behind a slow cycle is stale: keep the newest
     release = newest_release(name, release)
+    started = System.monotonic_time()
 
     {actions, mstate} =
       normalize(state.module.handle_cycle(release, state.mstate), state.module, :handle_cycle)
 
     {command, actions} = take_command(actions)
     Cycle.result(release, command)
+
+    Cycle.record_cpu(
+      release,
+      System.convert_time_unit(System.monotonic_time() - started, :native, :nanosecond)
+    )
+
     {:noreply, run(actions, %{state | mstate: mstate})}
   end
 
