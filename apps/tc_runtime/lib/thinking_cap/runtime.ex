@@ -22,9 +22,10 @@ defmodule ThinkingCap.Runtime do
 
     * the timing worker is a separate OS thread at `SCHED_FIFO` priority 80
       (when granted), so releases and fallbacks never wait for the BEAM;
-    * the BEAM's normal scheduler threads and its I/O poller run at nice
-      −10 (`ThinkingCap.Runtime.Scheduling`, which explains why not a
-      real-time policy), so OS-level load does not take their CPU;
+    * the BEAM's normal scheduler threads and its I/O poller run at
+      `SCHED_FIFO` priority 1, below the worker and with busy-waiting off
+      (`ThinkingCap.Runtime.Scheduling` gives the reasons and the
+      measurements), so OS-level load does not delay a cycle;
     * the cycle's owner process and periodic module processes run at
       process priority `:high`, event-driven ones at `:normal`, background
       ones at `:low` (they run only when nothing else is runnable);

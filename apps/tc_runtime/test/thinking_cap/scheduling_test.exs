@@ -1,19 +1,48 @@
 defmodule ThinkingCap.Runtime.SchedulingTest do
-  use ExUnit.Case, async: true
+  # Changes the scheduling of this VM's threads (and puts it back).
+  use ExUnit.Case, async: false
 
   alias ThinkingCap.Runtime.Scheduling
 
-  test "the runtime raised the BEAM's scheduler and poller threads at start" do
-    priorities = Scheduling.priorities()
-    names = Map.keys(priorities)
+  @root System.cmd("id", ["-u"]) == {"0\n", 0}
+
+  test "at start the runtime put the BEAM's scheduler and poller threads at SCHED_FIFO 1" do
+    policies = Scheduling.policies()
+    names = Map.keys(policies)
     assert "1_scheduler" in names
     assert Enum.any?(names, &String.ends_with?(&1, "_poller"))
 
-    # as root (these machines, CI) the configured nice -10 is granted
-    if System.cmd("id", ["-u"]) == {"0\n", 0} do
-      assert Enum.all?(Map.values(priorities), &(&1 == -10)), inspect(priorities)
+    # as root (these machines, CI) real-time priority is granted
+    if @root do
+      assert Enum.all?(Map.values(policies), &match?(%{policy: :fifo, rt_priority: 1}, &1)),
+             inspect(policies)
     else
-      assert {:error, _} = Scheduling.raise_priority(-10)
+      assert {:error, _} = Scheduling.realtime(1)
     end
+  end
+
+  test "nice and realtime switch the policy both ways" do
+    if @root do
+      assert {:ok, _} = Scheduling.nice(-10)
+
+      assert Enum.all?(
+               Map.values(Scheduling.policies()),
+               &match?(%{policy: :other, nice: -10}, &1)
+             )
+
+      assert {:ok, _} = Scheduling.realtime(1)
+
+      assert Enum.all?(
+               Map.values(Scheduling.policies()),
+               &match?(%{policy: :fifo, rt_priority: 1}, &1)
+             )
+    else
+      assert {:error, _} = Scheduling.nice(-10)
+    end
+  end
+
+  test "busy_wait_off? reads the VM's flags" do
+    expected = File.read!("/proc/#{System.pid()}/cmdline") =~ <<"-sbwt", 0, "none">>
+    assert Scheduling.busy_wait_off?() == expected
   end
 end
