@@ -265,13 +265,14 @@ defmodule ThinkingCap.Bench.Timing do
       cycles: cycles,
       jitter: result.jitter |> Enum.map(&(&1 / 1000)) |> Stats.summarize(),
       cyclictest: reference,
-      on_time_pct: 100 * result.fresh / cycles,
+      # two decimals: a target figure must not be rounded in its favour
+      on_time_pct: Float.round(100 * result.fresh / cycles, 2),
       fallbacks: result.fallback,
       late: result.late,
       skipped: skipped,
       uncovered: max(cycles - result.fresh - result.fallback, 0) + skipped,
       period: period,
-      period_std_pct: 100 * period.std / 10_000
+      period_std_pct: Float.round(100 * period.std / 10_000, 2)
     }
   end
 

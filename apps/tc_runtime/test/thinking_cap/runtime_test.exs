@@ -180,6 +180,24 @@ defmodule ThinkingCap.RuntimeTest do
     assert {:error, :not_running} = Runtime.stop(n.(:cruise))
   end
 
+  test "a bad ADF is refused with its errors; nothing starts", %{tmp_dir: dir} do
+    path = Path.join(dir, "bad.adf")
+
+    File.write!(
+      path,
+      "[\n  robot: :r_bad,\n  modules: [m: [module: X.Y, activity: :sometimes]]\n]\n"
+    )
+
+    assert {:error, [adf: message]} = Runtime.start(path)
+
+    assert message =~
+             "bad.adf:3:40: modules.m.activity: expected one of :periodic, :event, :background, got :sometimes"
+
+    assert {:error, [adf: message]} = Runtime.start(Path.join(dir, "absent.adf"))
+    assert message =~ "absent.adf:0:0: cannot read the file"
+    assert Runtime.whereis(:m) == nil
+  end
+
   test "a module that cannot start is reported, not crashed on", %{tmp_dir: dir} do
     {adf, _robot, _n} = adf(dir, ghost: "[module: No.Such.Module, activity: :event]")
     assert {:error, [{_name, {:module_not_available, No.Such.Module, node}}]} = Runtime.start(adf)

@@ -69,8 +69,11 @@ defmodule ThinkingCap.Bench.Stats do
 
   @doc "Formats a figure for the tables and the summary line."
   @spec format(term()) :: String.t()
-  def format(v) when is_float(v) and v >= 100, do: :erlang.float_to_binary(v, decimals: 0)
-  def format(v) when is_float(v) and v >= 10, do: :erlang.float_to_binary(v, decimals: 1)
+  def format(v) when is_float(v) and v >= 100 and v == round(v),
+    do: :erlang.float_to_binary(v, decimals: 0)
+
+  # a value near a round number keeps the digits that separate them (99.88, not 100)
+  def format(v) when is_float(v) and v >= 10, do: v |> Float.round(2) |> Float.to_string()
   def format(v) when is_float(v), do: :erlang.float_to_binary(v, decimals: 2)
   def format(v), do: to_string(v)
 end
