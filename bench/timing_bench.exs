@@ -203,11 +203,15 @@ defmodule ThinkingCap.Bench.Timing do
   defp collect_loaded(deadline, acc) do
     remaining = deadline - System.monotonic_time(:millisecond)
 
-    receive do
-      {:loaded, name, start, cpu} ->
-        collect_loaded(deadline, Map.update(acc, name, [{start, cpu}], &[{start, cpu} | &1]))
-    after
-      max(remaining, 0) -> acc
+    if remaining <= 0 do
+      acc
+    else
+      receive do
+        {:loaded, name, start, cpu} ->
+          collect_loaded(deadline, Map.update(acc, name, [{start, cpu}], &[{start, cpu} | &1]))
+      after
+        remaining -> acc
+      end
     end
   end
 
@@ -216,7 +220,10 @@ defmodule ThinkingCap.Bench.Timing do
   defp control_run(dir, seconds, hogs) do
     label = if hogs == 0, do: "idle", else: "#{hogs} CPU hogs"
     IO.puts("2. 100 Hz control cycle, #{seconds} s, #{label}, cyclictest alongside ...")
-    hog_ports = for _ <- 1..hogs//1, do: Port.open({:spawn, "sh -c 'while :; do :; done'"}, [])
+    # a busy loop that a shell kills when its stdin closes: the hogs die with
+    # this VM however it ends
+    hog = "sh -c '(while :; do :; done) & h=$!; read _; kill $h'"
+    hog_ports = for _ <- 1..hogs//1, do: Port.open({:spawn, hog}, [])
 
     [name] =
       start_modules(dir, "control_#{hogs}",
@@ -229,27 +236,22 @@ defmodule ThinkingCap.Bench.Timing do
 
     # one second to settle, then measure
     drain(System.monotonic_time(:millisecond) + 1000)
-
-    result =
-      measure(name, System.monotonic_time(:millisecond) + seconds * 1000, %{
-        releases: [],
-        jitter: [],
-        fresh: 0,
-        fallback: 0,
-        late: 0
-      })
+    window = System.monotonic_time(:millisecond) + seconds * 1000
+    result = measure(name, window, %{releases: [], jitter: [], applied: %{}, late: 0}, :window)
+    # the last cycles' commands may land just after the window: match them by cycle
+    result = measure(name, System.monotonic_time(:millisecond) + 100, result, :grace)
 
     reference = finish_cyclictest(cyclictest)
 
     Runtime.stop(name)
     drain(System.monotonic_time(:millisecond) + 100)
 
-    for port <- hog_ports do
-      {:os_pid, pid} = Port.info(port, :os_pid)
-      System.cmd("kill", ["#{pid}"])
-    end
+    Enum.each(hog_ports, &Port.close/1)
 
     cycles = length(result.releases)
+    kinds = Enum.map(result.releases, fn {cycle, _} -> Map.get(result.applied, cycle) end)
+    fresh = Enum.count(kinds, &(&1 == :fresh))
+    fallbacks = Enum.count(kinds, &(&1 == :fallback))
 
     intervals =
       result.releases
@@ -266,43 +268,59 @@ defmodule ThinkingCap.Bench.Timing do
       jitter: result.jitter |> Enum.map(&(&1 / 1000)) |> Stats.summarize(),
       cyclictest: reference,
       # two decimals: a target figure must not be rounded in its favour
-      on_time_pct: Float.round(100 * result.fresh / cycles, 2),
-      fallbacks: result.fallback,
+      on_time_pct: Float.round(100 * fresh / cycles, 2),
+      fallbacks: fallbacks,
       late: result.late,
       skipped: skipped,
-      uncovered: max(cycles - result.fresh - result.fallback, 0) + skipped,
+      # released cycles that got neither a fresh nor a fallback command,
+      # and releases the worker itself skipped
+      uncovered: Enum.count(kinds, &is_nil/1) + skipped,
       period: period,
       period_std_pct: Float.round(100 * period.std / 10_000, 2)
     }
   end
 
-  defp measure(name, deadline, acc) do
+  # Releases seen in the window, and what was applied for each cycle.
+  defp measure(name, deadline, acc, phase) do
     remaining = deadline - System.monotonic_time(:millisecond)
+    # at 100 Hz the mailbox is never empty for long: stop on the clock
+    if remaining <= 0, do: acc, else: measure_next(name, deadline, acc, phase, remaining)
+  end
 
+  defp measure_next(name, deadline, acc, phase, remaining) do
     receive do
-      {:control, cycle, at, jitter_ns} ->
-        measure(name, deadline, %{
-          acc
-          | releases: [{cycle, at} | acc.releases],
-            jitter: [jitter_ns | acc.jitter]
-        })
+      {:control, cycle, at, jitter_ns} when phase == :window ->
+        acc = %{acc | releases: [{cycle, at} | acc.releases], jitter: [jitter_ns | acc.jitter]}
+        measure(name, deadline, acc, phase)
 
-      {:tc_cycle, :applied, ^name, %{kind: kind}} ->
-        measure(name, deadline, Map.update!(acc, kind, &(&1 + 1)))
+      {:tc_cycle, :applied, ^name, %{kind: :late}} ->
+        measure(name, deadline, %{acc | late: acc.late + 1}, phase)
 
-      _other ->
-        measure(name, deadline, acc)
+      {:tc_cycle, :applied, ^name, %{kind: kind, cycle: cycle}} ->
+        measure(name, deadline, %{acc | applied: Map.put_new(acc.applied, cycle, kind)}, phase)
+
+      # (cyclictest's port messages stay in the mailbox for finish_cyclictest)
+      {:control, _cycle, _at, _jitter} ->
+        measure(name, deadline, acc, phase)
     after
-      max(remaining, 0) -> acc
+      remaining -> acc
     end
   end
 
   defp drain(deadline) do
-    receive do
-      _ -> drain(deadline)
-    after
-      max(deadline - System.monotonic_time(:millisecond), 0) -> :ok
+    remaining = deadline - System.monotonic_time(:millisecond)
+
+    if remaining > 0 do
+      receive do
+        {:control, _, _, _} -> drain(deadline)
+        {:tc_cycle, _, _, _} -> drain(deadline)
+        {:loaded, _, _, _} -> drain(deadline)
+      after
+        remaining -> :ok
+      end
     end
+
+    :ok
   end
 
   defp start_cyclictest(seconds) do
