@@ -3,6 +3,7 @@ defmodule ThinkingCap.CycleTest do
   use ExUnit.Case, async: false
 
   alias ThinkingCap.Cycle
+  import ThinkingCap.Testing.Cycle
 
   @moduletag :tmp_dir
 
@@ -10,22 +11,6 @@ defmodule ThinkingCap.CycleTest do
     name = :"act_#{System.unique_integer([:positive])}"
     on_exit(fn -> Cycle.remove(name) end)
     %{name: name}
-  end
-
-  defp release(name, timeout \\ 2000) do
-    receive do
-      {:tc_cycle, :release, ^name, release} -> release
-    after
-      timeout -> flunk("no release of #{name} within #{timeout} ms")
-    end
-  end
-
-  defp applied(name, timeout \\ 2000) do
-    receive do
-      {:tc_cycle, :applied, ^name, event} -> event
-    after
-      timeout -> flunk("nothing applied for #{name} within #{timeout} ms")
-    end
   end
 
   test "the worker says whether the OS granted SCHED_FIFO and mlockall" do
@@ -90,10 +75,10 @@ defmodule ThinkingCap.CycleTest do
     {_, 0} = System.cmd("kill", ["-9", "#{Cycle.worker_os_pid()}"])
 
     # the subscribers hear that the fallback holds, then releases resume
-    assert %{kind: :fallback, command: :stop} = wait_for(name, &(&1.kind == :fallback))
+    assert %{kind: :fallback, command: :stop} = applied_until(name, &(&1.kind == :fallback))
     assert Cycle.status().restarts == restarts + 1
     Cycle.result(release(name), :go_again)
-    assert %{kind: :fresh, command: :go_again} = wait_for(name, &(&1.kind == :fresh))
+    assert %{kind: :fresh, command: :go_again} = applied_until(name, &(&1.kind == :fresh))
   end
 
   test "when the BEAM side closes, the worker applies every fallback and exits", %{tmp_dir: dir} do
@@ -126,11 +111,6 @@ defmodule ThinkingCap.CycleTest do
     :ok = Cycle.add(name, period: 0.01)
     Cycle.result(release(name), :still_fine)
     assert %{kind: :fresh, command: :still_fine} = applied(name)
-  end
-
-  defp wait_for(name, fun) do
-    event = applied(name, 5000)
-    if fun.(event), do: event, else: wait_for(name, fun)
   end
 
   defp parse_frames(<<len::32, frame::binary-size(len), rest::binary>>),

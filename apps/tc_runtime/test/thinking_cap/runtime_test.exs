@@ -5,6 +5,7 @@ defmodule ThinkingCap.RuntimeTest do
   alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
   alias ThinkingCap.Test.Modules
   alias ThinkingCap.Testing.Cluster
+  import ThinkingCap.Testing.Cycle
 
   @moduletag :tmp_dir
 
@@ -17,19 +18,6 @@ defmodule ThinkingCap.RuntimeTest do
     adf = Config.read!(path)
     on_exit(fn -> for m <- adf.modules, do: Runtime.stop(m.name) end)
     {adf, robot, fn name -> :"#{name}_#{robot}" end}
-  end
-
-  defp applied(name, timeout \\ 2000) do
-    receive do
-      {:tc_cycle, :applied, ^name, event} -> event
-    after
-      timeout -> flunk("nothing applied for #{name} within #{timeout} ms")
-    end
-  end
-
-  defp applied_until(name, fun, timeout \\ 5000) do
-    event = applied(name, timeout)
-    if fun.(event), do: event, else: applied_until(name, fun, timeout)
   end
 
   test "an ADF's modules start, report where they run, and each activity kind runs", %{

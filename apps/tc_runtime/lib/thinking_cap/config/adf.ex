@@ -111,16 +111,13 @@ defmodule ThinkingCap.Config.ADF do
         }
 
   @doc false
-  @spec fields() :: Schema.fields()
-  def fields, do: @fields
-
-  @doc false
   # Validates the data of an ADF read from `file`.
   @spec from_data(term(), Path.t(), map()) ::
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
-    {value, errors} = Schema.validate(data, {:keyword, @fields}, file, positions)
-    st = %{file: file, positions: positions, errors: Enum.reverse(errors)}
+    {value, st} = Schema.start(data, @fields, file, positions)
+
+    st = st
 
     modules = for {name, spec} <- value[:modules] || [], do: Map.put(spec, :name, name)
     nodes = value[:nodes] || []
@@ -132,7 +129,7 @@ defmodule ThinkingCap.Config.ADF do
       |> check_file(:rdf, value[:rdf])
       |> check_file(:wdf, value[:wdf])
 
-    case Enum.reverse(st.errors) do
+    case Schema.errors(st) do
       [] ->
         modules = Enum.map(modules, fn m -> %{m | deadline: m.deadline || m.period} end)
 

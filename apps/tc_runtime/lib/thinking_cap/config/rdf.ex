@@ -136,15 +136,15 @@ defmodule ThinkingCap.Config.RDF do
   @spec from_data(term(), Path.t(), map()) ::
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
-    {value, errors} = Schema.validate(data, {:keyword, @fields}, file, positions)
+    {value, st} = Schema.start(data, @fields, file, positions)
 
     st =
-      %{file: file, positions: positions, errors: Enum.reverse(errors)}
+      st
       |> check_footprint(value[:footprint])
       |> check_kinematics(value[:kinematics])
       |> check_sensors(value[:sensors] || [])
 
-    case Enum.reverse(st.errors) do
+    case Schema.errors(st) do
       [] ->
         urdf = if value.urdf, do: Path.expand(value.urdf, Path.dirname(file))
 

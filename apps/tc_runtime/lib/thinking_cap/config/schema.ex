@@ -43,6 +43,21 @@ defmodule ThinkingCap.Config.Schema do
     {value, Enum.reverse(st.errors)}
   end
 
+  @doc """
+  Validates a description file's data against its top-level `fields` and
+  returns the value and the checking state, for the kind's checks across
+  keys (`error/3`); `errors/1` gives the result.
+  """
+  @spec start(term(), fields(), Path.t(), map()) :: {term(), state()}
+  def start(data, fields, file, positions) do
+    {value, errors} = validate(data, {:keyword, fields}, file, positions)
+    {value, %{file: file, positions: positions, errors: Enum.reverse(errors)}}
+  end
+
+  @doc "The errors of a checking state, in order."
+  @spec errors(state()) :: [Error.t()]
+  def errors(st), do: Enum.reverse(st.errors)
+
   @doc "Adds an error about the value at `path` (used for checks across fields)."
   @spec error(state(), list(), String.t()) :: state()
   def error(st, path, message),

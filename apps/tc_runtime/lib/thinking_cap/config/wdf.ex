@@ -110,12 +110,13 @@ defmodule ThinkingCap.Config.WDF do
   @spec from_data(term(), Path.t(), map()) ::
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
-    {value, errors} = Schema.validate(data, {:keyword, @fields}, file, positions)
-    st = %{file: file, positions: positions, errors: Enum.reverse(errors)}
+    {value, st} = Schema.start(data, @fields, file, positions)
+
+    st = st
     st = st |> check_names(value) |> check_polygons(value) |> check_doors(value)
     {grid, st} = load_map(st, value[:map])
 
-    case Enum.reverse(st.errors) do
+    case Schema.errors(st) do
       [] ->
         {:ok,
          struct!(
