@@ -116,9 +116,6 @@ defmodule ThinkingCap.Config.ADF do
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
     {value, st} = Schema.start(data, @fields, file, positions)
-
-    st = st
-
     modules = for {name, spec} <- value[:modules] || [], do: Map.put(spec, :name, name)
     nodes = value[:nodes] || []
 

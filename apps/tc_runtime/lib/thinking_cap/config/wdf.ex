@@ -111,8 +111,6 @@ defmodule ThinkingCap.Config.WDF do
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
     {value, st} = Schema.start(data, @fields, file, positions)
-
-    st = st
     st = st |> check_names(value) |> check_polygons(value) |> check_doors(value)
     {grid, st} = load_map(st, value[:map])
 

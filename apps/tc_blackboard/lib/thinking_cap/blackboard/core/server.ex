@@ -26,8 +26,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   @scope :thinking_cap_blackboard
   @group :servers
   @sweep_ms 500
-  # index in Tables.sub_counters/0
-  @peer_count 3
+  @peer_count Tables.counter(:peers)
 
   @doc false
   def scope, do: @scope
@@ -60,7 +59,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   # Passes a local write on to every other node (called by the writer).
   @spec replicate(Store.record()) :: :ok
   def replicate(record) do
-    if :atomics.get(Tables.sub_counters(), @peer_count) > 0 do
+    if :atomics.get(Tables.counters(), @peer_count) > 0 do
       case peers() do
         [] -> :ok
         peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)
@@ -197,7 +196,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   defp publish_peers(state) do
     :ets.insert(Tables.meta(), {:peers, MapSet.to_list(state.peers)})
-    :atomics.put(Tables.sub_counters(), @peer_count, MapSet.size(state.peers))
+    :atomics.put(Tables.counters(), @peer_count, MapSet.size(state.peers))
   end
 
   # Records new to this node are delivered to subscribers unless they were

@@ -82,21 +82,20 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     end
   end
 
-  # indexes in Tables.sub_counters/0 (3 is the server's peer count)
-  @any_counter 1
-  @spec_counter 2
-  @tag_counter 4
+  @any_counter Tables.counter(:any_subs)
+  @spec_counter Tables.counter(:spec_subs)
+  @tag_counter Tables.counter(:tag_subs)
 
   defp count({:stream, _, _, _}, _delta), do: :ok
-  defp count({:tag, _, _}, delta), do: :atomics.add(Tables.sub_counters(), @tag_counter, delta)
-  defp count({:any, _}, delta), do: :atomics.add(Tables.sub_counters(), @any_counter, delta)
-  defp count(:spec, delta), do: :atomics.add(Tables.sub_counters(), @spec_counter, delta)
+  defp count({:tag, _, _}, delta), do: :atomics.add(Tables.counters(), @tag_counter, delta)
+  defp count({:any, _}, delta), do: :atomics.add(Tables.counters(), @any_counter, delta)
+  defp count(:spec, delta), do: :atomics.add(Tables.counters(), @spec_counter, delta)
 
   @doc false
   @spec deliver(tuple()) :: :ok
   def deliver(tuple) do
     subs = Tables.subs()
-    counters = Tables.sub_counters()
+    counters = Tables.counters()
 
     case Template.bound_indexes(tuple) do
       [stream, tag] ->

@@ -12,6 +12,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
+  #   (and an :atomics array of counters, see counters/0)
   #                         {{:watermark, node}, boot, seq}
 
   use GenServer
@@ -35,13 +36,19 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @doc false
   def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
 
+  @counters [any_subs: 1, spec_subs: 2, peers: 3, tag_subs: 4]
+
   @doc false
   # Counters the write path reads instead of probing tables: subscriptions
-  # indexed by tag only ({:tag, n, first}), by arity only ({:any, n}) and
-  # by match specification (:spec), so delivery skips those lookups when
-  # there are none, and the number of peer servers. One atomics array per table set, found through
-  # persistent_term (written once per start of this process).
-  def sub_counters, do: :persistent_term.get({__MODULE__, :sub_counters})
+  # indexed by tag only ({:tag, n, first}), by arity only ({:any, n}) and by
+  # match specification (:spec), so delivery skips those lookups when there
+  # are none, and the number of peer servers. One atomics array per table
+  # set, found through persistent_term (written once per start of this
+  # process). `counter/1` names its slots.
+  def counters, do: :persistent_term.get({__MODULE__, :counters})
+
+  @doc false
+  def counter(name), do: Keyword.fetch!(@counters, name)
 
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
 
@@ -62,7 +69,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     :ets.new(@tombs, [:set | plain])
     :ets.new(@meta, [:set, {:read_concurrency, true} | plain])
     :ets.insert(@meta, [{:boot, {System.system_time(), :erlang.unique_integer()}}, {:peers, []}])
-    :persistent_term.put({__MODULE__, :sub_counters}, :atomics.new(4, signed: true))
+    :persistent_term.put({__MODULE__, :counters}, :atomics.new(length(@counters), signed: true))
     {:ok, nil}
   end
 end
