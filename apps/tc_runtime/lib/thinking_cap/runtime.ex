@@ -120,7 +120,10 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
-  @doc "Stops a module, wherever it runs."
+  @doc """
+  Stops a module, wherever it runs. When it returns, the module's node no
+  longer finds it; other nodes stop finding it as soon as `:pg` tells them.
+  """
   @spec stop(atom()) :: :ok | {:error, :not_running}
   def stop(name) do
     case whereis(name) do

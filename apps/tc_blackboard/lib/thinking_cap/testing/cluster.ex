@@ -52,8 +52,10 @@ defmodule ThinkingCap.Testing.Cluster do
     name = :peer.random_name(~c"tc")
     level = opts |> Keyword.get(:log_level, :warning) |> Atom.to_charlist()
 
+    # no busy-waiting: the runtime may run schedulers at real-time priority
     args =
       [~c"-setcookie", Atom.to_charlist(cookie), ~c"-kernel", ~c"dist_auto_connect", ~c"once"] ++
+        [~c"+sbwt", ~c"none", ~c"+sbwtdcpu", ~c"none", ~c"+sbwtdio", ~c"none"] ++
         [~c"-logger", ~c"level", level, ~c"-pa" | :code.get_path()]
 
     spec = %{name: name, host: ~c"127.0.0.1", longnames: true, args: args}

@@ -147,6 +147,9 @@ defmodule ThinkingCap.Runtime.Host do
 
   @impl true
   def terminate(reason, state) do
+    # leave at once: when stop/1 returns the module is gone from whereis/1
+    # on this node (pg would otherwise drop it when it sees the exit)
+    :pg.leave(ThinkingCap.Runtime.scope(), {:module, state.spec.name}, self())
     state.module.terminate(reason, state.mstate)
   end
 
