@@ -45,6 +45,13 @@ defmodule ThinkingCap.Cycle do
           released_ns: integer()
         }
 
+  @type applied :: %{
+          cycle: non_neg_integer(),
+          kind: :fresh | :fallback | :late,
+          command: term(),
+          response_us: float()
+        }
+
   @kinds %{0 => :fresh, 1 => :fallback, 2 => :late}
 
   @doc "Starts the cycle and its timing worker (registered as `#{inspect(__MODULE__)}`)."

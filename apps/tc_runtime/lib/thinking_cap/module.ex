@@ -36,8 +36,17 @@ defmodule ThinkingCap.Module do
     * `{:command, term}` - the result of the current cycle (periodic only);
     * `{:subscribe, template}` - subscribe to more tuples.
 
+  Every command the timing worker applies for a periodic module, its own
+  fresh result or the fallback that replaced a late one, reaches
+  `handle_applied/2` (`%{cycle: n, kind: :fresh | :fallback | :late,
+  command: term, response_us: float}`; a `:late` result was not applied).
+  A module that drives hardware acts on these, never on its own results:
+  then a stalled module leaves the robot on its fallback, not on a stale
+  command.
+
   `init/2` gets the ADF's `params` and a context map (`:name`, `:robot`,
-  `:node`, `:activity`) and returns `{:ok, state}` or `{actions, state}`.
+  `:node`, `:activity`, and the ADF's `:rdf` and `:wdf` paths, `nil` when
+  not given) and returns `{:ok, state}` or `{actions, state}`.
   When a module is replaced while running (`ThinkingCap.Runtime.swap/2`),
   the new module's `handle_swap/3` (old module, old state, context) gives
   its first state; without it, `init/2` does.
@@ -53,7 +62,9 @@ defmodule ThinkingCap.Module do
           name: atom(),
           robot: atom(),
           node: node(),
-          activity: :periodic | :event | :background
+          activity: :periodic | :event | :background,
+          rdf: Path.t() | nil,
+          wdf: Path.t() | nil
         }
   @type release :: ThinkingCap.Cycle.release()
 
@@ -62,6 +73,7 @@ defmodule ThinkingCap.Module do
   @callback handle_tuple(tuple(), state :: term()) :: {actions(), term()}
   @callback handle_background(state :: term()) :: {actions(), term()}
   @callback handle_info(term(), state :: term()) :: {actions(), term()}
+  @callback handle_applied(ThinkingCap.Cycle.applied(), state :: term()) :: {actions(), term()}
   @callback handle_swap(old_module :: module(), old_state :: term(), context()) :: {:ok, term()}
   @callback terminate(reason :: term(), state :: term()) :: term()
 
@@ -91,6 +103,9 @@ defmodule ThinkingCap.Module do
       def handle_info(_message, state), do: {[], state}
 
       @impl true
+      def handle_applied(_applied, state), do: {[], state}
+
+      @impl true
       def terminate(_reason, _state), do: :ok
 
       defoverridable init: 2,
@@ -98,6 +113,7 @@ defmodule ThinkingCap.Module do
                      handle_tuple: 2,
                      handle_background: 1,
                      handle_info: 2,
+                     handle_applied: 2,
                      terminate: 2
     end
   end

@@ -79,7 +79,7 @@ defmodule ThinkingCap.Runtime do
   @spec start_module(ADF.t(), ADF.module_spec()) :: {:ok, module_info()} | {:error, term()}
   def start_module(%ADF{} = adf, spec) do
     node = node_of(adf, spec.node)
-    spec = Map.put(spec, :robot, adf.robot)
+    spec = Map.merge(spec, %{robot: adf.robot, rdf: adf.rdf, wdf: adf.wdf})
 
     case :erpc.call(node, __MODULE__, :start_here, [spec], 15_000) do
       {:ok, pid} -> {:ok, info(pid)}

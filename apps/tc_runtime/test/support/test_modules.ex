@@ -28,12 +28,19 @@ defmodule ThinkingCap.Test.Modules do
     @moduledoc false
     use ThinkingCap.Module
     @impl true
-    def init(params, _ctx), do: {:ok, params[:sleep_ms]}
+    def init(params, ctx), do: {:ok, %{ms: params[:sleep_ms], robot: ctx.robot}}
     @impl true
-    def handle_cycle(_release, ms) do
-      Process.sleep(ms)
-      {[command: :slow_result], ms}
+    def handle_cycle(_release, state) do
+      Process.sleep(state.ms)
+      {[command: :slow_result], state}
     end
+
+    # what a driver does: act on the applied command, fresh or fallback
+    @impl true
+    def handle_applied(%{kind: :fallback, command: command}, state),
+      do: {[out: {{:applied, state.robot, command}, [key: {:applied, state.robot}]}], state}
+
+    def handle_applied(_applied, state), do: {[], state}
   end
 
   defmodule Crashy do

@@ -70,7 +70,7 @@ defmodule ThinkingCap.RuntimeTest do
   test "a slow module misses deadlines: fallbacks are applied and counted, others keep time", %{
     tmp_dir: dir
   } do
-    {adf, _robot, n} =
+    {adf, robot, n} =
       adf(dir,
         slow:
           "[module: ThinkingCap.Test.Modules.Slow, activity: :periodic, period: 0.02, deadline: 0.005, fallback: :halt, params: [sleep_ms: 30]]",
@@ -83,6 +83,8 @@ defmodule ThinkingCap.RuntimeTest do
     :ok = Cycle.subscribe(n.(:cruise))
 
     assert %{kind: :fallback, command: :halt} = applied_until(n.(:slow), &(&1.kind == :fallback))
+    # the module itself hears the fallback that replaced its late result
+    assert {:ok, _} = Blackboard.rd({:applied, robot, :halt}, 1000)
     Process.sleep(300)
     timing = Runtime.timing()
     assert timing[n.(:slow)].fallbacks >= 5

@@ -23,7 +23,15 @@ defmodule ThinkingCap.Runtime.Host do
     Process.flag(:trap_exit, true)
     Process.flag(:priority, priority(spec.activity))
     :ok = :pg.join(ThinkingCap.Runtime.scope(), {:module, spec.name}, self())
-    context = %{name: spec.name, robot: spec.robot, node: node(), activity: spec.activity}
+
+    context = %{
+      name: spec.name,
+      robot: spec.robot,
+      node: node(),
+      activity: spec.activity,
+      rdf: Map.get(spec, :rdf),
+      wdf: Map.get(spec, :wdf)
+    }
 
     {actions, module_state} =
       normalize(spec.module.init(spec.params, context), spec.module, :init)
@@ -80,7 +88,12 @@ defmodule ThinkingCap.Runtime.Host do
     {:noreply, run(actions, %{state | mstate: mstate})}
   end
 
-  def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
+  def handle_info({:tc_cycle, :applied, name, event}, %{spec: %{name: name}} = state) do
+    {actions, mstate} =
+      normalize(state.module.handle_applied(event, state.mstate), state.module, :handle_applied)
+
+    {:noreply, run(actions, %{state | mstate: mstate})}
+  end
 
   def handle_info({:blackboard, _ref, tuple}, state) do
     {actions, mstate} =
