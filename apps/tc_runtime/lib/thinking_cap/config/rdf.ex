@@ -6,8 +6,10 @@ defmodule ThinkingCap.Config.RDF do
 
   @kinematics_fields [
     type: {{:one_of, [:differential, :tricycle, :ackermann]}, required: true, doc: "drive"},
-    wheel_radius: {:pos_number, doc: "m (differential: required)"},
-    wheel_separation: {:pos_number, doc: "m between the drive wheels (differential: required)"},
+    wheel_radius: {:pos_number, doc: "m (differential: required unless given by urdf:)"},
+    wheel_separation:
+      {:pos_number,
+       doc: "m between the drive wheels (differential: required unless given by urdf:)"},
     wheelbase:
       {:pos_number, doc: "m from rear axle to steered wheel(s) (tricycle, ackermann: required)"},
     track: {:pos_number, doc: "m between the steered wheels (ackermann: required)"},
@@ -51,6 +53,10 @@ defmodule ThinkingCap.Config.RDF do
       {{:one_of, [:sonar, :laser, :beacon_laser, :bumper, :odometry]},
        required: true, doc: "sensor kind"},
     pose: {:pose, default: {0.0, 0.0, 0.0}, doc: "in the robot frame (for a ring: its centre)"},
+    link:
+      {:string,
+       doc:
+         "URDF link giving the sensor's pose (needs urdf:); replaces pose: when the URDF is read"},
     count: {:pos_integer, default: 1, doc: "transducers in a ring, evenly spaced"},
     ring_radius: {:non_neg_number, default: 0.0, doc: "ring radius, m"},
     range: {:range, doc: "{min, max} m (sonar, laser, beacon_laser: required)"},
@@ -62,6 +68,8 @@ defmodule ThinkingCap.Config.RDF do
       {:pos_number,
        default: 0.26, doc: "sonar incidence angle, rad, beyond which surfaces reflect"},
     rate: {:pos_number, default: 10.0, doc: "readings per second"},
+    crosstalk:
+      {:boolean, default: false, doc: "sonar ring: a transducer may hear its neighbours' echoes"},
     noise: {{:keyword, @noise_fields}, default: [], doc: "noise model (below)"},
     faults: {{:list, {:keyword, @fault_fields}}, default: [], doc: "fault models (below)"}
   ]
@@ -141,8 +149,9 @@ defmodule ThinkingCap.Config.RDF do
     st =
       st
       |> check_footprint(value[:footprint])
-      |> check_kinematics(value[:kinematics])
-      |> check_sensors(value[:sensors] || [])
+      |> check_kinematics(value[:kinematics], value[:urdf])
+      |> check_sensors(value[:sensors] || [], value[:urdf])
+      |> check_urdf(file, value[:urdf])
 
     case Schema.errors(st) do
       [] ->
@@ -185,8 +194,16 @@ defmodule ThinkingCap.Config.RDF do
     end
   end
 
-  defp check_kinematics(st, %{type: type} = k) when is_map_key(@required_by_drive, type) do
-    Enum.reduce(@required_by_drive[type], st, fn key, st ->
+  # the URDF gives a differential drive's wheel geometry (ThinkingCap.Robot.URDF.wheels/1)
+  @from_urdf %{differential: [:wheel_radius, :wheel_separation], tricycle: [], ackermann: []}
+
+  defp check_kinematics(st, %{type: type} = k, urdf) when is_map_key(@required_by_drive, type) do
+    required =
+      if is_binary(urdf),
+        do: @required_by_drive[type] -- @from_urdf[type],
+        else: @required_by_drive[type]
+
+    Enum.reduce(required, st, fn key, st ->
       if Map.get(k, key),
         do: st,
         else:
@@ -198,11 +215,11 @@ defmodule ThinkingCap.Config.RDF do
     end)
   end
 
-  defp check_kinematics(st, _k), do: st
+  defp check_kinematics(st, _k, _urdf), do: st
 
   defp doc_of(key), do: elem(@kinematics_fields[key], 1)[:doc]
 
-  defp check_sensors(st, sensors) do
+  defp check_sensors(st, sensors, urdf) do
     {st, _seen} =
       sensors
       |> Enum.with_index()
@@ -219,7 +236,7 @@ defmodule ThinkingCap.Config.RDF do
               ),
             else: st
 
-        {check_sensor(st, path, s), MapSet.put(seen, s.name)}
+        {st |> check_sensor(path, s) |> check_link(path, s, urdf), MapSet.put(seen, s.name)}
       end)
 
     st
@@ -243,4 +260,21 @@ defmodule ThinkingCap.Config.RDF do
   end
 
   defp check_sensor(st, _path, _s), do: st
+
+  defp check_link(st, path, %{link: link} = s, nil) when is_binary(link),
+    do:
+      Schema.error(
+        st,
+        path ++ [:link],
+        "#{Schema.path_string(path ++ [:link])}: sensor #{inspect(s.name)} takes its pose from URDF link #{inspect(link)}, but the robot has no urdf: file"
+      )
+
+  defp check_link(st, _path, _s, _urdf), do: st
+
+  defp check_urdf(st, file, urdf) when is_binary(urdf) do
+    path = Path.expand(urdf, Path.dirname(file))
+    if File.regular?(path), do: st, else: Schema.error(st, [:urdf], "urdf: no such file #{path}")
+  end
+
+  defp check_urdf(st, _file, _urdf), do: st
 end
