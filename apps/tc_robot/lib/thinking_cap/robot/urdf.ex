@@ -322,21 +322,24 @@ defmodule ThinkingCap.Robot.URDF do
   end
 
   defp check_tree(urdf) do
-    children = Enum.group_by(Map.values(urdf.joints), & &1.child)
+    joints = Map.values(urdf.joints)
+    parents = joints |> Enum.group_by(& &1.child) |> Enum.find(fn {_, js} -> length(js) > 1 end)
 
     cond do
       map_size(urdf.links) == 0 ->
         {:error, "#{urdf.file}: the URDF has no <link>"}
 
-      joint = Enum.find(Map.values(urdf.joints), &(not linked?(urdf, &1))) ->
+      joint = Enum.find(joints, &(not linked?(urdf, &1))) ->
         missing = if Map.has_key?(urdf.links, joint.parent), do: joint.child, else: joint.parent
 
         {:error,
          "#{urdf.file}: joint #{inspect(joint.name)} names an unknown link #{inspect(missing)}"}
 
-      {child, js} = Enum.find(children, fn {_, js} -> length(js) > 1 end) ->
+      parents != nil ->
+        {child, js} = parents
+
         {:error,
-         "#{urdf.file}: link #{inspect(child)} is the child of several joints: #{Enum.map_join(js, ", ", &inspect(&1.name))}"}
+         "#{urdf.file}: link #{inspect(child)} is the child of several joints: #{js |> Enum.map(& &1.name) |> Enum.sort() |> Enum.map_join(", ", &inspect/1)}"}
 
       link = Enum.find(Map.keys(urdf.links), &match?({:error, _}, chain(urdf, &1))) ->
         {:error, "#{urdf.file}: the joints form a loop through link #{inspect(link)}"}
