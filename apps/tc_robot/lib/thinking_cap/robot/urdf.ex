@@ -118,8 +118,10 @@ defmodule ThinkingCap.Robot.URDF do
     end
 
     case :xmerl_sax_parser.stream(xml, event_fun: handler, event_state: []) do
-      {:ok, [{:done, root}], _rest} ->
-        {:ok, root}
+      {:ok, [{:done, root}], rest} ->
+        if String.trim(to_string(rest)) == "",
+          do: {:ok, root},
+          else: {:error, "#{path}: malformed XML: content after the root element"}
 
       {:ok, _state, _rest} ->
         {:error, "#{path}: malformed XML: no root element"}
