@@ -1,0 +1,60 @@
+defmodule ThinkingCap.Testing.Robot do
+  @moduledoc """
+  A test robot: a `ThinkingCap.Robot` driver without hardware, for testing
+  modules that drive a robot (and the robot framework itself). Put it in
+  an ADF where the real driver would be:
+
+      base: [module: ThinkingCap.Testing.Robot, activity: :periodic, period: 0.01,
+             deadline: 0.005, fallback: :stop]
+
+  Every command it is driven with is published as
+  `{:driven, robot, %{command: command, count: n}}` (latest value), so a
+  test reads what the robot was told to do from the blackboard; `feed/2`
+  hands it readings as if they had come from the hardware, and they are
+  published like a real robot's. Param `refuse: [command kinds]` makes it
+  answer `{:error, :refused}` to those kinds (`:velocity`, `:wheels`, ...)
+  to test what happens when hardware refuses a command.
+  """
+  use ThinkingCap.Robot
+
+  alias ThinkingCap.Runtime
+
+  @doc "Hands the test robot hosted as module `name` (or at `pid`) some readings."
+  @spec feed(atom() | pid(), [ThinkingCap.Robot.reading()]) :: :ok
+  def feed(name, readings) when is_atom(name), do: feed(Runtime.whereis(name), readings)
+
+  def feed(pid, readings) when is_pid(pid),
+    do: send(pid, {:tc_test_robot, :feed, readings}) && :ok
+
+  @impl true
+  def open(description, context) do
+    {:ok,
+     %{
+       robot: context.robot,
+       description: description,
+       refuse: Keyword.get(context.params, :refuse, []),
+       count: 0
+     }}
+  end
+
+  @impl true
+  def drive(command, state) do
+    kind = if is_tuple(command), do: elem(command, 0), else: command
+
+    if kind in state.refuse do
+      {:error, :refused, state}
+    else
+      count = state.count + 1
+      driven = {:driven, state.robot, %{command: command, count: count}}
+      :ok = ThinkingCap.Blackboard.out(driven, key: {:driven, state.robot})
+      {:ok, %{state | count: count}}
+    end
+  end
+
+  @impl true
+  def handle_data({:tc_test_robot, :feed, readings}, state), do: {readings, state}
+  def handle_data(_message, state), do: {[], state}
+
+  @impl true
+  def close(_reason, _state), do: :ok
+end
