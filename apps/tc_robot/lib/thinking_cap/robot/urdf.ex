@@ -119,7 +119,11 @@ defmodule ThinkingCap.Robot.URDF do
 
     case :xmerl_sax_parser.stream(xml, event_fun: handler, event_state: []) do
       {:ok, [{:done, root}], rest} ->
-        if String.trim(to_string(rest)) == "",
+        # the parser stops at the root's end: comments and processing
+        # instructions may follow it, nothing else
+        trailing = Regex.replace(~r/<!--.*?-->|<\?.*?\?>|\s/s, to_string(rest), "")
+
+        if trailing == "",
           do: {:ok, root},
           else: {:error, "#{path}: malformed XML: content after the root element"}
 
