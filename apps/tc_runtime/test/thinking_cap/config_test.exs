@@ -254,6 +254,75 @@ defmodule ThinkingCap.ConfigTest do
              ]
     end
 
+    test "a sensor's link: needs a urdf:; crosstalk: is a boolean", %{tmp_dir: dir} do
+      source = """
+      [
+        name: "r",
+        footprint: [radius: 0.2],
+        kinematics: [type: :differential, wheel_radius: 0.03, wheel_separation: 0.2],
+        sensors: [
+          [name: :sonar, type: :sonar, range: {0.1, 5}, fov: 0.3, crosstalk: :yes],
+          [name: :laser, type: :laser, range: {0.1, 5}, fov: 3, beams: 9, link: "base_scan"],
+          [name: :bump, type: :bumper, link: :base_link]
+        ]
+      ]
+      """
+
+      path = write(dir, "link.rdf", source)
+
+      assert errors(path) == [
+               "#{path}:#{at(source, 6, ":yes")}: sensors[0].crosstalk: expected true or false, got :yes",
+               "#{path}:#{at(source, 8, ":base_link")}: sensors[2].link: expected a string, got :base_link",
+               "#{path}:#{at(source, 7, "\"base_scan")}: sensors[1].link: sensor :laser takes its pose from URDF link \"base_scan\", but the robot has no urdf: file"
+             ]
+    end
+
+    test "with urdf: a differential drive's wheel geometry may come from the URDF", %{
+      tmp_dir: dir
+    } do
+      File.mkdir_p!(Path.join(dir, "urdf"))
+      write(Path.join(dir, "urdf"), "r.urdf", "<robot name=\"r\"/>")
+
+      source = """
+      [
+        name: "r",
+        urdf: "urdf/r.urdf",
+        footprint: [radius: 0.2],
+        kinematics: [type: :differential],
+        sensors: [[name: :laser, type: :laser, range: {0.1, 5}, fov: 3, beams: 9, link: "scan"]]
+      ]
+      """
+
+      assert {:ok, %RDF{} = rdf} = Config.read(write(dir, "urdf.rdf", source))
+      assert rdf.urdf == Path.join(dir, "urdf/r.urdf")
+      assert %{wheel_radius: nil, wheel_separation: nil} = rdf.kinematics
+      assert [%{link: "scan", crosstalk: false, pose: {0.0, 0.0, 0.0}}] = rdf.sensors
+
+      # without urdf: the geometry is required; a car-like drive always needs its own
+      no_urdf = String.replace(source, ~s(  urdf: "urdf/r.urdf",\n), "")
+      path = write(dir, "no_urdf.rdf", no_urdf)
+
+      assert [radius, separation, _link] = errors(path)
+      assert radius =~ "#{path}:4:15: kinematics: a differential drive needs wheel_radius:"
+
+      assert separation =~
+               "#{path}:4:15: kinematics: a differential drive needs wheel_separation:"
+
+      car = String.replace(source, "type: :differential", "type: :tricycle")
+      path = write(dir, "car.rdf", car)
+      assert [wheelbase, steering] = errors(path)
+      assert wheelbase =~ "#{path}:5:15: kinematics: a tricycle drive needs wheelbase:"
+      assert steering =~ "needs max_steering:"
+
+      # the URDF must exist
+      missing = String.replace(source, "urdf/r.urdf", "urdf/gone.urdf")
+      path = write(dir, "missing.rdf", missing)
+
+      assert errors(path) == [
+               "#{path}:#{at(missing, 3, "\"urdf/")}: urdf: no such file #{Path.join(dir, "urdf/gone.urdf")}"
+             ]
+    end
+
     test "doors connect known places; polygons have 3 points; names are unique", %{tmp_dir: dir} do
       source = """
       [
