@@ -1,12 +1,11 @@
-defmodule Mix.Tasks.Tc.Run do
-  @shortdoc "Runs the main job (bin/run): for now the two-node blackboard demo"
+defmodule Mix.Tasks.Tc.Demo do
+  @shortdoc "Runs the two-node blackboard demo"
   @moduledoc """
-  Runs ThinkingCap's main job. Until the simulator lands this is the
-  two-node blackboard demo (`ThinkingCap.Blackboard.Demo`).
+  Runs the two-node blackboard demo (`ThinkingCap.Blackboard.Demo`): a
+  sensor module on a second node streams poses, this node subscribes,
+  takes jobs written across nodes and prints what it sees.
 
-      elixir --name thinkingcap@127.0.0.1 -S mix tc.run [--seconds N]
-
-  `bin/run` does the set-up and starts it so.
+      elixir --name thinkingcap@127.0.0.1 -S mix tc.demo [--seconds N]
   """
   use Mix.Task
 
@@ -17,7 +16,7 @@ defmodule Mix.Tasks.Tc.Run do
 
     unless Node.alive?() do
       Mix.raise(
-        "mix tc.run needs a distributed node: elixir --name thinkingcap@127.0.0.1 -S mix tc.run"
+        "mix tc.demo needs a distributed node: elixir --name thinkingcap@127.0.0.1 -S mix tc.demo"
       )
     end
 

@@ -1,7 +1,6 @@
 defmodule ThinkingCap.Blackboard.Demo do
   @moduledoc """
-  The two-node blackboard demo that `bin/run` (`mix tc.run`) starts until
-  the simulator lands: a second node plays the robot's sensor CPU, streaming
+  The two-node blackboard demo (`mix tc.demo`): a second node plays the robot's sensor CPU, streaming
   a pose (latest-value tuple, 10 Hz) and posting a job every second; this
   node subscribes to the poses, takes the jobs, and prints a status line a
   second. The calling node must be distributed (`elixir --name ...`).

@@ -1,17 +1,17 @@
 defmodule ThinkingCap.Blackboard.DemoTest do
   @moduledoc false
-  # Runs the README's main job (mix tc.run, what bin/run execs) in its own
+  # Runs the blackboard demo (mix tc.demo) in its own
   # distributed VM and checks what it prints.
   use ExUnit.Case, async: true
 
   @moduletag timeout: 120_000
 
-  test "the main job streams poses from a second node and takes its jobs" do
+  test "the demo streams poses from a second node and takes its jobs" do
     root = Path.expand("../../../../..", __DIR__)
     name = "tc_demo_test_#{System.unique_integer([:positive])}@127.0.0.1"
 
     {output, status} =
-      System.cmd("elixir", ["--name", name, "-S", "mix", "tc.run", "--seconds", "3"],
+      System.cmd("elixir", ["--name", name, "-S", "mix", "tc.demo", "--seconds", "3"],
         cd: root,
         env: [{"MIX_ENV", "test"}],
         stderr_to_stdout: true
@@ -27,11 +27,11 @@ defmodule ThinkingCap.Blackboard.DemoTest do
     assert String.to_integer(jobs) >= 2
   end
 
-  test "the main job refuses to run on a node that is not distributed" do
+  test "the demo refuses to run on a node that is not distributed" do
     root = Path.expand("../../../../..", __DIR__)
 
     {output, status} =
-      System.cmd("mix", ["tc.run", "--seconds", "1"],
+      System.cmd("mix", ["tc.demo", "--seconds", "1"],
         cd: root,
         env: [{"MIX_ENV", "test"}],
         stderr_to_stdout: true

@@ -1,0 +1,94 @@
+defmodule Mix.Tasks.Tc.Run do
+  @shortdoc "Runs the main job (bin/run): the office world with a simulated robot"
+  @moduledoc """
+  Runs ThinkingCap's main job: the example office world
+  (`priv/examples/office.wdf`) with one simulated robot
+  (`priv/examples/office_robot.rdf`) that wanders safely, started from
+  `priv/examples/office_sim.adf` by the runtime, in real time. Prints a
+  status line a second: simulated time, the robot's true and odometry
+  poses, its nearest obstacle, bumper, and the control cycle's timing.
+
+      mix tc.run [--adf PATH] [--seconds N]
+
+  `bin/run` does the set-up and starts it.
+  """
+  use Mix.Task
+
+  alias ThinkingCap.{Blackboard, Runtime}
+
+  @impl true
+  def run(args) do
+    {opts, _rest} = OptionParser.parse!(args, strict: [seconds: :integer, adf: :string])
+    Mix.Task.run("app.start")
+    adf_path = opts[:adf] || Path.join(root(), "priv/examples/office_sim.adf")
+
+    adf =
+      case ThinkingCap.Config.read(adf_path) do
+        {:ok, adf} -> adf
+        {:error, errors} -> Mix.raise(ThinkingCap.Config.format_errors(errors))
+      end
+
+    case Runtime.start(adf) do
+      {:ok, modules} ->
+        IO.puts(
+          "thinkingcap: #{Path.relative_to_cwd(adf_path)}: robot #{inspect(adf.robot)} in " <>
+            "#{Path.basename(adf.wdf || "?")}; modules " <>
+            Enum.map_join(modules, ", ", &"#{&1.name} (#{inspect(&1.module)})")
+        )
+
+      {:error, failed} ->
+        Mix.raise("could not start #{adf_path}: #{inspect(failed)}")
+    end
+
+    report(adf.robot, opts[:seconds])
+  end
+
+  defp report(_robot, 0), do: :ok
+
+  defp report(robot, left) do
+    Process.sleep(1000)
+    IO.puts(status_line(robot))
+    report(robot, left && left - 1)
+  end
+
+  defp status_line(robot) do
+    truth = latest({:sim_pose, robot, :_})
+    odom = latest({:odom, robot, :_})
+    laser = latest({:laser, robot, :_})
+    bumper = latest({:bumper, robot, :_})
+    timing = Runtime.timing() |> Map.get(:base)
+
+    [
+      "t=#{fmt(truth[:stamp])} s",
+      "pose #{pose(truth[:pose])}",
+      "odom #{pose(odom[:pose])}",
+      "nearest #{fmt(laser[:ranges] && Enum.min(laser.ranges))} m",
+      "bumper #{if bumper[:pressed], do: "pressed", else: "free"}",
+      "cycle #{timing_text(timing)}"
+    ]
+    |> Enum.join(", ")
+  end
+
+  defp latest(template) do
+    case Blackboard.rdp(template) do
+      {:ok, {_, _, payload}} -> payload
+      :error -> %{}
+    end
+  end
+
+  defp timing_text(%{cycles: n, fallbacks: f} = t),
+    do: "#{n} cycles, #{f} fallbacks, jitter mean #{fmt(get_in(t, [:jitter_us, :mean]))} µs"
+
+  defp timing_text(_), do: "-"
+
+  defp pose({x, y, th}), do: "(#{fmt(x)}, #{fmt(y)}, #{fmt(th)})"
+  defp pose(_), do: "-"
+
+  defp fmt(nil), do: "-"
+  defp fmt(x) when is_number(x), do: :erlang.float_to_binary(x * 1.0, decimals: 2)
+
+  defp root do
+    cwd = File.cwd!()
+    if File.dir?(Path.join(cwd, "apps")), do: cwd, else: Path.expand("../..", cwd)
+  end
+end

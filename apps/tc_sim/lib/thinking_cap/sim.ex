@@ -1,0 +1,172 @@
+defmodule ThinkingCap.Sim do
+  @moduledoc """
+  The simulator: a world (`ThinkingCap.Sim.World`, from a WDF) and the
+  robots in it, stepped on a simulation clock.
+
+      {:ok, sim} = ThinkingCap.Sim.start_link(world: "priv/examples/office.wdf", mode: :fast, seed: 7)
+      :ok = ThinkingCap.Sim.add_robot(sim, :r1, rdf: "priv/examples/office_robot.rdf", at: :dock,
+                                      controller: {ThinkingCap.Sim.Wander, []})
+      :ok = ThinkingCap.Sim.run_for(sim, 60.0)
+      ThinkingCap.Sim.pose(sim, :r1)
+
+  ## Clock and modes
+
+  Time advances in steps of `step` seconds (default 0.01). In `:realtime`
+  mode the timing worker (`ThinkingCap.Cycle`) releases every step, so
+  simulated time keeps pace with the wall clock; a step that is still
+  running when the next release comes makes the simulation fall behind,
+  and `status/1` counts those `lagged` releases. In `:fast` mode steps
+  follow each other as fast as the machine allows. Either way the
+  simulation can be paused, stepped by hand (`step/2`), run for a stretch
+  of simulated time (`run_for/2`) and reset to its start.
+
+  ## Each step
+
+  Every robot moves by its kinematics and odometry error model
+  (`ThinkingCap.Robot.Kinematics`, `ThinkingCap.Robot.OdometryError`) under
+  its current command; a move into an obstacle (a wall, a closed door, an
+  occupied map cell or another robot) is refused and closes the bumper.
+  Then each sensor due at this step reads (its `rate` from the RDF), seeing
+  the world and the other robots (as discs of their footprint radius, where
+  they stood at the start of the step). Robots are stepped in parallel, in
+  one shard per scheduler.
+
+  Readings are `{sensor, payload}` pairs (payloads below) and go:
+
+    * to the robot's in-process controller (`ThinkingCap.Sim.Controller`),
+      if it has one: its `control/2` answers with the next command;
+    * to the robot's owner process, if it has one (the
+      `ThinkingCap.Sim.Robot` driver of an ADF), as
+      `{:tc_sim, :readings, robot, readings}`;
+    * to the blackboard as `{sensor, robot, payload}` latest-value tuples
+      (key `{sensor, robot}`) when the simulation was started with
+      `publish: true`.
+
+  Every 0.1 s of simulated time the readings include the true pose,
+  `{:sim_pose, %{pose: {x, y, theta}, stamp: t}}`.
+
+  ## Payloads
+
+    * sonar: `%{ranges: [m], headings: [rad], range_min:, range_max:, stamp:}`
+      (headings of the transducers in the robot frame);
+    * laser: `%{ranges: [m], angle_min:, angle_max:, angle_increment:,
+      range_min:, range_max:, stamp:}` (angles relative to the laser, as in
+      ROS `sensor_msgs/LaserScan`; no echo reads `range_max`);
+    * beacon_laser: `%{detections: [%{id: name, range: m, bearing: rad}], stamp:}`;
+    * bumper: `%{pressed: boolean, stamp:}`;
+    * odometry: `%{pose: {x, y, theta}, twist: {v, omega}, stamp:}` (the
+      odometry frame starts at the robot's start pose, as `{0, 0, 0}`).
+
+  ## Determinism
+
+  With in-process controllers (or none), a run in `:fast` mode is
+  determined by the `seed`: every random draw (noise, faults, slip,
+  controllers) comes from a per-robot state seeded from it, whatever the
+  number of shards.
+  """
+
+  alias ThinkingCap.Sim.Core.Server
+
+  @type sim :: GenServer.server()
+  @type robot :: atom()
+
+  @doc """
+  Starts a simulation. Options:
+
+    * `:world` - a WDF path, a `ThinkingCap.Config.WDF` or a built
+      `ThinkingCap.Sim.World` (required);
+    * `:mode` - `:realtime` (default) or `:fast`;
+    * `:step` - seconds per step (default 0.01);
+    * `:seed` - integer (default 1);
+    * `:running` - start stepping at once (default `true`; `:fast` mode
+      with `running: false` waits for `run_for/2` or `step/2`);
+    * `:publish` - publish readings on the blackboard (default `false`);
+    * `:shards` - processes stepping robots (default: the schedulers online);
+    * `:name` - a name to register.
+  """
+  @spec start_link(keyword()) :: GenServer.on_start()
+  def start_link(opts), do: Server.start_link(opts)
+
+  @doc """
+  Adds a robot. Options:
+
+    * `:rdf` (a path) or `:description` (a `ThinkingCap.Robot.Description`) - required;
+    * `:at` - start pose `{x, y, theta}`, point `{x, y}` or waypoint name (required);
+    * `:controller` - `{module, args}` of a `ThinkingCap.Sim.Controller`, or
+    * `:owner` - a pid that gets the readings and sends commands (`command/3`);
+    * `:seed` - the robot's own seed (default: derived from the simulation's).
+
+  Refused when the id is taken or the start pose is not free.
+  """
+  @spec add_robot(sim(), robot(), keyword()) :: :ok | {:error, String.t()}
+  def add_robot(sim, id, opts), do: GenServer.call(sim, {:add_robot, id, opts}, 30_000)
+
+  @doc "Removes a robot."
+  @spec remove_robot(sim(), robot()) :: :ok | {:error, :no_robot}
+  def remove_robot(sim, id), do: GenServer.call(sim, {:remove_robot, id})
+
+  @doc "Makes `owner` the process that gets a robot's readings (a restarted driver)."
+  @spec attach(sim(), robot(), pid()) :: :ok | {:error, :no_robot}
+  def attach(sim, id, owner) when is_pid(owner), do: GenServer.call(sim, {:attach, id, owner})
+
+  @doc """
+  Sets the command a robot follows (`t:ThinkingCap.Robot.command/0`) from
+  the next step on. Robots with an in-process controller are commanded by
+  it.
+  """
+  @spec command(sim(), robot(), ThinkingCap.Robot.command()) :: :ok
+  def command(sim, id, command), do: GenServer.cast(sim, {:command, id, command})
+
+  @doc "Opens or closes a door of the world while running."
+  @spec set_door(sim(), atom(), boolean()) :: :ok | {:error, String.t()}
+  def set_door(sim, door, open?), do: GenServer.call(sim, {:set_door, door, open?})
+
+  @doc "Stops the clock."
+  @spec pause(sim()) :: :ok
+  def pause(sim), do: GenServer.call(sim, :pause)
+
+  @doc "Starts the clock again."
+  @spec resume(sim()) :: :ok
+  def resume(sim), do: GenServer.call(sim, :resume)
+
+  @doc "Runs `n` steps now (single-stepping a paused simulation); returns when done."
+  @spec step(sim(), pos_integer()) :: :ok
+  def step(sim, n \\ 1), do: GenServer.call(sim, {:run_steps, n}, :infinity)
+
+  @doc "Runs `seconds` of simulated time as fast as possible; returns when done."
+  @spec run_for(sim(), number()) :: :ok
+  def run_for(sim, seconds), do: GenServer.call(sim, {:run_for, seconds}, :infinity)
+
+  @doc "Puts every robot back at its start, the doors as the WDF has them, and the clock at 0."
+  @spec reset(sim()) :: :ok
+  def reset(sim), do: GenServer.call(sim, :reset, 30_000)
+
+  @doc "Simulated seconds since the start (or the last reset)."
+  @spec time(sim()) :: float()
+  def time(sim), do: GenServer.call(sim, :time)
+
+  @doc "A robot's true pose."
+  @spec pose(sim(), robot()) :: {:ok, {float(), float(), float()}} | {:error, :no_robot}
+  def pose(sim, id), do: GenServer.call(sim, {:get, id, :pose})
+
+  @doc "A robot's odometry pose (where its encoders think it is, from `{0, 0, 0}`)."
+  @spec odometry(sim(), robot()) :: {:ok, {float(), float(), float()}} | {:error, :no_robot}
+  def odometry(sim, id), do: GenServer.call(sim, {:get, id, :odom})
+
+  @doc "The robots and their true poses."
+  @spec robots(sim()) :: %{robot() => {float(), float(), float()}}
+  def robots(sim), do: GenServer.call(sim, :robots)
+
+  @doc "The world as it is now (doors open or closed)."
+  @spec world(sim()) :: ThinkingCap.Sim.World.t()
+  def world(sim), do: GenServer.call(sim, :world)
+
+  @doc """
+  The clock (`time`, `steps`, `step`, `mode`, `running`, `lagged`
+  releases in real-time mode), `robots`, `shards`, `rays` cast (primary
+  rays: cone rays and beams, bounces not counted) and `blocked`
+  robot-steps (moves refused because of a contact).
+  """
+  @spec status(sim()) :: map()
+  def status(sim), do: GenServer.call(sim, :status)
+end

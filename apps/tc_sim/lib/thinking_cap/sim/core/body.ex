@@ -1,0 +1,120 @@
+defmodule ThinkingCap.Sim.Core.Body do
+  @moduledoc false
+  # One simulated robot: its true pose, its odometry, the command it
+  # follows, its sensors and where its readings go. A step moves it (the
+  # kinematics with the odometry error model, refusing moves into
+  # obstacles), reads the sensors that are due and runs its in-process
+  # controller, if it has one. Everything random draws from the robot's own
+  # seeded state, so a run does not depend on how robots are spread over
+  # processes.
+
+  alias ThinkingCap.Robot.{Kinematics, OdometryError}
+  alias ThinkingCap.Sim.Core.Sensors
+
+  @doc "A robot at its start pose. `spec` is what `ThinkingCap.Sim.add_robot/3` was given."
+  def new(spec, dt) do
+    d = spec.description
+    rng = :rand.seed_s(:exsss, {spec.seed, spec.index, 1})
+    {sensors, rng} = Sensors.setup(d.sensors, dt, rng)
+
+    {sink, cstate} =
+      case spec.sink do
+        {:controller, module, args} ->
+          {{:controller, module}, module.init(args, %{robot: spec.id, description: d})}
+
+        other ->
+          {other, nil}
+      end
+
+    %{
+      id: spec.id,
+      index: spec.index,
+      spec: spec,
+      model: d.kinematics,
+      radius: d.footprint.radius * 1.0,
+      pose: spec.pose,
+      odom: {0.0, 0.0, 0.0},
+      odom_twist: {0.0, 0.0},
+      twist: {0.0, 0.0},
+      command: :stop,
+      bumped: false,
+      err: OdometryError.new(d.kinematics, d.odometry_error, spec.seed * 7919 + spec.index),
+      rng: rng,
+      sensors: sensors,
+      sink: sink,
+      cstate: cstate,
+      rays: 0
+    }
+  end
+
+  @doc "Sets the command the robot follows from the next step on."
+  def command(body, command), do: %{body | command: command}
+
+  @doc "Moves the robot by one step of `dt` seconds."
+  def move(body, world, dt) do
+    wanted = twist(body.model, body.command)
+    twist = Kinematics.limit(body.model, wanted, body.twist, dt)
+    {true_twist, odom_twist, err} = OdometryError.step(body.err, twist, dt)
+    {x, y, _} = pose = Kinematics.integrate(body.pose, true_twist, dt)
+
+    clearance = clearance(world, body, x, y)
+
+    if clearance >= body.radius or clearance >= clearance(world, body, body.pose) do
+      %{
+        body
+        | pose: pose,
+          odom: Kinematics.integrate(body.odom, odom_twist, dt),
+          odom_twist: odom_twist,
+          twist: twist,
+          err: err,
+          bumped: clearance < body.radius
+      }
+    else
+      # blocked: the bumper closes and the robot stops where it is
+      %{body | twist: {0.0, 0.0}, odom_twist: {0.0, 0.0}, err: err, bumped: true}
+    end
+  end
+
+  defp clearance(world, body, {x, y, _}), do: clearance(world, body, x, y)
+
+  defp clearance(world, body, x, y),
+    do: ThinkingCap.Sim.Raycast.clearance(world.raycast, x, y, body.index, body.radius * 2)
+
+  @doc """
+  Reads the sensors due at `step`; returns `{readings, body}` with readings
+  a list of `{sensor, payload}`.
+  """
+  def sense(body, world, step, time, seed) do
+    {sensors, {readings, rays, rng}} =
+      Enum.map_reduce(body.sensors, {[], 0, body.rng}, fn sensor, {acc, rays, rng} ->
+        if Sensors.due?(sensor, step) do
+          scan_seed = :erlang.phash2({seed, body.index, step, sensor.index}, 4_294_967_296)
+
+          {payload, sensor, rng} =
+            Sensors.read(sensor, %{body | rng: rng}, world, time, scan_seed)
+
+          acc = if payload, do: [{sensor.name, payload} | acc], else: acc
+          {sensor, {acc, rays + if(payload, do: sensor.rays, else: 0), rng}}
+        else
+          {sensor, {acc, rays, rng}}
+        end
+      end)
+
+    {Enum.reverse(readings), %{body | sensors: sensors, rng: rng, rays: rays}}
+  end
+
+  @doc "Runs the in-process controller on fresh readings."
+  def control(%{sink: {:controller, module}} = body, readings) when readings != [] do
+    {command, cstate} = module.control(Map.new(readings), body.cstate)
+    %{body | command: command, cstate: cstate}
+  end
+
+  def control(body, _readings), do: body
+
+  # A command as the body twist it asks for.
+  defp twist(_model, :stop), do: {0.0, 0.0}
+  defp twist(_model, {:velocity, v, w}), do: {v * 1.0, w * 1.0}
+
+  defp twist(model, {kind, _, _} = actuation) when kind in [:wheels, :steer],
+    do: Kinematics.forward(model, actuation)
+end

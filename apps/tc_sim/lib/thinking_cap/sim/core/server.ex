@@ -1,0 +1,393 @@
+defmodule ThinkingCap.Sim.Core.Server do
+  @moduledoc false
+  # The simulation's clock and world: steps the shards (in parallel),
+  # collects where every robot now stands and hands that to the ray caster
+  # as the bodies the others see; answers the public API of ThinkingCap.Sim.
+  use GenServer
+  require Logger
+
+  alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Sim.{Raycast, World}
+  alias ThinkingCap.Sim.Core.Shard
+
+  @far {1.0e9, 1.0e9, 0.0}
+
+  def start_link(opts) do
+    case Keyword.fetch(opts, :name) do
+      {:ok, name} -> GenServer.start_link(__MODULE__, opts, name: name)
+      :error -> GenServer.start_link(__MODULE__, opts)
+    end
+  end
+
+  @impl true
+  def init(opts) do
+    with {:ok, mode} <- one_of(opts, :mode, [:realtime, :fast], :realtime),
+         {:ok, dt} <- positive(opts, :step, 0.01),
+         {:ok, seed} <- integer(opts, :seed, 1),
+         {:ok, world} <- world(Keyword.fetch(opts, :world)) do
+      counters = :counters.new(2, [:write_concurrency])
+      n_shards = Keyword.get(opts, :shards, System.schedulers_online())
+
+      shards =
+        for _ <- 1..n_shards do
+          {:ok, pid} =
+            Shard.start_link(
+              server: self(),
+              dt: dt,
+              seed: seed,
+              publish: Keyword.get(opts, :publish, false),
+              world: world,
+              counters: counters
+            )
+
+          pid
+        end
+
+      state = %{
+        world: world,
+        initial_doors: world.doors,
+        mode: mode,
+        dt: dt,
+        seed: seed,
+        step: 0,
+        running: Keyword.get(opts, :running, true),
+        shards: List.to_tuple(shards),
+        robots: %{},
+        bodies: %{},
+        free_indexes: [],
+        next_index: 0,
+        counters: counters,
+        lagged: 0,
+        activity: nil,
+        target: nil,
+        started_at: System.monotonic_time()
+      }
+
+      {:ok, schedule(state)}
+    else
+      {:error, message} -> {:stop, message}
+    end
+  end
+
+  defp world({:ok, %World{} = world}), do: {:ok, world}
+  defp world({:ok, %ThinkingCap.Config.WDF{} = wdf}), do: World.from_wdf(wdf)
+  defp world({:ok, path}) when is_binary(path), do: World.load(path)
+  defp world(:error), do: {:error, "ThinkingCap.Sim: give world: a WDF path or a WDF"}
+
+  defp world({:ok, other}),
+    do: {:error, "ThinkingCap.Sim: world: #{inspect(other, limit: 5)} is not a WDF"}
+
+  defp one_of(opts, key, allowed, default) do
+    value = Keyword.get(opts, key, default)
+
+    if value in allowed,
+      do: {:ok, value},
+      else:
+        {:error, "ThinkingCap.Sim: #{key}: #{inspect(value)} is not one of #{inspect(allowed)}"}
+  end
+
+  defp positive(opts, key, default) do
+    case Keyword.get(opts, key, default) do
+      v when is_number(v) and v > 0 -> {:ok, v * 1.0}
+      v -> {:error, "ThinkingCap.Sim: #{key}: #{inspect(v)} is not a positive number"}
+    end
+  end
+
+  defp integer(opts, key, default) do
+    case Keyword.get(opts, key, default) do
+      v when is_integer(v) -> {:ok, v}
+      v -> {:error, "ThinkingCap.Sim: #{key}: #{inspect(v)} is not an integer"}
+    end
+  end
+
+  ## Stepping
+
+  # :fast mode steps through its own mailbox (so calls are answered between
+  # steps); :realtime mode on the timing worker's releases.
+  defp schedule(%{mode: :fast, running: true} = state) do
+    send(self(), :tick)
+    state
+  end
+
+  defp schedule(%{mode: :realtime, activity: nil} = state) do
+    name = :"tc_sim_#{System.unique_integer([:positive])}"
+
+    :ok =
+      ThinkingCap.Cycle.add(name,
+        period: state.dt,
+        deadline: state.dt,
+        priority: 60,
+        fallback: :none,
+        owner: self()
+      )
+
+    %{state | activity: name}
+  end
+
+  defp schedule(state), do: state
+
+  @impl true
+  def handle_info(:tick, %{mode: :fast, running: true} = state) do
+    state = do_step(state)
+    send(self(), :tick)
+    {:noreply, state}
+  end
+
+  def handle_info(:tick, state), do: {:noreply, state}
+
+  def handle_info({:tc_cycle, :release, name, release}, %{activity: name} = state) do
+    {release, skipped} = newest_release(name, release, 0)
+    state = %{state | lagged: state.lagged + skipped}
+    state = if state.running, do: do_step(state), else: state
+    ThinkingCap.Cycle.result(release, :ok)
+    {:noreply, state}
+  end
+
+  def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
+
+  def handle_info({:stepped, _ref, _poses}, state), do: {:noreply, state}
+
+  def handle_info(message, state) do
+    Logger.debug("ThinkingCap.Sim: unexpected message #{inspect(message, limit: 10)}")
+    {:noreply, state}
+  end
+
+  defp newest_release(name, release, skipped) do
+    receive do
+      {:tc_cycle, :release, ^name, newer} -> newest_release(name, newer, skipped + 1)
+    after
+      0 -> {release, skipped}
+    end
+  end
+
+  # One step: every shard steps its robots in parallel, then the bodies
+  # move in the ray caster.
+  defp do_step(state) do
+    ref = make_ref()
+    time = state.step * state.dt
+    shards = Tuple.to_list(state.shards)
+    Enum.each(shards, &GenServer.cast(&1, {:step, ref, state.step, time}))
+    bodies = collect(ref, length(shards), state.bodies)
+    set_bodies(state.world, bodies, state.next_index)
+    %{state | step: state.step + 1, bodies: bodies}
+  end
+
+  defp collect(_ref, 0, bodies), do: bodies
+
+  defp collect(ref, n, bodies) do
+    receive do
+      {:stepped, ^ref, poses} ->
+        bodies =
+          Enum.reduce(poses, bodies, fn {index, {x, y, _}, r}, acc ->
+            Map.put(acc, index, {x, y, r})
+          end)
+
+        collect(ref, n - 1, bodies)
+    end
+  end
+
+  defp set_bodies(world, bodies, n) do
+    list = for i <- 0..(n - 1)//1, do: Map.get(bodies, i, @far)
+    :ok = Raycast.set_bodies(world.raycast, list)
+  end
+
+  defp run_steps(state, 0), do: state
+  defp run_steps(state, n), do: run_steps(do_step(state), n - 1)
+
+  ## API
+
+  @impl true
+  def handle_call({:add_robot, id, opts}, _from, state) do
+    with :ok <- new_id(state, id),
+         {:ok, description} <- description(opts),
+         {:ok, pose} <- World.resolve_pose(state.world, Keyword.get(opts, :at)),
+         {:ok, sink} <- sink(opts),
+         :ok <- free(state, pose, description) do
+      {index, state} = take_index(state)
+
+      spec = %{
+        id: id,
+        index: index,
+        description: description,
+        pose: pose,
+        sink: sink,
+        seed: Keyword.get(opts, :seed, :erlang.phash2({state.seed, id}))
+      }
+
+      shard = elem(state.shards, rem(index, tuple_size(state.shards)))
+      :ok = GenServer.call(shard, {:add, spec})
+      {x, y, _} = pose
+      bodies = Map.put(state.bodies, index, {x, y, description.footprint.radius * 1.0})
+      set_bodies(state.world, bodies, state.next_index)
+      {:reply, :ok, %{state | robots: Map.put(state.robots, id, {index, shard}), bodies: bodies}}
+    else
+      {:error, message} -> {:reply, {:error, message}, state}
+    end
+  end
+
+  def handle_call({:remove_robot, id}, _from, state) do
+    case state.robots do
+      %{^id => {index, shard}} ->
+        :ok = GenServer.call(shard, {:remove, id})
+        bodies = Map.delete(state.bodies, index)
+        set_bodies(state.world, bodies, state.next_index)
+
+        {:reply, :ok,
+         %{
+           state
+           | robots: Map.delete(state.robots, id),
+             bodies: bodies,
+             free_indexes: [index | state.free_indexes]
+         }}
+
+      _ ->
+        {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call({:attach, id, owner}, _from, state) do
+    case state.robots do
+      %{^id => {_index, shard}} -> {:reply, GenServer.call(shard, {:attach, id, owner}), state}
+      _ -> {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call({:set_door, door, open?}, _from, state) do
+    case World.set_door(state.world, door, open?) do
+      {:ok, world} ->
+        Enum.each(Tuple.to_list(state.shards), &GenServer.cast(&1, {:world, world}))
+        {:reply, :ok, %{state | world: world}}
+
+      {:error, message} ->
+        {:reply, {:error, message}, state}
+    end
+  end
+
+  def handle_call(:pause, _from, state), do: {:reply, :ok, %{state | running: false}}
+
+  def handle_call(:resume, _from, %{running: true} = state), do: {:reply, :ok, state}
+
+  def handle_call(:resume, _from, state),
+    do: {:reply, :ok, schedule(%{state | running: true})}
+
+  def handle_call({:run_steps, n}, _from, state) when is_integer(n) and n > 0,
+    do: {:reply, :ok, run_steps(state, n)}
+
+  def handle_call({:run_for, seconds}, _from, state) when is_number(seconds) and seconds >= 0,
+    do: {:reply, :ok, run_steps(state, round(seconds / state.dt))}
+
+  def handle_call(:reset, _from, state) do
+    world =
+      Enum.reduce(state.initial_doors, state.world, fn {name, %{open: open}}, w ->
+        {:ok, w} = World.set_door(w, name, open)
+        w
+      end)
+
+    bodies =
+      for shard <- Tuple.to_list(state.shards),
+          {index, {x, y, _}, r} <- GenServer.call(shard, {:reset, world}, 30_000),
+          into: %{},
+          do: {index, {x, y, r}}
+
+    set_bodies(world, bodies, state.next_index)
+    {:reply, :ok, %{state | world: world, step: 0, bodies: bodies, lagged: 0}}
+  end
+
+  def handle_call(:time, _from, state), do: {:reply, state.step * state.dt, state}
+
+  def handle_call({:get, id, key}, _from, state) do
+    case state.robots do
+      %{^id => {_index, shard}} -> {:reply, GenServer.call(shard, {:get, id, key}), state}
+      _ -> {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call(:robots, _from, state) do
+    robots =
+      Map.new(state.robots, fn {id, {_index, shard}} ->
+        {:ok, pose} = GenServer.call(shard, {:get, id, :pose})
+        {id, pose}
+      end)
+
+    {:reply, robots, state}
+  end
+
+  def handle_call(:world, _from, state), do: {:reply, state.world, state}
+
+  def handle_call(:status, _from, state) do
+    {:reply,
+     %{
+       time: state.step * state.dt,
+       steps: state.step,
+       step: state.dt,
+       mode: state.mode,
+       running: state.running,
+       robots: map_size(state.robots),
+       shards: tuple_size(state.shards),
+       lagged: state.lagged,
+       rays: :counters.get(state.counters, 1),
+       blocked: :counters.get(state.counters, 2)
+     }, state}
+  end
+
+  @impl true
+  def handle_cast({:command, id, command}, state) do
+    case state.robots do
+      %{^id => {_index, shard}} -> GenServer.cast(shard, {:command, id, command})
+      _ -> :ok
+    end
+
+    {:noreply, state}
+  end
+
+  @impl true
+  def terminate(_reason, state) do
+    if state.activity, do: ThinkingCap.Cycle.remove(state.activity)
+    :ok
+  end
+
+  ## Robots
+
+  defp new_id(state, id) do
+    cond do
+      not is_atom(id) -> {:error, "a robot id is an atom, not #{inspect(id)}"}
+      Map.has_key?(state.robots, id) -> {:error, "robot #{inspect(id)} is already in the world"}
+      true -> :ok
+    end
+  end
+
+  defp description(opts) do
+    case {opts[:description], opts[:rdf]} do
+      {%Description{} = d, _} -> {:ok, d}
+      {nil, path} when is_binary(path) -> Description.load(path)
+      _ -> {:error, "give rdf: a path or description: a ThinkingCap.Robot.Description"}
+    end
+  end
+
+  defp sink(opts) do
+    case {opts[:controller], opts[:owner]} do
+      {nil, nil} -> {:ok, :none}
+      {{module, args}, nil} when is_atom(module) -> controller(module, args)
+      {module, nil} when is_atom(module) -> controller(module, [])
+      {nil, pid} when is_pid(pid) -> {:ok, {:owner, pid}}
+      _ -> {:error, "give controller: {module, args} or owner: pid, not both"}
+    end
+  end
+
+  defp controller(module, args) do
+    if Code.ensure_loaded?(module) and function_exported?(module, :control, 2),
+      do: {:ok, {:controller, module, args}},
+      else: {:error, "#{inspect(module)} is not a ThinkingCap.Sim.Controller"}
+  end
+
+  defp free(state, {x, y, _} = pose, description) do
+    if World.free?(state.world, {x, y}, description.footprint.radius),
+      do: :ok,
+      else: {:error, "start pose #{inspect(pose)} is not free for a robot of this footprint"}
+  end
+
+  defp take_index(%{free_indexes: [index | rest]} = state),
+    do: {index, %{state | free_indexes: rest}}
+
+  defp take_index(state), do: {state.next_index, %{state | next_index: state.next_index + 1}}
+end

@@ -1,0 +1,113 @@
+defmodule ThinkingCap.Sim.Core.Shard do
+  @moduledoc false
+  # Owns some of the simulation's robots and steps them when the server
+  # says so; the shards of a simulation step in parallel, one per
+  # scheduler. Readings go where each robot's sink says: its in-process
+  # controller, its owner process (a `ThinkingCap.Sim.Robot` driver), and
+  # the blackboard when the simulation publishes.
+  use GenServer
+
+  alias ThinkingCap.Blackboard
+  alias ThinkingCap.Sim.Core.Body
+
+  def start_link(opts), do: GenServer.start_link(__MODULE__, opts)
+
+  @impl true
+  def init(opts) do
+    {:ok,
+     %{
+       server: opts[:server],
+       dt: opts[:dt],
+       seed: opts[:seed],
+       publish: opts[:publish],
+       truth_every: max(1, round(0.1 / opts[:dt])),
+       world: opts[:world],
+       counters: opts[:counters],
+       bodies: %{}
+     }}
+  end
+
+  @impl true
+  def handle_call({:add, spec}, _from, state) do
+    body = Body.new(spec, state.dt)
+    {:reply, :ok, put_in(state.bodies[spec.id], body)}
+  end
+
+  def handle_call({:remove, id}, _from, state),
+    do: {:reply, :ok, %{state | bodies: Map.delete(state.bodies, id)}}
+
+  def handle_call({:attach, id, owner}, _from, state) do
+    case state.bodies do
+      %{^id => body} ->
+        sink = {:owner, owner}
+        body = %{body | sink: sink, spec: %{body.spec | sink: sink}}
+        {:reply, :ok, put_in(state.bodies[id], body)}
+
+      _ ->
+        {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call({:get, id, key}, _from, state) do
+    case state.bodies do
+      %{^id => body} -> {:reply, {:ok, Map.fetch!(body, key)}, state}
+      _ -> {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call({:reset, world}, _from, state) do
+    bodies = Map.new(state.bodies, fn {id, b} -> {id, Body.new(b.spec, state.dt)} end)
+    {:reply, poses(bodies), %{state | bodies: bodies, world: world}}
+  end
+
+  @impl true
+  def handle_cast({:command, id, command}, state) do
+    case state.bodies do
+      %{^id => body} -> {:noreply, put_in(state.bodies[id], Body.command(body, command))}
+      _ -> {:noreply, state}
+    end
+  end
+
+  def handle_cast({:world, world}, state), do: {:noreply, %{state | world: world}}
+
+  def handle_cast({:step, ref, step, time}, state) do
+    bodies = Map.new(state.bodies, fn {id, body} -> {id, step_body(body, step, time, state)} end)
+    rays = Enum.reduce(bodies, 0, fn {_id, b}, acc -> acc + b.rays end)
+    blocked = Enum.count(bodies, fn {_id, b} -> b.bumped end)
+    if rays > 0, do: :counters.add(state.counters, 1, rays)
+    if blocked > 0, do: :counters.add(state.counters, 2, blocked)
+    send(state.server, {:stepped, ref, poses(bodies)})
+    {:noreply, %{state | bodies: bodies}}
+  end
+
+  defp poses(bodies), do: for({_id, b} <- bodies, do: {b.index, b.pose, b.radius})
+
+  defp step_body(body, step, time, state) do
+    body = Body.move(body, state.world, state.dt)
+    {readings, body} = Body.sense(body, state.world, step, time, state.seed)
+
+    readings =
+      if rem(step, state.truth_every) == 0,
+        do: [{:sim_pose, %{pose: body.pose, stamp: time}} | readings],
+        else: readings
+
+    deliver(body, readings, state.publish)
+    Body.control(body, readings)
+  end
+
+  defp deliver(_body, [], _publish), do: :ok
+
+  defp deliver(body, readings, publish) do
+    case body.sink do
+      {:owner, pid} -> send(pid, {:tc_sim, :readings, body.id, readings})
+      _ -> :ok
+    end
+
+    if publish do
+      for {sensor, payload} <- readings,
+          do: Blackboard.out({sensor, body.id, payload}, key: {sensor, body.id})
+    end
+
+    :ok
+  end
+end

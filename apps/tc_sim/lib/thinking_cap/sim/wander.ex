@@ -1,0 +1,96 @@
+defmodule ThinkingCap.Sim.Wander do
+  @moduledoc """
+  Safe wandering (`ThinkingCap.Sim.Controller`): drive ahead, slow down
+  as the way ahead closes in, turn away from the nearer side, turn on the
+  spot when blocked, and now and then pick a new random heading bias. It
+  reads the robot's laser, or its sonar ring when it has no laser; with
+  neither it stays put.
+
+  Args: `speed` (m/s, default: the robot's max_speed, at most 0.5),
+  `turn_rate` (rad/s, default 1.0), `safe` (clearance ahead to keep, m,
+  default 0.5), `seed`.
+  """
+  @behaviour ThinkingCap.Sim.Controller
+
+  @impl true
+  def init(args, %{robot: robot, description: d}) do
+    limits = Map.from_struct(d.kinematics)
+
+    ranged =
+      Enum.find(d.sensors, &(&1.type == :laser)) || Enum.find(d.sensors, &(&1.type == :sonar))
+
+    %{
+      sensor: ranged && ranged.name,
+      speed: args[:speed] || min(Map.get(limits, :max_speed, 0.5), 0.5),
+      turn_rate: args[:turn_rate] || 1.0,
+      safe: args[:safe] || 0.5 + d.footprint.radius,
+      bias: 0.0,
+      turning: 0,
+      last: :stop,
+      rng: :rand.seed_s(:exsss, {args[:seed] || :erlang.phash2(robot), 17, 4})
+    }
+  end
+
+  @impl true
+  def control(readings, %{sensor: nil} = state) when is_map(readings), do: {:stop, state}
+
+  def control(readings, %{sensor: sensor} = state) do
+    case readings do
+      %{bumper: %{pressed: true}} -> turn_away(state, 10)
+      %{^sensor => payload} -> steer(sectors(payload), state)
+      _ -> {state.last, state}
+    end
+  end
+
+  # nearest obstacle to the front, left and right
+  defp sectors(%{ranges: ranges} = payload) do
+    angles = angles(payload, length(ranges))
+
+    Enum.zip(angles, ranges)
+    |> Enum.reduce({100.0, 100.0, 100.0}, fn {a, r}, {front, left, right} ->
+      cond do
+        abs(a) <= 0.5 -> {min(front, r), left, right}
+        a > 0.5 and a <= 1.6 -> {front, min(left, r), right}
+        a < -0.5 and a >= -1.6 -> {front, left, min(right, r)}
+        true -> {front, left, right}
+      end
+    end)
+  end
+
+  defp angles(%{headings: headings}, _n), do: Enum.map(headings, &normalize/1)
+
+  defp angles(%{angle_min: a0, angle_increment: inc}, n),
+    do: for(i <- 0..(n - 1), do: a0 + i * inc)
+
+  defp steer({front, left, right}, state) do
+    cond do
+      state.turning > 0 ->
+        turn_away(%{state | turning: state.turning - 1}, 0)
+
+      front < state.safe ->
+        turn_away(state, 5)
+
+      true ->
+        {u, rng} = :rand.uniform_s(state.rng)
+        bias = if u < 0.05, do: (u * 20 - 0.5) * state.turn_rate, else: state.bias
+        away = if left < right, do: -1.0, else: 1.0
+        nearest = min(left, right)
+        avoid = if nearest < state.safe, do: away * state.turn_rate * 0.8, else: 0.0
+        v = state.speed * min(1.0, (front - state.safe * 0.5) / (2 * state.safe))
+        command = {:velocity, max(v, 0.05), bias * 0.3 + avoid}
+        {command, %{state | bias: bias, rng: rng, last: command}}
+    end
+  end
+
+  defp turn_away(state, steps) do
+    direction = if state.bias >= 0, do: 1.0, else: -1.0
+    command = {:velocity, 0.0, direction * state.turn_rate}
+    {command, %{state | turning: max(state.turning, steps), last: command}}
+  end
+
+  defp normalize(a) do
+    two_pi = 2 * :math.pi()
+    a = :math.fmod(a + :math.pi(), two_pi)
+    if a <= 0, do: a + :math.pi(), else: a - :math.pi()
+  end
+end

@@ -1,0 +1,285 @@
+defmodule ThinkingCap.SimTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Sim
+  alias ThinkingCap.Testing.Sim, as: T
+
+  @moduletag :tmp_dir
+
+  @laser [
+    name: :laser,
+    type: :laser,
+    range: {0.05, 8.0},
+    fov: :math.pi(),
+    beams: 181,
+    rate: 100
+  ]
+
+  defp sim(world, opts \\ []) do
+    {:ok, sim} =
+      Sim.start_link(Keyword.merge([world: world, mode: :fast, running: false, seed: 1], opts))
+
+    on_exit(fn -> if Process.alive?(sim), do: GenServer.stop(sim) end)
+    sim
+  end
+
+  # the readings of the next step
+  defp next_readings(sim, id) do
+    :ok = Sim.step(sim)
+    assert_receive {:tc_sim, :readings, ^id, readings}, 1000
+    Map.new(readings)
+  end
+
+  defp collect(sim, id, steps, sensor) do
+    flush(id)
+
+    for _ <- 1..steps do
+      :ok = Sim.step(sim)
+      assert_receive {:tc_sim, :readings, ^id, readings}, 1000
+      Map.new(readings)[sensor]
+    end
+  end
+
+  defp flush(id) do
+    receive do
+      {:tc_sim, :readings, ^id, _} -> flush(id)
+    after
+      0 -> :ok
+    end
+  end
+
+  describe "sensors against analytic geometry" do
+    test "laser beams read the distance to the walls", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {5, 5, 0}, owner: self())
+      %{laser: scan} = next_readings(sim, :r)
+
+      assert length(scan.ranges) == 181
+      assert_in_delta scan.angle_min, -:math.pi() / 2, 1.0e-9
+      assert_in_delta scan.angle_increment, :math.pi() / 180, 1.0e-9
+      # straight ahead, straight right, and 30° left (hits x = 10 at 5 / cos 30°)
+      assert_in_delta Enum.at(scan.ranges, 90), 5.0, 1.0e-6
+      assert_in_delta Enum.at(scan.ranges, 0), 5.0, 1.0e-6
+      assert_in_delta Enum.at(scan.ranges, 120), 5.0 / :math.cos(:math.pi() / 6), 1.0e-6
+    end
+
+    test "a sonar ring reads each wall from its transducer", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 8)))
+
+      sonar = [
+        name: :sonar,
+        type: :sonar,
+        count: 4,
+        ring_radius: 0.1,
+        range: {0.05, 5.0},
+        fov: 0.26,
+        rays: 3,
+        rate: 100
+      ]
+
+      robot = T.robot!(dir, sensors: [sonar])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {6, 5, 0}, owner: self())
+      %{sonar: s} = next_readings(sim, :r)
+      # east wall 4 m away, north 3, west 6 (beyond 5 m: max range), south 5
+      assert [east, north, west, south] = s.ranges
+      assert_in_delta east, 3.9, 1.0e-6
+      assert_in_delta north, 2.9, 1.0e-6
+      assert west == 5.0
+      assert_in_delta south, 4.9, 1.0e-6
+      assert_in_delta Enum.at(s.headings, 1), :math.pi() / 2, 1.0e-9
+    end
+
+    test "a sonar ray hitting a wall at a shallow angle reads max range", %{tmp_dir: dir} do
+      # one long wall along y = 1; the transducer looks along it at 20°
+      sim = sim(T.world!(dir, walls: [{{-20, 1}, {20, 1}}]))
+
+      sonar = [
+        name: :sonar,
+        type: :sonar,
+        range: {0.05, 5.0},
+        fov: 0.01,
+        rays: 1,
+        max_reflections: 0,
+        critical_angle: 0.26,
+        rate: 100
+      ]
+
+      robot = T.robot!(dir, sensors: [sonar], footprint: [radius: 0.1])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {0, 0, 0.35}, owner: self())
+      %{sonar: %{ranges: [r]}} = next_readings(sim, :r)
+      # the ray meets the wall 1/sin(0.35) m away, 70° off the normal: no echo
+      assert r == 5.0
+
+      # looking at the wall almost head-on, the echo comes back
+      :ok = Sim.remove_robot(sim, :r)
+      :ok = Sim.add_robot(sim, :r2, description: robot, at: {0, 0, 1.45}, owner: self())
+      %{sonar: %{ranges: [r2]}} = next_readings(sim, :r2)
+      assert_in_delta r2, 1 / :math.sin(1.45), 1.0e-6
+    end
+
+    test "the beacon sensor gives range and bearing to visible beacons", %{tmp_dir: dir} do
+      sim =
+        sim(
+          T.world!(dir,
+            walls: T.box(10, 10) ++ [{{6, 1}, {6, 4.5}}],
+            beacons: [[name: :a, at: {8, 9}], [name: :hidden, at: {8, 2}]]
+          )
+        )
+
+      beacons = [name: :beacons, type: :beacon_laser, range: {0.2, 15.0}, fov: 6.28, rate: 100]
+      robot = T.robot!(dir, sensors: [beacons])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {5, 5, 0.5}, owner: self())
+      %{beacons: %{detections: detections}} = next_readings(sim, :r)
+      # :hidden is behind the wall x = 6
+      assert [%{id: :a, range: range, bearing: bearing}] = detections
+      assert_in_delta range, 5.0, 1.0e-9
+      assert_in_delta bearing, :math.atan2(4, 3) - 0.5, 1.0e-9
+    end
+
+    test "robots see each other", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :a, description: robot, at: {2, 5, 0}, owner: self())
+      :ok = Sim.add_robot(sim, :b, description: robot, at: {4, 5, 0}, owner: self())
+      :ok = Sim.step(sim)
+      assert_receive {:tc_sim, :readings, :a, readings}
+      assert_in_delta Enum.at(Map.new(readings).laser.ranges, 90), 4 - 0.2 - 2, 1.0e-6
+      # a robot's start pose must be free of the others
+      assert {:error, message} = Sim.add_robot(sim, :c, description: robot, at: {4.1, 5, 0})
+      assert message =~ "not free"
+    end
+
+    test "a closed door is a wall; opened while running, the laser sees through", %{
+      tmp_dir: dir
+    } do
+      walls = T.box(10, 10) ++ [{{5, 0}, {5, 4}}, {{5, 6}, {5, 10}}]
+      door = [name: :d, from: {5, 4}, to: {5, 6}, open: false]
+      sim = sim(T.world!(dir, walls: walls, doors: [door]))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {3, 5, 0}, owner: self())
+      assert_in_delta Enum.at(next_readings(sim, :r).laser.ranges, 90), 2.0, 1.0e-6
+      :ok = Sim.set_door(sim, :d, true)
+      assert_in_delta Enum.at(next_readings(sim, :r).laser.ranges, 90), 7.0, 1.0e-6
+      assert {:error, _} = Sim.set_door(sim, :nope, true)
+    end
+  end
+
+  describe "motion" do
+    test "constant velocity commands follow closed-form arcs and turns", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+
+      robot =
+        T.robot!(dir,
+          kinematics: [
+            type: :differential,
+            wheel_radius: 0.05,
+            wheel_separation: 0.3,
+            max_speed: 1.0,
+            max_turn_rate: 2.0,
+            max_acceleration: 1000.0
+          ]
+        )
+
+      :ok = Sim.add_robot(sim, :arc, description: robot, at: {5, 3, 0})
+      :ok = Sim.add_robot(sim, :spin, description: robot, at: {2, 2, 0})
+      Sim.command(sim, :arc, {:velocity, 0.5, 0.5})
+      Sim.command(sim, :spin, {:velocity, 0.0, 1.0})
+      :ok = Sim.step(sim, 300)
+      t = Sim.time(sim)
+      assert_in_delta t, 3.0, 1.0e-9
+
+      # radius v / omega = 1 m around (5, 4)
+      {:ok, {x, y, th}} = Sim.pose(sim, :arc)
+      assert_in_delta x, 5 + :math.sin(0.5 * t), 1.0e-6
+      assert_in_delta y, 3 + 1 - :math.cos(0.5 * t), 1.0e-6
+      assert_in_delta th, 0.5 * t, 1.0e-6
+      # no odometry error in this robot: odometry is the true motion
+      {:ok, {ox, oy, oth}} = Sim.odometry(sim, :arc)
+      assert_in_delta ox, x - 5, 1.0e-6
+      assert_in_delta oy, y - 3, 1.0e-6
+      assert_in_delta oth, th, 1.0e-6
+
+      {:ok, {sx, sy, sth}} = Sim.pose(sim, :spin)
+      assert {sx, sy} == {2.0, 2.0}
+      assert_in_delta sth, 3.0, 1.0e-6
+    end
+
+    test "a robot driven into a wall stops at it with its bumper pressed", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      robot = T.robot!(dir, sensors: [[name: :bumper, type: :bumper, rate: 100]])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {8, 5, 0}, owner: self())
+      Sim.command(sim, :r, {:velocity, 0.5, 0.0})
+      :ok = Sim.run_for(sim, 10)
+      {:ok, {x, 5.0, +0.0}} = Sim.pose(sim, :r)
+      assert x <= 10 - 0.2 and x > 10 - 0.2 - 0.01
+      flush = collect(sim, :r, 1, :bumper)
+      assert [%{pressed: true}] = flush
+      # backing off frees it
+      Sim.command(sim, :r, {:velocity, -0.5, 0.0})
+      :ok = Sim.step(sim, 5)
+      assert [%{pressed: false}] = collect(sim, :r, 1, :bumper)
+    end
+  end
+
+  describe "clock" do
+    test "pause, single step, reset and determinism for a seed", %{tmp_dir: dir} do
+      world = T.world!(dir, walls: T.box(10, 10) ++ [{{3, 3}, {7, 7}}])
+
+      robot =
+        T.robot!(dir,
+          sensors: [Keyword.put(@laser, :noise, stddev: 0.02)],
+          odometry_error: [slip: 0.05, turn_slip: 0.05, wheel_diameter_ratio: 1.01]
+        )
+
+      run = fn seed ->
+        sim = sim(world, seed: seed)
+
+        for {id, at} <- [a: {1, 1, 0}, b: {8, 2, 2}, c: {2, 8, -1}],
+            do: :ok = Sim.add_robot(sim, id, description: robot, at: at, controller: Sim.Wander)
+
+        :ok = Sim.run_for(sim, 20)
+        {sim, Sim.robots(sim)}
+      end
+
+      {sim, poses} = run.(5)
+      {_, same} = run.(5)
+      {_, other} = run.(6)
+      assert poses == same
+      assert poses != other
+      # they moved
+      assert poses.a != {1.0, 1.0, 0.0}
+
+      :ok = Sim.reset(sim)
+      assert Sim.time(sim) == 0.0
+      assert Sim.robots(sim).a == {1.0, 1.0, 0.0}
+      :ok = Sim.run_for(sim, 20)
+      assert Sim.robots(sim) == poses
+    end
+
+    test "real-time mode steps on the timing worker and pauses", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)), mode: :realtime, running: true)
+      Process.sleep(200)
+      t1 = Sim.time(sim)
+      assert t1 > 0
+      :ok = Sim.pause(sim)
+      t2 = Sim.time(sim)
+      Process.sleep(100)
+      assert Sim.time(sim) == t2
+      :ok = Sim.step(sim, 3)
+      assert_in_delta Sim.time(sim), t2 + 0.03, 1.0e-9
+      :ok = Sim.resume(sim)
+      Process.sleep(100)
+      assert Sim.time(sim) > t2 + 0.03
+      assert %{mode: :realtime} = Sim.status(sim)
+    end
+
+    test "bad options are refused with the reason" do
+      Process.flag(:trap_exit, true)
+      assert {:error, message} = Sim.start_link(world: "/nonexistent.wdf")
+      assert message =~ "/nonexistent.wdf"
+      assert {:error, message} = Sim.start_link(world: "/x.wdf", mode: :slow)
+      assert message =~ "mode"
+    end
+  end
+end
