@@ -1,0 +1,1268 @@
+/*
+ * tc_raycast: the ray-casting NIF of the ThinkingCap simulator
+ * (ThinkingCap.Sim.Raycast). See that module's documentation for the API.
+ *
+ * A world is a resource holding
+ *   - static line segments (walls, doors) indexed by a uniform grid of
+ *     buckets (~0.5-1 m), each segment with an enabled flag;
+ *   - an optional occupancy grid, stored as one byte per cell: 255 for an
+ *     obstacle cell, otherwise a conservative free-space skip distance in
+ *     cells taken from an exact Euclidean distance transform
+ *     (Felzenszwalb-Huttenlocher), floor(D - 1.5) clamped to 0..254 where D
+ *     is the centre-to-centre distance to the nearest obstacle cell. Any
+ *     point of a cell is at least D - sqrt(2) > code cells away from every
+ *     obstacle cell, so a ray may jump ahead by `code` cells; with codes 0
+ *     and 1 (close to obstacles) rays step cell by cell (Amanatides-Woo),
+ *     and the hit is the exact entry point of the first obstacle cell;
+ *   - dynamic circular bodies.
+ * Readers (casts, clearance) take the world's read lock, setters the write
+ * lock, so several processes cast concurrently.
+ */
+#include <erl_nif.h>
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#define CODE_OBST 255u
+#define CODE_MAX_SKIP 254.0
+#define SKIP_MIN 2u
+/* rays (counting the bounce budget) above which a call goes to a dirty
+ * CPU scheduler */
+#define DIRTY_RAY_BUDGET 4000
+/* restart points are nudged this far off a surface after a reflection */
+#define NUDGE_CELLS 1e-6
+#define NUDGE_M 1e-9
+#define BIG 1e20
+#define GROUP_DOUBLES 20
+#define GROUP_BYTES (GROUP_DOUBLES * 8)
+#define GROUPS_HEADER 16
+#define MAX_BOUNCES_LIMIT 1000
+
+enum { HIT_NONE = 0, HIT_GRID, HIT_SEG, HIT_BODY };
+
+typedef struct {
+    double ax, ay, ex, ey; /* a + s e, s in [0, 1] */
+    double nx, ny;         /* unit normal (left of e), 0 if degenerate */
+    double inv_len2;       /* 1/|e|^2, 0 if degenerate */
+} Seg;
+
+typedef struct {
+    double x, y, r;
+    int id;
+} Body;
+
+typedef struct {
+    ErlNifRWLock *lock;
+    /* segments and their bucket index */
+    int nseg, nseg_on;
+    Seg *seg;
+    uint8_t *seg_on;
+    double sx0, sy0, sh, sinvh;
+    int sw, sgh;
+    int32_t *sstart, *sitems;
+    /* occupancy grid */
+    int has_grid, gw, gh;
+    double res, inv_res, gox, goy, gc, gs;
+    uint8_t *code;
+    /* bodies */
+    int nbody;
+    Body *body;
+} World;
+
+typedef struct {
+    double t;
+    int kind, id;
+    const Body *body;
+    /* grid hits, in the grid frame (cell units) */
+    int cx, cy, face, stepx, stepy;
+    double vx, vy;
+} Hit;
+
+typedef struct {
+    const World *w;
+    const Body *b;
+    int nb;
+} Ctx;
+
+typedef struct {
+    double range, px, py;
+    int kind, id, bounces;
+} RayResult;
+
+static ErlNifResourceType *WORLD_RT;
+static ERL_NIF_TERM A_OK, A_ERROR, A_NIL, A_TRUE, A_FALSE, A_NONE, A_GRID, A_SEGMENT,
+    A_BODY, A_RANGE, A_HIT, A_BOUNCES, A_ID;
+
+/* ------------------------------------------------------------------ */
+/* helpers                                                              */
+
+static inline double ld(const unsigned char *p)
+{
+    double d;
+    memcpy(&d, p, 8);
+    return d;
+}
+
+static int get_number(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
+{
+    ErlNifSInt64 i;
+    if (enif_get_double(env, t, out))
+        return 1;
+    if (enif_get_int64(env, t, &i)) {
+        *out = (double)i;
+        return 1;
+    }
+    return 0;
+}
+
+static ERL_NIF_TERM error_msg(ErlNifEnv *env, const char *msg)
+{
+    ERL_NIF_TERM bin;
+    size_t n = strlen(msg);
+    unsigned char *p = enif_make_new_binary(env, n, &bin);
+    memcpy(p, msg, n);
+    return enif_make_tuple2(env, A_ERROR, bin);
+}
+
+static inline int clampi(int v, int lo, int hi) { return v < lo ? lo : (v > hi ? hi : v); }
+
+static inline double clampd(double v, double lo, double hi)
+{
+    return v < lo ? lo : (v > hi ? hi : v);
+}
+
+/* splitmix64: a counter-based generator, seeded per group */
+static inline uint64_t splitmix64(uint64_t *s)
+{
+    uint64_t z = (*s += 0x9E3779B97F4A7C15ULL);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    return z ^ (z >> 31);
+}
+
+/* uniform in [0, 1) */
+static inline double uniform(uint64_t *s) { return (double)(splitmix64(s) >> 11) * 0x1.0p-53; }
+
+/* ------------------------------------------------------------------ */
+/* world lifetime                                                       */
+
+static void world_free(World *w)
+{
+    if (w->seg) enif_free(w->seg);
+    if (w->seg_on) enif_free(w->seg_on);
+    if (w->sstart) enif_free(w->sstart);
+    if (w->sitems) enif_free(w->sitems);
+    if (w->code) enif_free(w->code);
+    if (w->body) enif_free(w->body);
+    w->seg = NULL;
+    w->seg_on = NULL;
+    w->sstart = w->sitems = NULL;
+    w->code = NULL;
+    w->body = NULL;
+}
+
+static void world_dtor(ErlNifEnv *env, void *obj)
+{
+    World *w = obj;
+    (void)env;
+    world_free(w);
+    if (w->lock) enif_rwlock_destroy(w->lock);
+}
+
+/* ------------------------------------------------------------------ */
+/* building                                                             */
+
+/* 1-D squared Euclidean distance transform of a sampled function
+ * (Felzenszwalb & Huttenlocher 2012). */
+static void dt1d(const double *f, int n, double *d, int *v, double *z)
+{
+    int k = 0;
+    v[0] = 0;
+    z[0] = -BIG;
+    z[1] = BIG;
+    for (int q = 1; q < n; q++) {
+        double s;
+        for (;;) {
+            int p = v[k];
+            s = ((f[q] + (double)q * q) - (f[p] + (double)p * p)) / (2.0 * (q - p));
+            if (s <= z[k] && k > 0)
+                k--;
+            else
+                break;
+        }
+        if (s <= z[k]) {
+            /* k == 0 and the new parabola is below everywhere */
+            v[0] = q;
+            z[0] = -BIG;
+            z[1] = BIG;
+            continue;
+        }
+        k++;
+        v[k] = q;
+        z[k] = s;
+        z[k + 1] = BIG;
+    }
+    k = 0;
+    for (int q = 0; q < n; q++) {
+        while (z[k + 1] < q)
+            k++;
+        double dq = (double)(q - v[k]);
+        d[q] = dq * dq + f[v[k]];
+    }
+}
+
+static int build_grid(World *w, const signed char *data)
+{
+    const int W = w->gw, H = w->gh;
+    const size_t n = (size_t)W * H;
+    const int m = W > H ? W : H;
+    double *d2 = enif_alloc(n * sizeof(double));
+    double *f = enif_alloc((size_t)m * sizeof(double));
+    double *d = enif_alloc((size_t)m * sizeof(double));
+    double *z = enif_alloc((size_t)(m + 1) * sizeof(double));
+    int *v = enif_alloc((size_t)m * sizeof(int));
+    w->code = enif_alloc(n);
+    if (!d2 || !f || !d || !z || !v || !w->code) {
+        if (d2) enif_free(d2);
+        if (f) enif_free(f);
+        if (d) enif_free(d);
+        if (z) enif_free(z);
+        if (v) enif_free(v);
+        return 0;
+    }
+    for (size_t i = 0; i < n; i++)
+        d2[i] = data[i] >= 50 ? 0.0 : BIG;
+    for (int x = 0; x < W; x++) {
+        for (int y = 0; y < H; y++)
+            f[y] = d2[(size_t)y * W + x];
+        dt1d(f, H, d, v, z);
+        for (int y = 0; y < H; y++)
+            d2[(size_t)y * W + x] = d[y];
+    }
+    for (int y = 0; y < H; y++) {
+        double *row = d2 + (size_t)y * W;
+        memcpy(f, row, (size_t)W * sizeof(double));
+        dt1d(f, W, row, v, z);
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (data[i] >= 50) {
+            w->code[i] = CODE_OBST;
+        } else {
+            double s = floor(sqrt(d2[i]) - 1.5);
+            w->code[i] = (uint8_t)clampd(s, 0.0, CODE_MAX_SKIP);
+        }
+    }
+    enif_free(d2);
+    enif_free(f);
+    enif_free(d);
+    enif_free(z);
+    enif_free(v);
+    return 1;
+}
+
+/* does segment s touch the square [x0,x1]x[y0,y1]? (bounding boxes are
+ * known to overlap) */
+static int seg_box(const Seg *s, double x0, double y0, double x1, double y1)
+{
+    if (s->inv_len2 == 0.0) return 1;
+    double cx[4] = {x0, x1, x0, x1}, cy[4] = {y0, y0, y1, y1};
+    int pos = 0, neg = 0;
+    for (int i = 0; i < 4; i++) {
+        double side = (cx[i] - s->ax) * s->ey - (cy[i] - s->ay) * s->ex;
+        if (side >= 0) pos++;
+        if (side <= 0) neg++;
+    }
+    return pos > 0 && neg > 0;
+}
+
+static int build_seg_index(World *w)
+{
+    const int n = w->nseg;
+    double minx = BIG, miny = BIG, maxx = -BIG, maxy = -BIG;
+    for (int i = 0; i < n; i++) {
+        const Seg *s = &w->seg[i];
+        double xs[2] = {s->ax, s->ax + s->ex}, ys[2] = {s->ay, s->ay + s->ey};
+        for (int k = 0; k < 2; k++) {
+            minx = fmin(minx, xs[k]);
+            maxx = fmax(maxx, xs[k]);
+            miny = fmin(miny, ys[k]);
+            maxy = fmax(maxy, ys[k]);
+        }
+    }
+    double ex = fmax(maxx - minx, 1e-3), ey = fmax(maxy - miny, 1e-3);
+    double h = clampd(sqrt(ex * ey / n), 0.5, 1.0);
+    double pad = 1e-6 * (1.0 + fmax(fabs(minx), fabs(maxx)) + fmax(fabs(miny), fabs(maxy)));
+    minx -= pad;
+    miny -= pad;
+    ex += 2 * pad;
+    ey += 2 * pad;
+    for (;;) {
+        double cells = (floor(ex / h) + 1) * (floor(ey / h) + 1);
+        if (cells <= 4.0e6) break;
+        h *= 2;
+    }
+    w->sh = h;
+    w->sinvh = 1.0 / h;
+    w->sx0 = minx;
+    w->sy0 = miny;
+    w->sw = (int)floor(ex / h) + 1;
+    w->sgh = (int)floor(ey / h) + 1;
+    const int nb = w->sw * w->sgh;
+    w->sstart = enif_alloc(((size_t)nb + 1) * sizeof(int32_t));
+    if (!w->sstart) return 0;
+    memset(w->sstart, 0, ((size_t)nb + 1) * sizeof(int32_t));
+    int32_t *cursor = NULL;
+    for (int pass = 0; pass < 2; pass++) {
+        for (int i = 0; i < n; i++) {
+            const Seg *s = &w->seg[i];
+            double x0 = fmin(s->ax, s->ax + s->ex), x1 = fmax(s->ax, s->ax + s->ex);
+            double y0 = fmin(s->ay, s->ay + s->ey), y1 = fmax(s->ay, s->ay + s->ey);
+            int i0 = clampi((int)floor((x0 - w->sx0) * w->sinvh), 0, w->sw - 1);
+            int i1 = clampi((int)floor((x1 - w->sx0) * w->sinvh), 0, w->sw - 1);
+            int j0 = clampi((int)floor((y0 - w->sy0) * w->sinvh), 0, w->sgh - 1);
+            int j1 = clampi((int)floor((y1 - w->sy0) * w->sinvh), 0, w->sgh - 1);
+            double eps = 1e-9 * h;
+            for (int j = j0; j <= j1; j++)
+                for (int k = i0; k <= i1; k++) {
+                    double bx = w->sx0 + k * h, by = w->sy0 + j * h;
+                    if (!seg_box(s, bx - eps, by - eps, bx + h + eps, by + h + eps)) continue;
+                    int b = j * w->sw + k;
+                    if (pass == 0)
+                        w->sstart[b + 1]++;
+                    else
+                        w->sitems[cursor[b]++] = i;
+                }
+        }
+        if (pass == 0) {
+            for (int b = 0; b < nb; b++)
+                w->sstart[b + 1] += w->sstart[b];
+            w->sitems = enif_alloc(((size_t)w->sstart[nb] + 1) * sizeof(int32_t));
+            cursor = enif_alloc((size_t)nb * sizeof(int32_t));
+            if (!w->sitems || !cursor) {
+                if (cursor) enif_free(cursor);
+                return 0;
+            }
+            memcpy(cursor, w->sstart, (size_t)nb * sizeof(int32_t));
+        }
+    }
+    enif_free(cursor);
+    return 1;
+}
+
+/* ------------------------------------------------------------------ */
+/* tracing                                                              */
+
+/* Marches the ray u + t v (grid frame, cell units, |v| = 1) up to tmax.
+ * On a hit stores the exact entry parameter of the first obstacle cell. */
+static int grid_march(const World *w, double ux, double uy, double vx, double vy, double tmax,
+                      double *t_out, Hit *h)
+{
+    const int W = w->gw, H = w->gh;
+    double t0 = 0.0, t1 = tmax;
+    int face = 0;
+    if (vx > 0) {
+        double a = -ux / vx, b = (W - ux) / vx;
+        if (a > t0) {
+            t0 = a;
+            face = 1;
+        }
+        if (b < t1) t1 = b;
+    } else if (vx < 0) {
+        double a = (W - ux) / vx, b = -ux / vx;
+        if (a > t0) {
+            t0 = a;
+            face = 1;
+        }
+        if (b < t1) t1 = b;
+    } else if (!(ux >= 0 && ux < W)) {
+        return 0;
+    }
+    if (vy > 0) {
+        double a = -uy / vy, b = (H - uy) / vy;
+        if (a > t0) {
+            t0 = a;
+            face = 2;
+        }
+        if (b < t1) t1 = b;
+    } else if (vy < 0) {
+        double a = (H - uy) / vy, b = -uy / vy;
+        if (a > t0) {
+            t0 = a;
+            face = 2;
+        }
+        if (b < t1) t1 = b;
+    } else if (!(uy >= 0 && uy < H)) {
+        return 0;
+    }
+    if (!(t0 <= t1)) return 0;
+
+    const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
+    const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
+    const double tdx = vx != 0 ? fabs(1.0 / vx) : INFINITY;
+    const double tdy = vy != 0 ? fabs(1.0 / vy) : INFINITY;
+    const uint8_t *g = w->code;
+    int cx = clampi((int)floor(ux + t0 * vx), 0, W - 1);
+    int cy = clampi((int)floor(uy + t0 * vy), 0, H - 1);
+    double t = t0, tmx = INFINITY, tmy = INFINITY;
+    int dda = 0;
+
+    for (;;) {
+        unsigned c = g[(size_t)cy * W + cx];
+        if (c >= SKIP_MIN) {
+            if (c == CODE_OBST) break;
+            t += (double)c;
+            if (t >= t1) return 0;
+            cx = clampi((int)floor(ux + t * vx), 0, W - 1);
+            cy = clampi((int)floor(uy + t * vy), 0, H - 1);
+            dda = 0;
+            face = 0;
+            continue;
+        }
+        if (!dda) {
+            tmx = vx > 0 ? (cx + 1 - ux) / vx : (vx < 0 ? (cx - ux) / vx : INFINITY);
+            tmy = vy > 0 ? (cy + 1 - uy) / vy : (vy < 0 ? (cy - uy) / vy : INFINITY);
+            dda = 1;
+        }
+        if (tmx < tmy) {
+            if (tmx > t1) return 0;
+            t = tmx;
+            cx += stepx;
+            if ((unsigned)cx >= (unsigned)W) return 0;
+            tmx += tdx;
+            face = 1;
+        } else {
+            if (tmy > t1) return 0;
+            t = tmy;
+            cy += stepy;
+            if ((unsigned)cy >= (unsigned)H) return 0;
+            tmy += tdy;
+            face = 2;
+        }
+    }
+    /* exact entry parameter (the incremental one carries rounding) */
+    if (face == 1 && dda)
+        t = ((stepx > 0 ? cx : cx + 1) - ux) / vx;
+    else if (face == 2 && dda)
+        t = ((stepy > 0 ? cy : cy + 1) - uy) / vy;
+    *t_out = t;
+    h->cx = cx;
+    h->cy = cy;
+    h->face = face;
+    h->stepx = stepx;
+    h->stepy = stepy;
+    h->vx = vx;
+    h->vy = vy;
+    return 1;
+}
+
+static inline int seg_hit(const Seg *s, double px, double py, double dx, double dy, double *t)
+{
+    double den = dx * s->ey - dy * s->ex;
+    if (fabs(den) < 1e-300) return 0;
+    double wx = s->ax - px, wy = s->ay - py;
+    double tt = (wx * s->ey - wy * s->ex) / den;
+    double u = (wx * dy - wy * dx) / den;
+    if (tt < 0 || u < 0 || u > 1) return 0;
+    *t = tt;
+    return 1;
+}
+
+static void seg_trace(const World *w, double px, double py, double dx, double dy, Hit *h)
+{
+    const double ih = w->sinvh;
+    const int W = w->sw, H = w->sgh;
+    const double ux = (px - w->sx0) * ih, uy = (py - w->sy0) * ih;
+    const double vx = dx * ih, vy = dy * ih;
+    double t0 = 0.0, t1 = h->t;
+    if (vx > 0) {
+        t0 = fmax(t0, -ux / vx);
+        t1 = fmin(t1, (W - ux) / vx);
+    } else if (vx < 0) {
+        t0 = fmax(t0, (W - ux) / vx);
+        t1 = fmin(t1, -ux / vx);
+    } else if (!(ux >= 0 && ux <= W)) {
+        return;
+    }
+    if (vy > 0) {
+        t0 = fmax(t0, -uy / vy);
+        t1 = fmin(t1, (H - uy) / vy);
+    } else if (vy < 0) {
+        t0 = fmax(t0, (H - uy) / vy);
+        t1 = fmin(t1, -uy / vy);
+    } else if (!(uy >= 0 && uy <= H)) {
+        return;
+    }
+    if (!(t0 <= t1)) return;
+    const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
+    const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
+    const double tdx = vx != 0 ? fabs(1.0 / vx) : INFINITY;
+    const double tdy = vy != 0 ? fabs(1.0 / vy) : INFINITY;
+    int cx = clampi((int)floor(ux + t0 * vx), 0, W - 1);
+    int cy = clampi((int)floor(uy + t0 * vy), 0, H - 1);
+    double tmx = vx > 0 ? (cx + 1 - ux) / vx : (vx < 0 ? (cx - ux) / vx : INFINITY);
+    double tmy = vy > 0 ? (cy + 1 - uy) / vy : (vy < 0 ? (cy - uy) / vy : INFINITY);
+    for (;;) {
+        int b = cy * W + cx;
+        for (int k = w->sstart[b]; k < w->sstart[b + 1]; k++) {
+            int id = w->sitems[k];
+            double t;
+            if (!w->seg_on[id]) continue;
+            if (seg_hit(&w->seg[id], px, py, dx, dy, &t) && t < h->t) {
+                h->t = t;
+                h->kind = HIT_SEG;
+                h->id = id;
+            }
+        }
+        if (tmx < tmy) {
+            if (tmx > h->t || tmx > t1) return;
+            cx += stepx;
+            if ((unsigned)cx >= (unsigned)W) return;
+            tmx += tdx;
+        } else {
+            if (tmy > h->t || tmy > t1) return;
+            cy += stepy;
+            if ((unsigned)cy >= (unsigned)H) return;
+            tmy += tdy;
+        }
+    }
+}
+
+/* nearest hit along p + t d (|d| = 1), 0 <= t <= tmax */
+static void trace(const Ctx *c, double px, double py, double dx, double dy, double tmax, Hit *h)
+{
+    const World *w = c->w;
+    h->t = tmax;
+    h->kind = HIT_NONE;
+    h->id = -1;
+    h->body = NULL;
+    h->cx = h->cy = h->face = h->stepx = h->stepy = 0;
+    h->vx = dx;
+    h->vy = dy;
+    if (w->has_grid) {
+        double rx = px - w->gox, ry = py - w->goy;
+        double ux = (rx * w->gc + ry * w->gs) * w->inv_res;
+        double uy = (-rx * w->gs + ry * w->gc) * w->inv_res;
+        double vx = dx * w->gc + dy * w->gs, vy = -dx * w->gs + dy * w->gc;
+        double tc;
+        if (grid_march(w, ux, uy, vx, vy, tmax * w->inv_res, &tc, h)) {
+            h->t = tc * w->res;
+            h->kind = HIT_GRID;
+        }
+    }
+    if (w->nseg_on > 0) seg_trace(w, px, py, dx, dy, h);
+    for (int i = 0; i < c->nb; i++) {
+        const Body *b = &c->b[i];
+        double mx = px - b->x, my = py - b->y;
+        double bb = mx * dx + my * dy;
+        double cc = mx * mx + my * my - b->r * b->r;
+        if (cc > 0 && bb > 0) continue;
+        if (-bb - b->r > h->t) continue;
+        double disc = bb * bb - cc;
+        if (disc < 0) continue;
+        double t = cc > 0 ? -bb - sqrt(disc) : 0.0;
+        if (t < h->t) {
+            h->t = t;
+            h->kind = HIT_BODY;
+            h->id = b->id;
+            h->body = b;
+        }
+    }
+}
+
+/* Surface normal at a hit (unit, facing the incoming ray) and the nudge
+ * that moves a restart point off the surface. */
+static void surface(const World *w, const Hit *h, double dx, double dy, double hx, double hy,
+                    double *nx, double *ny, double *fx, double *fy)
+{
+    double x = -dx, y = -dy;
+    if (h->kind == HIT_SEG) {
+        const Seg *s = &w->seg[h->id];
+        if (s->inv_len2 > 0) {
+            x = s->nx;
+            y = s->ny;
+            if (x * dx + y * dy > 0) {
+                x = -x;
+                y = -y;
+            }
+        }
+        *fx = x * NUDGE_M;
+        *fy = y * NUDGE_M;
+    } else if (h->kind == HIT_BODY) {
+        double rx = hx - h->body->x, ry = hy - h->body->y, l = sqrt(rx * rx + ry * ry);
+        if (h->t > 0 && l > 0) {
+            x = rx / l;
+            y = ry / l;
+        }
+        *fx = x * NUDGE_M;
+        *fy = y * NUDGE_M;
+    } else {
+        /* grid: away from the occupied mass of the 5x5 neighbourhood */
+        const int W = w->gw, H = w->gh;
+        double sx = 0, sy = 0;
+        for (int j = -2; j <= 2; j++) {
+            int Y = h->cy + j;
+            if (Y < 0 || Y >= H) continue;
+            for (int i = -2; i <= 2; i++) {
+                int X = h->cx + i;
+                if (X < 0 || X >= W || (i == 0 && j == 0)) continue;
+                if (w->code[(size_t)Y * W + X] == CODE_OBST) {
+                    sx -= i;
+                    sy -= j;
+                }
+            }
+        }
+        double l2 = sx * sx + sy * sy;
+        double gx, gy; /* face normal, grid frame */
+        if (h->face == 1) {
+            gx = -h->stepx;
+            gy = 0;
+        } else if (h->face == 2) {
+            gx = 0;
+            gy = -h->stepy;
+        } else {
+            gx = -h->vx;
+            gy = -h->vy;
+        }
+        if (l2 < 1e-12 || sx * h->vx + sy * h->vy >= -1e-12 * sqrt(l2)) {
+            sx = gx;
+            sy = gy;
+            l2 = 1;
+        }
+        double l = sqrt(l2);
+        sx /= l;
+        sy /= l;
+        x = w->gc * sx - w->gs * sy;
+        y = w->gs * sx + w->gc * sy;
+        double k = NUDGE_CELLS * w->res;
+        *fx = (w->gc * gx - w->gs * gy) * k;
+        *fy = (w->gs * gx + w->gc * gy) * k;
+    }
+    *nx = x;
+    *ny = y;
+}
+
+/* One sonar/laser ray with the reflection model. cos_crit < -1 means the
+ * critical angle is >= pi/2: every hit echoes. */
+static void cast_one(const Ctx *c, double px, double py, double dx, double dy, double max_range,
+                     int max_bounces, double cos_crit, RayResult *r)
+{
+    double travelled = 0;
+    int bounces = 0;
+    for (;;) {
+        double remaining = max_range - travelled;
+        Hit h;
+        if (!(remaining > 0)) break;
+        trace(c, px, py, dx, dy, remaining, &h);
+        if (h.kind == HIT_NONE) break;
+        travelled += h.t;
+        double hx = px + h.t * dx, hy = py + h.t * dy;
+        if (cos_crit < -1.0) {
+            r->range = travelled;
+            r->kind = h.kind;
+            r->id = h.kind == HIT_GRID ? -1 : h.id;
+            r->bounces = bounces;
+            r->px = hx;
+            r->py = hy;
+            return;
+        }
+        double nx, ny, fx, fy;
+        surface(c->w, &h, dx, dy, hx, hy, &nx, &ny, &fx, &fy);
+        double dn = dx * nx + dy * ny;
+        if (-dn >= cos_crit) {
+            r->range = travelled;
+            r->kind = h.kind;
+            r->id = h.kind == HIT_GRID ? -1 : h.id;
+            r->bounces = bounces;
+            r->px = hx;
+            r->py = hy;
+            return;
+        }
+        if (bounces >= max_bounces) break;
+        bounces++;
+        dx -= 2 * dn * nx;
+        dy -= 2 * dn * ny;
+        double l = sqrt(dx * dx + dy * dy);
+        dx /= l;
+        dy /= l;
+        px = hx + fx;
+        py = hy + fy;
+    }
+    r->range = max_range;
+    r->kind = HIT_NONE;
+    r->id = -1;
+    r->bounces = bounces;
+    r->px = r->py = 0;
+}
+
+/* ------------------------------------------------------------------ */
+/* NIFs                                                                 */
+
+static int get_world(ErlNifEnv *env, ERL_NIF_TERM t, World **w)
+{
+    return enif_get_resource(env, t, WORLD_RT, (void **)w);
+}
+
+/* new(segments :: binary of 4 native doubles each,
+ *     grid :: nil | {w, h, res, ox, oy, yaw, data}) */
+static ERL_NIF_TERM nif_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary sb;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &sb) || sb.size % 32 != 0)
+        return error_msg(env, "segments: expected a binary of 4 float64 per segment");
+    int gw = 0, gh = 0;
+    double res = 0, ox = 0, oy = 0, yaw = 0;
+    ErlNifBinary data;
+    int has_grid = 0;
+    if (enif_compare(argv[1], A_NIL) != 0) {
+        int arity;
+        const ERL_NIF_TERM *el;
+        if (!enif_get_tuple(env, argv[1], &arity, &el) || arity != 7 ||
+            !enif_get_int(env, el[0], &gw) || !enif_get_int(env, el[1], &gh) ||
+            !get_number(env, el[2], &res) || !get_number(env, el[3], &ox) ||
+            !get_number(env, el[4], &oy) || !get_number(env, el[5], &yaw) ||
+            !enif_inspect_binary(env, el[6], &data))
+            return error_msg(env, "grid: malformed");
+        if (gw <= 0 || gh <= 0) return error_msg(env, "grid: width and height must be positive");
+        if (!(res > 0) || !isfinite(res)) return error_msg(env, "grid: resolution must be positive");
+        if ((size_t)gw * (size_t)gh != data.size)
+            return error_msg(env, "grid: data size does not match width * height");
+        if ((double)gw * gh > 2.0e9) return error_msg(env, "grid: too large");
+        has_grid = 1;
+    }
+
+    World *w = enif_alloc_resource(WORLD_RT, sizeof(World));
+    if (!w) return error_msg(env, "out of memory");
+    memset(w, 0, sizeof(World));
+    ERL_NIF_TERM term = enif_make_resource(env, w);
+    enif_release_resource(w);
+    w->lock = enif_rwlock_create("tc_raycast.world");
+    if (!w->lock) return error_msg(env, "cannot create a lock");
+
+    w->nseg = (int)(sb.size / 32);
+    if (w->nseg > 0) {
+        w->seg = enif_alloc((size_t)w->nseg * sizeof(Seg));
+        w->seg_on = enif_alloc((size_t)w->nseg);
+        if (!w->seg || !w->seg_on) return error_msg(env, "out of memory");
+        for (int i = 0; i < w->nseg; i++) {
+            const unsigned char *p = sb.data + (size_t)i * 32;
+            double x1 = ld(p), y1 = ld(p + 8), x2 = ld(p + 16), y2 = ld(p + 24);
+            if (!isfinite(x1) || !isfinite(y1) || !isfinite(x2) || !isfinite(y2))
+                return error_msg(env, "segments: coordinates must be finite");
+            Seg *s = &w->seg[i];
+            s->ax = x1;
+            s->ay = y1;
+            s->ex = x2 - x1;
+            s->ey = y2 - y1;
+            double l2 = s->ex * s->ex + s->ey * s->ey;
+            if (l2 > 0) {
+                double l = sqrt(l2);
+                s->nx = -s->ey / l;
+                s->ny = s->ex / l;
+                s->inv_len2 = 1.0 / l2;
+            } else {
+                s->nx = s->ny = s->inv_len2 = 0;
+            }
+            w->seg_on[i] = 1;
+        }
+        w->nseg_on = w->nseg;
+        if (!build_seg_index(w)) return error_msg(env, "out of memory");
+    }
+    if (has_grid) {
+        w->has_grid = 1;
+        w->gw = gw;
+        w->gh = gh;
+        w->res = res;
+        w->inv_res = 1.0 / res;
+        w->gox = ox;
+        w->goy = oy;
+        w->gc = cos(yaw);
+        w->gs = sin(yaw);
+        if (!build_grid(w, (const signed char *)data.data)) return error_msg(env, "out of memory");
+    }
+    return enif_make_tuple2(env, A_OK, term);
+}
+
+static ERL_NIF_TERM nif_set_segment(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    World *w;
+    int id;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_int(env, argv[1], &id))
+        return enif_make_badarg(env);
+    int on;
+    if (enif_compare(argv[2], A_TRUE) == 0)
+        on = 1;
+    else if (enif_compare(argv[2], A_FALSE) == 0)
+        on = 0;
+    else
+        return enif_make_badarg(env);
+    if (id < 0 || id >= w->nseg) return enif_make_badarg(env);
+    enif_rwlock_rwlock(w->lock);
+    if (w->seg_on[id] != on) {
+        w->seg_on[id] = (uint8_t)on;
+        w->nseg_on += on ? 1 : -1;
+    }
+    enif_rwlock_rwunlock(w->lock);
+    return A_OK;
+}
+
+static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    World *w;
+    unsigned len;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_list_length(env, argv[1], &len))
+        return enif_make_badarg(env);
+    Body *b = len ? enif_alloc((size_t)len * sizeof(Body)) : NULL;
+    if (len && !b) return enif_make_badarg(env);
+    ERL_NIF_TERM list = argv[1], head;
+    for (unsigned i = 0; i < len; i++) {
+        int arity;
+        const ERL_NIF_TERM *el;
+        enif_get_list_cell(env, list, &head, &list);
+        if (!enif_get_tuple(env, head, &arity, &el) || arity != 3 ||
+            !get_number(env, el[0], &b[i].x) || !get_number(env, el[1], &b[i].y) ||
+            !get_number(env, el[2], &b[i].r) || !(b[i].r >= 0)) {
+            enif_free(b);
+            return enif_make_badarg(env);
+        }
+        b[i].id = (int)i;
+    }
+    enif_rwlock_rwlock(w->lock);
+    Body *old = w->body;
+    w->body = b;
+    w->nbody = (int)len;
+    enif_rwlock_rwunlock(w->lock);
+    if (old) enif_free(old);
+    return A_OK;
+}
+
+static ERL_NIF_TERM kind_atom(int kind)
+{
+    switch (kind) {
+    case HIT_GRID:
+        return A_GRID;
+    case HIT_SEG:
+        return A_SEGMENT;
+    case HIT_BODY:
+        return A_BODY;
+    default:
+        return A_NONE;
+    }
+}
+
+/* copies the bodies other than `exclude` into `out` (with `cull`, only those
+ * that reach within `radius` of (x, y)); returns the count */
+static int collect_bodies(const World *w, int exclude, int cull, double x, double y, double radius,
+                          Body *out)
+{
+    int n = 0;
+    for (int i = 0; i < w->nbody; i++) {
+        const Body *b = &w->body[i];
+        if (b->id == exclude) continue;
+        if (cull) {
+            double dx = b->x - x, dy = b->y - y, rr = radius + b->r;
+            if (dx * dx + dy * dy > rr * rr) continue;
+        }
+        out[n++] = *b;
+    }
+    return n;
+}
+
+/* cast_rays(world, rays, exclude, max_bounces, cos_crit) */
+static ERL_NIF_TERM cast_rays_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    World *w;
+    unsigned len;
+    int exclude, max_bounces;
+    double cos_crit;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_list_length(env, argv[1], &len) ||
+        !enif_get_int(env, argv[2], &exclude) || !enif_get_int(env, argv[3], &max_bounces) ||
+        !enif_get_double(env, argv[4], &cos_crit) || max_bounces < 0 ||
+        max_bounces > MAX_BOUNCES_LIMIT)
+        return enif_make_badarg(env);
+    double *rays = len ? enif_alloc((size_t)len * 4 * sizeof(double)) : NULL;
+    if (len && !rays) return enif_make_badarg(env);
+    ERL_NIF_TERM list = argv[1], head;
+    for (unsigned i = 0; i < len; i++) {
+        int arity;
+        const ERL_NIF_TERM *el;
+        double *r = rays + 4 * (size_t)i;
+        enif_get_list_cell(env, list, &head, &list);
+        if (!enif_get_tuple(env, head, &arity, &el) || arity != 4 || !get_number(env, el[0], &r[0]) ||
+            !get_number(env, el[1], &r[1]) || !get_number(env, el[2], &r[2]) ||
+            !get_number(env, el[3], &r[3])) {
+            enif_free(rays);
+            return enif_make_badarg(env);
+        }
+    }
+    RayResult *res = len ? enif_alloc((size_t)len * sizeof(RayResult)) : NULL;
+    if (len && !res) {
+        enif_free(rays);
+        return enif_make_badarg(env);
+    }
+    enif_rwlock_rlock(w->lock);
+    Body *bodies = w->nbody ? enif_alloc((size_t)w->nbody * sizeof(Body)) : NULL;
+    Ctx c = {w, bodies, collect_bodies(w, exclude, 0, 0, 0, 0, bodies)};
+    for (unsigned i = 0; i < len; i++) {
+        const double *r = rays + 4 * (size_t)i;
+        cast_one(&c, r[0], r[1], cos(r[2]), sin(r[2]), r[3], max_bounces, cos_crit, &res[i]);
+    }
+    enif_rwlock_runlock(w->lock);
+    if (bodies) enif_free(bodies);
+    ERL_NIF_TERM out = enif_make_list(env, 0);
+    ERL_NIF_TERM keys[4] = {A_BOUNCES, A_HIT, A_ID, A_RANGE};
+    for (unsigned k = len; k-- > 0;) {
+        ERL_NIF_TERM vals[4] = {enif_make_int(env, res[k].bounces), kind_atom(res[k].kind),
+                                enif_make_int(env, res[k].id), enif_make_double(env, res[k].range)};
+        ERL_NIF_TERM map;
+        enif_make_map_from_arrays(env, keys, vals, 4, &map);
+        out = enif_make_list_cell(env, map, out);
+    }
+    if (rays) enif_free(rays);
+    if (res) enif_free(res);
+    return out;
+}
+
+static ERL_NIF_TERM nif_cast_rays(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    unsigned len;
+    int max_bounces;
+    if (enif_get_list_length(env, argv[1], &len) && enif_get_int(env, argv[3], &max_bounces) &&
+        (double)len * (1.0 + (max_bounces > 0 ? max_bounces : 0)) > DIRTY_RAY_BUDGET)
+        return enif_schedule_nif(env, "cast_rays_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND,
+                                 cast_rays_impl, argc, argv);
+    return cast_rays_impl(env, argc, argv);
+}
+
+/* ---- scan ---- */
+
+/* the record layout written by ThinkingCap.Sim.Raycast.pack_groups/1 */
+enum {
+    G_X = 0,
+    G_Y,
+    G_HC,
+    G_HS,
+    G_COS_HALF_FOV,
+    G_NRAYS,
+    G_RAY_OFF,
+    G_MIN,
+    G_MAX,
+    G_BOUNCES,
+    G_COS_CRIT,
+    G_RING,
+    G_NOISE_STD,
+    G_NOISE_PROP,
+    G_DROPOUT,
+    G_SPIKE,
+    G_SPIKE_MAG,
+    G_BIAS
+};
+
+typedef struct {
+    double g[GROUP_DOUBLES];
+    double px, py, hx, hy; /* world position and heading of the sensor */
+    double raw;
+    int echo;
+} GroupState;
+
+typedef struct {
+    double px, py, path;
+    int ring, emitter;
+} Event;
+
+/* validates the packed groups; returns the group count or -1 */
+static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget)
+{
+    uint32_t ng, nr;
+    if (gb->size < GROUPS_HEADER || memcmp(gb->data, "TCG1", 4) != 0) return -1;
+    memcpy(&ng, gb->data + 4, 4);
+    memcpy(&nr, gb->data + 8, 4);
+    if (ng > 1000000 || nr > 100000000) return -1;
+    if (gb->size != GROUPS_HEADER + (size_t)ng * GROUP_BYTES + (size_t)nr * 16) return -1;
+    double b = 0;
+    for (uint32_t i = 0; i < ng; i++) {
+        const unsigned char *p = gb->data + GROUPS_HEADER + (size_t)i * GROUP_BYTES;
+        double n = ld(p + 8 * G_NRAYS), off = ld(p + 8 * G_RAY_OFF), mb = ld(p + 8 * G_BOUNCES);
+        if (!(n >= 1) || !(off >= 0) || !(off + n <= nr) || !(mb >= 0 && mb <= MAX_BOUNCES_LIMIT))
+            return -1;
+        b += n * (1 + mb);
+    }
+    *nrays = nr;
+    *budget = b;
+    return (int)ng;
+}
+
+static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    World *w;
+    ErlNifBinary gb;
+    int arity, exclude;
+    const ERL_NIF_TERM *pose;
+    double X, Y, TH, budget;
+    ErlNifUInt64 seed;
+    unsigned nr;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
+        arity != 3 || !get_number(env, pose[0], &X) || !get_number(env, pose[1], &Y) ||
+        !get_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
+        !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
+        return enif_make_badarg(env);
+    int ng = groups_header(&gb, &nr, &budget);
+    if (ng < 0) return enif_make_badarg(env);
+
+    const double ct = cos(TH), st = sin(TH);
+    const unsigned char *rays = gb.data + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
+    size_t scratch = (size_t)ng * sizeof(GroupState) + (size_t)nr * sizeof(Event);
+    GroupState *gs = enif_alloc(scratch > 0 ? scratch : 1);
+    if (!gs) return enif_make_badarg(env);
+    Event *ev = (Event *)(gs + ng);
+    int nev = 0;
+    double reach = 0;
+    for (int i = 0; i < ng; i++) {
+        GroupState *s = &gs[i];
+        memcpy(s->g, gb.data + GROUPS_HEADER + (size_t)i * GROUP_BYTES, GROUP_BYTES);
+        s->px = X + ct * s->g[G_X] - st * s->g[G_Y];
+        s->py = Y + st * s->g[G_X] + ct * s->g[G_Y];
+        s->hx = ct * s->g[G_HC] - st * s->g[G_HS];
+        s->hy = st * s->g[G_HC] + ct * s->g[G_HS];
+        s->raw = s->g[G_MAX];
+        s->echo = 0;
+        double rch = hypot(s->g[G_X], s->g[G_Y]) + s->g[G_MAX];
+        if (rch > reach) reach = rch;
+    }
+
+    enif_rwlock_rlock(w->lock);
+    Body *bodies = NULL;
+    Body *heap_bodies = NULL;
+    if (w->nbody > 0) {
+        heap_bodies = enif_alloc((size_t)w->nbody * sizeof(Body));
+        bodies = heap_bodies;
+    }
+    Ctx c = {w, bodies, bodies ? collect_bodies(w, exclude, 1, X, Y, reach, bodies) : 0};
+    for (int i = 0; i < ng; i++) {
+        GroupState *s = &gs[i];
+        const int n = (int)s->g[G_NRAYS], off = (int)s->g[G_RAY_OFF];
+        const int mb = (int)s->g[G_BOUNCES], ring = (int)s->g[G_RING];
+        const double maxr = s->g[G_MAX], cc = s->g[G_COS_CRIT];
+        for (int k = 0; k < n; k++) {
+            const unsigned char *p = rays + (size_t)(off + k) * 16;
+            double rc = ld(p), rs = ld(p + 8);
+            RayResult r;
+            cast_one(&c, s->px, s->py, ct * rc - st * rs, st * rc + ct * rs, maxr, mb, cc, &r);
+            if (r.kind == HIT_NONE) continue;
+            if (r.range < s->raw) s->raw = r.range;
+            s->echo = 1;
+            if (ring >= 0 && r.bounces > 0) {
+                Event *e = &ev[nev++];
+                e->px = r.px;
+                e->py = r.py;
+                e->path = r.range;
+                e->ring = ring;
+                e->emitter = i;
+            }
+        }
+    }
+    enif_rwlock_runlock(w->lock);
+    if (heap_bodies) enif_free(heap_bodies);
+
+    /* crosstalk: a bounced echo from P reaches every other transducer of the
+     * ring whose cone contains P (no line-of-sight check on the return) */
+    for (int e = 0; e < nev; e++) {
+        for (int j = 0; j < ng; j++) {
+            GroupState *s = &gs[j];
+            if (j == ev[e].emitter || (int)s->g[G_RING] != ev[e].ring) continue;
+            double vx = ev[e].px - s->px, vy = ev[e].py - s->py;
+            double d = sqrt(vx * vx + vy * vy);
+            if (vx * s->hx + vy * s->hy < d * s->g[G_COS_HALF_FOV]) continue;
+            double arrival = 0.5 * (ev[e].path + d);
+            if (arrival < s->raw && arrival < s->g[G_MAX]) {
+                s->raw = arrival;
+                s->echo = 1;
+            }
+        }
+    }
+
+    ERL_NIF_TERM out;
+    unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+    for (int i = 0; i < ng; i++) {
+        GroupState *s = &gs[i];
+        const double minr = s->g[G_MIN], maxr = s->g[G_MAX];
+        uint64_t st64 = (uint64_t)seed ^ ((uint64_t)(i + 1) * 0xD1B54A32D192ED03ULL);
+        (void)splitmix64(&st64);
+        double u1 = uniform(&st64), u2 = uniform(&st64), uf = uniform(&st64),
+               uv = uniform(&st64);
+        double r = s->raw;
+        if (s->echo) {
+            double z = sqrt(-2.0 * log(1.0 - u1)) * cos(2.0 * M_PI * u2);
+            double sigma = s->g[G_NOISE_STD] + s->g[G_NOISE_PROP] * r;
+            r = clampd(r + s->g[G_BIAS] + sigma * z, minr, maxr);
+        }
+        /* faults: one uniform draw, dropout and spike are exclusive */
+        if (s->echo && uf < s->g[G_DROPOUT]) {
+            r = maxr;
+        } else if (uf >= s->g[G_DROPOUT] && uf < s->g[G_DROPOUT] + s->g[G_SPIKE]) {
+            double m = s->g[G_SPIKE_MAG];
+            r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
+        }
+        uint64_t bits;
+        memcpy(&bits, &r, 8);
+        for (int b = 0; b < 8; b++)
+            o[8 * i + b] = (unsigned char)(bits >> (8 * b));
+    }
+    enif_free(gs);
+    return out;
+}
+
+static ERL_NIF_TERM nif_scan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary gb;
+    unsigned nr;
+    double budget;
+    if (enif_inspect_binary(env, argv[2], &gb) && groups_header(&gb, &nr, &budget) >= 0 &&
+        budget > DIRTY_RAY_BUDGET)
+        return enif_schedule_nif(env, "scan_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND, scan_impl, argc,
+                                 argv);
+    return scan_impl(env, argc, argv);
+}
+
+/* ---- clearance ---- */
+
+static double seg_dist(const Seg *s, double x, double y)
+{
+    double qx = x - s->ax, qy = y - s->ay;
+    double u = clampd((qx * s->ex + qy * s->ey) * s->inv_len2, 0, 1);
+    double rx = qx - u * s->ex, ry = qy - u * s->ey;
+    return sqrt(rx * rx + ry * ry);
+}
+
+static double grid_clearance(const World *w, double x, double y, double best)
+{
+    const int W = w->gw, H = w->gh;
+    double rx = x - w->gox, ry = y - w->goy;
+    double qx = (rx * w->gc + ry * w->gs) * w->inv_res;
+    double qy = (-rx * w->gs + ry * w->gc) * w->inv_res;
+    double lim = best * w->inv_res; /* in cells */
+    /* distance to the grid's rectangle */
+    double ox = fmax(fmax(-qx, qx - W), 0), oy = fmax(fmax(-qy, qy - H), 0);
+    if (ox * ox + oy * oy >= lim * lim) return best;
+    int ci = (int)floor(qx), cj = (int)floor(qy);
+    int k0 = 0;
+    if (ci >= 0 && ci < W && cj >= 0 && cj < H) {
+        unsigned c = w->code[(size_t)cj * W + ci];
+        if (c == CODE_OBST) return 0;
+        if ((double)c >= lim) return best;
+        k0 = (int)floor(c / M_SQRT2) - 1;
+        if (k0 < 0) k0 = 0;
+    }
+    double kmax = ceil(lim) + 1;
+    for (int k = k0; k <= kmax; k++) {
+        if (k - 1 >= lim) break;
+        for (int j = cj - k; j <= cj + k; j++) {
+            if (j < 0 || j >= H) continue;
+            int edge = (j == cj - k || j == cj + k);
+            int step = edge ? 1 : 2 * k;
+            for (int i = ci - k; i <= ci + k; i += (step > 0 ? step : 1)) {
+                if (i < 0 || i >= W || w->code[(size_t)j * W + i] != CODE_OBST) continue;
+                double dx = fmax(fmax(i - qx, qx - (i + 1)), 0);
+                double dy = fmax(fmax(j - qy, qy - (j + 1)), 0);
+                double d = sqrt(dx * dx + dy * dy);
+                if (d < lim) lim = d;
+            }
+        }
+    }
+    return lim * w->res;
+}
+
+static ERL_NIF_TERM nif_clearance(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    World *w;
+    double x, y, max;
+    int exclude;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !get_number(env, argv[1], &x) ||
+        !get_number(env, argv[2], &y) || !enif_get_int(env, argv[3], &exclude) ||
+        !get_number(env, argv[4], &max))
+        return enif_make_badarg(env);
+    if (!(max > 0)) return enif_make_double(env, 0.0);
+    double best = max;
+    enif_rwlock_rlock(w->lock);
+    if (w->nseg_on > 0) {
+        int i0 = (int)floor((x - best - w->sx0) * w->sinvh), i1 = (int)floor((x + best - w->sx0) * w->sinvh);
+        int j0 = (int)floor((y - best - w->sy0) * w->sinvh), j1 = (int)floor((y + best - w->sy0) * w->sinvh);
+        i0 = clampi(i0, 0, w->sw - 1);
+        i1 = clampi(i1, 0, w->sw - 1);
+        j0 = clampi(j0, 0, w->sgh - 1);
+        j1 = clampi(j1, 0, w->sgh - 1);
+        int overlaps = (x + best >= w->sx0 && x - best <= w->sx0 + w->sw * w->sh &&
+                        y + best >= w->sy0 && y - best <= w->sy0 + w->sgh * w->sh);
+        if (overlaps) {
+            if ((double)(i1 - i0 + 1) * (j1 - j0 + 1) > w->nseg) {
+                for (int s = 0; s < w->nseg; s++)
+                    if (w->seg_on[s]) best = fmin(best, seg_dist(&w->seg[s], x, y));
+            } else {
+                for (int j = j0; j <= j1; j++)
+                    for (int i = i0; i <= i1; i++) {
+                        int b = j * w->sw + i;
+                        for (int k = w->sstart[b]; k < w->sstart[b + 1]; k++) {
+                            int s = w->sitems[k];
+                            if (w->seg_on[s]) best = fmin(best, seg_dist(&w->seg[s], x, y));
+                        }
+                    }
+            }
+        }
+    }
+    for (int i = 0; i < w->nbody; i++) {
+        const Body *b = &w->body[i];
+        if (b->id == exclude) continue;
+        double d = hypot(x - b->x, y - b->y) - b->r;
+        best = fmin(best, d > 0 ? d : 0);
+    }
+    if (w->has_grid && best > 0) best = grid_clearance(w, x, y, best);
+    enif_rwlock_runlock(w->lock);
+    return enif_make_double(env, best);
+}
+
+/* ------------------------------------------------------------------ */
+
+static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
+{
+    (void)priv;
+    (void)info;
+    WORLD_RT = enif_open_resource_type(env, NULL, "tc_raycast_world", world_dtor,
+                                       ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
+    if (!WORLD_RT) return 1;
+    A_OK = enif_make_atom(env, "ok");
+    A_ERROR = enif_make_atom(env, "error");
+    A_NIL = enif_make_atom(env, "nil");
+    A_TRUE = enif_make_atom(env, "true");
+    A_FALSE = enif_make_atom(env, "false");
+    A_NONE = enif_make_atom(env, "none");
+    A_GRID = enif_make_atom(env, "grid");
+    A_SEGMENT = enif_make_atom(env, "segment");
+    A_BODY = enif_make_atom(env, "body");
+    A_RANGE = enif_make_atom(env, "range");
+    A_HIT = enif_make_atom(env, "hit");
+    A_BOUNCES = enif_make_atom(env, "bounces");
+    A_ID = enif_make_atom(env, "id");
+    return 0;
+}
+
+static int upgrade(ErlNifEnv *env, void **priv, void **old_priv, ERL_NIF_TERM info)
+{
+    (void)old_priv;
+    return load(env, priv, info);
+}
+
+static ErlNifFunc funcs[] = {
+    {"nif_new", 2, nif_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"set_segment", 3, nif_set_segment, 0},
+    {"set_bodies", 2, nif_set_bodies, 0},
+    {"nif_cast_rays", 5, nif_cast_rays, 0},
+    {"scan", 5, nif_scan, 0},
+    {"clearance", 5, nif_clearance, 0},
+};
+
+ERL_NIF_INIT(Elixir.ThinkingCap.Sim.Raycast, funcs, load, NULL, upgrade, NULL)
