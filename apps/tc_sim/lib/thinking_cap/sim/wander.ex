@@ -27,6 +27,7 @@ defmodule ThinkingCap.Sim.Wander do
       bias: 0.0,
       turning: 0,
       last: :stop,
+      layout: nil,
       rng: :rand.seed_s(:exsss, {args[:seed] || :erlang.phash2(robot), 17, 4})
     }
   end
@@ -36,31 +37,85 @@ defmodule ThinkingCap.Sim.Wander do
 
   def control(readings, %{sensor: sensor} = state) do
     case readings do
-      %{bumper: %{pressed: true}} -> turn_away(state, 10)
-      %{^sensor => payload} -> steer(sectors(payload), state)
-      _ -> {state.last, state}
+      %{bumper: %{pressed: true}} ->
+        turn_away(state, 10)
+
+      %{^sensor => payload} ->
+        {sectors, state} = sectors(payload, state)
+        steer(sectors, state)
+
+      _ ->
+        {state.last, state}
     end
   end
 
-  # nearest obstacle to the front, left and right
-  defp sectors(%{ranges: ranges} = payload) do
-    angles = angles(payload, length(ranges))
+  # nearest obstacle to the front, left and right: the sectors' beam
+  # indexes are worked out once per scan layout
+  defp sectors(%{ranges: ranges} = payload, state) do
+    key = layout_key(payload, length(ranges))
 
-    Enum.zip(angles, ranges)
-    |> Enum.reduce({100.0, 100.0, 100.0}, fn {a, r}, {front, left, right} ->
-      cond do
-        abs(a) <= 0.5 -> {min(front, r), left, right}
-        a > 0.5 and a <= 1.6 -> {front, min(left, r), right}
-        a < -0.5 and a >= -1.6 -> {front, left, min(right, r)}
-        true -> {front, left, right}
+    layout =
+      case state.layout do
+        {^key, layout} -> layout
+        _ -> layout(payload, length(ranges))
       end
-    end)
+
+    {nearest(ranges, layout), %{state | layout: {key, layout}}}
   end
 
-  defp angles(%{headings: headings}, _n), do: Enum.map(headings, &normalize/1)
+  defp layout_key(%{angle_min: a0, angle_increment: inc}, n), do: {:scan, a0, inc, n}
+  defp layout_key(%{headings: headings}, _n), do: {:ring, headings}
 
-  defp angles(%{angle_min: a0, angle_increment: inc}, n),
-    do: for(i <- 0..(n - 1), do: a0 + i * inc)
+  # a laser: three contiguous slices {first, count}
+  defp layout(%{angle_min: a0, angle_increment: inc}, n) when inc > 0 do
+    slice = fn lo, hi ->
+      first = max(0, ceil((lo - a0) / inc))
+      last = min(n - 1, floor((hi - a0) / inc))
+      {first, max(0, last - first + 1)}
+    end
+
+    {:slices, slice.(-0.5, 0.5), slice.(0.5, 1.6), slice.(-1.6, -0.5)}
+  end
+
+  # a ring: the sector of each transducer
+  defp layout(payload, n) do
+    angles =
+      case payload do
+        %{headings: headings} -> Enum.map(headings, &normalize/1)
+        %{angle_min: a0} -> List.duplicate(a0, n)
+      end
+
+    {:ring, Enum.map(angles, &sector/1)}
+  end
+
+  defp sector(a) when abs(a) <= 0.5, do: :front
+  defp sector(a) when a > 0.5 and a <= 1.6, do: :left
+  defp sector(a) when a < -0.5 and a >= -1.6, do: :right
+  defp sector(_a), do: nil
+
+  defp nearest(ranges, {:slices, front, left, right}),
+    do: {slice_min(ranges, front), slice_min(ranges, left), slice_min(ranges, right)}
+
+  defp nearest(ranges, {:ring, sectors}), do: ring_min(ranges, sectors, {100.0, 100.0, 100.0})
+
+  defp slice_min(_ranges, {_first, 0}), do: 100.0
+
+  defp slice_min(ranges, {first, count}),
+    do: ranges |> :lists.sublist(first + 1, count) |> :lists.min()
+
+  defp ring_min([r | rs], [s | ss], {f, l, ri}) do
+    acc =
+      case s do
+        :front -> {min(f, r), l, ri}
+        :left -> {f, min(l, r), ri}
+        :right -> {f, l, min(ri, r)}
+        nil -> {f, l, ri}
+      end
+
+    ring_min(rs, ss, acc)
+  end
+
+  defp ring_min(_, _, acc), do: acc
 
   defp steer({front, left, right}, state) do
     cond do

@@ -1,0 +1,38 @@
+defmodule Mix.Tasks.Tc.RunTest do
+  @moduledoc false
+  # Runs the README's main job (mix tc.run, what bin/run execs) in its own
+  # VM and checks what it prints: the simulated robot wanders the office.
+  use ExUnit.Case, async: true
+
+  @moduletag timeout: 120_000
+
+  test "the main job puts a simulated robot in the office world and it wanders safely" do
+    root = Path.expand("../../../..", __DIR__)
+
+    {output, status} =
+      System.cmd("mix", ["tc.run", "--seconds", "4"],
+        cd: root,
+        env: [
+          {"MIX_ENV", "test"},
+          {"ELIXIR_ERL_OPTIONS", "+sbwt none +sbwtdcpu none +sbwtdio none"}
+        ],
+        stderr_to_stdout: true
+      )
+
+    assert status == 0, output
+    assert output =~ "robot :r1 in office.wdf"
+    assert output =~ "base (ThinkingCap.Sim.Robot)"
+
+    poses =
+      for [x, y] <-
+            Regex.scan(~r/ pose \((-?[\d.]+), (-?[\d.]+), /, output, capture: :all_but_first),
+          do: {String.to_float(x), String.to_float(y)}
+
+    assert length(poses) == 4, output
+    # it starts at the dock (1, 1) and drives away from it
+    {x, y} = List.last(poses)
+    assert abs(x - 1.0) + abs(y - 1.0) > 0.2, output
+    # the cycle keeps commanding it
+    assert output =~ ~r/cycle \d+ cycles/
+  end
+end
