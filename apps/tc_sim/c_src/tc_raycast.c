@@ -5,15 +5,17 @@
  * A world is a resource holding
  *   - static line segments (walls, doors) indexed by a uniform grid of
  *     buckets (~0.5-1 m), each segment with an enabled flag;
- *   - an optional occupancy grid, stored as one byte per cell: 255 for an
- *     obstacle cell, otherwise a conservative free-space skip distance in
- *     cells taken from an exact Euclidean distance transform
- *     (Felzenszwalb-Huttenlocher), floor(D - 1.5) clamped to 0..254 where D
- *     is the centre-to-centre distance to the nearest obstacle cell. Any
- *     point of a cell is at least D - sqrt(2) > code cells away from every
- *     obstacle cell, so a ray may jump ahead by `code` cells; with codes 0
- *     and 1 (close to obstacles) rays step cell by cell (Amanatides-Woo),
- *     and the hit is the exact entry point of the first obstacle cell;
+ *   - an optional occupancy grid, stored as one byte per cell (in 8x8-cell
+ *     tiles, one cache line each): 255 for an obstacle cell, otherwise a
+ *     conservative free-space skip distance in cells taken from an exact
+ *     Euclidean distance transform (Felzenszwalb-Huttenlocher),
+ *     floor(D - 1.5) clamped to 0..254 where D is the centre-to-centre
+ *     distance to the nearest obstacle cell. Any point of a cell is more
+ *     than D - sqrt(2) > code cells away from every obstacle cell, so a ray
+ *     may jump ahead by `code` cells and land strictly in free space; where
+ *     the code is 0 (within 2.5 cells of obstacles) rays step cell by cell
+ *     (Amanatides-Woo), so the hit is the exact entry point of the first
+ *     obstacle cell along the ray;
  *   - dynamic circular bodies.
  * Readers (casts, clearance) take the world's read lock, setters the write
  * lock, so several processes cast concurrently.
@@ -25,7 +27,7 @@
 
 #define CODE_OBST 255u
 #define CODE_MAX_SKIP 254.0
-#define SKIP_MIN 2u
+#define SKIP_MIN 1u
 /* rays (counting the bounce budget) above which a call goes to a dirty
  * CPU scheduler */
 #define DIRTY_RAY_BUDGET 4000
@@ -61,9 +63,9 @@ typedef struct {
     int sw, sgh;
     int32_t *sstart, *sitems;
     /* occupancy grid */
-    int has_grid, gw, gh;
+    int has_grid, gw, gh, gtw; /* gtw: tiles per row */
     double res, inv_res, gox, goy, gc, gs;
-    uint8_t *code;
+    uint8_t *code; /* in 8x8-cell tiles of 64 bytes, see cell_index */
     /* bodies */
     int nbody;
     Body *body;
@@ -122,6 +124,13 @@ static ERL_NIF_TERM error_msg(ErlNifEnv *env, const char *msg)
     unsigned char *p = enif_make_new_binary(env, n, &bin);
     memcpy(p, msg, n);
     return enif_make_tuple2(env, A_ERROR, bin);
+}
+
+/* Cells are stored in 8x8 tiles (one 64-byte cache line each), so that a
+ * ray stepping in any direction stays within a line for several cells. */
+static inline size_t cell_index(int tw, int cx, int cy)
+{
+    return ((size_t)((cy >> 3) * tw + (cx >> 3)) << 6) | (size_t)((cy & 7) << 3) | (size_t)(cx & 7);
 }
 
 static inline int clampi(int v, int lo, int hi) { return v < lo ? lo : (v > hi ? hi : v); }
@@ -221,7 +230,9 @@ static int build_grid(World *w, const signed char *data)
     double *d = enif_alloc((size_t)m * sizeof(double));
     double *z = enif_alloc((size_t)(m + 1) * sizeof(double));
     int *v = enif_alloc((size_t)m * sizeof(int));
-    w->code = enif_alloc(n);
+    w->gtw = (W + 7) / 8;
+    const size_t tiled = (size_t)w->gtw * ((H + 7) / 8) * 64;
+    w->code = enif_alloc(tiled);
     if (!d2 || !f || !d || !z || !v || !w->code) {
         if (d2) enif_free(d2);
         if (f) enif_free(f);
@@ -244,14 +255,19 @@ static int build_grid(World *w, const signed char *data)
         memcpy(f, row, (size_t)W * sizeof(double));
         dt1d(f, W, row, v, z);
     }
-    for (size_t i = 0; i < n; i++) {
-        if (data[i] >= 50) {
-            w->code[i] = CODE_OBST;
-        } else {
-            double s = floor(sqrt(d2[i]) - 1.5);
-            w->code[i] = (uint8_t)clampd(s, 0.0, CODE_MAX_SKIP);
+    memset(w->code, 0, tiled);
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            size_t i = (size_t)y * W + x;
+            uint8_t c;
+            if (data[i] >= 50) {
+                c = CODE_OBST;
+            } else {
+                double s = floor(sqrt(d2[i]) - 1.5);
+                c = (uint8_t)clampd(s, 0.0, CODE_MAX_SKIP);
+            }
+            w->code[cell_index(w->gtw, x, y)] = c;
         }
-    }
     enif_free(d2);
     enif_free(f);
     enif_free(d);
@@ -358,17 +374,18 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
                       double *t_out, Hit *h)
 {
     const int W = w->gw, H = w->gh;
+    const double ivx = vx != 0 ? 1.0 / vx : INFINITY, ivy = vy != 0 ? 1.0 / vy : INFINITY;
     double t0 = 0.0, t1 = tmax;
     int face = 0;
     if (vx > 0) {
-        double a = -ux / vx, b = (W - ux) / vx;
+        double a = -ux * ivx, b = (W - ux) * ivx;
         if (a > t0) {
             t0 = a;
             face = 1;
         }
         if (b < t1) t1 = b;
     } else if (vx < 0) {
-        double a = (W - ux) / vx, b = -ux / vx;
+        double a = (W - ux) * ivx, b = -ux * ivx;
         if (a > t0) {
             t0 = a;
             face = 1;
@@ -378,14 +395,14 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
         return 0;
     }
     if (vy > 0) {
-        double a = -uy / vy, b = (H - uy) / vy;
+        double a = -uy * ivy, b = (H - uy) * ivy;
         if (a > t0) {
             t0 = a;
             face = 2;
         }
         if (b < t1) t1 = b;
     } else if (vy < 0) {
-        double a = (H - uy) / vy, b = -uy / vy;
+        double a = (H - uy) * ivy, b = -uy * ivy;
         if (a > t0) {
             t0 = a;
             face = 2;
@@ -398,29 +415,30 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
 
     const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
     const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
-    const double tdx = vx != 0 ? fabs(1.0 / vx) : INFINITY;
-    const double tdy = vy != 0 ? fabs(1.0 / vy) : INFINITY;
+    const double tdx = fabs(ivx), tdy = fabs(ivy);
     const uint8_t *g = w->code;
-    int cx = clampi((int)floor(ux + t0 * vx), 0, W - 1);
-    int cy = clampi((int)floor(uy + t0 * vy), 0, H - 1);
+    const int tw = w->gtw;
+    /* inside the grid up to rounding: truncation is floor, then clamp */
+    int cx = clampi((int)(ux + t0 * vx), 0, W - 1);
+    int cy = clampi((int)(uy + t0 * vy), 0, H - 1);
     double t = t0, tmx = INFINITY, tmy = INFINITY;
     int dda = 0;
 
     for (;;) {
-        unsigned c = g[(size_t)cy * W + cx];
+        unsigned c = g[cell_index(tw, cx, cy)];
         if (c >= SKIP_MIN) {
             if (c == CODE_OBST) break;
             t += (double)c;
             if (t >= t1) return 0;
-            cx = clampi((int)floor(ux + t * vx), 0, W - 1);
-            cy = clampi((int)floor(uy + t * vy), 0, H - 1);
+            cx = clampi((int)(ux + t * vx), 0, W - 1);
+            cy = clampi((int)(uy + t * vy), 0, H - 1);
             dda = 0;
             face = 0;
             continue;
         }
         if (!dda) {
-            tmx = vx > 0 ? (cx + 1 - ux) / vx : (vx < 0 ? (cx - ux) / vx : INFINITY);
-            tmy = vy > 0 ? (cy + 1 - uy) / vy : (vy < 0 ? (cy - uy) / vy : INFINITY);
+            tmx = vx > 0 ? (cx + 1 - ux) * ivx : (vx < 0 ? (cx - ux) * ivx : INFINITY);
+            tmy = vy > 0 ? (cy + 1 - uy) * ivy : (vy < 0 ? (cy - uy) * ivy : INFINITY);
             dda = 1;
         }
         if (tmx < tmy) {
@@ -440,9 +458,9 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
         }
     }
     /* exact entry parameter (the incremental one carries rounding) */
-    if (face == 1 && dda)
+    if (face == 1)
         t = ((stepx > 0 ? cx : cx + 1) - ux) / vx;
-    else if (face == 2 && dda)
+    else if (face == 2)
         t = ((stepy > 0 ? cy : cy + 1) - uy) / vy;
     *t_out = t;
     h->cx = cx;
@@ -497,8 +515,8 @@ static void seg_trace(const World *w, double px, double py, double dx, double dy
     const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
     const double tdx = vx != 0 ? fabs(1.0 / vx) : INFINITY;
     const double tdy = vy != 0 ? fabs(1.0 / vy) : INFINITY;
-    int cx = clampi((int)floor(ux + t0 * vx), 0, W - 1);
-    int cy = clampi((int)floor(uy + t0 * vy), 0, H - 1);
+    int cx = clampi((int)(ux + t0 * vx), 0, W - 1);
+    int cy = clampi((int)(uy + t0 * vy), 0, H - 1);
     double tmx = vx > 0 ? (cx + 1 - ux) / vx : (vx < 0 ? (cx - ux) / vx : INFINITY);
     double tmy = vy > 0 ? (cy + 1 - uy) / vy : (vy < 0 ? (cy - uy) / vy : INFINITY);
     for (;;) {
@@ -605,7 +623,7 @@ static void surface(const World *w, const Hit *h, double dx, double dy, double h
             for (int i = -2; i <= 2; i++) {
                 int X = h->cx + i;
                 if (X < 0 || X >= W || (i == 0 && j == 0)) continue;
-                if (w->code[(size_t)Y * W + X] == CODE_OBST) {
+                if (w->code[cell_index(w->gtw, X, Y)] == CODE_OBST) {
                     sx -= i;
                     sy -= j;
                 }
@@ -642,9 +660,10 @@ static void surface(const World *w, const Hit *h, double dx, double dy, double h
 }
 
 /* One sonar/laser ray with the reflection model. cos_crit < -1 means the
- * critical angle is >= pi/2: every hit echoes. */
-static void cast_one(const Ctx *c, double px, double py, double dx, double dy, double max_range,
-                     int max_bounces, double cos_crit, RayResult *r)
+ * critical angle is >= pi/2: every hit echoes. `first` holds the bodies the
+ * first leg may hit, `c` those of the legs after a reflection. */
+static void cast_one(const Ctx *first, const Ctx *c, double px, double py, double dx, double dy,
+                     double max_range, int max_bounces, double cos_crit, RayResult *r)
 {
     double travelled = 0;
     int bounces = 0;
@@ -652,7 +671,7 @@ static void cast_one(const Ctx *c, double px, double py, double dx, double dy, d
         double remaining = max_range - travelled;
         Hit h;
         if (!(remaining > 0)) break;
-        trace(c, px, py, dx, dy, remaining, &h);
+        trace(bounces ? c : first, px, py, dx, dy, remaining, &h);
         if (h.kind == HIT_NONE) break;
         travelled += h.t;
         double hx = px + h.t * dx, hy = py + h.t * dy;
@@ -905,10 +924,10 @@ static ERL_NIF_TERM cast_rays_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     }
     enif_rwlock_rlock(w->lock);
     Body *bodies = w->nbody ? enif_alloc((size_t)w->nbody * sizeof(Body)) : NULL;
-    Ctx c = {w, bodies, collect_bodies(w, exclude, 0, 0, 0, 0, bodies)};
+    Ctx c = {w, bodies, bodies ? collect_bodies(w, exclude, 0, 0, 0, 0, bodies) : 0};
     for (unsigned i = 0; i < len; i++) {
         const double *r = rays + 4 * (size_t)i;
-        cast_one(&c, r[0], r[1], cos(r[2]), sin(r[2]), r[3], max_bounces, cos_crit, &res[i]);
+        cast_one(&c, &c, r[0], r[1], cos(r[2]), sin(r[2]), r[3], max_bounces, cos_crit, &res[i]);
     }
     enif_rwlock_runlock(w->lock);
     if (bodies) enif_free(bodies);
@@ -958,7 +977,9 @@ enum {
     G_DROPOUT,
     G_SPIKE,
     G_SPIKE_MAG,
-    G_BIAS
+    G_BIAS,
+    G_FOV,
+    G_SIN_HALF_FOV
 };
 
 typedef struct {
@@ -972,6 +993,62 @@ typedef struct {
     double px, py, path;
     int ring, emitter;
 } Event;
+
+/* rays k0..k1 of a group may hit body b (first legs) */
+typedef struct {
+    int k0, k1, b;
+} Span;
+
+/* Which rays of group s (n rays spread evenly over its fov, from the
+ * sensor) may hit each body: bodies farther than their radius from the
+ * group's cone are left out; for groups of 8 rays or more the span of ray
+ * indices is narrowed to the body's angular extent (widened by one ray
+ * each side against rounding). Returns the spans, sorted by k0. */
+static int body_spans(const GroupState *s, int n, const Body *b, int nb, Span *out)
+{
+    const double ch = s->g[G_COS_HALF_FOV], sh = s->g[G_SIN_HALF_FOV], fov = s->g[G_FOV];
+    const double step = fov / n;
+    int ns = 0;
+    for (int i = 0; i < nb; i++) {
+        double vx = b[i].x - s->px, vy = b[i].y - s->py;
+        double d = sqrt(vx * vx + vy * vy), r = b[i].r * (1 + 1e-9) + 1e-12;
+        if (d <= r) {
+            out[ns++] = (Span){0, n - 1, i};
+            continue;
+        }
+        double ca = (vx * s->hx + vy * s->hy) / d;
+        double sa = (s->hx * vy - s->hy * vx) / d;
+        if (ca < ch) {
+            /* distance from the centre to the cone: to its nearer edge, or
+             * to its apex when that edge points away */
+            double dist = ca * ch + fabs(sa) * sh >= 0 ? d * (fabs(sa) * ch - ca * sh) : d;
+            if (dist > r) continue;
+        }
+        if (n < 8 || !(step > 0)) {
+            out[ns++] = (Span){0, n - 1, i};
+            continue;
+        }
+        double phi = atan2(sa, ca), delta = asin(r < d ? r / d : 1.0);
+        for (int m = -1; m <= 1; m++) {
+            double p = phi + m * 2 * M_PI;
+            double lo = (p - delta + fov / 2) / step - 0.5, hi = (p + delta + fov / 2) / step - 0.5;
+            if (hi < -2 || lo > n + 1) continue;
+            int k0 = clampi((int)ceil(lo) - 1, 0, n - 1), k1 = clampi((int)floor(hi) + 1, 0, n - 1);
+            if (k0 <= k1) out[ns++] = (Span){k0, k1, i};
+        }
+    }
+    /* insertion sort: a handful of bodies */
+    for (int i = 1; i < ns; i++) {
+        Span x = out[i];
+        int j = i - 1;
+        while (j >= 0 && out[j].k0 > x.k0) {
+            out[j + 1] = out[j];
+            j--;
+        }
+        out[j + 1] = x;
+    }
+    return ns;
+}
 
 /* validates the packed groups; returns the group count or -1 */
 static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget)
@@ -1035,23 +1112,58 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     }
 
     enif_rwlock_rlock(w->lock);
-    Body *bodies = NULL;
-    Body *heap_bodies = NULL;
-    if (w->nbody > 0) {
-        heap_bodies = enif_alloc((size_t)w->nbody * sizeof(Body));
-        bodies = heap_bodies;
+    /* the bodies within reach of the scan, for the legs after a reflection
+     * (a ray never gets farther than its max range from its sensor), and
+     * per group those its first legs may hit (spans of ray indices, swept
+     * in ray order into the active list `act`) */
+    const int nb = w->nbody;
+    void *body_scratch = NULL;
+    Body *bodies = NULL, *act = NULL;
+    Span *spans = NULL;
+    int *act_k1 = NULL;
+    if (nb > 0) {
+        size_t sz = (size_t)nb * sizeof(Body) + (size_t)3 * nb * (sizeof(Body) + sizeof(Span) + sizeof(int));
+        body_scratch = enif_alloc(sz);
+        if (!body_scratch) {
+            enif_rwlock_runlock(w->lock);
+            enif_free(gs);
+            return enif_make_badarg(env);
+        }
+        bodies = body_scratch;
+        act = bodies + nb;
+        spans = (Span *)(act + 3 * nb);
+        act_k1 = (int *)(spans + 3 * nb);
     }
     Ctx c = {w, bodies, bodies ? collect_bodies(w, exclude, 1, X, Y, reach, bodies) : 0};
+    Ctx first = {w, act, 0};
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         const int n = (int)s->g[G_NRAYS], off = (int)s->g[G_RAY_OFF];
         const int mb = (int)s->g[G_BOUNCES], ring = (int)s->g[G_RING];
         const double maxr = s->g[G_MAX], cc = s->g[G_COS_CRIT];
+        const int nsp = c.nb ? body_spans(s, n, c.b, c.nb, spans) : 0;
+        int next = 0;
+        first.nb = 0;
         for (int k = 0; k < n; k++) {
             const unsigned char *p = rays + (size_t)(off + k) * 16;
             double rc = ld(p), rs = ld(p + 8);
             RayResult r;
-            cast_one(&c, s->px, s->py, ct * rc - st * rs, st * rc + ct * rs, maxr, mb, cc, &r);
+            if (nsp > 0) {
+                int j = 0;
+                for (int q = 0; q < first.nb; q++)
+                    if (act_k1[q] >= k) {
+                        act[j] = act[q];
+                        act_k1[j++] = act_k1[q];
+                    }
+                first.nb = j;
+                for (; next < nsp && spans[next].k0 <= k; next++)
+                    if (spans[next].k1 >= k) {
+                        act[first.nb] = c.b[spans[next].b];
+                        act_k1[first.nb++] = spans[next].k1;
+                    }
+            }
+            cast_one(&first, &c, s->px, s->py, ct * rc - st * rs, st * rc + ct * rs, maxr, mb, cc,
+                     &r);
             if (r.kind == HIT_NONE) continue;
             if (r.range < s->raw) s->raw = r.range;
             s->echo = 1;
@@ -1066,7 +1178,7 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
     }
     enif_rwlock_runlock(w->lock);
-    if (heap_bodies) enif_free(heap_bodies);
+    if (body_scratch) enif_free(body_scratch);
 
     /* crosstalk: a bounced echo from P reaches every other transducer of the
      * ring whose cone contains P (no line-of-sight check on the return) */
@@ -1087,17 +1199,20 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
 
     ERL_NIF_TERM out;
     unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+    /* each group draws from its own stream: the hashed seed and its index */
+    uint64_t base = (uint64_t)seed;
+    base = splitmix64(&base);
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         const double minr = s->g[G_MIN], maxr = s->g[G_MAX];
-        uint64_t st64 = (uint64_t)seed ^ ((uint64_t)(i + 1) * 0xD1B54A32D192ED03ULL);
+        uint64_t st64 = base ^ ((uint64_t)(i + 1) * 0xD1B54A32D192ED03ULL);
         (void)splitmix64(&st64);
         double u1 = uniform(&st64), u2 = uniform(&st64), uf = uniform(&st64),
                uv = uniform(&st64);
         double r = s->raw;
         if (s->echo) {
-            double z = sqrt(-2.0 * log(1.0 - u1)) * cos(2.0 * M_PI * u2);
             double sigma = s->g[G_NOISE_STD] + s->g[G_NOISE_PROP] * r;
+            double z = sigma > 0 ? sqrt(-2.0 * log(1.0 - u1)) * cos(2.0 * M_PI * u2) : 0.0;
             r = clampd(r + s->g[G_BIAS] + sigma * z, minr, maxr);
         }
         /* faults: one uniform draw, dropout and spike are exclusive */
@@ -1151,7 +1266,7 @@ static double grid_clearance(const World *w, double x, double y, double best)
     int ci = (int)floor(qx), cj = (int)floor(qy);
     int k0 = 0;
     if (ci >= 0 && ci < W && cj >= 0 && cj < H) {
-        unsigned c = w->code[(size_t)cj * W + ci];
+        unsigned c = w->code[cell_index(w->gtw, ci, cj)];
         if (c == CODE_OBST) return 0;
         if ((double)c >= lim) return best;
         k0 = (int)floor(c / M_SQRT2) - 1;
@@ -1165,7 +1280,7 @@ static double grid_clearance(const World *w, double x, double y, double best)
             int edge = (j == cj - k || j == cj + k);
             int step = edge ? 1 : 2 * k;
             for (int i = ci - k; i <= ci + k; i += (step > 0 ? step : 1)) {
-                if (i < 0 || i >= W || w->code[(size_t)j * W + i] != CODE_OBST) continue;
+                if (i < 0 || i >= W || w->code[cell_index(w->gtw, i, j)] != CODE_OBST) continue;
                 double dx = fmax(fmax(i - qx, qx - (i + 1)), 0);
                 double dy = fmax(fmax(j - qy, qy - (j + 1)), 0);
                 double d = sqrt(dx * dx + dy * dy);

@@ -243,8 +243,8 @@ defmodule ThinkingCap.Sim.Raycast do
           g.spike,
           g.spike_magnitude,
           g.bias,
-          0,
-          0
+          g.fov,
+          sin_half_fov(g.fov)
         ]
 
         ray_dirs =
@@ -425,4 +425,7 @@ defmodule ThinkingCap.Sim.Raycast do
 
   defp cos_half_fov(fov) when fov >= @two_pi, do: -1.0
   defp cos_half_fov(fov), do: :math.cos(fov / 2)
+
+  defp sin_half_fov(fov) when fov >= @two_pi, do: 0.0
+  defp sin_half_fov(fov), do: :math.sin(fov / 2)
 end
