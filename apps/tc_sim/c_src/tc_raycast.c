@@ -999,36 +999,43 @@ typedef struct {
     int k0, k1, b;
 } Span;
 
-/* Which rays of group s (n rays spread evenly over its fov, from the
- * sensor) may hit each body: bodies farther than their radius from the
- * group's cone are left out; for groups of 8 rays or more the span of ray
- * indices is narrowed to the body's angular extent (widened by one ray
- * each side against rounding). Returns the spans, sorted by k0. */
-static int body_spans(const GroupState *s, int n, const Body *b, int nb, Span *out)
+/* The bodies group s may hit: those within its range go to `near` (for
+ * the legs after a reflection, which stay within max range of the sensor);
+ * those its first legs may hit get a span of ray indices in `out`: bodies
+ * farther than their radius from the group's cone are left out, and for
+ * groups of 8 rays or more (spread evenly over the fov) the span is
+ * narrowed to the body's angular extent, widened by one ray each side
+ * against rounding. Returns the span count (sorted by k0); the spans index
+ * `near`. */
+static int body_spans(const GroupState *s, int n, const Body *b, int nb, Body *near, int *nnear,
+                      Span *out)
 {
     const double ch = s->g[G_COS_HALF_FOV], sh = s->g[G_SIN_HALF_FOV], fov = s->g[G_FOV];
-    const double step = fov / n;
-    int ns = 0;
-    for (int i = 0; i < nb; i++) {
-        double vx = b[i].x - s->px, vy = b[i].y - s->py;
-        double d = sqrt(vx * vx + vy * vy), r = b[i].r * (1 + 1e-9) + 1e-12;
-        if (d <= r) {
+    const double step = fov / n, maxr = s->g[G_MAX];
+    int ns = 0, nn = 0;
+    for (int j = 0; j < nb; j++) {
+        double vx = b[j].x - s->px, vy = b[j].y - s->py;
+        double r = b[j].r * (1 + 1e-9) + 1e-12, d2 = vx * vx + vy * vy;
+        if (d2 > (maxr + r) * (maxr + r)) continue;
+        const int i = nn;
+        near[nn++] = b[j];
+        if (d2 <= r * r) {
             out[ns++] = (Span){0, n - 1, i};
             continue;
         }
-        double ca = (vx * s->hx + vy * s->hy) / d;
-        double sa = (s->hx * vy - s->hy * vx) / d;
-        if (ca < ch) {
+        /* d times the cosine and sine of the angle from the heading */
+        double d = sqrt(d2), dc = vx * s->hx + vy * s->hy, ds = s->hx * vy - s->hy * vx;
+        if (dc < d * ch) {
             /* distance from the centre to the cone: to its nearer edge, or
              * to its apex when that edge points away */
-            double dist = ca * ch + fabs(sa) * sh >= 0 ? d * (fabs(sa) * ch - ca * sh) : d;
+            double dist = dc * ch + fabs(ds) * sh >= 0 ? fabs(ds) * ch - dc * sh : d;
             if (dist > r) continue;
         }
         if (n < 8 || !(step > 0)) {
             out[ns++] = (Span){0, n - 1, i};
             continue;
         }
-        double phi = atan2(sa, ca), delta = asin(r < d ? r / d : 1.0);
+        double phi = atan2(ds, dc), delta = asin(r < d ? r / d : 1.0);
         for (int m = -1; m <= 1; m++) {
             double p = phi + m * 2 * M_PI;
             double lo = (p - delta + fov / 2) / step - 0.5, hi = (p + delta + fov / 2) / step - 0.5;
@@ -1037,6 +1044,7 @@ static int body_spans(const GroupState *s, int n, const Body *b, int nb, Span *o
             if (k0 <= k1) out[ns++] = (Span){k0, k1, i};
         }
     }
+    *nnear = nn;
     /* insertion sort: a handful of bodies */
     for (int i = 1; i < ns; i++) {
         Span x = out[i];
@@ -1118,11 +1126,12 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
      * in ray order into the active list `act`) */
     const int nb = w->nbody;
     void *body_scratch = NULL;
-    Body *bodies = NULL, *act = NULL;
+    Body *bodies = NULL, *act = NULL, *near = NULL;
     Span *spans = NULL;
     int *act_k1 = NULL;
     if (nb > 0) {
-        size_t sz = (size_t)nb * sizeof(Body) + (size_t)3 * nb * (sizeof(Body) + sizeof(Span) + sizeof(int));
+        size_t sz = (size_t)2 * nb * sizeof(Body) +
+                    (size_t)3 * nb * (sizeof(Body) + sizeof(Span) + sizeof(int));
         body_scratch = enif_alloc(sz);
         if (!body_scratch) {
             enif_rwlock_runlock(w->lock);
@@ -1130,18 +1139,21 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
             return enif_make_badarg(env);
         }
         bodies = body_scratch;
-        act = bodies + nb;
+        near = bodies + nb;
+        act = near + nb;
         spans = (Span *)(act + 3 * nb);
         act_k1 = (int *)(spans + 3 * nb);
     }
-    Ctx c = {w, bodies, bodies ? collect_bodies(w, exclude, 1, X, Y, reach, bodies) : 0};
+    const int nscan = bodies ? collect_bodies(w, exclude, 1, X, Y, reach, bodies) : 0;
+    Ctx c = {w, near, 0};
     Ctx first = {w, act, 0};
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         const int n = (int)s->g[G_NRAYS], off = (int)s->g[G_RAY_OFF];
         const int mb = (int)s->g[G_BOUNCES], ring = (int)s->g[G_RING];
         const double maxr = s->g[G_MAX], cc = s->g[G_COS_CRIT];
-        const int nsp = c.nb ? body_spans(s, n, c.b, c.nb, spans) : 0;
+        c.nb = 0;
+        const int nsp = nscan ? body_spans(s, n, bodies, nscan, near, &c.nb, spans) : 0;
         int next = 0;
         first.nb = 0;
         for (int k = 0; k < n; k++) {

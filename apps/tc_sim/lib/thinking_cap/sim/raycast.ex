@@ -93,6 +93,10 @@ defmodule ThinkingCap.Sim.Raycast do
     bias: 0.0
   }
 
+  # a number that converts to a float64
+  defguardp real(x) when is_float(x) or (is_integer(x) and abs(x) < 1.0e300)
+  defp real?(x), do: real(x)
+
   @doc false
   def load_nif do
     path = :filename.join(:code.priv_dir(:tc_sim), ~c"lib/tc_raycast")
@@ -158,7 +162,7 @@ defmodule ThinkingCap.Sim.Raycast do
     unless is_integer(max_bounces) and max_bounces in 0..@max_bounces,
       do: raise(ArgumentError, "max_bounces: expected an integer from 0 to #{@max_bounces}")
 
-    unless is_number(critical), do: raise(ArgumentError, "critical_angle: expected a number")
+    unless real?(critical), do: raise(ArgumentError, "critical_angle: expected a number")
 
     nif_cast_rays(world, rays, exclude, max_bounces, cos_critical(critical))
   end
@@ -315,7 +319,7 @@ defmodule ThinkingCap.Sim.Raycast do
     |> Enum.with_index()
     |> Enum.reduce_while({:ok, []}, fn
       {{{x1, y1}, {x2, y2}}, _i}, {:ok, acc}
-      when is_number(x1) and is_number(y1) and is_number(x2) and is_number(y2) ->
+      when real(x1) and real(y1) and real(x2) and real(y2) ->
         {:cont,
          {:ok,
           [
@@ -344,7 +348,7 @@ defmodule ThinkingCap.Sim.Raycast do
          {:ok, h} <-
            grid_field(grid, :height, &(is_integer(&1) and &1 > 0), "a positive integer"),
          {:ok, res} <-
-           grid_field(grid, :resolution, &(is_number(&1) and &1 > 0), "a positive number"),
+           grid_field(grid, :resolution, &(real?(&1) and &1 > 0), "a positive number"),
          {:ok, {ox, oy, yaw}} <- grid_field(grid, :origin, &origin?/1, "{x, y, yaw} numbers"),
          {:ok, data} <- grid_field(grid, :data, &is_binary/1, "a binary") do
       if byte_size(data) == w * h do
@@ -371,7 +375,7 @@ defmodule ThinkingCap.Sim.Raycast do
     end
   end
 
-  defp origin?({x, y, yaw}), do: is_number(x) and is_number(y) and is_number(yaw)
+  defp origin?({x, y, yaw}), do: real?(x) and real?(y) and real?(yaw)
   defp origin?(_), do: false
 
   defp group_params(group, i) when is_map(group) do
@@ -385,7 +389,7 @@ defmodule ThinkingCap.Sim.Raycast do
 
     g = Map.merge(@group_defaults, group)
 
-    for {key, value} <- g, not is_number(value) do
+    for {key, value} <- g, not real?(value) do
       raise ArgumentError, "group #{i}: #{key}: expected a number, got #{inspect(value)}"
     end
 

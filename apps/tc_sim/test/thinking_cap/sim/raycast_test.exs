@@ -724,6 +724,9 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert {:error, msg} = Raycast.new(segments: [{0, 0, 1, 1}])
       assert msg =~ "segment 0"
 
+      assert {:error, msg} = Raycast.new(segments: [{{0, 0}, {1, 10 ** 400}}])
+      assert msg =~ "segment 0"
+
       assert {:error, msg} = Raycast.new(segments: :walls)
       assert msg =~ "segments"
 
