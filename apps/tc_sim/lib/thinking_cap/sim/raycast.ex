@@ -1,4 +1,8 @@
 defmodule ThinkingCap.Sim.Raycast do
+  # rays x (1 + max_bounces) above which a call runs on a dirty CPU
+  # scheduler: DIRTY_RAY_BUDGET in c_src/tc_raycast.c
+  @dirty_budget 4000
+
   @moduledoc """
   Ray casting for the simulator: a NIF (`c_src/tc_raycast.c`, built by the
   app's own `Mix.Tasks.Compile.TcRaycast` into `priv/lib/tc_raycast.so`).
@@ -44,8 +48,17 @@ defmodule ThinkingCap.Sim.Raycast do
   `new/1` (which computes the distance transform) always runs on a dirty
   CPU scheduler. `scan/5` and `cast_rays/3` run on the calling scheduler
   unless the call's ray budget — rays × (1 + max_bounces), summed over the
-  groups — exceeds #{4000}; then the NIF reschedules itself onto a dirty CPU
-  scheduler (`enif_schedule_nif`), invisibly to the caller.
+  groups (see `ray_budget/1`) — exceeds #{@dirty_budget}; then the NIF
+  reschedules itself onto a dirty CPU scheduler (`enif_schedule_nif`),
+  invisibly to the caller.
+
+  ## Performance
+
+  `mix tc.bench raycast` (`bench/raycast_bench.exs`) measures `scan/5` in
+  the 30 m × 50 m warehouse map (3 cm cells) with 100 robots, each with a
+  180-beam laser and 16 three-ray sonars with reflections and crosstalk
+  (228 rays per scan): about 34 µs per scan, 6.7 M rays/s on one core and
+  12.6 M rays/s on two (AMD EPYC, 2 cores).
   """
 
   @on_load :load_nif
@@ -70,7 +83,6 @@ defmodule ThinkingCap.Sim.Raycast do
   @typedoc "A sensor group for `pack_groups/1`; see there for the keys and defaults."
   @type group :: %{optional(atom()) => number()}
 
-  @dirty_budget 4000
   @max_bounces 1000
   @half_pi :math.pi() / 2
   @two_pi 2 * :math.pi()
