@@ -31,9 +31,8 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       type: s.type,
       index: index,
       every: max(1, round(1 / (s.rate * dt))),
-      groups: groups,
       rays: Enum.reduce(groups, 0, &(&1.rays + &2)),
-      packed: %{},
+      packed: packings(groups, faults),
       min_range: min_range * 1.0,
       max_range: max_range * 1.0,
       fov: (s[:fov] || 0.0) * 1.0,
@@ -168,7 +167,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
   end
 
   defp do_read(%{type: type} = sensor, robot, world, time, seed) when type in @ranged do
-    {packed, sensor} = packed_groups(sensor, time)
+    packed = packed_groups(sensor, time)
     bin = Raycast.scan(world.raycast, robot.pose, packed, robot.index, seed)
     ranges = for <<r::float-little-64 <- bin>>, do: r
     {ranges, sensor} = ranges |> drift(sensor, time) |> stuck(sensor, time)
@@ -198,21 +197,29 @@ defmodule ThinkingCap.Sim.Core.Sensors do
   defp dead?(sensor, time),
     do: Enum.any?(sensor.faults, &(&1.type == :dead and &1.holds and time >= &1.after))
 
-  # The groups binary with the per-reading faults active at `time`,
-  # packed once per set of active faults.
+  # The ray groups packed for the NIF, once for each set of per-reading
+  # faults that can be active: they start one after the other, so the sets
+  # are the prefixes of the faults in order of start. Latest start first.
+  # (The groups themselves are not kept: the robot's state stays small.)
+  defp packings([], _faults), do: []
+
+  defp packings(groups, faults) do
+    per_reading =
+      faults |> Enum.filter(&(&1.type in [:dropout, :spikes])) |> Enum.sort_by(& &1.after)
+
+    prefixes =
+      for n <- 0..length(per_reading) do
+        active = Enum.take(per_reading, n)
+        start = if n == 0, do: 0.0, else: List.last(active).after * 1.0
+        {start, Raycast.pack_groups(Enum.map(groups, &apply_faults(&1, active)))}
+      end
+
+    Enum.reverse(prefixes)
+  end
+
   defp packed_groups(sensor, time) do
-    active =
-      for %{type: type} = f <- sensor.faults, type in [:dropout, :spikes], time >= f.after, do: f
-
-    case sensor.packed do
-      %{^active => packed} ->
-        {packed, sensor}
-
-      _ ->
-        groups = Enum.map(sensor.groups, &apply_faults(&1, active))
-        packed = Raycast.pack_groups(groups)
-        {packed, %{sensor | packed: Map.put(sensor.packed, active, packed)}}
-    end
+    {_start, packed} = Enum.find(sensor.packed, fn {start, _} -> time >= start end)
+    packed
   end
 
   defp apply_faults(group, active) do
