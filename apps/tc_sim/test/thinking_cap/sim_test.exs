@@ -205,6 +205,66 @@ defmodule ThinkingCap.SimTest do
       assert_in_delta sth, 3.0, 1.0e-6
     end
 
+    test "an Ackermann car and a tricycle turn on their closed-form radius", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(30, 30)))
+
+      car =
+        T.robot!(dir,
+          footprint: [polygon: [{-0.5, -0.4}, {1.5, -0.4}, {1.5, 0.4}, {-0.5, 0.4}]],
+          kinematics: [
+            type: :ackermann,
+            wheelbase: 1.0,
+            track: 0.6,
+            max_steering: 0.6,
+            max_speed: 2.0,
+            max_turn_rate: 2.0,
+            max_acceleration: 1000.0
+          ]
+        )
+
+      trike =
+        T.robot!(dir,
+          kinematics: [
+            type: :tricycle,
+            wheelbase: 0.8,
+            max_steering: 1.2,
+            max_speed: 2.0,
+            max_turn_rate: 2.0,
+            max_acceleration: 1000.0
+          ]
+        )
+
+      :ok = Sim.add_robot(sim, :car, description: car, at: {10, 5, 0})
+      :ok = Sim.add_robot(sim, :trike, description: trike, at: {20, 20, 0})
+      Sim.command(sim, :car, {:steer, 0.5, 0.3})
+      Sim.command(sim, :trike, {:steer, 0.4, 0.5})
+      :ok = Sim.step(sim, 500)
+      t = 5.0
+
+      # the rear axle runs on a circle of radius L / tan(delta)
+      r = 1.0 / :math.tan(0.3)
+      {:ok, {x, y, th}} = Sim.pose(sim, :car)
+      assert_in_delta th, 0.5 * t / r, 1.0e-6
+      assert_in_delta x, 10 + r * :math.sin(th), 1.0e-6
+      assert_in_delta y, 5 + r * (1 - :math.cos(th)), 1.0e-6
+
+      # the tricycle's steered wheel drives: v = u cos(delta), omega = u sin(delta) / L
+      {v, w} = {0.4 * :math.cos(0.5), 0.4 * :math.sin(0.5) / 0.8}
+      {:ok, {x, y, th}} = Sim.pose(sim, :trike)
+      assert_in_delta th, w * t, 1.0e-6
+      assert_in_delta x, 20 + v / w * :math.sin(w * t), 1.0e-6
+      assert_in_delta y, 20 + v / w * (1 - :math.cos(w * t)), 1.0e-6
+    end
+
+    test "obstacles are solid: seen by the laser, no place to start", %{tmp_dir: dir} do
+      shelf = [name: :shelf, polygon: [{6, 4}, {8, 4}, {8, 6}, {6, 6}]]
+      sim = sim(T.world!(dir, walls: T.box(10, 10), obstacles: [shelf]))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {3, 5, 0}, owner: self())
+      assert_in_delta Enum.at(next_readings(sim, :r).laser.ranges, 90), 3.0, 1.0e-6
+      assert {:error, _} = Sim.add_robot(sim, :inside, description: robot, at: {7, 5, 0})
+    end
+
     test "a robot driven into a wall stops at it with its bumper pressed", %{tmp_dir: dir} do
       sim = sim(T.world!(dir, walls: T.box(10, 10)))
       robot = T.robot!(dir, sensors: [[name: :bumper, type: :bumper, rate: 100]])

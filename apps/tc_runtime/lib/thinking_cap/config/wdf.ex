@@ -38,6 +38,9 @@ defmodule ThinkingCap.Config.WDF do
     name: {:string, required: true, doc: "the world"},
     map: {{:keyword, @map_fields}, doc: "an occupancy map to import (below)"},
     walls: {{:list, :segment}, default: [], doc: "wall segments"},
+    obstacles:
+      {{:list, {:keyword, @named_polygon}},
+       default: [], doc: "solid obstacles (shelves, pillars): name, polygon"},
     rooms: {{:list, {:keyword, @named_polygon}}, default: [], doc: "rooms (name, polygon)"},
     corridors:
       {{:list, {:keyword, @named_polygon}}, default: [], doc: "corridors (name, polygon)"},
@@ -50,10 +53,10 @@ defmodule ThinkingCap.Config.WDF do
   ]
 
   @moduledoc """
-  The world description file (`*.wdf`): walls, rooms, corridors, doors,
-  beacons, areas and waypoints, and optionally an occupancy map imported
-  from a ROS `map_server` YAML + PGM pair (`ThinkingCap.Config.RosMap`). A
-  world may be empty (`[name: "empty"]`).
+  The world description file (`*.wdf`): walls, obstacles, rooms,
+  corridors, doors, beacons, areas and waypoints, and optionally an
+  occupancy map imported from a ROS `map_server` YAML + PGM pair
+  (`ThinkingCap.Config.RosMap`). A world may be empty (`[name: "empty"]`).
 
   ## Top-level keys
 
@@ -83,6 +86,7 @@ defmodule ThinkingCap.Config.WDF do
     :name,
     :grid,
     walls: [],
+    obstacles: [],
     rooms: [],
     corridors: [],
     doors: [],
@@ -96,6 +100,7 @@ defmodule ThinkingCap.Config.WDF do
           name: String.t(),
           grid: RosMap.t() | nil,
           walls: [{{float(), float()}, {float(), float()}}],
+          obstacles: [map()],
           rooms: [map()],
           corridors: [map()],
           doors: [map()],
@@ -104,7 +109,7 @@ defmodule ThinkingCap.Config.WDF do
           waypoints: [map()]
         }
 
-  @named [:rooms, :corridors, :doors, :beacons, :areas, :waypoints]
+  @named [:obstacles, :rooms, :corridors, :doors, :beacons, :areas, :waypoints]
 
   @doc false
   @spec from_data(term(), Path.t(), map()) ::
@@ -147,7 +152,7 @@ defmodule ThinkingCap.Config.WDF do
   end
 
   defp check_polygons(st, value) do
-    for key <- [:rooms, :corridors, :areas],
+    for key <- [:obstacles, :rooms, :corridors, :areas],
         {item, i} <- Enum.with_index(value[key] || []),
         length(item.polygon) in 1..2,
         reduce: st do

@@ -38,7 +38,7 @@ defmodule ThinkingCap.Sim.World do
   @doc "Builds the world of a WDF."
   @spec from_wdf(WDF.t()) :: {:ok, t()} | {:error, String.t()}
   def from_wdf(%WDF{} = wdf) do
-    walls = Enum.map(wdf.walls, &float_segment/1)
+    walls = Enum.map(wdf.walls, &float_segment/1) ++ Enum.flat_map(wdf.obstacles, &edges/1)
     door_segments = Enum.map(wdf.doors, &float_segment({&1.from, &1.to}))
 
     with {:ok, raycast} <- Raycast.new(segments: walls ++ door_segments, grid: wdf.grid) do
@@ -100,10 +100,34 @@ defmodule ThinkingCap.Sim.World do
     end
   end
 
-  @doc "Whether a disc of `radius` at `{x, y}` touches nothing (other robots included)."
+  @doc """
+  Whether a disc of `radius` at `{x, y}` touches nothing (other robots
+  included) and is not inside an obstacle.
+  """
   @spec free?(t(), point(), float(), integer()) :: boolean()
-  def free?(%__MODULE__{raycast: rc}, {x, y}, radius, exclude \\ -1),
-    do: Raycast.clearance(rc, x * 1.0, y * 1.0, exclude, radius * 2.0) >= radius
+  def free?(%__MODULE__{raycast: rc} = world, {x, y}, radius, exclude \\ -1) do
+    Raycast.clearance(rc, x * 1.0, y * 1.0, exclude, radius * 2.0) >= radius and
+      not Enum.any?(obstacles(world), &inside?(&1.polygon, {x, y}))
+  end
+
+  defp obstacles(%__MODULE__{wdf: %WDF{obstacles: obstacles}}), do: obstacles
+  defp obstacles(_world), do: []
+
+  # even-odd rule
+  defp inside?(polygon, {x, y}) do
+    polygon
+    |> Enum.zip(tl(polygon) ++ [hd(polygon)])
+    |> Enum.count(fn {{x1, y1}, {x2, y2}} ->
+      y1 > y != y2 > y and x < (x2 - x1) * (y - y1) / (y2 - y1) + x1
+    end)
+    |> rem(2) == 1
+  end
+
+  # an obstacle's outline, closed
+  defp edges(%{polygon: points}) do
+    points = Enum.map(points, &float_point/1)
+    Enum.zip(points, tl(points) ++ [hd(points)])
+  end
 
   defp float_segment({a, b}), do: {float_point(a), float_point(b)}
   defp float_point({x, y}), do: {x * 1.0, y * 1.0}
