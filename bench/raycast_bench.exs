@@ -3,9 +3,9 @@ defmodule ThinkingCap.Bench.Raycast do
   `mix tc.bench raycast`: rays per second of `ThinkingCap.Sim.Raycast.scan/5`
   in the 30 m × 50 m warehouse map (`../shared/testdata/ros_maps/warehouse.yaml`),
   with the simulator benchmark's sensor set per robot: a 180-beam laser
-  (180°, 8 m, no reflections) and 16 sonars (15° cone, 5 m, 3 rays each,
-  max_bounces 2, critical angle 0.26 rad, one crosstalk ring) — 228 rays
-  per scan. 100 robots (bodies of radius 0.25 m) stand at random free
+  (180°, 8 m, no reflections; one group per beam) and 16 sonars (15° cone,
+  5 m, 3 rays each, max_bounces 2, critical angle 0.26 rad, one crosstalk
+  ring) — 196 groups, 228 rays per scan. 100 robots (bodies of radius 0.25 m) stand at random free
   poses; each scan is at one of them, excluding its own body.
 
   Figures: one process (one core) and one process per scheduler; rays/s
@@ -70,14 +70,14 @@ defmodule ThinkingCap.Bench.Raycast do
       "#{procs} processes: #{round(total)} rays/s in total (#{round(total / procs)} per process)"
     )
 
-    laser_only = Raycast.pack_groups([hd(sensors())])
+    laser_only = Raycast.pack_groups(laser())
     {nl, usl} = timed(world, laser_only, poses, seconds)
 
     IO.puts(
       "laser alone (180 rays): #{Float.round(usl / nl, 2)} µs/scan, #{round(nl * 180 / (usl / 1.0e6))} rays/s"
     )
 
-    sonars = Raycast.pack_groups(tl(sensors()))
+    sonars = Raycast.pack_groups(sonars())
     {ns, uss} = timed(world, sonars, poses, seconds)
 
     IO.puts(
@@ -89,40 +89,43 @@ defmodule ThinkingCap.Bench.Raycast do
     )
   end
 
-  defp sensors do
-    laser = %{
-      x: 0.1,
-      heading: 0.0,
-      fov: :math.pi(),
-      rays: 180,
-      max_range: 8.0,
-      min_range: 0.05,
-      noise_std: 0.01
-    }
+  # as the simulator packs them (ThinkingCap.Sim.Core.Sensors): one group
+  # per laser beam (each beam is a reading), one per sonar
+  defp sensors, do: laser() ++ sonars()
 
-    sonars =
-      for k <- 0..15 do
-        a = k * 2 * :math.pi() / 16
+  defp laser do
+    for j <- 0..179 do
+      %{
+        x: 0.1,
+        heading: -:math.pi() / 2 + j * :math.pi() / 179,
+        max_range: 8.0,
+        min_range: 0.05,
+        noise_std: 0.01,
+        dropout: 0.001
+      }
+    end
+  end
 
-        %{
-          x: 0.2 * :math.cos(a),
-          y: 0.2 * :math.sin(a),
-          heading: a,
-          fov: 15 * :math.pi() / 180,
-          rays: 3,
-          min_range: 0.02,
-          max_range: 5.0,
-          max_bounces: 2,
-          critical_angle: 0.26,
-          ring: 0,
-          noise_std: 0.01,
-          noise_prop: 0.01,
-          dropout: 0.01,
-          spike: 0.005
-        }
-      end
+  defp sonars do
+    for k <- 0..15 do
+      a = k * 2 * :math.pi() / 16
 
-    [laser | sonars]
+      %{
+        x: 0.2 * :math.cos(a),
+        y: 0.2 * :math.sin(a),
+        heading: a,
+        fov: 15 * :math.pi() / 180,
+        rays: 3,
+        min_range: 0.02,
+        max_range: 5.0,
+        max_bounces: 2,
+        critical_angle: 0.26,
+        ring: 0,
+        noise_std: 0.01,
+        noise_prop: 0.01,
+        dropout: 0.01
+      }
+    end
   end
 
   defp timed(world, groups, poses, seconds) do

@@ -994,68 +994,79 @@ typedef struct {
     int ring, emitter;
 } Event;
 
-/* rays k0..k1 of a group may hit body b (first legs) */
-typedef struct {
-    int k0, k1, b;
-} Span;
+/* Bodies by direction, for the first legs of a scan's rays: the circle
+ * around the robot is cut into SECTORS sectors of pseudo-angle, and each
+ * sector lists the bodies that a ray leaving in a direction of that sector
+ * from any sensor of the robot may hit. */
+#define SECTORS 64
 
-/* The bodies group s may hit: those within its range go to `near` (for
- * the legs after a reflection, which stay within max range of the sensor);
- * those its first legs may hit get a span of ray indices in `out`: bodies
- * farther than their radius from the group's cone are left out, and for
- * groups of 8 rays or more (spread evenly over the fov) the span is
- * narrowed to the body's angular extent, widened by one ray each side
- * against rounding. Returns the span count (sorted by k0); the spans index
- * `near`. */
-static int body_spans(const GroupState *s, int n, const Body *b, int nb, Body *near, int *nnear,
-                      Span *out)
+/* a pseudo-angle of direction (x, y) in [0, 4]: monotonic in the angle
+ * (counter-clockwise from +x), no trigonometry */
+static inline double pseudo_angle(double x, double y)
 {
-    const double ch = s->g[G_COS_HALF_FOV], sh = s->g[G_SIN_HALF_FOV], fov = s->g[G_FOV];
-    const double step = fov / n, maxr = s->g[G_MAX];
-    int ns = 0, nn = 0;
-    for (int j = 0; j < nb; j++) {
-        double vx = b[j].x - s->px, vy = b[j].y - s->py;
-        double r = b[j].r * (1 + 1e-9) + 1e-12, d2 = vx * vx + vy * vy;
-        if (d2 > (maxr + r) * (maxr + r)) continue;
-        const int i = nn;
-        near[nn++] = b[j];
-        if (d2 <= r * r) {
-            out[ns++] = (Span){0, n - 1, i};
-            continue;
+    double p = x / (fabs(x) + fabs(y));
+    return y < 0 ? 3 + p : 1 - p;
+}
+
+static inline int sector_of(double x, double y)
+{
+    return (int)(pseudo_angle(x, y) * (SECTORS / 4.0)) & (SECTORS - 1);
+}
+
+/* The sectors body b may be hit from: a ray from a sensor at most `off`
+ * from (x, y) that hits the body passes within r + off of its centre
+ * along a parallel ray from (x, y), so its direction is within
+ * asin((r + off) / d) of the body's. Sets [*s0, *s1] (counter-clockwise,
+ * possibly wrapping); returns 0 when every sector applies. */
+static int body_sectors(const Body *b, double x, double y, double off, int *s0, int *s1)
+{
+    double vx = b->x - x, vy = b->y - y, d = sqrt(vx * vx + vy * vy);
+    double rho = (b->r + off) * (1 + 1e-9) + 1e-9;
+    if (d <= rho * 1.0000001) return 0;
+    double sn = rho / d, cs = sqrt(1 - sn * sn);
+    vx /= d;
+    vy /= d;
+    *s0 = sector_of(vx * cs + vy * sn, vy * cs - vx * sn);
+    *s1 = sector_of(vx * cs - vy * sn, vy * cs + vx * sn);
+    return 1;
+}
+
+typedef struct {
+    int start[SECTORS + 1];
+    Body *b;
+} SectorTable;
+
+static int build_sectors(SectorTable *t, const Body *b, int nb, double x, double y, double off)
+{
+    int *s0 = enif_alloc((size_t)2 * (nb > 0 ? nb : 1) * sizeof(int)), *s1 = s0 + nb;
+    if (!s0) return 0;
+    memset(t->start, 0, sizeof(t->start));
+    for (int i = 0; i < nb; i++) {
+        if (!body_sectors(&b[i], x, y, off, &s0[i], &s1[i])) {
+            s0[i] = 0;
+            s1[i] = SECTORS - 1;
         }
-        /* d times the cosine and sine of the angle from the heading */
-        double d = sqrt(d2), dc = vx * s->hx + vy * s->hy, ds = s->hx * vy - s->hy * vx;
-        if (dc < d * ch) {
-            /* distance from the centre to the cone: to its nearer edge, or
-             * to its apex when that edge points away */
-            double dist = dc * ch + fabs(ds) * sh >= 0 ? fabs(ds) * ch - dc * sh : d;
-            if (dist > r) continue;
-        }
-        if (n < 8 || !(step > 0)) {
-            out[ns++] = (Span){0, n - 1, i};
-            continue;
-        }
-        double phi = atan2(ds, dc), delta = asin(r < d ? r / d : 1.0);
-        for (int m = -1; m <= 1; m++) {
-            double p = phi + m * 2 * M_PI;
-            double lo = (p - delta + fov / 2) / step - 0.5, hi = (p + delta + fov / 2) / step - 0.5;
-            if (hi < -2 || lo > n + 1) continue;
-            int k0 = clampi((int)ceil(lo) - 1, 0, n - 1), k1 = clampi((int)floor(hi) + 1, 0, n - 1);
-            if (k0 <= k1) out[ns++] = (Span){k0, k1, i};
+        for (int k = s0[i];; k = (k + 1) & (SECTORS - 1)) {
+            t->start[k + 1]++;
+            if (k == s1[i]) break;
         }
     }
-    *nnear = nn;
-    /* insertion sort: a handful of bodies */
-    for (int i = 1; i < ns; i++) {
-        Span x = out[i];
-        int j = i - 1;
-        while (j >= 0 && out[j].k0 > x.k0) {
-            out[j + 1] = out[j];
-            j--;
-        }
-        out[j + 1] = x;
+    for (int k = 0; k < SECTORS; k++)
+        t->start[k + 1] += t->start[k];
+    t->b = enif_alloc((size_t)(t->start[SECTORS] > 0 ? t->start[SECTORS] : 1) * sizeof(Body));
+    if (!t->b) {
+        enif_free(s0);
+        return 0;
     }
-    return ns;
+    int fill[SECTORS];
+    memcpy(fill, t->start, sizeof(fill));
+    for (int i = 0; i < nb; i++)
+        for (int k = s0[i];; k = (k + 1) & (SECTORS - 1)) {
+            t->b[fill[k]++] = b[i];
+            if (k == s1[i]) break;
+        }
+    enif_free(s0);
+    return 1;
 }
 
 /* validates the packed groups; returns the group count or -1 */
@@ -1105,7 +1116,7 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     if (!gs) return enif_make_badarg(env);
     Event *ev = (Event *)(gs + ng);
     int nev = 0;
-    double reach = 0;
+    double reach = 0, offset = 0;
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         memcpy(s->g, gb.data + GROUPS_HEADER + (size_t)i * GROUP_BYTES, GROUP_BYTES);
@@ -1115,67 +1126,48 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         s->hy = st * s->g[G_HC] + ct * s->g[G_HS];
         s->raw = s->g[G_MAX];
         s->echo = 0;
-        double rch = hypot(s->g[G_X], s->g[G_Y]) + s->g[G_MAX];
-        if (rch > reach) reach = rch;
+        double o = hypot(s->g[G_X], s->g[G_Y]);
+        if (o + s->g[G_MAX] > reach) reach = o + s->g[G_MAX];
+        if (o > offset) offset = o;
     }
 
     enif_rwlock_rlock(w->lock);
-    /* the bodies within reach of the scan, for the legs after a reflection
-     * (a ray never gets farther than its max range from its sensor), and
-     * per group those its first legs may hit (spans of ray indices, swept
-     * in ray order into the active list `act`) */
+    /* the bodies within reach of the scan (a ray never gets farther than its
+     * max range from its sensor) for the legs after a reflection, and by
+     * sector for the first legs */
     const int nb = w->nbody;
-    void *body_scratch = NULL;
-    Body *bodies = NULL, *act = NULL, *near = NULL;
-    Span *spans = NULL;
-    int *act_k1 = NULL;
+    Body *bodies = NULL;
+    SectorTable sectors;
+    sectors.b = NULL;
+    int nscan = 0;
     if (nb > 0) {
-        size_t sz = (size_t)2 * nb * sizeof(Body) +
-                    (size_t)3 * nb * (sizeof(Body) + sizeof(Span) + sizeof(int));
-        body_scratch = enif_alloc(sz);
-        if (!body_scratch) {
+        bodies = enif_alloc((size_t)nb * sizeof(Body));
+        if (bodies) nscan = collect_bodies(w, exclude, 1, X, Y, reach, bodies);
+        if (!bodies || (nscan > 0 && !build_sectors(&sectors, bodies, nscan, X, Y, offset))) {
             enif_rwlock_runlock(w->lock);
+            if (bodies) enif_free(bodies);
             enif_free(gs);
             return enif_make_badarg(env);
         }
-        bodies = body_scratch;
-        near = bodies + nb;
-        act = near + nb;
-        spans = (Span *)(act + 3 * nb);
-        act_k1 = (int *)(spans + 3 * nb);
     }
-    const int nscan = bodies ? collect_bodies(w, exclude, 1, X, Y, reach, bodies) : 0;
-    Ctx c = {w, near, 0};
-    Ctx first = {w, act, 0};
+    Ctx c = {w, bodies, nscan};
+    Ctx first = {w, NULL, 0};
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         const int n = (int)s->g[G_NRAYS], off = (int)s->g[G_RAY_OFF];
         const int mb = (int)s->g[G_BOUNCES], ring = (int)s->g[G_RING];
         const double maxr = s->g[G_MAX], cc = s->g[G_COS_CRIT];
-        c.nb = 0;
-        const int nsp = nscan ? body_spans(s, n, bodies, nscan, near, &c.nb, spans) : 0;
-        int next = 0;
-        first.nb = 0;
         for (int k = 0; k < n; k++) {
             const unsigned char *p = rays + (size_t)(off + k) * 16;
             double rc = ld(p), rs = ld(p + 8);
+            double dx = ct * rc - st * rs, dy = st * rc + ct * rs;
             RayResult r;
-            if (nsp > 0) {
-                int j = 0;
-                for (int q = 0; q < first.nb; q++)
-                    if (act_k1[q] >= k) {
-                        act[j] = act[q];
-                        act_k1[j++] = act_k1[q];
-                    }
-                first.nb = j;
-                for (; next < nsp && spans[next].k0 <= k; next++)
-                    if (spans[next].k1 >= k) {
-                        act[first.nb] = c.b[spans[next].b];
-                        act_k1[first.nb++] = spans[next].k1;
-                    }
+            if (nscan > 0) {
+                int sec = sector_of(dx, dy);
+                first.b = sectors.b + sectors.start[sec];
+                first.nb = sectors.start[sec + 1] - sectors.start[sec];
             }
-            cast_one(&first, &c, s->px, s->py, ct * rc - st * rs, st * rc + ct * rs, maxr, mb, cc,
-                     &r);
+            cast_one(&first, &c, s->px, s->py, dx, dy, maxr, mb, cc, &r);
             if (r.kind == HIT_NONE) continue;
             if (r.range < s->raw) s->raw = r.range;
             s->echo = 1;
@@ -1190,7 +1182,8 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
     }
     enif_rwlock_runlock(w->lock);
-    if (body_scratch) enif_free(body_scratch);
+    if (bodies) enif_free(bodies);
+    if (sectors.b) enif_free(sectors.b);
 
     /* crosstalk: a bounced echo from P reaches every other transducer of the
      * ring whose cone contains P (no line-of-sight check on the return) */

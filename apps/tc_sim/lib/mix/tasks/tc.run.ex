@@ -72,7 +72,7 @@ defmodule Mix.Tasks.Tc.Run do
   defp latest(template) do
     case Blackboard.rdp(template) do
       {:ok, {_, _, payload}} -> payload
-      :error -> %{}
+      :none -> %{}
     end
   end
 
