@@ -16,7 +16,9 @@
  *     the code is 0 (within 2.5 cells of obstacles) rays step cell by cell
  *     (Amanatides-Woo), so the hit is the exact entry point of the first
  *     obstacle cell along the ray;
- *   - dynamic circular bodies.
+ *   - dynamic circular bodies. A scan sorts the bodies within its reach
+ *     into sectors of direction around the robot, so a ray's first leg
+ *     tests only the bodies of its sector.
  * Readers (casts, clearance) take the world's read lock, setters the write
  * lock, so several processes cast concurrently.
  */
@@ -958,7 +960,11 @@ static ERL_NIF_TERM nif_cast_rays(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
 
 /* ---- scan ---- */
 
-/* the record layout written by ThinkingCap.Sim.Raycast.pack_groups/1 */
+/* The groups binary written by ThinkingCap.Sim.Raycast.pack_groups/1 (all
+ * native-endian): "TCG1", u32 group count, u32 ray count, u32 0; one
+ * record of GROUP_DOUBLES float64 per group, fields below (G_FOV and
+ * G_SIN_HALF_FOV are informational); then (cos, sin) float64 pairs, the
+ * rays' directions in the robot frame, each group's rays at G_RAY_OFF. */
 enum {
     G_X = 0,
     G_Y,
@@ -1126,7 +1132,7 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         s->hy = st * s->g[G_HC] + ct * s->g[G_HS];
         s->raw = s->g[G_MAX];
         s->echo = 0;
-        double o = hypot(s->g[G_X], s->g[G_Y]);
+        double o = sqrt(s->g[G_X] * s->g[G_X] + s->g[G_Y] * s->g[G_Y]);
         if (o + s->g[G_MAX] > reach) reach = o + s->g[G_MAX];
         if (o > offset) offset = o;
     }
@@ -1204,28 +1210,44 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
 
     ERL_NIF_TERM out;
     unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
-    /* each group draws from its own stream: the hashed seed and its index */
-    uint64_t base = (uint64_t)seed;
-    base = splitmix64(&base);
+    /* one splitmix64 stream from the hashed seed, drawn from in group
+     * order and only as needed: a Gaussian (Box-Muller, the pair's second
+     * value kept for the next noisy group) for a noisy echo, a uniform for
+     * the fault when the group has faults, another for a spike's value */
+    uint64_t rng = (uint64_t)seed;
+    rng = splitmix64(&rng);
+    int spare = 0;
+    double z_spare = 0;
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         const double minr = s->g[G_MIN], maxr = s->g[G_MAX];
-        uint64_t st64 = base ^ ((uint64_t)(i + 1) * 0xD1B54A32D192ED03ULL);
-        (void)splitmix64(&st64);
-        double u1 = uniform(&st64), u2 = uniform(&st64), uf = uniform(&st64),
-               uv = uniform(&st64);
+        const double pd = s->g[G_DROPOUT], ps = s->g[G_SPIKE];
         double r = s->raw;
         if (s->echo) {
-            double sigma = s->g[G_NOISE_STD] + s->g[G_NOISE_PROP] * r;
-            double z = sigma > 0 ? sqrt(-2.0 * log(1.0 - u1)) * cos(2.0 * M_PI * u2) : 0.0;
+            double sigma = s->g[G_NOISE_STD] + s->g[G_NOISE_PROP] * r, z = 0;
+            if (sigma > 0) {
+                if (spare) {
+                    z = z_spare;
+                    spare = 0;
+                } else {
+                    double u1 = uniform(&rng), u2 = uniform(&rng);
+                    double m = sqrt(-2.0 * log(1.0 - u1)), a = 2.0 * M_PI * u2;
+                    z = m * cos(a);
+                    z_spare = m * sin(a);
+                    spare = 1;
+                }
+            }
             r = clampd(r + s->g[G_BIAS] + sigma * z, minr, maxr);
         }
         /* faults: one uniform draw, dropout and spike are exclusive */
-        if (s->echo && uf < s->g[G_DROPOUT]) {
-            r = maxr;
-        } else if (uf >= s->g[G_DROPOUT] && uf < s->g[G_DROPOUT] + s->g[G_SPIKE]) {
-            double m = s->g[G_SPIKE_MAG];
-            r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
+        if (pd > 0 || ps > 0) {
+            double uf = uniform(&rng);
+            if (uf < pd) {
+                if (s->echo) r = maxr;
+            } else if (uf < pd + ps) {
+                double m = s->g[G_SPIKE_MAG], uv = uniform(&rng);
+                r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
+            }
         }
         uint64_t bits;
         memcpy(&bits, &r, 8);

@@ -56,9 +56,10 @@ defmodule ThinkingCap.Sim.Raycast do
 
   `mix tc.bench raycast` (`bench/raycast_bench.exs`) measures `scan/5` in
   the 30 m × 50 m warehouse map (3 cm cells) with 100 robots, each with a
-  180-beam laser and 16 three-ray sonars with reflections and crosstalk
-  (228 rays per scan): about 34 µs per scan, 6.7 M rays/s on one core and
-  12.6 M rays/s on two (AMD EPYC, 2 cores).
+  180-beam laser (one group per beam) and 16 three-ray sonars with
+  reflections and crosstalk (196 groups, 228 rays per scan): about 40 µs
+  per scan, 5.8 M rays/s on one core and 11 M rays/s on two (AMD EPYC,
+  2 cores).
   """
 
   @on_load :load_nif
@@ -207,9 +208,11 @@ defmodule ThinkingCap.Sim.Raycast do
   no dropout, but may spike. So the frequencies are exactly `dropout` (of
   echoes) and `spike`.
 
-  Deterministic: each group draws from its own splitmix64 stream seeded
-  from `seed` (< 2⁶⁴) and the group's index, so the same inputs give the
-  same bytes.
+  Deterministic: the noise and faults draw from one splitmix64 stream
+  seeded from `seed` (< 2⁶⁴), in group order and only as needed (a
+  Box–Muller Gaussian for a noisy echo, its pair's second value going to
+  the next noisy group; a uniform for the fault of a group with faults;
+  another for a spike's value), so the same inputs give the same bytes.
   """
   @spec scan(world(), {number(), number(), number()}, binary(), integer(), non_neg_integer()) ::
           binary()

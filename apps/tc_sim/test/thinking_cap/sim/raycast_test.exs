@@ -557,7 +557,7 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert narrow == 10.0
     end
 
-    test "group readings agree with cast_rays among many bodies (per-group body culling)" do
+    test "group readings agree with cast_rays among many bodies (bodies culled by direction)" do
       :rand.seed(:exsss, {5, 5, 5})
 
       w =
@@ -608,6 +608,44 @@ defmodule ThinkingCap.Sim.RaycastTest do
 
           assert_in_delta reading, expected, @eps
         end
+      end
+    end
+
+    test "beams grazing bodies all around (every direction, ±x axis included) see them" do
+      w = world!([])
+      # a ring of bodies around the robot at (1, 2), one every 22.5°; the
+      # sensor sits off the robot's centre; beams pass each body's centre
+      # at 0.95 of its radius, on both sides, others just miss it
+      r = 0.2
+
+      centres =
+        for k <- 0..15,
+            do: {1 + 3 * :math.cos(k * :math.pi() / 8), 2 + 3 * :math.sin(k * :math.pi() / 8)}
+
+      :ok = Raycast.set_bodies(w, [{1, 2, 0.3} | for({x, y} <- centres, do: {x, y, r})])
+
+      for theta <- [0.0, :math.pi(), -:math.pi() / 2, 0.3, 2.0] do
+        {sx, sy} =
+          {1 + 0.2 * :math.cos(theta) - 0.1 * :math.sin(theta),
+           2 + 0.2 * :math.sin(theta) + 0.1 * :math.cos(theta)}
+
+        beams =
+          for {cx, cy} <- centres, side <- [-1, 1], miss <- [false, true] do
+            d = :math.sqrt((cx - sx) ** 2 + (cy - sy) ** 2)
+            phi = :math.asin(if(miss, do: 1.02, else: 0.95) * r / d)
+            a = :math.atan2(cy - sy, cx - sx) + side * phi
+
+            expected =
+              if miss,
+                do: 5.0,
+                else: d * :math.cos(phi) - :math.sqrt(r * r - (d * :math.sin(phi)) ** 2)
+
+            {%{x: 0.2, y: 0.1, heading: a - theta, max_range: 5.0}, expected}
+          end
+
+        {groups, expected} = Enum.unzip(beams)
+        got = readings(Raycast.scan(w, {1, 2, theta}, Raycast.pack_groups(groups), 0, 0))
+        for {g, e} <- Enum.zip(got, expected), do: assert_in_delta(g, e, 1.0e-9)
       end
     end
 
