@@ -110,8 +110,7 @@ defmodule ThinkingCap.Sim.Raycast do
   defguardp real(x) when is_float(x) or (is_integer(x) and abs(x) < 1.0e300)
   defp real?(x), do: real(x)
 
-  @doc false
-  def load_nif do
+  defp load_nif do
     path = :filename.join(:code.priv_dir(:tc_sim), ~c"lib/tc_raycast")
     :erlang.load_nif(path, 0)
   end
