@@ -492,6 +492,15 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert Enum.all?(spikes, &(&1 >= 0.1 and &1 <= 5.0))
       # uniform over [0.1, 5.0]
       assert_in_delta Enum.sum(spikes) / length(spikes), 2.55, 0.15
+
+      # exclusive faults: beyond a total of 1, spikes get 1 - dropout
+      g = Raycast.pack_groups([sonar(%{dropout: 0.7, spike: 0.7})])
+      rs = for seed <- 1..2000, do: scan1(w, {0, 0, 0}, g, -1, seed)
+      assert_in_delta Enum.count(rs, &(&1 == 5.0)), 1400, 4 * :math.sqrt(2000 * 0.21)
+
+      assert_in_delta Enum.count(rs, &(abs(&1 - 2.0) > 1.0e-12 and &1 != 5.0)),
+                      600,
+                      4 * :math.sqrt(2000 * 0.21)
     end
 
     test "spikes with a magnitude stay within it; echo-less readings may spike", %{world: w} do
@@ -668,7 +677,7 @@ defmodule ThinkingCap.Sim.RaycastTest do
       end
 
       assert_raise ArgumentError, ~r/dropout/, fn ->
-        Raycast.pack_groups([%{max_range: 1, dropout: 0.6, spike: 0.6}])
+        Raycast.pack_groups([%{max_range: 1, dropout: 1.5}])
       end
 
       assert_raise ArgumentError, ~r/fov/, fn ->
