@@ -1097,7 +1097,8 @@ static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget
     return (int)ng;
 }
 
-static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+/* the readings as a binary of float64s (as_list 0) or a list of floats */
+static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[], int as_list)
 {
     World *w;
     ErlNifBinary gb;
@@ -1209,7 +1210,17 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     }
 
     ERL_NIF_TERM out;
-    unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+    unsigned char *o = NULL;
+    ERL_NIF_TERM *cells = NULL;
+    if (as_list) {
+        cells = enif_alloc((size_t)(ng > 0 ? ng : 1) * sizeof(ERL_NIF_TERM));
+        if (!cells) {
+            enif_free(gs);
+            return enif_make_badarg(env);
+        }
+    } else {
+        o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+    }
     /* one splitmix64 stream from the hashed seed, drawn from in group
      * order and only as needed: a Gaussian (Box-Muller, the pair's second
      * value kept for the next noisy group) for a noisy echo, a uniform for
@@ -1249,25 +1260,56 @@ static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
                 r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
             }
         }
-        uint64_t bits;
-        memcpy(&bits, &r, 8);
-        for (int b = 0; b < 8; b++)
-            o[8 * i + b] = (unsigned char)(bits >> (8 * b));
+        if (as_list) {
+            cells[i] = enif_make_double(env, r);
+        } else {
+            uint64_t bits;
+            memcpy(&bits, &r, 8);
+            for (int b = 0; b < 8; b++)
+                o[8 * i + b] = (unsigned char)(bits >> (8 * b));
+        }
     }
     enif_free(gs);
+    if (as_list) {
+        out = enif_make_list_from_array(env, cells, (unsigned)ng);
+        enif_free(cells);
+    }
     return out;
 }
 
-static ERL_NIF_TERM nif_scan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+static ERL_NIF_TERM scan_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    return scan_core(env, argc, argv, 0);
+}
+
+static ERL_NIF_TERM scan_list_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    return scan_core(env, argc, argv, 1);
+}
+
+static int scan_is_long(ErlNifEnv *env, ERL_NIF_TERM groups)
 {
     ErlNifBinary gb;
     unsigned nr;
     double budget;
-    if (enif_inspect_binary(env, argv[2], &gb) && groups_header(&gb, &nr, &budget) >= 0 &&
-        budget > DIRTY_RAY_BUDGET)
+    return enif_inspect_binary(env, groups, &gb) && groups_header(&gb, &nr, &budget) >= 0 &&
+           budget > DIRTY_RAY_BUDGET;
+}
+
+static ERL_NIF_TERM nif_scan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    if (scan_is_long(env, argv[2]))
         return enif_schedule_nif(env, "scan_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND, scan_impl, argc,
                                  argv);
     return scan_impl(env, argc, argv);
+}
+
+static ERL_NIF_TERM nif_scan_list(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    if (scan_is_long(env, argv[2]))
+        return enif_schedule_nif(env, "scan_list_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND,
+                                 scan_list_impl, argc, argv);
+    return scan_list_impl(env, argc, argv);
 }
 
 /* ---- clearance ---- */
@@ -1404,6 +1446,7 @@ static ErlNifFunc funcs[] = {
     {"set_bodies", 2, nif_set_bodies, 0},
     {"nif_cast_rays", 5, nif_cast_rays, 0},
     {"scan", 5, nif_scan, 0},
+    {"scan_list", 5, nif_scan_list, 0},
     {"clearance", 5, nif_clearance, 0},
 };
 

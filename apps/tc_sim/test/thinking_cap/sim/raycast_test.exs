@@ -444,6 +444,18 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert_in_delta r2, 2 / :math.cos(0.5), @eps
     end
 
+    test "scan_list/5 gives the same readings as a list", %{world: w} do
+      g =
+        Raycast.pack_groups(
+          for h <- [0.0, 0.4, 3.0], do: sonar(%{heading: h, noise_std: 0.05, dropout: 0.3})
+        )
+
+      for seed <- 1..20 do
+        assert Raycast.scan_list(w, {0, 0, 0.1}, g, -1, seed) ==
+                 readings(Raycast.scan(w, {0, 0, 0.1}, g, -1, seed))
+      end
+    end
+
     test "deterministic: same seed same bytes, different seeds differ", %{world: w} do
       g =
         Raycast.pack_groups([sonar(%{noise_std: 0.05}), sonar(%{heading: 0.2, noise_std: 0.05})])

@@ -168,9 +168,12 @@ defmodule ThinkingCap.Sim.Core.Sensors do
 
   defp do_read(%{type: type} = sensor, robot, world, time, seed) when type in @ranged do
     packed = packed_groups(sensor, time)
-    bin = Raycast.scan(world.raycast, robot.pose, packed, robot.index, seed)
-    ranges = for <<r::float-little-64 <- bin>>, do: r
-    {ranges, sensor} = ranges |> drift(sensor, time) |> stuck(sensor, time)
+
+    {ranges, sensor} =
+      world.raycast
+      |> Raycast.scan_list(robot.pose, packed, robot.index, seed)
+      |> drift(sensor, time)
+      |> stuck(sensor, time)
 
     payload =
       Map.merge(sensor.static, %{
