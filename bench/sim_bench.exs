@@ -31,8 +31,10 @@ defmodule ThinkingCap.Bench.Sim do
     {:ok, description} = Description.load(Path.join(@dir, "cave_robot.rdf"))
     {:ok, world} = Sim.World.load(Path.join(@dir, "warehouse.wdf"))
 
-    IO.puts("sim: #{world.name} map, #{seconds} simulated s, step 0.1 s, " <>
-              "#{System.schedulers_online()} schedulers")
+    IO.puts(
+      "sim: #{world.name} map, #{seconds} simulated s, step 0.1 s, " <>
+        "#{System.schedulers_online()} schedulers"
+    )
 
     results =
       for robots <- Enum.uniq([n, 1, 10]), into: %{} do
