@@ -1,4 +1,4 @@
 [
-  inputs: ["mix.exs", "config/*.exs", "bench/**/*.{ex,exs}", "test/**/*.{ex,exs}"],
+  inputs: ["mix.exs", "config/*.exs", "mix/*.exs", "bench/**/*.{ex,exs}", "test/**/*.{ex,exs}"],
   subdirectories: ["apps/*"]
 ]

@@ -1,48 +1,23 @@
+Code.require_file("../../mix/c_build.exs", __DIR__)
+
 defmodule Mix.Tasks.Compile.TcTiming do
   @moduledoc false
-  # Builds the C timing worker (c_src/tc_timing.c -> priv/bin/tc_timing)
-  # with the system C compiler; no hex build tools. Defined here so that it
-  # exists before the app it builds for is compiled.
+  # Builds the C timing worker (c_src/tc_timing.c -> priv/bin/tc_timing).
   use Mix.Task.Compiler
 
   # run inside the app's project (cwd), not the umbrella's
   @recursive true
-  @app_dir __DIR__
-  @source Path.join(__DIR__, "c_src/tc_timing.c")
-  @target Path.join(__DIR__, "priv/bin/tc_timing")
+  @target "priv/bin/tc_timing"
 
   @impl true
-  def run(_args) do
-    if Mix.Utils.stale?([@source], [@target]) do
-      File.mkdir_p!(Path.dirname(@target))
-      cc = System.get_env("CC", "cc")
-      args = ~w(-O2 -Wall -Wextra -Werror -pthread -o #{@target} #{@source})
-
-      case System.cmd(cc, args, stderr_to_stdout: true) do
-        {_, 0} ->
-          Mix.shell().info("Compiled #{Path.relative_to(@target, @app_dir)}")
-          {:ok, []}
-
-        {output, status} ->
-          Mix.shell().error(output)
-
-          diagnostic = %Mix.Task.Compiler.Diagnostic{
-            compiler_name: "tc_timing",
-            file: @source,
-            message: "#{cc} exited with #{status}",
-            position: nil,
-            severity: :error
-          }
-
-          {:error, [diagnostic]}
-      end
-    else
-      {:noop, []}
-    end
-  end
+  def run(_args),
+    do:
+      ThinkingCap.Build.C.compile("tc_timing", __DIR__, ["c_src/tc_timing.c"], @target,
+        cflags: ["-pthread"]
+      )
 
   @impl true
-  def clean, do: File.rm(@target)
+  def clean, do: File.rm(Path.join(__DIR__, @target))
 end
 
 defmodule ThinkingCap.Runtime.MixProject do

@@ -372,6 +372,21 @@ static int build_seg_index(World *w)
 
 /* Marches the ray u + t v (grid frame, cell units, |v| = 1) up to tmax.
  * On a hit stores the exact entry parameter of the first obstacle cell. */
+/* clips the ray's [t0, t1] to the slab 0 <= u + t v < n of one axis; the
+ * entry face becomes `id` when the slab's entry is the later one; 0 when the
+ * ray misses the slab */
+static int slab(double u, double v, double iv, int n, int id, double *t0, double *t1, int *face)
+{
+    if (v == 0) return u >= 0 && u < n;
+    double a = (v > 0 ? -u : n - u) * iv, b = (v > 0 ? n - u : -u) * iv;
+    if (a > *t0) {
+        *t0 = a;
+        *face = id;
+    }
+    if (b < *t1) *t1 = b;
+    return 1;
+}
+
 static int grid_march(const World *w, double ux, double uy, double vx, double vy, double tmax,
                       double *t_out, Hit *h)
 {
@@ -379,40 +394,8 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
     const double ivx = vx != 0 ? 1.0 / vx : INFINITY, ivy = vy != 0 ? 1.0 / vy : INFINITY;
     double t0 = 0.0, t1 = tmax;
     int face = 0;
-    if (vx > 0) {
-        double a = -ux * ivx, b = (W - ux) * ivx;
-        if (a > t0) {
-            t0 = a;
-            face = 1;
-        }
-        if (b < t1) t1 = b;
-    } else if (vx < 0) {
-        double a = (W - ux) * ivx, b = -ux * ivx;
-        if (a > t0) {
-            t0 = a;
-            face = 1;
-        }
-        if (b < t1) t1 = b;
-    } else if (!(ux >= 0 && ux < W)) {
+    if (!slab(ux, vx, ivx, W, 1, &t0, &t1, &face) || !slab(uy, vy, ivy, H, 2, &t0, &t1, &face))
         return 0;
-    }
-    if (vy > 0) {
-        double a = -uy * ivy, b = (H - uy) * ivy;
-        if (a > t0) {
-            t0 = a;
-            face = 2;
-        }
-        if (b < t1) t1 = b;
-    } else if (vy < 0) {
-        double a = (H - uy) * ivy, b = -uy * ivy;
-        if (a > t0) {
-            t0 = a;
-            face = 2;
-        }
-        if (b < t1) t1 = b;
-    } else if (!(uy >= 0 && uy < H)) {
-        return 0;
-    }
     if (!(t0 <= t1)) return 0;
 
     const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);

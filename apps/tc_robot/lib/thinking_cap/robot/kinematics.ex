@@ -228,6 +228,15 @@ defmodule ThinkingCap.Robot.Kinematics do
   def clamp(x, lo, hi), do: x |> max(lo) |> min(hi)
 
   @doc false
+  # A model struct of `module` with every field a required positive
+  # parameter of `kinematics`.
+  @spec build!(module(), map(), atom()) :: struct()
+  def build!(module, kinematics, type) do
+    fields = module.__struct__() |> Map.from_struct() |> Map.keys()
+    struct!(module, for(key <- fields, do: {key, fetch!(kinematics, key, type)}))
+  end
+
+  @doc false
   # A required positive parameter of `kinematics`, as a float.
   @spec fetch!(map(), atom(), atom()) :: float()
   def fetch!(kinematics, key, type) do

@@ -57,14 +57,7 @@ defmodule ThinkingCap.Robot.Kinematics.Ackermann do
           "kinematics: an ackermann drive needs max_steering: below π/2 rad, got #{max}"
         )
 
-    %__MODULE__{
-      wheelbase: Kinematics.fetch!(k, :wheelbase, :ackermann),
-      track: Kinematics.fetch!(k, :track, :ackermann),
-      max_steering: max,
-      max_speed: Kinematics.fetch!(k, :max_speed, :ackermann),
-      max_turn_rate: Kinematics.fetch!(k, :max_turn_rate, :ackermann),
-      max_acceleration: Kinematics.fetch!(k, :max_acceleration, :ackermann)
-    }
+    Kinematics.build!(__MODULE__, k, :ackermann)
   end
 
   @doc "The body twist of the rear axle speed and bicycle steering angle `{:steer, u, delta}`."

@@ -35,15 +35,7 @@ defmodule ThinkingCap.Robot.Kinematics.Differential do
   @doc "Builds the model from the RDF's kinematics map (limits default as in the RDF)."
   @impl true
   @spec new(map()) :: t()
-  def new(k) do
-    %__MODULE__{
-      wheel_radius: Kinematics.fetch!(k, :wheel_radius, :differential),
-      wheel_separation: Kinematics.fetch!(k, :wheel_separation, :differential),
-      max_speed: Kinematics.fetch!(k, :max_speed, :differential),
-      max_turn_rate: Kinematics.fetch!(k, :max_turn_rate, :differential),
-      max_acceleration: Kinematics.fetch!(k, :max_acceleration, :differential)
-    }
-  end
+  def new(k), do: Kinematics.build!(__MODULE__, k, :differential)
 
   @doc "The body twist `{v, omega}` of wheel angular speeds `{:wheels, left, right}` (rad/s)."
   @impl true

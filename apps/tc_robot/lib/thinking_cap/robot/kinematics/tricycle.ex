@@ -34,15 +34,7 @@ defmodule ThinkingCap.Robot.Kinematics.Tricycle do
   @doc "Builds the model from the RDF's kinematics map (limits default as in the RDF)."
   @impl true
   @spec new(map()) :: t()
-  def new(k) do
-    %__MODULE__{
-      wheelbase: Kinematics.fetch!(k, :wheelbase, :tricycle),
-      max_steering: Kinematics.fetch!(k, :max_steering, :tricycle),
-      max_speed: Kinematics.fetch!(k, :max_speed, :tricycle),
-      max_turn_rate: Kinematics.fetch!(k, :max_turn_rate, :tricycle),
-      max_acceleration: Kinematics.fetch!(k, :max_acceleration, :tricycle)
-    }
-  end
+  def new(k), do: Kinematics.build!(__MODULE__, k, :tricycle)
 
   @doc "The body twist of the front wheel's speed and steering angle `{:steer, u, delta}`."
   @impl true
