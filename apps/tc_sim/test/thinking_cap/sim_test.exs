@@ -150,6 +150,26 @@ defmodule ThinkingCap.SimTest do
       assert message =~ "not free"
     end
 
+    test "a publishing simulation writes readings and true poses to the blackboard", %{
+      tmp_dir: dir
+    } do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)), publish: true)
+      id = :"pub#{System.unique_integer([:positive])}"
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, id, description: robot, at: {5, 5, 0})
+      :ok = Sim.step(sim, 2)
+
+      assert {:ok, {:laser, ^id, %{ranges: ranges}}} =
+               ThinkingCap.Blackboard.rdp({:laser, id, :_})
+
+      assert_in_delta Enum.at(ranges, 90), 5.0, 1.0e-6
+      # latest values: one tuple per robot and sensor
+      assert [_] = ThinkingCap.Blackboard.rd_all({:laser, id, :_})
+
+      assert {:ok, {:sim_pose, ^id, %{pose: {5.0, 5.0, +0.0}}}} =
+               ThinkingCap.Blackboard.rdp({:sim_pose, id, :_})
+    end
+
     test "a closed door is a wall; opened while running, the laser sees through", %{
       tmp_dir: dir
     } do
