@@ -1,0 +1,80 @@
+defmodule ThinkingCap.Navigation.Grid do
+  @moduledoc """
+  A planning grid: which cells a robot may not enter. One byte per cell,
+  row-major from the bottom row (cell `{col, row}` is byte
+  `row * width + col`), 0 passable, 1 blocked; `origin` is the world
+  position of the lower-left corner of cell `{0, 0}`, `resolution` the
+  cell size in metres (axis-aligned: no rotation).
+
+  The planners (`ThinkingCap.Navigation.AStar`,
+  `ThinkingCap.Navigation.DStarLite`) search it 8-connected with octile
+  costs and no corner cutting; the map builders of
+  `ThinkingCap.Navigation` produce it.
+  """
+
+  @enforce_keys [:width, :height, :cells]
+  defstruct [:width, :height, :cells, resolution: 1.0, origin: {0.0, 0.0}]
+
+  @type cell :: {non_neg_integer(), non_neg_integer()}
+  @type t :: %__MODULE__{
+          width: pos_integer(),
+          height: pos_integer(),
+          cells: binary(),
+          resolution: float(),
+          origin: {float(), float()}
+        }
+
+  @doc "A grid of `width` × `height` cells, every one passable unless `cells` says otherwise."
+  @spec new(pos_integer(), pos_integer(), keyword()) :: t()
+  def new(width, height, opts \\ []) do
+    cells = Keyword.get(opts, :cells, :binary.copy(<<0>>, width * height))
+
+    unless byte_size(cells) == width * height,
+      do: raise(ArgumentError, "grid cells: #{byte_size(cells)} bytes for #{width}×#{height}")
+
+    %__MODULE__{
+      width: width,
+      height: height,
+      cells: cells,
+      resolution: Keyword.get(opts, :resolution, 1.0) * 1.0,
+      origin: Keyword.get(opts, :origin, {0.0, 0.0})
+    }
+  end
+
+  @doc "Whether `cell` is inside the grid and passable."
+  @spec passable?(t(), cell()) :: boolean()
+  def passable?(%__MODULE__{width: w, height: h, cells: cells}, {col, row})
+      when col >= 0 and row >= 0 and col < w and row < h,
+      do: :binary.at(cells, row * w + col) == 0
+
+  def passable?(_grid, _cell), do: false
+
+  @doc "Sets cells blocked (`true`) or passable (`false`)."
+  @spec put(t(), [cell()], boolean()) :: t()
+  def put(%__MODULE__{width: w} = grid, cells, blocked?) do
+    value = if blocked?, do: 1, else: 0
+    bytes = :binary.bin_to_list(grid.cells) |> List.to_tuple()
+
+    bytes =
+      Enum.reduce(cells, bytes, fn {col, row}, acc ->
+        if inside?(grid, {col, row}), do: put_elem(acc, row * w + col, value), else: acc
+      end)
+
+    %{grid | cells: bytes |> Tuple.to_list() |> :binary.list_to_bin()}
+  end
+
+  @doc "Whether `cell` is inside the grid."
+  @spec inside?(t(), cell()) :: boolean()
+  def inside?(%__MODULE__{width: w, height: h}, {col, row}),
+    do: col >= 0 and row >= 0 and col < w and row < h
+
+  @doc "The cell containing world point `{x, y}`."
+  @spec cell_of(t(), {number(), number()}) :: cell()
+  def cell_of(%__MODULE__{origin: {ox, oy}, resolution: r}, {x, y}),
+    do: {floor((x - ox) / r), floor((y - oy) / r)}
+
+  @doc "The world position of a cell's centre."
+  @spec centre(t(), cell()) :: {float(), float()}
+  def centre(%__MODULE__{origin: {ox, oy}, resolution: r}, {col, row}),
+    do: {ox + (col + 0.5) * r, oy + (row + 0.5) * r}
+end
