@@ -1,0 +1,187 @@
+defmodule ThinkingCap.Testing.Lockstep do
+  @moduledoc """
+  Runs a set of modules (`ThinkingCap.Module`) in lockstep with a
+  simulated clock, in the calling process, without the runtime: a private
+  blackboard, subscriptions honoured, periodic modules released when the
+  simulated time reaches their next release. Deterministic and as fast as
+  the modules themselves: for tests and benchmarks of whole cognitive
+  stacks (a simulator in `:fast` mode feeds it the readings).
+
+      lock =
+        Lockstep.new(robot: :r1, rdf: rdf, wdf: wdf, modules: [
+          perception: {ThinkingCap.Perception.Fuser, []},
+          control: {ThinkingCap.Control.Blender, [], period: 0.1}
+        ])
+
+      lock = Lockstep.deliver(lock, {:laser, :r1, scan})
+      lock = Lockstep.advance(lock, 0.1)
+      Lockstep.latest(lock, {:drive, :r1, :_})
+
+  A module spec is `{module, params}` or `{module, params, opts}` with
+  `period: seconds` (a periodic module; without it only tuples reach the
+  module) and `subscribe: [template]` (as in an ADF). Every tuple
+  written (`:out` actions) is kept as the latest of its `key:` (or of its
+  tag and robot), delivered to the subscribers of matching templates, and
+  remembered in `outs/1` until `clear_outs/1`. The `:command` of a cycle is
+  handed back to the module as applied (`handle_applied/2`, `:fresh`).
+  """
+
+  alias ThinkingCap.Blackboard.Template
+
+  defstruct robot: nil,
+            context: %{},
+            modules: %{},
+            order: [],
+            subs: [],
+            board: %{},
+            outs: [],
+            time: 0.0
+
+  @type t :: %__MODULE__{}
+
+  @doc "Starts the modules (their `init/2`, in order). Options: `robot`, `rdf`, `wdf`, `modules`."
+  @spec new(keyword()) :: t()
+  def new(opts) do
+    lock = %__MODULE__{
+      robot: Keyword.fetch!(opts, :robot),
+      context: %{robot: opts[:robot], node: node(), rdf: opts[:rdf], wdf: opts[:wdf]}
+    }
+
+    Enum.reduce(Keyword.fetch!(opts, :modules), lock, fn {name, spec}, lock ->
+      {module, params, opts} = spec(spec)
+      period = opts[:period]
+      activity = if period, do: :periodic, else: :event
+      context = Map.merge(lock.context, %{name: name, activity: activity})
+      {actions, mstate} = normalize(module.init(params, context))
+
+      entry = %{module: module, state: mstate, period: period, next: 0.0, cycle: 0}
+      lock = %{lock | modules: Map.put(lock.modules, name, entry), order: lock.order ++ [name]}
+      subscribe = for t <- Keyword.get(opts, :subscribe, []), do: {:subscribe, t}
+      run(lock, name, subscribe ++ actions)
+    end)
+  end
+
+  defp spec({module, params}), do: {module, params, []}
+  defp spec({module, params, opts}), do: {module, params, opts}
+
+  @doc "Writes a tuple, as a sensor or another node would; its subscribers run at once."
+  @spec deliver(t(), tuple()) :: t()
+  def deliver(lock, tuple), do: lock |> store(tuple, []) |> deliver_to_subscribers(tuple)
+
+  @doc "Advances the clock to `time`, releasing every periodic module due (in ADF order)."
+  @spec advance(t(), float()) :: t()
+  def advance(lock, time) do
+    due =
+      for name <- lock.order,
+          %{period: p, next: next} = lock.modules[name],
+          p != nil and next <= time + 1.0e-9,
+          do: name
+
+    lock = Enum.reduce(due, %{lock | time: time}, &release(&2, &1, time))
+    if due == [], do: lock, else: advance(lock, time)
+  end
+
+  defp release(lock, name, time) do
+    %{module: m, state: s, cycle: n, period: p, next: next} = lock.modules[name]
+
+    release = %{
+      id: 0,
+      cycle: n,
+      scheduled_ns: round(next * 1.0e9),
+      released_ns: round(time * 1.0e9)
+    }
+
+    {actions, s} = normalize(m.handle_cycle(release, s))
+    {commands, actions} = Enum.split_with(actions, &match?({:command, _}, &1))
+
+    lock =
+      lock
+      |> put_state(name, s)
+      |> update_in([Access.key(:modules), name], &%{&1 | cycle: n + 1, next: next + p})
+      |> run(name, actions)
+
+    case List.last(commands) do
+      nil ->
+        lock
+
+      {:command, command} ->
+        %{module: m, state: s} = lock.modules[name]
+        applied = %{cycle: n, kind: :fresh, command: command, response_us: 0.0}
+        {actions, s} = normalize(m.handle_applied(applied, s))
+        lock |> put_state(name, s) |> run(name, actions)
+    end
+  end
+
+  @doc "The latest tuple matching `template` on the private blackboard, or nil."
+  @spec latest(t(), tuple()) :: tuple() | nil
+  def latest(lock, template) do
+    compiled = Template.compile(template)
+
+    Enum.find_value(lock.board, fn {_key, tuple} ->
+      Template.matches?(compiled, tuple) && tuple
+    end)
+  end
+
+  @doc "Every tuple written since the start (or `clear_outs/1`), oldest first."
+  @spec outs(t()) :: [tuple()]
+  def outs(lock), do: Enum.reverse(lock.outs)
+
+  @doc "Forgets the tuples `outs/1` would return."
+  @spec clear_outs(t()) :: t()
+  def clear_outs(lock), do: %{lock | outs: []}
+
+  @doc "A module's state (to look inside in tests)."
+  @spec state(t(), atom()) :: term()
+  def state(lock, name), do: lock.modules[name].state
+
+  defp run(lock, _name, []), do: lock
+
+  defp run(lock, name, [action | rest]) do
+    lock =
+      case action do
+        {:out, {tuple, opts}} when is_tuple(tuple) and is_list(opts) ->
+          publish(lock, tuple, opts)
+
+        {:out, tuple} when is_tuple(tuple) ->
+          publish(lock, tuple, [])
+
+        {:subscribe, template} ->
+          %{lock | subs: lock.subs ++ [{name, Template.compile(template)}]}
+
+        {:command, _} ->
+          lock
+      end
+
+    run(lock, name, rest)
+  end
+
+  defp publish(lock, tuple, opts) do
+    lock = %{store(lock, tuple, opts) | outs: [tuple | lock.outs]}
+    deliver_to_subscribers(lock, tuple)
+  end
+
+  defp deliver_to_subscribers(lock, tuple) do
+    Enum.reduce(lock.subs, lock, fn {name, template}, lock ->
+      if Template.matches?(template, tuple) do
+        %{module: m, state: s} = lock.modules[name]
+        {actions, s} = normalize(m.handle_tuple(tuple, s))
+        lock |> put_state(name, s) |> run(name, actions)
+      else
+        lock
+      end
+    end)
+  end
+
+  defp store(lock, tuple, opts) do
+    key = Keyword.get_lazy(opts, :key, fn -> default_key(tuple) end)
+    %{lock | board: Map.put(lock.board, key, tuple)}
+  end
+
+  defp default_key(tuple) when tuple_size(tuple) >= 2, do: {elem(tuple, 0), elem(tuple, 1)}
+  defp default_key(tuple), do: tuple
+
+  defp put_state(lock, name, s), do: put_in(lock.modules[name].state, s)
+
+  defp normalize({:ok, state}), do: {[], state}
+  defp normalize({actions, state}) when is_list(actions), do: {actions, state}
+end
