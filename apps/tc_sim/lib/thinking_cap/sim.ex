@@ -153,6 +153,10 @@ defmodule ThinkingCap.Sim do
   @spec odometry(sim(), robot()) :: {:ok, {float(), float(), float()}} | {:error, :no_robot}
   def odometry(sim, id), do: GenServer.call(sim, {:get, id, :odom})
 
+  @doc "The state of a robot's in-process controller (to look inside in tests and benchmarks)."
+  @spec controller_state(sim(), robot()) :: {:ok, term()} | {:error, :no_robot}
+  def controller_state(sim, id), do: GenServer.call(sim, {:get, id, :cstate})
+
   @doc "The robots and their true poses."
   @spec robots(sim()) :: %{robot() => {float(), float(), float()}}
   def robots(sim), do: GenServer.call(sim, :robots)

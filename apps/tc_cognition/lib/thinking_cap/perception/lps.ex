@@ -8,9 +8,9 @@ defmodule ThinkingCap.Perception.LPS do
     * `bins` - the nearest obstacle in each of `n` equal sectors around the
       robot (a tuple of distances in metres, at most `range`): sector `i`
       covers robot-frame angles `[-π + i·2π/n, -π + (i + 1)·2π/n)`;
-    * `grid` - fuzzy occupancy evidence around the robot
-      (`ThinkingCap.Perception.FuzzyGrid`): separate degrees of "empty" and
-      "occupied" per cell;
+    * `evidence` - fuzzy occupancy evidence around the robot: points
+      `{x, y, occupied, empty}` with separate degrees of "occupied" and
+      "empty" in [0, 1], accumulated over readings and forgotten over time;
     * `segments` - straight walls extracted from it, `{{x1, y1}, {x2, y2}}`;
     * `doors` - openings between wall ends a robot fits through,
       `%{centre: {x, y}, width: m, heading: rad}` (heading: the direction
@@ -26,7 +26,7 @@ defmodule ThinkingCap.Perception.LPS do
             range: 5.0,
             n: 72,
             bins: nil,
-            grid: nil,
+            evidence: [],
             segments: [],
             doors: []
 
@@ -38,7 +38,7 @@ defmodule ThinkingCap.Perception.LPS do
           range: float(),
           n: pos_integer(),
           bins: tuple(),
-          grid: term(),
+          evidence: [{float(), float(), float(), float()}],
           segments: [{point(), point()}],
           doors: [%{centre: point(), width: float(), heading: float()}]
         }
