@@ -152,6 +152,11 @@ defmodule ThinkingCap.Navigation.EKF do
     %__MODULE__{pose: motion(pose, delta), covariance: symmetrise(p)}
   end
 
+  @doc "Adds `extra` (3×3) to the covariance, keeping the pose: more doubt, e.g. for a lost filter."
+  @spec inflate(t(), matrix()) :: t()
+  def inflate(%__MODULE__{covariance: p} = ekf, extra),
+    do: %{ekf | covariance: symmetrise(add(p, to_matrix(extra)))}
+
   @doc """
   The range and bearing `{r, b}` at which a sensor at `sensor_pose` on a
   robot at `pose` sees a beacon at `beacon` (`b` relative to the sensor's
@@ -261,8 +266,76 @@ defmodule ThinkingCap.Navigation.EKF do
     end)
   end
 
+  @doc """
+  The pose that best explains a set of detections alone (weighted least
+  squares by Gauss–Newton, starting from `guess`): a fresh fix for a filter
+  that lost itself. Needs detections of at least two beacons of `beacons`
+  (`%{id => {x, y}}`); options `sensor_pose`, `iterations` (default 20).
+
+  Returns `{:ok, ekf, χ²}` with the fitted pose, its covariance
+  `(Σ Hᵀ R⁻¹ H)⁻¹` and the weighted squared residual (about 2n − 3 for n
+  consistent detections), or `{:error, :too_few}` /
+  `{:error, :no_fix}` (the geometry does not fix the pose, or no
+  convergence).
+  """
+  @spec locate([map()], %{term() => point()}, {number(), number()}, pose(), keyword()) ::
+          {:ok, t(), float()} | {:error, :too_few | :no_fix}
+  def locate(detections, beacons, {s_r, s_b}, guess, opts \\ []) do
+    sensor_pose = Keyword.get(opts, :sensor_pose, {0.0, 0.0, 0.0})
+    pairs = for %{id: id} = d <- detections, Map.has_key?(beacons, id), do: {d, beacons[id]}
+    weights = {1.0 / (s_r * s_r), 1.0 / (s_b * s_b)}
+
+    if length(Enum.uniq_by(pairs, &elem(&1, 1))) < 2 do
+      {:error, :too_few}
+    else
+      gauss_newton(pairs, weights, sensor_pose, guess, Keyword.get(opts, :iterations, 20))
+    end
+  end
+
+  defp gauss_newton(pairs, weights, sensor_pose, {x, y, th} = pose, iterations) do
+    {a, b, _chi2} = normal_equations(pairs, weights, sensor_pose, pose)
+
+    case inverse3(a) do
+      nil ->
+        {:error, :no_fix}
+
+      cov ->
+        step = mul(cov, b)
+        {dx, dy, dth} = {at(step, 0, 0), at(step, 1, 0), at(step, 2, 0)}
+        pose = {x + dx, y + dy, normalize(th + dth)}
+
+        cond do
+          abs(dx) + abs(dy) + abs(dth) < 1.0e-9 ->
+            {_, _, chi2} = normal_equations(pairs, weights, sensor_pose, pose)
+            {:ok, new(pose, cov), chi2}
+
+          iterations <= 1 ->
+            {:error, :no_fix}
+
+          true ->
+            gauss_newton(pairs, weights, sensor_pose, pose, iterations - 1)
+        end
+    end
+  end
+
+  defp normal_equations(pairs, {w_r, w_b}, sensor_pose, pose) do
+    zero = {{0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}}
+    w = {{w_r, 0.0}, {0.0, w_b}}
+
+    Enum.reduce(pairs, {zero, {{0.0}, {0.0}, {0.0}}, 0.0}, fn {d, beacon}, {a, b, chi2} ->
+      {r_hat, b_hat} = measure(pose, beacon, sensor_pose)
+      h = measurement_jacobian(pose, beacon, sensor_pose)
+      {nr, nb} = {d.range - r_hat, normalize(d.bearing - b_hat)}
+      htw = mul(transpose(h), w)
+
+      {add(a, mul(htw, h)), add(b, mul(htw, {{nr}, {nb}})), chi2 + nr * nr * w_r + nb * nb * w_b}
+    end)
+  end
+
   @doc "An angle normalised to (−π, π]."
   @spec normalize(number()) :: float()
+  def normalize(a) when a > -@pi and a <= @pi, do: a * 1.0
+
   def normalize(a) do
     a = :math.fmod(a + @pi, @two_pi)
     if a <= 0, do: a + @pi, else: a - @pi
@@ -321,6 +394,20 @@ defmodule ThinkingCap.Navigation.EKF do
   defp inverse2({{a, b}, {c, d}}) do
     det = a * d - b * c
     {{d / det, -b / det}, {-c / det, a / det}}
+  end
+
+  defp inverse3({{a, b, c}, {d, e, f}, {g, h, i}}) do
+    co =
+      {{e * i - f * h, c * h - b * i, b * f - c * e},
+       {f * g - d * i, a * i - c * g, c * d - a * f},
+       {d * h - e * g, b * g - a * h, a * e - b * d}}
+
+    det = a * elem(elem(co, 0), 0) + b * elem(elem(co, 1), 0) + c * elem(elem(co, 2), 0)
+    scale = Enum.max(Enum.map([a, e, i], &abs/1))
+
+    if scale == 0 or abs(det) <= 1.0e-12 * scale * scale * scale,
+      do: nil,
+      else: zip_with(co, co, fn v, _ -> v / det end)
   end
 
   defp sqrt(v) when v > 0, do: :math.sqrt(v)

@@ -163,6 +163,47 @@ defmodule ThinkingCap.Navigation.EKFTest do
     end
   end
 
+  describe "locate/5" do
+    test "fixes the pose from detections alone, from a poor guess" do
+      truth = {3.0, 5.0, -0.8}
+      rng = :rand.seed_s(:exsss, 9)
+
+      {detections, _} =
+        Enum.map_reduce(@beacons, rng, fn {id, at}, rng ->
+          {r, b} = EKF.measure(truth, at)
+          {nr, rng} = :rand.normal_s(rng)
+          {nb, rng} = :rand.normal_s(rng)
+          {%{id: id, range: r + 0.02 * nr, bearing: b + 0.02 * nb}, rng}
+        end)
+
+      assert {:ok, fix, chi2} = EKF.locate(detections, @beacons, @sensor, {5.0, 3.0, 0.0})
+      {x, y, th} = fix.pose
+      {sx, sy, sth} = EKF.sigmas(fix)
+      assert abs(x - 3.0) < 3 * sx and abs(y - 5.0) < 3 * sy and abs(th + 0.8) < 3 * sth
+      assert sx < 0.03 and sth < 0.03
+      # 10 measurements, 3 unknowns
+      assert chi2 < 25.0
+
+      # a detection made up far off shows in the residual
+      [first | rest] = detections
+
+      assert {:ok, _, bad} =
+               EKF.locate([%{first | range: first.range + 2.0} | rest], @beacons, @sensor, truth)
+
+      assert bad > 1000
+    end
+
+    test "needs two known beacons" do
+      assert {:error, :too_few} =
+               EKF.locate(
+                 [%{id: :b1, range: 1.0, bearing: 0.0}, %{id: :zz, range: 2.0, bearing: 1.0}],
+                 @beacons,
+                 @sensor,
+                 {1.0, 1.0, 0.0}
+               )
+    end
+  end
+
   describe "predict/3" do
     test "grows the covariance with distance and turn" do
       ekf = EKF.new({1.0, 2.0, 0.3}, EKF.diagonal(0.01, 0.01, 0.01))
