@@ -3,10 +3,11 @@ defmodule Mix.Tasks.Tc.Run do
   @moduledoc """
   Runs ThinkingCap's main job: the example office world
   (`priv/examples/office.wdf`) with one simulated robot
-  (`priv/examples/office_robot.rdf`) that wanders safely, started from
+  (`priv/examples/office_robot.rdf`), started from
   `priv/examples/office_sim.adf` by the runtime, in real time. Prints a
-  status line a second: simulated time, the robot's true and odometry
-  poses, its nearest obstacle, bumper, and the control cycle's timing.
+  status line a second: simulated time, the robot's true and estimated
+  poses, its plan and waypoint, the active behaviours, its nearest
+  obstacle, bumper, and the control cycle's timing.
 
       mix tc.run [--adf PATH] [--seconds N]
 
@@ -58,14 +59,21 @@ defmodule Mix.Tasks.Tc.Run do
     bumper = latest({:bumper, robot, :_})
     timing = Runtime.timing() |> Map.get(:base)
 
+    estimate = latest({:pose, robot, :_})
+    plan = latest({:plan, robot, :_})
+    activation = latest({:activation, robot, :_})
+
     [
       "t=#{fmt(truth[:stamp])} s",
       "pose #{pose(truth[:pose])}",
-      "odom #{pose(odom[:pose])}",
+      if(estimate[:pose], do: "estimate #{pose(estimate.pose)}", else: "odom #{pose(odom[:pose])}"),
+      if(plan[:state], do: "plan #{plan.state} #{inspect(plan[:waypoint])}"),
+      if(activation != %{}, do: "behaviours #{behaviours(activation)}"),
       "nearest #{fmt(laser[:ranges] && Enum.min(laser.ranges))} m",
       "bumper #{if bumper[:pressed], do: "pressed", else: "free"}",
       "cycle #{timing_text(timing)}"
     ]
+    |> Enum.reject(&is_nil/1)
     |> Enum.join(", ")
   end
 
@@ -80,6 +88,14 @@ defmodule Mix.Tasks.Tc.Run do
     do: "#{n} cycles, #{f} fallbacks, jitter mean #{fmt(get_in(t, [:jitter_us, :mean]))} µs"
 
   defp timing_text(_), do: "-"
+
+  # the active behaviours, most active first
+  defp behaviours(activation) do
+    activation
+    |> Enum.filter(fn {_b, a} -> is_number(a) and a >= 0.05 end)
+    |> Enum.sort_by(fn {_b, a} -> -a end)
+    |> Enum.map_join(" ", fn {b, a} -> "#{b}=#{fmt(a)}" end)
+  end
 
   defp pose({x, y, th}), do: "(#{fmt(x)}, #{fmt(y)}, #{fmt(th)})"
   defp pose(_), do: "-"
