@@ -197,6 +197,45 @@ defmodule ThinkingCap.Navigation.LocalizerTest do
   defp drive_truth(start),
     do: Enum.reduce(1..250, start, fn _, p -> EKF.motion(p, {0.3 * 0.02, 0.0, 0.2 * 0.02}) end)
 
+  @office Path.expand("../../../../../priv/examples/office.wdf", __DIR__)
+
+  defp collect(acc) do
+    receive do
+      {:tc_sim, :readings, :r1, readings} -> collect([readings | acc])
+    after
+      0 -> Enum.reverse(acc)
+    end
+  end
+
+  test "follows a robot of the simulator in the office" do
+    {:ok, sim} = ThinkingCap.Sim.start_link(world: @office, mode: :fast, seed: 3, running: false)
+    :ok = ThinkingCap.Sim.add_robot(sim, :r1, rdf: @rdf, at: {5.0, 1.5, 0.0}, owner: self())
+    ThinkingCap.Sim.command(sim, :r1, {:velocity, 0.3, 0.05})
+    :ok = ThinkingCap.Sim.run_for(sim, 15.0)
+    steps = collect([])
+    assert length(steps) > 500
+
+    ctx = %{name: :loc, robot: :r1, node: node(), activity: :event, rdf: @rdf, wdf: @office}
+    {_, state} = Localizer.init([initial: {5.3, 1.3, 0.1}, initial_sigma: {0.5, 0.2}], ctx)
+
+    # the estimate against the simulator's true pose, every 0.1 s
+    {_, errors} =
+      Enum.reduce(steps, {state, []}, fn readings, {state, errors} ->
+        Enum.reduce(readings, {state, errors}, fn
+          {:sim_pose, %{pose: truth, stamp: t}}, {state, errors} ->
+            {state, [{t, error(state.ekf, truth)} | errors]}
+
+          {sensor, payload}, {state, errors} ->
+            {_, state} = Localizer.handle_tuple({sensor, :r1, payload}, state)
+            {state, errors}
+        end)
+      end)
+
+    settled = for {t, e} <- errors, t >= 2.0, do: e
+    assert length(settled) > 100
+    assert Enum.all?(settled, fn {dxy, dth} -> dxy < 0.06 and dth < 0.03 end)
+  end
+
   test "refuses an unknown waypoint, naming the known ones", %{context: ctx} do
     assert_raise ArgumentError, ~r/:nowhere is not a waypoint.*:start, :flat/, fn ->
       Localizer.init([initial: :nowhere], ctx)
