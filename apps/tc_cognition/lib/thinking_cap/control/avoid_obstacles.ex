@@ -1,0 +1,137 @@
+defmodule ThinkingCap.Control.AvoidObstacles do
+  @moduledoc """
+  Keeps the robot off obstacles: slows for an obstacle in its way and
+  turns towards the freer side; steers away from obstacles close beside
+  its front.
+
+  Quantities (from the LPS, clearances measured from the robot's edge):
+
+    * `ahead` - free distance along the corridor the robot sweeps driving
+      straight (half-width `radius + margin`,
+      `ThinkingCap.Control.Geometry.ahead/3`): `:blocked` below `stop`,
+      `:near` up to `slow`, `:free` beyond;
+    * `left` / `right` - clearance between 17° and 90° on each side:
+      `:near` below 0.1 m fading out at 0.45 m.
+
+  Rules (`rules/1`): blocked → stop and turn hard to the freer side; near →
+  slow and turn to the freer side; free → medium speed, steer away from a
+  near side, straight when both or neither side is near.
+
+  **The freer side is a crisp choice**: the side whose clearance (from 0°
+  to 70° on that side) is larger, and **ties break to the left**: the left
+  is chosen unless the right is freer by more than `tie` (0.05 m). A fuzzy
+  "turn left or right" would defuzzify (centroid) to their average,
+  straight into the obstacle; and once the robot turns left the obstacle
+  moves to its right, so the choice holds (no dithering in a symmetric
+  case).
+
+  Context: an obstacle is near in the direction of travel, the largest
+  over the LPS's obstacle points ahead (x > 0) of
+  `min(near(clearance), in_path(lateral offset))`, with `near` 1 up to
+  `stop` and 0 from `near`, and `in_path` 1 up to `radius + margin` and 0
+  from `radius + margin + 0.2`.
+
+  Params: `stop: 0.2`, `slow: 0.6`, `near: 0.8` (m of clearance),
+  `margin: 0.05` (m), `tie: 0.05` (m).
+  """
+  use ThinkingCap.Control.Behaviour
+
+  alias ThinkingCap.Control.{Fuzzy, Geometry}
+
+  defstruct stop: 0.2, slow: 0.6, near: 0.8, margin: 0.05, tie: 0.05
+
+  @type t :: %__MODULE__{}
+
+  @impl true
+  @spec init(keyword()) :: t()
+  def init(params \\ []), do: struct!(__MODULE__, params)
+
+  @impl true
+  def context(inputs, p) do
+    r = inputs.radius
+    near = {:left_shoulder, p.stop, p.near}
+    in_path = {:left_shoulder, r + p.margin, r + p.margin + 0.2}
+
+    inputs.lps
+    |> Geometry.obstacles()
+    |> Enum.reduce(0.0, fn {d, a}, acc ->
+      x = d * :math.cos(a)
+      y = d * :math.sin(a)
+
+      if x > 0 do
+        max(acc, min(Fuzzy.membership(near, d - r), Fuzzy.membership(in_path, abs(y))))
+      else
+        acc
+      end
+    end)
+  end
+
+  @impl true
+  def outputs(inputs, p) do
+    %{lps: lps, radius: r} = inputs
+    side = freer_side(inputs, p)
+
+    crisp = %{
+      ahead: Geometry.ahead(lps, r, p.margin),
+      left: Geometry.clearance(lps, 0.3, 1.571, r),
+      right: Geometry.clearance(lps, -1.571, -0.3, r)
+    }
+
+    Behaviour.control(rules(side), crisp, variables(p, lps.range), inputs)
+  end
+
+  @doc "The side to turn to when something is in the way (see the moduledoc for ties)."
+  @spec freer_side(Behaviour.inputs(), t()) :: :left | :right
+  def freer_side(%{lps: lps, radius: r}, p) do
+    left = Geometry.clearance(lps, 0.0, 1.22, r)
+    right = Geometry.clearance(lps, -1.22, 0.0, r)
+    if right > left + p.tie, do: :right, else: :left
+  end
+
+  @doc "The rule base, turning to `side` when something is in the way."
+  @spec rules(:left | :right) :: Fuzzy.rule_base()
+  def rules(side) do
+    {escape, dodge} = if side == :left, do: {:hard_left, :left}, else: {:hard_right, :right}
+
+    [
+      [if: {:is, :ahead, :blocked}, then: [v: :stop, w: escape]],
+      [if: {:is, :ahead, :near}, then: [v: :slow, w: dodge]],
+      [if: {:is, :ahead, :free}, then: [v: :medium]],
+      [
+        if: {:and, [{:is, :ahead, :free}, {:is, :left, :near}, {:not, {:is, :right, :near}}]},
+        then: [w: :right]
+      ],
+      [
+        if: {:and, [{:is, :ahead, :free}, {:is, :right, :near}, {:not, {:is, :left, :near}}]},
+        then: [w: :left]
+      ],
+      [
+        if:
+          {:and,
+           [
+             {:is, :ahead, :free},
+             {:or,
+              [
+                {:and, [{:is, :left, :near}, {:is, :right, :near}]},
+                {:and, [{:not, {:is, :left, :near}}, {:not, {:is, :right, :near}}]}
+              ]}
+           ]},
+        then: [w: :straight]
+      ]
+    ]
+  end
+
+  @doc "The input variables, for the parameters and the LPS's range."
+  @spec variables(t(), number()) :: [Fuzzy.Variable.t()]
+  def variables(p, range) do
+    [
+      Fuzzy.variable(:ahead, {0.0, range},
+        blocked: {:left_shoulder, p.stop, 0.5 * (p.stop + p.slow)},
+        near: {:triangle, p.stop, 0.5 * (p.stop + p.slow), p.slow},
+        free: {:right_shoulder, 0.5 * (p.stop + p.slow), p.slow}
+      ),
+      Fuzzy.variable(:left, {0.0, range}, near: {:left_shoulder, 0.1, 0.45}),
+      Fuzzy.variable(:right, {0.0, range}, near: {:left_shoulder, 0.1, 0.45})
+    ]
+  end
+end
