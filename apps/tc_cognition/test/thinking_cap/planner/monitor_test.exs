@@ -1,0 +1,136 @@
+defmodule ThinkingCap.Planner.MonitorTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Perception.LPS
+  alias ThinkingCap.Planner.Monitor
+
+  @office Path.expand("../../../../../priv/examples/office.wdf", __DIR__)
+
+  # A hall along the south and one room north of it with two doors.
+  @two_doors """
+  [
+    name: "two doors",
+    walls: [
+      {{0, 0}, {12, 0}}, {{12, 0}, {12, 8}}, {{12, 8}, {0, 8}}, {{0, 8}, {0, 0}},
+      {{0, 3}, {2.5, 3}}, {{3.5, 3}, {8.5, 3}}, {{9.5, 3}, {12, 3}}
+    ],
+    rooms: [[name: :room, polygon: [{0, 3}, {12, 3}, {12, 8}, {0, 8}]]],
+    corridors: [[name: :hall, polygon: [{0, 0}, {12, 0}, {12, 3}, {0, 3}]]],
+    doors: [
+      [name: :west, from: {2.5, 3}, to: {3.5, 3}, connects: [:hall, :room]],
+      [name: :east, from: {8.5, 3}, to: {9.5, 3}, connects: [:hall, :room]]
+    ],
+    waypoints: [[name: :desk, at: {3.0, 6.0}], [name: :start, at: {3.0, 1.0}]]
+  ]
+  """
+
+  defp start(wdf, task) do
+    context = %{name: :planner, robot: :r, node: node(), activity: :periodic, rdf: nil, wdf: wdf}
+    {actions, state} = Monitor.init([task: task], context)
+    assert {:subscribe, {:pose, :r, :_}} in actions
+    state
+  end
+
+  defp cycle(state, t) do
+    {actions, state} = Monitor.handle_cycle(%{cycle: 0, scheduled_ns: round(t * 1.0e9)}, state)
+    [{{:plan, :r, plan}, _opts}] = for {:out, {{:plan, _, _}, _} = o} <- actions, do: o
+    {plan, actions, state}
+  end
+
+  defp pose(state, pose), do: elem(Monitor.handle_tuple({:pose, :r, %{pose: pose}}, state), 1)
+  defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
+
+  test "plans through the office's doors to the waypoint and publishes the plan" do
+    state = start(@office, {:go_to, :desk_a})
+    {plan, _, state} = cycle(state, 0.0)
+    assert plan.state == :waiting
+
+    state = pose(state, {1.0, 1.0, 0.0})
+    {plan, _, _state} = cycle(state, 0.5)
+    assert plan.state == :moving
+    assert plan.waypoint == :desk_a
+    assert plan.goal == {10.0, 7.5}
+    assert List.last(plan.path) == {10.0, 7.5}
+    # through the door of office_a: the path crosses y = 3 between its jambs
+    {{x1, _}, {x2, _}} =
+      plan.path
+      |> Enum.zip(tl(plan.path))
+      |> Enum.find(fn {{_, a}, {_, b}} -> a < 3 and b >= 3 end)
+
+    assert x1 > 9.0 and x1 < 10.0 and x2 > 9.0 and x2 < 10.0
+    assert %{name: :a_door} = plan.door
+  end
+
+  test "a waypoint reached gives the next; a visit ends done" do
+    state = start(@office, {:visit, [:dock, {1.5, 1.0}]})
+    state = pose(state, {1.0, 1.0, 0.0})
+    {plan, _, state} = cycle(state, 0.0)
+    assert plan.waypoint == :dock
+    # at the dock already: on to the next at the next cycle
+    {plan, _, state} = cycle(state, 0.5)
+    assert plan.waypoint == {1.5, 1.0}
+    state = pose(state, {1.45, 1.0, 0.0})
+    {plan, _, _state} = cycle(state, 1.0)
+    assert plan.state == :done
+    assert plan.reached == [:dock, {1.5, 1.0}]
+  end
+
+  defp tmp_wdf(dir, text) do
+    path = Path.join(dir, "two_doors.wdf")
+    File.write!(path, text)
+    path
+  end
+
+  @tag :tmp_dir
+  test "a door seen shut is marked closed and the route goes through the other", %{tmp_dir: dir} do
+    state = start(tmp_wdf(dir, @two_doors), {:go_to, :desk})
+    state = pose(state, {3.0, 1.5, :math.pi() / 2})
+    {plan, _, state} = cycle(state, 0.0)
+    assert %{name: :west} = plan.door
+
+    # the laser sees something across the west door's opening, 1.5 m ahead
+    shut = LPS.from_points(for y <- [-0.3, -0.15, 0.0, 0.15, 0.3], do: {1.5, y})
+    state = lps(state, shut)
+    {plan, actions, _state} = cycle(state, 0.5)
+    assert {:out, {{:door, :west, %{open: false}}, _}} = List.keyfind(actions, :out, 0)
+    assert :west in plan.closed_doors
+    assert plan.state == :moving
+    assert %{name: :east} = plan.door
+    # the new path enters the room through the east door
+    assert Enum.any?(plan.path, fn {x, y} -> x > 8.5 and x < 9.5 and abs(y - 3) < 0.3 end)
+  end
+
+  @tag :tmp_dir
+  test "with every way in shut the task is blocked, then tried again", %{tmp_dir: dir} do
+    text =
+      String.replace(
+        @two_doors,
+        "[name: :east, from: {8.5, 3}, to: {9.5, 3}, connects: [:hall, :room]]",
+        "[name: :east, from: {8.5, 3}, to: {9.5, 3}, open: false, connects: [:hall, :room]]"
+      )
+
+    state = start(tmp_wdf(dir, text), {:go_to, :desk})
+    state = pose(state, {3.0, 1.5, :math.pi() / 2})
+    {_plan, _, state} = cycle(state, 0.0)
+    state = lps(state, LPS.from_points([{1.5, 0.0}, {1.5, 0.1}, {1.5, -0.1}]))
+    {plan, _, state} = cycle(state, 0.5)
+    assert plan.state == :blocked
+    # the door opens again; after retry_after the planner tries again
+    state = lps(state, LPS.empty())
+    {plan, _, _state} = cycle(state, 11.0)
+    assert plan.state == :moving
+  end
+
+  test "a robot that makes no progress gets a new plan, then gives the waypoint up" do
+    state = start(@office, {:visit, [:desk_a, :dock]})
+    state = pose(state, {5.0, 1.0, 0.0})
+    {_plan, _, state} = cycle(state, 0.0)
+
+    {plan, _, _state} =
+      Enum.reduce(1..100, {nil, nil, state}, fn i, {_, _, state} -> cycle(state, i * 0.5) end)
+
+    # 50 s without moving: three replans (every 12 s), then desk_a given up
+    assert plan.waypoint == :dock
+    assert plan.reached == []
+  end
+end
