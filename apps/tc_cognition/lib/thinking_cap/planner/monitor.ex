@@ -21,9 +21,11 @@ defmodule ThinkingCap.Planner.Monitor do
   and the next one taken; a robot that makes no progress for
   `stuck_after` seconds gets a new plan, and after `max_replans` the
   waypoint is given up; a door on the route seen shut in the LPS
-  (`{:lps, robot, _}`: an obstacle across its opening) is marked closed,
+  (`{:lps, robot, _}`) is marked closed,
   and the route is replanned around it, or the task waits (state
-  `:blocked`) and tries again after `retry_after` seconds.
+  `:blocked`) and tries again after `retry_after` seconds. A door counts
+  as shut when the LPS holds obstacle evidence (at least three points)
+  across the middle of its opening while the robot is within 3 m.
 
   **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:, path:,
   door:, closed_doors:, replans:, reached:}}` (latest value): `state` is
@@ -276,8 +278,8 @@ defmodule ThinkingCap.Planner.Monitor do
 
   ## Doors
 
-  # the next door of the route, if the LPS shows an obstacle across its
-  # opening while the robot is close and facing it
+  # the next door of the route, if the LPS holds obstacle evidence across
+  # the middle of its opening while the robot is near it
   defp shut_door(%{lps: nil}), do: nil
   defp shut_door(%{plan: nil}), do: nil
 
@@ -287,19 +289,36 @@ defmodule ThinkingCap.Planner.Monitor do
         nil
 
       door ->
-        {x, y, th} = state.pose
+        {x, y, _} = state.pose
         {cx, cy} = door.centre
         d = :math.sqrt((cx - x) ** 2 + (cy - y) ** 2)
-        bearing = LPS.normalize(:math.atan2(cy - y, cx - x) - th)
-        half = :math.atan2(door.width / 2 * 0.6, d)
-
-        # something in the plane of the opening, across its middle
-        seen = LPS.min_distance(state.lps, bearing - half, bearing + half)
-
-        if d < 2.5 and d > 0.4 and abs(bearing) < 1.2 and seen < d + 0.15 and seen > d - 0.5,
-          do: door,
-          else: nil
+        if d < 3.0 and across(state, door) >= 3, do: door, else: nil
     end
+  end
+
+  # obstacle points within 0.1 m of the middle 60 % of the door's opening
+  defp across(state, door) do
+    {a, b} = door.jambs
+    {p, q} = {lerp(a, b, 0.2), lerp(a, b, 0.8)}
+    {ra, rb} = {to_robot(state.pose, p), to_robot(state.pose, q)}
+
+    Enum.count(state.lps.evidence, fn {px, py, o, e} ->
+      min(o, 1 - e) >= 0.5 and segment_distance({px, py}, ra, rb) < 0.1
+    end)
+  end
+
+  defp lerp({x1, y1}, {x2, y2}, t), do: {x1 + t * (x2 - x1), y1 + t * (y2 - y1)}
+
+  defp to_robot({x, y, th}, {px, py}) do
+    {c, s} = {:math.cos(th), :math.sin(th)}
+    {dx, dy} = {px - x, py - y}
+    {c * dx + s * dy, -s * dx + c * dy}
+  end
+
+  defp segment_distance({x, y}, {ax, ay}, {bx, by}) do
+    {ex, ey} = {bx - ax, by - ay}
+    u = max(0.0, min(1.0, ((x - ax) * ex + (y - ay) * ey) / (ex * ex + ey * ey)))
+    :math.sqrt((ax + u * ex - x) ** 2 + (ay + u * ey - y) ** 2)
   end
 
   defp next_door(%{plan: %{route: route}} = state) do
@@ -318,6 +337,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
     %{
       name: name,
+      jambs: {d.from, d.to},
       centre: {(x1 + x2) / 2, (y1 + y2) / 2},
       width: :math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2)
     }
@@ -363,7 +383,7 @@ defmodule ThinkingCap.Planner.Monitor do
       door ->
         {x, y, _} = state.pose
         {cx, cy} = door.centre
-        Map.put(door, :heading, :math.atan2(cy - y, cx - x))
+        door |> Map.delete(:jambs) |> Map.put(:heading, :math.atan2(cy - y, cx - x))
     end
   end
 

@@ -37,6 +37,12 @@ defmodule ThinkingCap.Planner.MonitorTest do
     {plan, actions, state}
   end
 
+  # obstacle evidence across a door `d` m straight ahead of the robot
+  defp shut_ahead(d) do
+    points = for y <- [-0.3, -0.15, 0.0, 0.15, 0.3], do: {d, y}
+    %{LPS.from_points(points) | evidence: for({x, y} <- points, do: {x, y, 0.9, 0.0})}
+  end
+
   defp pose(state, pose), do: elem(Monitor.handle_tuple({:pose, :r, %{pose: pose}}, state), 1)
   defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
 
@@ -89,8 +95,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert %{name: :west} = plan.door
 
     # the laser sees something across the west door's opening, 1.5 m ahead
-    shut = LPS.from_points(for y <- [-0.3, -0.15, 0.0, 0.15, 0.3], do: {1.5, y})
-    state = lps(state, shut)
+    state = lps(state, shut_ahead(1.5))
     {plan, actions, _state} = cycle(state, 0.5)
     assert {:out, {{:door, :west, %{open: false}}, _}} = List.keyfind(actions, :out, 0)
     assert :west in plan.closed_doors
@@ -112,7 +117,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
     state = start(tmp_wdf(dir, text), {:go_to, :desk})
     state = pose(state, {3.0, 1.5, :math.pi() / 2})
     {_plan, _, state} = cycle(state, 0.0)
-    state = lps(state, LPS.from_points([{1.5, 0.0}, {1.5, 0.1}, {1.5, -0.1}]))
+    state = lps(state, shut_ahead(1.5))
     {plan, _, state} = cycle(state, 0.5)
     assert plan.state == :blocked
     # the door opens again; after retry_after the planner tries again

@@ -1,0 +1,227 @@
+defmodule ThinkingCap.Control.Blender do
+  @moduledoc """
+  The control cycle as a `ThinkingCap.Module`: blends the fuzzy behaviours
+  (`ThinkingCap.Control.Blend`) on the latest Local Perceptual Space, pose
+  and plan, and writes the robot's drive command. Periodic: the ADF gives
+  the period (e.g. 0.1 s).
+
+      control: [
+        module: ThinkingCap.Control.Blender,
+        activity: :periodic, period: 0.1, deadline: 0.02,
+        params: [behaviours: [:avoid, :follow_wall, :cross_door, :go_to, :follow_path]]
+      ]
+
+  ## Blackboard
+
+  Reads (subscribed in `init/2`, the latest of each kept):
+
+    * `{:lps, robot, %ThinkingCap.Perception.LPS{}}`;
+    * `{:pose, robot, %{pose: {x, y, θ}}}` - the estimated world pose;
+    * `{:plan, robot, %{goal: {x, y} | nil, path: [{x, y}] | nil,
+      door: %{centre: {x, y}, heading: θ, width: m} | nil, state: atom}}`
+      - absent fields mean none; an optional `weights: %{behaviour => degree}`
+      weighs behaviours (`ThinkingCap.Control.Blend`).
+
+  Writes, every cycle:
+
+    * `{:drive, robot, %{command: {:velocity, v, w}}}` (key `{:drive, robot}`);
+    * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`).
+
+  It stops (`{:velocity, 0.0, 0.0}`, every activation 0) until it has an
+  LPS, a pose and a plan, and while the plan is `:idle` or `:done` or has
+  neither a goal nor a path.
+
+  ## Params
+
+    * `behaviours` - default `#{inspect([:avoid, :follow_wall, :cross_door, :go_to, :follow_path])}`;
+      each one of
+      * a name: `:avoid` (`ThinkingCap.Control.AvoidObstacles`),
+        `:follow_wall` (`ThinkingCap.Control.FollowWall`), `:cross_door`
+        (`ThinkingCap.Control.CrossDoor`), `:go_to`
+        (`ThinkingCap.Control.GoToPoint`), `:follow_path`
+        (`ThinkingCap.Control.FollowPath`);
+      * `{name, params}` - a name with the behaviour's params;
+      * `{module, params}` - any `ThinkingCap.Control.Behaviour`, named
+        after the module (`MyApp.Dock` → `:dock`);
+      * `{name, module, params}` or `{name, module, params, opts}` (opts
+        as in `ThinkingCap.Control.Blend`: `weight:`, `unless:`);
+    * `unless` - precedence, `%{name => [names]}`, replacing the default
+      for the names given. Default: `go_to` unless `avoid`, `cross_door`,
+      `follow_path` (with a path, follow it); `follow_path` and
+      `follow_wall` unless `avoid`, `cross_door`; names absent from
+      `behaviours` are dropped;
+    * `max_speed`, `max_turn_rate` (defaults 0.5 m/s, 1.5 rad/s), `radius`
+      (0.2 m) - used only without an RDF: with one (`context.rdf`), the
+      limits come from its kinematics and the radius from its footprint.
+  """
+  use ThinkingCap.Module
+
+  alias ThinkingCap.Control.{
+    AvoidObstacles,
+    Blend,
+    CrossDoor,
+    FollowPath,
+    FollowWall,
+    GoToPoint
+  }
+
+  alias ThinkingCap.Perception.LPS
+  alias ThinkingCap.Robot.{Description, Kinematics}
+
+  @named %{
+    avoid: AvoidObstacles,
+    follow_wall: FollowWall,
+    cross_door: CrossDoor,
+    go_to: GoToPoint,
+    follow_path: FollowPath
+  }
+
+  @default_behaviours [:avoid, :follow_wall, :cross_door, :go_to, :follow_path]
+
+  @default_unless %{
+    go_to: [:avoid, :cross_door, :follow_path],
+    follow_path: [:avoid, :cross_door],
+    follow_wall: [:avoid, :cross_door]
+  }
+
+  @stop {:velocity, 0.0, 0.0}
+
+  @impl true
+  def init(params, context) do
+    params = if is_map(params), do: Map.to_list(params), else: params || []
+    robot = context.robot
+    {limits, radius} = robot_limits(params, context)
+
+    unless_map = Map.merge(@default_unless, Map.new(Keyword.get(params, :unless, %{})))
+    specs = params |> Keyword.get(:behaviours, @default_behaviours) |> Enum.map(&spec/1)
+    names = Enum.map(specs, &elem(&1, 0))
+
+    specs =
+      Enum.map(specs, fn {name, module, bparams, opts} ->
+        default = for other <- Map.get(unless_map, name, []), other in names, do: other
+        {name, module, bparams, Keyword.put_new(opts, :unless, default)}
+      end)
+
+    state = %{
+      robot: robot,
+      blend: Blend.init(behaviours: specs),
+      limits: limits,
+      radius: radius,
+      lps: nil,
+      pose: nil,
+      plan: nil
+    }
+
+    subscribe = [
+      subscribe: {:lps, robot, :_},
+      subscribe: {:pose, robot, :_},
+      subscribe: {:plan, robot, :_}
+    ]
+
+    {subscribe, state}
+  end
+
+  defp robot_limits(_params, %{rdf: rdf} = context) when is_binary(rdf) do
+    case Description.load(rdf) do
+      {:ok, description} ->
+        limits = Kinematics.limits(description.kinematics)
+
+        {%{max_speed: limits.max_speed * 1.0, max_turn_rate: limits.max_turn_rate * 1.0},
+         description.footprint.radius * 1.0}
+
+      {:error, message} ->
+        raise ArgumentError, "#{inspect(context[:name])}: rdf: #{message}"
+    end
+  end
+
+  defp robot_limits(params, _context) do
+    {%{
+       max_speed: Keyword.get(params, :max_speed, 0.5) * 1.0,
+       max_turn_rate: Keyword.get(params, :max_turn_rate, 1.5) * 1.0
+     }, Keyword.get(params, :radius, 0.2) * 1.0}
+  end
+
+  defp spec(name) when is_map_key(@named, name), do: {name, @named[name], [], []}
+
+  defp spec({name, params}) when is_map_key(@named, name) and is_list(params),
+    do: {name, @named[name], params, []}
+
+  defp spec({module, params}) when is_atom(module) and is_list(params) do
+    unless Code.ensure_loaded?(module) and function_exported?(module, :evaluate, 2) do
+      raise ArgumentError,
+            "Blender: #{inspect(module)} is neither a behaviour name " <>
+              "(#{inspect(Map.keys(@named))}) nor a ThinkingCap.Control.Behaviour module"
+    end
+
+    name = module |> Module.split() |> List.last() |> Macro.underscore() |> String.to_atom()
+    {name, module, params, []}
+  end
+
+  defp spec({name, module, params}), do: {name, module, params, []}
+  defp spec({_name, _module, _params, _opts} = spec), do: spec
+
+  defp spec(other),
+    do: raise(ArgumentError, "Blender: not a behaviour: #{inspect(other)}")
+
+  @impl true
+  def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
+    do: {[], %{state | lps: lps}}
+
+  def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose}}, %{robot: robot} = state),
+    do: {[], %{state | pose: pose}}
+
+  def handle_tuple({:plan, robot, plan}, %{robot: robot} = state) when is_map(plan),
+    do: {[], %{state | plan: plan}}
+
+  def handle_tuple(_tuple, state), do: {[], state}
+
+  @impl true
+  def handle_cycle(_release, state) do
+    {command, activations} =
+      case inputs(state) do
+        nil ->
+          {@stop, Map.new(Blend.names(state.blend), &{&1, 0.0})}
+
+        inputs ->
+          %{command: {v, w}, activations: activations} = Blend.run(state.blend, inputs)
+          {{:velocity, v, w}, activations}
+      end
+
+    robot = state.robot
+
+    actions = [
+      out: {{:drive, robot, %{command: command}}, [key: {:drive, robot}]},
+      out: {{:activation, robot, activations}, [key: {:activation, robot}]}
+    ]
+
+    {actions, state}
+  end
+
+  @doc """
+  The behaviours' inputs from the latest LPS, pose and plan, or `nil` when
+  the robot should stop (see the moduledoc).
+  """
+  @spec inputs(map()) :: ThinkingCap.Control.Behaviour.inputs() | nil
+  def inputs(%{lps: %LPS{} = lps, pose: {_, _, _} = pose, plan: %{} = plan} = state) do
+    goal = Map.get(plan, :goal)
+    path = Map.get(plan, :path)
+    path = if path == [], do: nil, else: path
+
+    if Map.get(plan, :state) in [:idle, :done] or (goal == nil and path == nil) do
+      nil
+    else
+      %{
+        lps: lps,
+        pose: pose,
+        goal: goal,
+        path: path,
+        door: Map.get(plan, :door),
+        limits: state.limits,
+        radius: state.radius,
+        weights: Map.get(plan, :weights) || %{}
+      }
+    end
+  end
+
+  def inputs(_state), do: nil
+end

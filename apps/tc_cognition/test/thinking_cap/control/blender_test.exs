@@ -1,0 +1,224 @@
+defmodule ThinkingCap.Control.BlenderTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Control.{Blender, GoToPoint}
+  alias ThinkingCap.Perception.LPS
+  alias ThinkingCap.Testing.Lockstep
+
+  @rdf """
+  [
+    name: "blender-test",
+    footprint: [radius: 0.25],
+    kinematics: [type: :differential, wheel_radius: 0.03, wheel_separation: 0.2,
+                 max_speed: 0.6, max_turn_rate: 1.8, max_acceleration: 1.0]
+  ]
+  """
+
+  @release %{id: 0, cycle: 1, scheduled_ns: 0, released_ns: 0}
+  @all [:avoid, :follow_wall, :cross_door, :go_to, :follow_path]
+
+  defp context(rdf \\ nil),
+    do: %{name: :control, robot: :r1, node: node(), activity: :periodic, rdf: rdf, wdf: nil}
+
+  defp start(params \\ [], rdf \\ nil) do
+    {actions, state} = Blender.init(params, context(rdf))
+    assert is_list(actions)
+    state
+  end
+
+  defp feed(state, tuples) do
+    Enum.reduce(tuples, state, fn tuple, state ->
+      assert {[], state} = Blender.handle_tuple(tuple, state)
+      state
+    end)
+  end
+
+  # the drive command and the activations written by one cycle
+  defp cycle(state) do
+    {actions, ^state} = Blender.handle_cycle(@release, state)
+
+    assert [
+             out: {{:drive, :r1, %{command: command}}, [key: {:drive, :r1}]},
+             out: {{:activation, :r1, activations}, [key: {:activation, :r1}]}
+           ] = actions
+
+    {command, activations}
+  end
+
+  defp wall_ahead, do: LPS.from_points(for i <- 0..12, do: {0.7, -0.3 + i * 0.05})
+
+  @pose {:pose, :r1, %{pose: {0.0, 0.0, 0.0}, covariance: nil}}
+
+  describe "init" do
+    @tag :tmp_dir
+    test "subscribes to the robot's LPS, pose and plan; limits and radius from the RDF",
+         %{tmp_dir: dir} do
+      rdf = Path.join(dir, "robot.rdf")
+      File.write!(rdf, @rdf)
+      {actions, state} = Blender.init([], context(rdf))
+
+      assert actions == [
+               subscribe: {:lps, :r1, :_},
+               subscribe: {:pose, :r1, :_},
+               subscribe: {:plan, :r1, :_}
+             ]
+
+      assert state.limits == %{max_speed: 0.6, max_turn_rate: 1.8}
+      assert state.radius == 0.25
+
+      # the RDF's limits bound the command: a far goal ahead, nothing around
+      state = feed(state, [{:lps, :r1, LPS.empty()}, @pose, {:plan, :r1, %{goal: {5.0, 0.0}}}])
+      {{:velocity, v, w}, _} = cycle(state)
+      assert v > 0.8 * 0.6 and v <= 0.6
+      assert w == 0.0
+    end
+
+    test "without an RDF, limits and radius from params; a bad RDF is refused" do
+      state = start(max_speed: 0.3, max_turn_rate: 1.0, radius: 0.1)
+      assert state.limits == %{max_speed: 0.3, max_turn_rate: 1.0}
+      assert state.radius == 0.1
+
+      assert_raise ArgumentError, ~r/:control: rdf:/, fn ->
+        Blender.init([], context("/nonexistent/robot.rdf"))
+      end
+    end
+
+    test "behaviours by name, name with params, module, or name, module, params, opts" do
+      state =
+        start(
+          behaviours: [
+            :avoid,
+            {:go_to, [tolerance: 0.3]},
+            {GoToPoint, []},
+            {:slow_go_to, GoToPoint, [], weight: 0.5}
+          ]
+        )
+
+      assert ThinkingCap.Control.Blend.names(state.blend) == [
+               :avoid,
+               :go_to,
+               :go_to_point,
+               :slow_go_to
+             ]
+
+      state = feed(state, [{:lps, :r1, LPS.empty()}, @pose, {:plan, :r1, %{goal: {0.25, 0.0}}}])
+      # go_to's tolerance 0.3: reached; go_to_point's 0.1: not; slow_go_to weighted
+      assert {_, %{go_to: +0.0, go_to_point: 1.0, slow_go_to: 0.5}} = cycle(state)
+
+      assert_raise ArgumentError, ~r/neither a behaviour name/, fn ->
+        start(behaviours: [{String, []}])
+      end
+
+      assert_raise ArgumentError, ~r/not a behaviour/, fn -> start(behaviours: ["avoid"]) end
+    end
+  end
+
+  describe "cycle" do
+    test "stops until it has an LPS, a pose and a plan" do
+      state = start()
+      assert {{:velocity, +0.0, +0.0}, activations} = cycle(state)
+      assert activations == Map.new(@all, &{&1, 0.0})
+
+      plan = {:plan, :r1, %{goal: {3.0, 0.0}, path: nil, door: nil, state: :going}}
+      assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [@pose, plan]))
+      assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [{:lps, :r1, LPS.empty()}, plan]))
+      assert {{:velocity, v, _}, _} = cycle(feed(state, [{:lps, :r1, LPS.empty()}, @pose, plan]))
+      assert v > 0.2
+    end
+
+    test "stops while the plan is idle or done, or has neither goal nor path" do
+      state = feed(start(), [{:lps, :r1, LPS.empty()}, @pose])
+
+      for plan <- [
+            %{goal: {3.0, 0.0}, state: :idle},
+            %{goal: {3.0, 0.0}, path: [{0.0, 0.0}, {3.0, 0.0}], state: :done},
+            %{goal: nil, path: nil, door: nil, state: :going},
+            %{path: [], state: :going},
+            %{state: :going}
+          ] do
+        assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [{:plan, :r1, plan}]))
+      end
+    end
+
+    test "ignores other robots' tuples and malformed payloads" do
+      state = start()
+
+      assert feed(state, [
+               {:lps, :r2, LPS.empty()},
+               {:pose, :r2, %{pose: {1.0, 1.0, 1.0}}},
+               {:plan, :r2, %{goal: {1.0, 1.0}}},
+               {:pose, :r1, %{position: {1.0, 1.0}}},
+               {:scan, :r1, %{}}
+             ]) == state
+    end
+
+    test "an obstacle between the robot and its goal: turns and slows, activations published" do
+      state =
+        feed(start(max_speed: 0.5, max_turn_rate: 2.0), [
+          {:lps, :r1, wall_ahead()},
+          @pose,
+          {:plan, :r1, %{goal: {3.0, 0.0}, path: nil, door: nil, state: :going}}
+        ])
+
+      {{:velocity, v, w}, activations} = cycle(state)
+      assert Map.keys(activations) |> Enum.sort() == Enum.sort(@all)
+      assert activations.avoid > 0.8
+      assert activations.go_to < 0.2
+      assert activations.follow_path == 0.0
+      assert w > 0.3 * 2.0
+      assert v < 0.2 * 0.5
+
+      # without the default precedence, go-to stays fully active
+      state = %{start(unless: %{go_to: []}) | lps: state.lps, pose: state.pose, plan: state.plan}
+      assert {_, %{go_to: 1.0}} = cycle(state)
+    end
+
+    test "with a path, follows it (go-to gives way); the plan may weigh behaviours" do
+      plan = %{goal: {2.0, 2.0}, path: [{0.0, 0.0}, {2.0, 0.0}, {2.0, 2.0}], state: :going}
+      state = feed(start(), [{:lps, :r1, LPS.empty()}, @pose, {:plan, :r1, plan}])
+
+      {{:velocity, v, w}, activations} = cycle(state)
+      assert activations.follow_path == 1.0
+      assert activations.go_to == 0.0
+      # along the path's first leg, not towards the goal (up and to the left)
+      assert abs(w) < 1.0e-9
+      assert v > 0.3
+
+      plan = Map.put(plan, :weights, %{follow_path: 0.0})
+      {{:velocity, _, w}, activations} = cycle(feed(state, [{:plan, :r1, plan}]))
+      assert activations.follow_path == 0.0
+      assert activations.go_to == 1.0
+      assert w > 0.3
+    end
+
+    test "follows the latest pose" do
+      plan = {:plan, :r1, %{goal: {0.0, 3.0}, state: :going}}
+      state = feed(start(), [{:lps, :r1, LPS.empty()}, @pose, plan])
+      {{:velocity, _, w_left}, _} = cycle(state)
+
+      {{:velocity, _, w_ahead}, _} =
+        cycle(feed(state, [{:pose, :r1, %{pose: {0.0, 0.0, :math.pi() / 2}}}]))
+
+      assert w_left > 0.5
+      assert abs(w_ahead) < 1.0e-9
+    end
+  end
+
+  test "runs as a periodic module: subscriptions honoured, drive written each period" do
+    lock =
+      Lockstep.new(robot: :r1, modules: [control: {Blender, [], period: 0.1}])
+      |> Lockstep.deliver({:lps, :r1, LPS.empty()})
+      |> Lockstep.deliver(@pose)
+      |> Lockstep.deliver({:plan, :r1, %{goal: {2.0, 0.0}, state: :going}})
+      |> Lockstep.advance(0.1)
+
+    assert {:drive, :r1, %{command: {:velocity, v, w}}} = Lockstep.latest(lock, {:drive, :r1, :_})
+    assert v > 0.2 and w == 0.0
+    assert {:activation, :r1, %{go_to: 1.0}} = Lockstep.latest(lock, {:activation, :r1, :_})
+
+    lock = lock |> Lockstep.deliver({:plan, :r1, %{state: :done}}) |> Lockstep.advance(0.2)
+
+    assert {:drive, :r1, %{command: {:velocity, +0.0, +0.0}}} =
+             Lockstep.latest(lock, {:drive, :r1, :_})
+  end
+end
