@@ -6,8 +6,9 @@ defmodule Mix.Tasks.Tc.RunTest do
 
   @moduletag timeout: 120_000
 
-  test "the main job puts a simulated robot in the office world and it wanders safely" do
+  test "the main job puts a simulated robot in the office world and it sets off on its patrol" do
     root = Path.expand("../../../..", __DIR__)
+    assert File.exists?(Path.join(root, "priv/examples/office_sim.adf"))
 
     {output, status} =
       System.cmd("mix", ["tc.run", "--seconds", "4"],
@@ -29,9 +30,13 @@ defmodule Mix.Tasks.Tc.RunTest do
           do: {String.to_float(x), String.to_float(y)}
 
     assert length(poses) == 4, output
-    # it starts at the dock (1, 1) and drives away from it
+    # it starts at the dock (1, 1) and drives away from it, localized,
+    # towards the first waypoint of its patrol
     {x, y} = List.last(poses)
     assert abs(x - 1.0) + abs(y - 1.0) > 0.2, output
+    assert output =~ ~r/estimate \(/
+    assert output =~ "plan moving :lab_bench"
+    assert output =~ ~r/behaviours \w+=/
     # the cycle keeps commanding it
     assert output =~ ~r/cycle \d+ cycles/
   end
