@@ -47,7 +47,7 @@ defmodule ThinkingCap.Planner.Monitor do
     stuck_after: 12.0,
     max_replans: 3,
     retry_after: 10.0,
-    resolution: 0.05,
+    resolution: nil,
     margin: 0.08
   ]
 
@@ -264,11 +264,11 @@ defmodule ThinkingCap.Planner.Monitor do
   end
 
   defp rebuild_grid(state) do
-    grid =
-      Maps.grid_from_wdf(state.wdf,
-        resolution: state.params[:resolution],
-        closed: MapSet.to_list(state.closed)
-      )
+    # an imported occupancy map sets the resolution; 5 cm otherwise
+    resolution = state.params[:resolution] || if(state.wdf.grid, do: nil, else: 0.05)
+    opts = [closed: MapSet.to_list(state.closed)]
+    opts = if resolution, do: [{:resolution, resolution} | opts], else: opts
+    grid = Maps.grid_from_wdf(state.wdf, opts)
 
     %{state | grid: Maps.inflate(grid, state.radius + state.params[:margin])}
   end

@@ -1,0 +1,191 @@
+defmodule ThinkingCap.Bench.Nav do
+  @moduledoc """
+  `mix tc.bench nav [--runs N] [--worlds turtlebot3_world,warehouse]`:
+  autonomous navigation end to end. The simulated differential robot of
+  `priv/examples/office_robot.rdf` (sonar ring, laser, beacon sensor,
+  odometry error on) runs the whole cognitive stack (perception, EKF
+  localization with beacons, blended fuzzy behaviours, planner/monitor) in
+  lockstep with the simulator (`ThinkingCap.Sim.LockstepController`), as
+  fast as possible, in nav2's `turtlebot3_world` and `warehouse` maps with
+  beacons placed in free space, from N (default 50) random reachable start
+  and goal pairs each.
+
+  A run succeeds when the planner reports the goal reached within a time
+  limit (three times the optimal path at 0.2 m/s, plus 30 s). Collisions:
+  runs in which the robot touched anything (a blocked step in the
+  simulator). Path ratio: driven length over the A* path length on the
+  grid inflated by the robot's radius.
+  """
+
+  alias ThinkingCap.Sim
+  alias ThinkingCap.Sim.LockstepController
+  alias ThinkingCap.Navigation.{AStar, Grid, Maps}
+  alias ThinkingCap.Testing.Lockstep
+
+  @root Path.expand("..", __DIR__)
+  @shared Path.expand("../../shared/testdata/ros_maps", __DIR__)
+
+  def run(args) do
+    {opts, _, _} = OptionParser.parse(args, strict: [runs: :integer, worlds: :string])
+    runs = opts[:runs] || 50
+    worlds = String.split(opts[:worlds] || "turtlebot3_world,warehouse", ",")
+    rdf = Path.join(@root, "priv/examples/office_robot.rdf")
+    tmp = Path.join(System.tmp_dir!(), "tc_nav_bench_#{System.unique_integer([:positive])}")
+    File.mkdir_p!(tmp)
+
+    results =
+      Enum.flat_map(worlds, fn world ->
+        wdf = write_world(tmp, world)
+        r = world_runs(world, wdf, rdf, runs)
+        summary(world, r)
+        r
+      end)
+
+    summary("nav", results)
+    File.rm_rf!(tmp)
+  end
+
+  defp summary(label, results) do
+    n = length(results)
+    ok = Enum.filter(results, & &1.success)
+    collisions = Enum.count(results, &(&1.blocked > 0))
+    ratio = mean(Enum.map(ok, &(&1.driven / max(&1.optimal, 1.0e-6))))
+    time = mean(Enum.map(ok, & &1.time))
+
+    IO.puts(
+      "#{label}: runs=#{n} success=#{length(ok)} collisions=#{collisions} " <>
+        "path_ratio=#{fmt(ratio)} mean_time_s=#{fmt(time)}"
+    )
+  end
+
+  defp mean([]), do: 0.0
+  defp mean(xs), do: Enum.sum(xs) / length(xs)
+
+  # the map, plus beacons spread over its free space
+  defp write_world(dir, world) do
+    yaml = Path.join(@shared, "#{world}.yaml")
+    {:ok, map} = ThinkingCap.Config.RosMap.load(yaml)
+    rng = :rand.seed_s(:exsss, {7, 7, 7})
+    beacons = beacons(map, 16, rng)
+
+    data = [
+      name: world,
+      map: [yaml: yaml],
+      beacons: for({{x, y}, i} <- Enum.with_index(beacons), do: [name: :"b#{i}", at: {x, y}])
+    ]
+
+    path = Path.join(dir, "#{world}.wdf")
+    File.write!(path, inspect(data, limit: :infinity))
+    path
+  end
+
+  defp beacons(map, n, rng) do
+    {ox, oy, _} = map.origin
+
+    Stream.unfold(rng, fn rng ->
+      {u, rng} = :rand.uniform_s(rng)
+      {v, rng} = :rand.uniform_s(rng)
+      {{floor(u * map.width), floor(v * map.height)}, rng}
+    end)
+    |> Stream.filter(fn {c, r} -> ThinkingCap.Config.RosMap.cell(map, c, r) == 0 end)
+    |> Stream.map(fn {c, r} ->
+      {ox + (c + 0.5) * map.resolution, oy + (r + 0.5) * map.resolution}
+    end)
+    |> Enum.take(n)
+  end
+
+  defp world_runs(world, wdf_path, rdf, runs) do
+    wdf = ThinkingCap.Config.read!(wdf_path)
+    {:ok, d} = ThinkingCap.Robot.Description.load(rdf)
+    grid = wdf |> Maps.grid_from_wdf([]) |> Maps.inflate(d.footprint.radius + 0.08)
+    {:ok, simworld} = Sim.World.from_wdf(wdf)
+    rng = :rand.seed_s(:exsss, {42, 1, 1})
+
+    {pairs, _} = pairs(grid, runs, rng, [])
+
+    pairs
+    |> Enum.with_index(1)
+    |> Enum.map(fn {{start, goal, optimal}, i} ->
+      r = one_run(simworld, wdf_path, rdf, start, goal, optimal, i)
+
+      IO.puts(
+        "  #{world} #{i}: #{if r.success, do: "ok  ", else: "FAIL"} #{fmt(r.time)} s, " <>
+          "driven #{fmt(r.driven)} m / optimal #{fmt(optimal)} m, blocked #{r.blocked}"
+      )
+
+      r
+    end)
+  end
+
+  # random start/goal pairs with a path at least 2 m long
+  defp pairs(_grid, 0, rng, acc), do: {Enum.reverse(acc), rng}
+
+  defp pairs(grid, n, rng, acc) do
+    {a, rng} = free_cell(grid, rng)
+    {b, rng} = free_cell(grid, rng)
+
+    case AStar.plan(grid, a, b) do
+      {:ok, %{cost: cost}} when cost * grid.resolution >= 2.0 ->
+        {th, rng} = :rand.uniform_s(rng)
+        start = Grid.centre(grid, a) |> Tuple.append((th - 0.5) * 2 * :math.pi())
+        pairs(grid, n - 1, rng, [{start, Grid.centre(grid, b), cost * grid.resolution} | acc])
+
+      _ ->
+        pairs(grid, n, rng, acc)
+    end
+  end
+
+  defp free_cell(grid, rng) do
+    {u, rng} = :rand.uniform_s(rng)
+    {v, rng} = :rand.uniform_s(rng)
+    cell = {floor(u * grid.width), floor(v * grid.height)}
+    if Grid.passable?(grid, cell), do: {cell, rng}, else: free_cell(grid, rng)
+  end
+
+  defp one_run(world, wdf, rdf, start, goal, optimal, seed) do
+    {:ok, sim} = Sim.start_link(world: world, mode: :fast, running: false, step: 0.05, seed: seed)
+    {sx, sy, sth} = start
+
+    modules = [
+      perception: {ThinkingCap.Perception.Fuser, []},
+      localization:
+        {ThinkingCap.Navigation.Localizer, [initial: start, initial_sigma: {0.1, 0.05}]},
+      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      planner: {ThinkingCap.Planner.Monitor, [task: {:go_to, goal}], period: 0.5}
+    ]
+
+    :ok =
+      Sim.add_robot(sim, :nav,
+        rdf: rdf,
+        at: {sx, sy, sth},
+        controller: {LockstepController, modules: modules, rdf: rdf, wdf: wdf}
+      )
+
+    limit = optimal / 0.2 * 3 + 30
+    {time, driven} = drive(sim, limit, {sx, sy}, 0.0)
+    status = Sim.status(sim)
+    {:ok, cstate} = Sim.controller_state(sim, :nav)
+    plan = Lockstep.latest(cstate.lock, {:plan, :nav, :_})
+    GenServer.stop(sim)
+    done = match?({:plan, _, %{state: :done}}, plan)
+    %{success: done, time: time, driven: driven, optimal: optimal, blocked: status.blocked}
+  end
+
+  # runs half a second at a time until the plan is done or time is up
+  defp drive(sim, limit, last, driven) do
+    :ok = Sim.run_for(sim, 0.5)
+    {:ok, {x, y, _}} = Sim.pose(sim, :nav)
+    {lx, ly} = last
+    driven = driven + :math.sqrt((x - lx) ** 2 + (y - ly) ** 2)
+    time = Sim.time(sim)
+    {:ok, cstate} = Sim.controller_state(sim, :nav)
+
+    case Lockstep.latest(cstate.lock, {:plan, :nav, :_}) do
+      {:plan, _, %{state: :done}} -> {time, driven}
+      _ when time >= limit -> {time, driven}
+      _ -> drive(sim, limit, {x, y}, driven)
+    end
+  end
+
+  defp fmt(x), do: :erlang.float_to_binary(x * 1.0, decimals: 2)
+end
