@@ -56,25 +56,12 @@ defmodule ThinkingCap.Control.Blender do
   """
   use ThinkingCap.Module
 
-  alias ThinkingCap.Control.{
-    AvoidObstacles,
-    Blend,
-    CrossDoor,
-    FollowPath,
-    FollowWall,
-    GoToPoint
-  }
+  alias ThinkingCap.Control.Blend
 
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
 
-  @named %{
-    avoid: AvoidObstacles,
-    follow_wall: FollowWall,
-    cross_door: CrossDoor,
-    go_to: GoToPoint,
-    follow_path: FollowPath
-  }
+  @named ThinkingCap.Control.behaviours()
 
   @default_behaviours [:avoid, :follow_wall, :cross_door, :go_to, :follow_path]
 

@@ -126,8 +126,9 @@ defmodule ThinkingCap.Control.Geometry do
   parallel), or `nil` when nothing is seen on that side.
 
   Uses the LPS's segments when one lies on that side (its line's distance
-  and direction), otherwise the nearest obstacle point between 10° and 170°
-  on that side (a parallel wall's nearest point is abeam, at ±90°; a wall
+  and direction), otherwise the nearest obstacle point between 35° and 145°
+  on that side (nearer the front or back it is a wall ahead or behind, not
+  beside) (a parallel wall's nearest point is abeam, at ±90°; a wall
   approached at angle φ has it at ±(90° − φ)).
   """
   @spec wall(LPS.t(), :left | :right) :: {float(), float()} | nil
@@ -163,7 +164,7 @@ defmodule ThinkingCap.Control.Geometry do
   end
 
   defp wall_from_bins(lps, side) do
-    {from, to} = if side == :left, do: {0.17, 2.97}, else: {-2.97, -0.17}
+    {from, to} = if side == :left, do: {0.61, 2.53}, else: {-2.53, -0.61}
 
     lps
     |> obstacles()
