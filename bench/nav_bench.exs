@@ -26,8 +26,11 @@ defmodule ThinkingCap.Bench.Nav do
   @shared Path.expand("../../shared/testdata/ros_maps", __DIR__)
 
   def run(args) do
-    {opts, _, _} = OptionParser.parse(args, strict: [runs: :integer, worlds: :string])
+    {opts, _, _} =
+      OptionParser.parse(args, strict: [runs: :integer, worlds: :string, trace: :boolean])
+
     runs = opts[:runs] || 50
+    Process.put(:trace, opts[:trace] || false)
     worlds = String.split(opts[:worlds] || "turtlebot3_world,warehouse", ",")
     rdf = Path.join(@root, "priv/examples/office_robot.rdf")
     tmp = Path.join(System.tmp_dir!(), "tc_nav_bench_#{System.unique_integer([:positive])}")
@@ -180,11 +183,31 @@ defmodule ThinkingCap.Bench.Nav do
     time = Sim.time(sim)
     {:ok, cstate} = Sim.controller_state(sim, :nav)
 
-    case Lockstep.latest(cstate.lock, {:plan, :nav, :_}) do
+    plan = Lockstep.latest(cstate.lock, {:plan, :nav, :_})
+    if Process.get(:trace), do: trace(time, {x, y}, plan, cstate.lock)
+
+    case plan do
       {:plan, _, %{state: :done}} -> {time, driven}
       _ when time >= limit -> {time, driven}
       _ -> drive(sim, limit, {x, y}, driven)
     end
+  end
+
+  defp trace(time, {x, y}, plan, lock) do
+    activation =
+      case Lockstep.latest(lock, {:activation, :nav, :_}) do
+        {:activation, _, a} -> for {b, v} <- a, v >= 0.05, do: "#{b}=#{fmt(v)}"
+        nil -> []
+      end
+
+    {:drive, _, %{command: command}} =
+      Lockstep.latest(lock, {:drive, :nav, :_}) || {:drive, nil, %{command: nil}}
+
+    state = if plan, do: elem(plan, 2).state, else: nil
+
+    IO.puts(
+      "    t=#{fmt(time)} (#{fmt(x)}, #{fmt(y)}) #{state} #{inspect(command)} #{Enum.join(activation, " ")}"
+    )
   end
 
   defp fmt(x), do: :erlang.float_to_binary(x * 1.0, decimals: 2)
