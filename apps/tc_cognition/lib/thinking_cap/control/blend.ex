@@ -29,9 +29,13 @@ defmodule ThinkingCap.Control.Blend do
   Each behaviour's set is clipped at its activation (minimum) and the
   clipped sets are joined by maximum, the same operators as the rules
   inside a behaviour (`ThinkingCap.Control.Fuzzy`): a blend is one more
-  level of Mamdani rules. Clipping rather than scaling keeps a fully
-  active behaviour's set unchanged and never lets a weakly active
-  behaviour's preference outweigh a strongly active one's peak.
+  level of Mamdani rules, "IF context THEN the behaviour's set". Clipping
+  rather than scaling because clipping is idempotent: a blend nested in a
+  blend is clipped again at its own context (its largest activation),
+  which changes nothing, so a composite gives the same command as the flat
+  blend of its parts; scaling would multiply the activations at every
+  level. And a behaviour's set keeps its shape: its preferred command (the
+  peak) stays where it was, only its weight in the centroid changes.
 
   Each output variable is then defuzzified by its centroid. An empty set
   (no active behaviour has an opinion on that variable) gives `0.0`: with
