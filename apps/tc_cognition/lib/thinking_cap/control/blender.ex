@@ -28,8 +28,8 @@ defmodule ThinkingCap.Control.Blender do
     * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`).
 
   It stops (`{:velocity, 0.0, 0.0}`, every activation 0) until it has an
-  LPS, a pose and a plan, and while the plan is `:idle` or `:done` or has
-  neither a goal nor a path.
+  LPS, a pose and a plan, and while the plan's state is one of
+  `stop_states` or the plan has neither a goal nor a path.
 
   ## Params
 
@@ -50,6 +50,9 @@ defmodule ThinkingCap.Control.Blender do
       `follow_path` (with a path, follow it); `follow_path` and
       `follow_wall` unless `avoid`, `cross_door`; names absent from
       `behaviours` are dropped;
+    * `stop_states` - plan states in which the robot stands still, default
+      `[:idle, :done, :blocked, :waiting]` (`ThinkingCap.Planner.Monitor`:
+      no task, task done, waiting to retry a blocked route, no pose yet);
     * `max_speed`, `max_turn_rate` (defaults 0.5 m/s, 1.5 rad/s), `radius`
       (0.2 m) - used only without an RDF: with one (`context.rdf`), the
       limits come from its kinematics and the radius from its footprint.
@@ -72,6 +75,7 @@ defmodule ThinkingCap.Control.Blender do
   }
 
   @stop {:velocity, 0.0, 0.0}
+  @stop_states [:idle, :done, :blocked, :waiting]
 
   @impl true
   def init(params, context) do
@@ -94,6 +98,7 @@ defmodule ThinkingCap.Control.Blender do
       blend: Blend.init(behaviours: specs),
       limits: limits,
       radius: radius,
+      stop_states: Keyword.get(params, :stop_states, @stop_states),
       lps: nil,
       pose: nil,
       plan: nil
@@ -194,7 +199,7 @@ defmodule ThinkingCap.Control.Blender do
     path = Map.get(plan, :path)
     path = if path == [], do: nil, else: path
 
-    if Map.get(plan, :state) in [:idle, :done] or (goal == nil and path == nil) do
+    if Map.get(plan, :state) in state.stop_states or (goal == nil and path == nil) do
       nil
     else
       %{

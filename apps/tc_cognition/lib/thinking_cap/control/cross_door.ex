@@ -26,6 +26,9 @@ defmodule ThinkingCap.Control.CrossDoor do
   and "ahead" (the centre within ±1.2 rad of the heading, gone at ±1.8,
   or the robot within 0.5 m of the centre and facing the heading).
 
+  A door given without a `heading` is crossed in the direction from the
+  robot to its centre.
+
   Params: `lookahead: 0.5`, `approach: 2.5`, `beyond: 0.3`, `match: 0.4`
   (m).
   """
@@ -70,14 +73,17 @@ defmodule ThinkingCap.Control.CrossDoor do
   @spec door(Behaviour.inputs(), t()) :: map() | nil
   def door(%{door: nil}, _p), do: nil
 
-  def door(%{door: %{centre: centre, heading: heading, width: width}} = inputs, p) do
+  def door(%{door: %{centre: centre, width: width} = given} = inputs, p) do
     {_, _, theta} = inputs.pose
+    {cx, cy} = local = Geometry.to_robot(inputs.pose, centre)
 
-    planned = %{
-      centre: Geometry.to_robot(inputs.pose, centre),
-      heading: LPS.normalize(heading - theta),
-      width: width
-    }
+    heading =
+      case given do
+        %{heading: heading} when is_number(heading) -> LPS.normalize(heading - theta)
+        _ -> :math.atan2(cy, cx)
+      end
+
+    planned = %{centre: local, heading: heading, width: width}
 
     %{centre: {cx, cy}, heading: phi} = door = perceived(inputs.lps, planned, p) || planned
     {ux, uy} = {:math.cos(phi), :math.sin(phi)}

@@ -237,6 +237,13 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert {1.0, _, _} = run(CrossDoor, [], inputs([], door: @door, pose: {2.1, 0.05, 0.1}))
     end
 
+    test "a door without a heading is crossed from where the robot is" do
+      {c, _, w} = run(CrossDoor, [], inputs([], door: %{centre: {1.5, 0.5}, width: 0.9}))
+      assert c > 0.9
+      assert_in_delta w, run(GoToPoint, [], inputs([], goal: {1.5, 0.5})) |> elem(2), 1.0e-9
+      assert w > 0.2 * @wmax
+    end
+
     test "prefers the door the LPS sees near the planned one" do
       lps = %{LPS.empty() | doors: [%{centre: {1.5, 0.35}, width: 0.9, heading: @pi}]}
       {_, _, w} = run(CrossDoor, [], inputs([], lps: lps, door: %{@door | centre: {1.5, 0.0}}))

@@ -126,18 +126,28 @@ defmodule ThinkingCap.Control.BlenderTest do
       assert v > 0.2
     end
 
-    test "stops while the plan is idle or done, or has neither goal nor path" do
+    test "stops while the plan is idle, done, blocked or waiting, or has neither goal nor path" do
       state = feed(start(), [{:lps, :r1, LPS.empty()}, @pose])
 
       for plan <- [
             %{goal: {3.0, 0.0}, state: :idle},
             %{goal: {3.0, 0.0}, path: [{0.0, 0.0}, {3.0, 0.0}], state: :done},
+            %{goal: {3.0, 0.0}, path: nil, state: :blocked},
+            %{goal: {3.0, 0.0}, state: :waiting},
             %{goal: nil, path: nil, door: nil, state: :going},
             %{path: [], state: :going},
             %{state: :going}
           ] do
         assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [{:plan, :r1, plan}]))
       end
+
+      # stop states are a param
+      state = %{start(stop_states: [:idle]) | lps: state.lps, pose: state.pose}
+
+      assert {{:velocity, v, _}, _} =
+               cycle(feed(state, [{:plan, :r1, %{goal: {3.0, 0.0}, state: :blocked}}]))
+
+      assert v > 0.2
     end
 
     test "ignores other robots' tuples and malformed payloads" do
