@@ -31,14 +31,16 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   `stop` and 0 from `near`, and `in_path` 1 up to `radius + margin` and 0
   from `radius + margin + 0.2`.
 
-  Params: `stop: 0.2`, `slow: 0.6`, `near: 0.8` (m of clearance),
+  Params: `stop: 0.15`, `slow: 0.45`, `near: 0.5` (m of clearance; tuned on
+  `mix tc.bench nav`: wider margins keep a robot out of the gaps its
+  planned path goes through),
   `margin: 0.05` (m), `tie: 0.05` (m).
   """
   use ThinkingCap.Control.Behaviour
 
   alias ThinkingCap.Control.{Fuzzy, Geometry}
 
-  defstruct stop: 0.2, slow: 0.6, near: 0.8, margin: 0.05, tie: 0.05
+  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.05, tie: 0.05
 
   @type t :: %__MODULE__{}
 

@@ -47,8 +47,10 @@ defmodule ThinkingCap.Control.Blender do
         as in `ThinkingCap.Control.Blend`: `weight:`, `unless:`);
     * `unless` - precedence, `%{name => [names]}`, replacing the default
       for the names given. Default: `go_to` unless `avoid`, `cross_door`,
-      `follow_path` (with a path, follow it); `follow_path` and
-      `follow_wall` unless `avoid`, `cross_door`; names absent from
+      `follow_path` (with a path, follow it); `follow_path` unless `avoid`,
+      `cross_door`; `follow_wall` unless `avoid`, `cross_door`,
+      `follow_path` (a planned path already keeps off the walls); names
+      absent from
       `behaviours` are dropped;
     * `stop_states` - plan states in which the robot stands still, default
       `[:idle, :done, :blocked, :waiting]` (`ThinkingCap.Planner.Monitor`:
@@ -71,7 +73,7 @@ defmodule ThinkingCap.Control.Blender do
   @default_unless %{
     go_to: [:avoid, :cross_door, :follow_path],
     follow_path: [:avoid, :cross_door],
-    follow_wall: [:avoid, :cross_door]
+    follow_wall: [:avoid, :cross_door, :follow_path]
   }
 
   @stop {:velocity, 0.0, 0.0}

@@ -99,7 +99,7 @@ defmodule ThinkingCap.Control.BehavioursTest do
     test "slows for an obstacle ahead, the more the nearer, and applies then" do
       {c_none, v_none, _} = run(AvoidObstacles, [], inputs([]))
       {c_far, v_far, _} = run(AvoidObstacles, [], inputs([{1.0, 0.0}]))
-      {c_near, v_near, _} = run(AvoidObstacles, [], inputs(line({0.5, -0.1}, {0.5, 0.1})))
+      {c_near, v_near, _} = run(AvoidObstacles, [], inputs(line({0.4, -0.1}, {0.4, 0.1})))
       {c_touch, v_touch, _} = run(AvoidObstacles, [], inputs(line({0.3, -0.1}, {0.3, 0.1})))
 
       assert c_none == 0.0
@@ -118,8 +118,8 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert w_right > 0.1 * @wmax
 
       # in its way, a little to one side: turn to the other side
-      {_, _, w_left} = run(AvoidObstacles, [], inputs([{0.6, 0.15}]))
-      {_, _, w_right} = run(AvoidObstacles, [], inputs([{0.6, -0.15}]))
+      {_, _, w_left} = run(AvoidObstacles, [], inputs([{0.45, 0.15}]))
+      {_, _, w_right} = run(AvoidObstacles, [], inputs([{0.45, -0.15}]))
       assert w_left < -0.3 * @wmax
       assert w_right > 0.3 * @wmax
     end

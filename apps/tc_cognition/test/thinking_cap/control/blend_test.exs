@@ -220,7 +220,7 @@ defmodule ThinkingCap.Control.BlendTest do
 
     test "avoid and go-to do not average into a collision" do
       blend = Blend.init(behaviours: @go_to_unless_avoid)
-      start = {0.6, 0.0, 0.0}
+      start = {0.65, 0.0, 0.0}
       scene = inputs(@obstacle, start, goal: @goal)
 
       # go-to wants straight on and fast, avoid wants to turn and stop

@@ -45,7 +45,7 @@ defmodule ThinkingCap.Control.BlenderTest do
     {command, activations}
   end
 
-  defp wall_ahead, do: LPS.from_points(for i <- 0..12, do: {0.5, -0.3 + i * 0.05})
+  defp wall_ahead, do: LPS.from_points(for i <- 0..12, do: {0.4, -0.3 + i * 0.05})
 
   @pose {:pose, :r1, %{pose: {0.0, 0.0, 0.0}, covariance: nil}}
 
