@@ -31,8 +31,8 @@ defmodule ThinkingCap.Planner.Monitor do
   door:, closed_doors:, replans:, reached:}}` (latest value): `state` is
   `:waiting` (no pose yet), `:moving`, `:blocked`, `:done` or `:idle`;
   `path` the rest of the metric path (world points); `door` the next door
-  to cross (`%{name:, centre:, width:, heading:}`, heading the direction of
-  travel through it). Doors seen shut are also published as
+  to cross (`%{name:, centre:, width:, heading:}`, heading across the
+  opening in the direction of travel). Doors seen shut are also published as
   `{:door, name, %{open: false, stamp: t}}`.
   """
   use ThinkingCap.Module
@@ -381,9 +381,13 @@ defmodule ThinkingCap.Planner.Monitor do
         nil
 
       door ->
+        # across the opening, from the robot's side to the other
         {x, y, _} = state.pose
         {cx, cy} = door.centre
-        door |> Map.delete(:jambs) |> Map.put(:heading, :math.atan2(cy - y, cx - x))
+        {{x1, y1}, {x2, y2}} = door.jambs
+        {nx, ny} = {-(y2 - y1), x2 - x1}
+        {nx, ny} = if nx * (cx - x) + ny * (cy - y) < 0, do: {-nx, -ny}, else: {nx, ny}
+        door |> Map.delete(:jambs) |> Map.put(:heading, :math.atan2(ny, nx))
     end
   end
 
