@@ -104,7 +104,11 @@ defmodule ThinkingCap.Bench.Nav do
     {:ok, simworld} = Sim.World.from_wdf(wdf)
     rng = :rand.seed_s(:exsss, {42, 1, 1})
 
-    {pairs, _} = pairs(grid, runs, rng, [])
+    free? = fn cell ->
+      Sim.World.free?(simworld, Grid.centre(grid, cell), d.footprint.radius + 0.05)
+    end
+
+    {pairs, _} = pairs(grid, free?, runs, rng, [])
 
     pairs
     |> Enum.with_index(1)
@@ -121,20 +125,23 @@ defmodule ThinkingCap.Bench.Nav do
   end
 
   # random start/goal pairs with a path at least 2 m long
-  defp pairs(_grid, 0, rng, acc), do: {Enum.reverse(acc), rng}
+  defp pairs(_grid, _free?, 0, rng, acc), do: {Enum.reverse(acc), rng}
 
-  defp pairs(grid, n, rng, acc) do
+  defp pairs(grid, free?, n, rng, acc) do
     {a, rng} = free_cell(grid, rng)
     {b, rng} = free_cell(grid, rng)
 
-    case AStar.plan(grid, a, b) do
+    case free?.(a) and AStar.plan(grid, a, b) do
       {:ok, %{cost: cost}} when cost * grid.resolution >= 2.0 ->
         {th, rng} = :rand.uniform_s(rng)
         start = Grid.centre(grid, a) |> Tuple.append((th - 0.5) * 2 * :math.pi())
-        pairs(grid, n - 1, rng, [{start, Grid.centre(grid, b), cost * grid.resolution} | acc])
+
+        pairs(grid, free?, n - 1, rng, [
+          {start, Grid.centre(grid, b), cost * grid.resolution} | acc
+        ])
 
       _ ->
-        pairs(grid, n, rng, acc)
+        pairs(grid, free?, n, rng, acc)
     end
   end
 
