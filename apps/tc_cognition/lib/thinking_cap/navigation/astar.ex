@@ -8,10 +8,15 @@ defmodule ThinkingCap.Navigation.AStar do
   distance, which is consistent for these moves, so the path found is
   optimal. Costs are in cells; `path_length_m/2` turns a path into metres.
 
-  The search runs in exact integer arithmetic (see `cost/1`'s note), keeps
-  its g-scores and closed set in an `:atomics` array indexed by
-  `row * width + col`, and its open list in a pairing heap ordered by
-  f-score, ties going to the larger g-score (the entry nearer the goal).
+  The search runs in exact integer arithmetic (see `cost/1`'s note). It
+  runs in a short-lived process of its own, whose process dictionary is its
+  scratch memory (the fastest mutable store on the BEAM): the g-score and
+  closed mark of cell `{col, row}` under key `row * width + col`, and the
+  open list as a bucket queue on exact f-scores (the buckets also in the
+  dictionary, their f-scores in a pairing heap), last in first out within
+  a bucket, which favours the deepest cells among equal f-scores. The
+  path is read back from the goal along optimal predecessors; nothing is
+  left behind in the caller.
 
       {:ok, %{path: path, cost: cost, expanded: n}} = AStar.plan(grid, {1, 1}, {40, 12})
   """
@@ -142,7 +147,7 @@ defmodule ThinkingCap.Navigation.AStar do
     :erlang.put(si, 1)
     f0 = Cost.octile(sc, sr, gc, gr)
 
-    case loop([si], f0, %{}, nil, cells, w, h, gi, gc, gr, 0) do
+    case loop([si], f0, nil, cells, w, h, gi, gc, gr, 0) do
       {:found, expanded} ->
         path = descend(cells, w, h, gc, gr, -:erlang.get(gi) - 1, [goal])
         {:ok, %{path: path, cost: Cost.path_cost(path), expanded: expanded}}
@@ -159,23 +164,23 @@ defmodule ThinkingCap.Navigation.AStar do
   # again with a lower f-score, popped first; its older entries then find
   # it closed and are skipped. The heuristic is consistent, so f-scores
   # never decrease as cells are popped.
-  defp loop([], _f, buckets, fs, cells, w, h, gi, gc, gr, expanded) do
+  defp loop([], _f, fs, cells, w, h, gi, gc, gr, expanded) do
     case fs do
       nil ->
         :no_path
 
       {f, children} ->
-        {cur, buckets} = Map.pop!(buckets, f)
-        loop(cur, f, buckets, merge_pairs(children), cells, w, h, gi, gc, gr, expanded)
+        cur = :erlang.erase(-f - 1)
+        loop(cur, f, merge_pairs(children), cells, w, h, gi, gc, gr, expanded)
     end
   end
 
-  defp loop([i | cur], f, buckets, fs, cells, w, h, gi, gc, gr, expanded) do
+  defp loop([i | cur], f, fs, cells, w, h, gi, gc, gr, expanded) do
     v = :erlang.get(i)
 
     cond do
       v < 0 ->
-        loop(cur, f, buckets, fs, cells, w, h, gi, gc, gr, expanded)
+        loop(cur, f, fs, cells, w, h, gi, gc, gr, expanded)
 
       i == gi ->
         :erlang.put(i, -v)
@@ -183,8 +188,8 @@ defmodule ThinkingCap.Navigation.AStar do
 
       true ->
         :erlang.put(i, -v)
-        {cur, buckets, fs} = expand({cur, buckets, fs}, f, i, v - 1, cells, w, h, gc, gr)
-        loop(cur, f, buckets, fs, cells, w, h, gi, gc, gr, expanded + 1)
+        {cur, fs} = expand({cur, fs}, f, i, v - 1, cells, w, h, gc, gr)
+        loop(cur, f, fs, cells, w, h, gi, gc, gr, expanded + 1)
     end
   end
 
@@ -257,7 +262,7 @@ defmodule ThinkingCap.Navigation.AStar do
       else: q
   end
 
-  defp relax({cur, buckets, fs} = q, f0, j, col, row, g, gc, gr) do
+  defp relax({cur, fs} = q, f0, j, col, row, g, gc, gr) do
     v = :erlang.get(j)
 
     if g + 1 < v do
@@ -267,11 +272,16 @@ defmodule ThinkingCap.Navigation.AStar do
       f = if dx > dy, do: g + @s * (dx - dy) + @d * dy, else: g + @s * (dy - dx) + @d * dx
 
       if f == f0 do
-        {[j | cur], buckets, fs}
+        {[j | cur], fs}
       else
-        case buckets do
-          %{^f => list} -> {cur, %{buckets | f => [j | list]}, fs}
-          _ -> {cur, Map.put(buckets, f, [j]), insert(fs, f)}
+        # the bucket of f-score f is kept under key -f - 1
+        case :erlang.put(-f - 1, [j]) do
+          :undefined ->
+            {cur, insert(fs, f)}
+
+          list ->
+            :erlang.put(-f - 1, [j | list])
+            q
         end
       end
     else
