@@ -113,6 +113,8 @@ defmodule ThinkingCap.Bench.Nav do
     pairs
     |> Enum.with_index(1)
     |> Enum.map(fn {{start, goal, optimal}, i} ->
+      # a world holds its robots' bodies: one per run
+      {:ok, simworld} = Sim.World.from_wdf(wdf)
       r = one_run(simworld, wdf_path, rdf, start, goal, optimal, i)
 
       IO.puts(

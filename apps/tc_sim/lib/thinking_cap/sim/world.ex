@@ -4,7 +4,9 @@ defmodule ThinkingCap.Sim.World do
   segments, its doors (closed doors are segments between their jambs,
   switched on and off while running), its occupancy map if it imports one,
   its beacons and its named places, behind one ray-casting world of
-  `ThinkingCap.Sim.Raycast`.
+  `ThinkingCap.Sim.Raycast`. The ray-casting world also holds the robots'
+  bodies and the doors' states: a built world belongs to one simulation
+  at a time (build another for another simulation).
   """
 
   alias ThinkingCap.Config.WDF
