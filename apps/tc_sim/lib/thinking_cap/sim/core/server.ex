@@ -343,6 +343,8 @@ defmodule ThinkingCap.Sim.Core.Server do
   @impl true
   def terminate(_reason, state) do
     if state.activity, do: ThinkingCap.Cycle.remove(state.activity)
+    # the world may be built again into another simulation: take the robots out
+    Raycast.set_bodies(state.world.raycast, [])
     :ok
   end
 
