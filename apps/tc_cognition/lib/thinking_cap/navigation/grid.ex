@@ -77,4 +77,30 @@ defmodule ThinkingCap.Navigation.Grid do
   @spec centre(t(), cell()) :: {float(), float()}
   def centre(%__MODULE__{origin: {ox, oy}, resolution: r}, {col, row}),
     do: {ox + (col + 0.5) * r, oy + (row + 0.5) * r}
+
+  @doc """
+  Sets many cells at once, each blocked (`true`) or passable (`false`):
+  like `put/3` for a list of `{cell, blocked?}` changes (a later change of
+  the same cell wins; cells outside the grid are ignored), in one copy of
+  the grid's bytes whatever the number of changes.
+  """
+  @spec update(t(), [{cell(), boolean()}]) :: t()
+  def update(%__MODULE__{} = grid, []), do: grid
+
+  def update(%__MODULE__{width: w, cells: cells} = grid, changes) do
+    bytes =
+      for {{col, row} = cell, blocked?} <- changes, inside?(grid, cell), into: %{} do
+        {row * w + col, if(blocked?, do: 1, else: 0)}
+      end
+
+    {parts, from} =
+      bytes
+      |> Enum.sort()
+      |> Enum.reduce({[], 0}, fn {i, value}, {parts, from} ->
+        {[value, binary_part(cells, from, i - from) | parts], i + 1}
+      end)
+
+    tail = binary_part(cells, from, byte_size(cells) - from)
+    %{grid | cells: IO.iodata_to_binary(Enum.reverse([tail | parts]))}
+  end
 end
