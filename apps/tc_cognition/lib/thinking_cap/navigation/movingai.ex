@@ -21,7 +21,7 @@ defmodule ThinkingCap.Navigation.MovingAI do
   Errors are `{:error, "FILE:LINE: what is wrong"}` (line 1-based).
   """
 
-  alias ThinkingCap.Navigation.Grid
+  alias ThinkingCap.Navigation.{AStar, Grid}
 
   @type problem :: %{
           bucket: non_neg_integer(),
@@ -97,6 +97,55 @@ defmodule ThinkingCap.Navigation.MovingAI do
 
       [] ->
         {:error, "#{name}:1: empty scenario file"}
+    end
+  end
+
+  @typedoc """
+  A problem solved by `solve/3`: the problem, the `cost` found (`nil`
+  when A* found no path), whether it is `optimal` (within 1e-4 of the
+  file's optimal length), the cells `expanded` and the wall time `us` of
+  the `ThinkingCap.Navigation.AStar.plan/4` call in microseconds.
+  """
+  @type solution :: %{
+          problem: problem(),
+          cost: float() | nil,
+          optimal: boolean(),
+          expanded: non_neg_integer(),
+          us: non_neg_integer()
+        }
+
+  @doc """
+  Solves every problem with A* on `grid` (the problems' map), timing each
+  plan. Options: `jobs` (default 1), how many problems run at once; each
+  problem is still timed on its own, so with more jobs than idle cores the
+  times grow. One untimed plan runs first (loading the code). Solutions come in the problems' order.
+  """
+  @spec solve(Grid.t(), [problem()], keyword()) :: [solution()]
+  def solve(%Grid{} = grid, problems, opts \\ []) do
+    one = fn p ->
+      {us, result} = :timer.tc(fn -> AStar.plan(grid, p.start, p.goal) end)
+
+      case result do
+        {:ok, %{cost: cost, expanded: n}} ->
+          optimal = abs(cost - p.optimal_length) <= 1.0e-4
+          %{problem: p, cost: cost, optimal: optimal, expanded: n, us: us}
+
+        {:error, _} ->
+          %{problem: p, cost: nil, optimal: false, expanded: 0, us: us}
+      end
+    end
+
+    # one untimed plan first, so that loading the code is not timed
+    with [p | _] <- problems, do: AStar.plan(grid, p.start, p.goal)
+
+    case Keyword.get(opts, :jobs, 1) do
+      1 ->
+        Enum.map(problems, one)
+
+      jobs ->
+        problems
+        |> Task.async_stream(one, max_concurrency: jobs, timeout: :infinity)
+        |> Enum.map(fn {:ok, solution} -> solution end)
     end
   end
 
