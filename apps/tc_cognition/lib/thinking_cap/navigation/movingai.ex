@@ -191,6 +191,9 @@ defmodule ThinkingCap.Navigation.MovingAI do
 
   defp rows([{line, n} | rest], width, left, name, acc) do
     cond do
+      line == "" and Enum.all?(rest, &blank?/1) ->
+        {:error, "#{name}:#{n}: #{left} map row(s) missing"}
+
       byte_size(line) != width ->
         {:error, "#{name}:#{n}: row of #{byte_size(line)} cells, expected #{width}"}
 
@@ -203,7 +206,7 @@ defmodule ThinkingCap.Navigation.MovingAI do
   end
 
   defp rows([], _width, left, name, _acc),
-    do: {:error, "#{name}: #{left} map rows missing at the end of the file"}
+    do: {:error, "#{name}: #{left} map row(s) missing"}
 
   defp bad_cell(line) do
     Enum.find(:binary.bin_to_list(line), fn c -> c not in ~c".GS@OTW" end)

@@ -1,0 +1,161 @@
+defmodule ThinkingCap.Navigation.DStarLiteTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, MovingAI}
+
+  @movingai Path.expand("../../../../../../shared/testdata/movingai", __DIR__)
+
+  defp valid_path?(grid, path) do
+    Enum.all?(path, &Grid.passable?(grid, &1)) and
+      path
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.all?(fn [{c1, r1}, {c2, r2}] ->
+        abs(c1 - c2) <= 1 and abs(r1 - r2) <= 1 and {c1, r1} != {c2, r2} and
+          (c1 == c2 or r1 == r2 or
+             (Grid.passable?(grid, {c2, r1}) and Grid.passable?(grid, {c1, r2})))
+      end)
+  end
+
+  # D* Lite's plan against A* from scratch on the same grid: same cost (or
+  # both without a path), and a valid path from the start to the goal
+  defp check_against_astar(state, context) do
+    astar = AStar.plan(state.grid, state.start, state.goal)
+
+    case DStarLite.plan(state) do
+      {:ok, path, state} ->
+        assert {:ok, %{cost: cost}} = astar,
+               "#{context}: D* Lite found a path, A* #{inspect(astar)}"
+
+        assert abs(AStar.cost(path) - cost) < 1.0e-9,
+               "#{context}: D* Lite #{AStar.cost(path)}, A* #{cost}"
+
+        assert hd(path) == state.start and List.last(path) == state.goal
+        assert valid_path?(state.grid, path), "#{context}: invalid path #{inspect(path)}"
+        {path, state}
+
+      {:error, :no_path, state} ->
+        assert {:error, _} = astar, "#{context}: D* Lite found no path, A* #{inspect(astar)}"
+        {nil, state}
+    end
+  end
+
+  test "same costs as the Moving AI optimum on every arena problem" do
+    {:ok, grid} = MovingAI.load_map(Path.join(@movingai, "arena.map"))
+    {:ok, problems} = MovingAI.load_scenarios(Path.join(@movingai, "arena.map.scen"))
+
+    for p <- problems do
+      assert {:ok, path, _state} = DStarLite.new(grid, p.start, p.goal) |> DStarLite.plan()
+      assert abs(AStar.cost(path) - p.optimal_length) < 1.0e-4
+      assert valid_path?(grid, path)
+    end
+  end
+
+  test "same costs as A* from scratch after random cell changes and start moves (300 seeds)" do
+    for seed <- 1..300 do
+      :rand.seed(:exsss, {seed, 17, 29})
+      w = 8 + :rand.uniform(14)
+      h = 6 + :rand.uniform(14)
+      density = 0.1 + 0.25 * :rand.uniform()
+
+      cells =
+        for _ <- 1..(w * h), into: <<>>, do: <<if(:rand.uniform() < density, do: 1, else: 0)>>
+
+      grid = Grid.new(w, h, cells: cells)
+      random_cell = fn -> {:rand.uniform(w) - 1, :rand.uniform(h) - 1} end
+      state = DStarLite.new(grid, random_cell.(), random_cell.())
+
+      Enum.reduce(1..12, state, fn step, state ->
+        {path, state} = check_against_astar(state, "seed #{seed}, step #{step}")
+
+        # cells change, mostly near the path when there is one
+        changes =
+          for _ <- 1..:rand.uniform(8) do
+            cell =
+              case path do
+                [_ | _] when length(path) > 1 ->
+                  {c, r} = Enum.random(path)
+                  {c + :rand.uniform(5) - 3, r + :rand.uniform(5) - 3}
+
+                _ ->
+                  random_cell.()
+              end
+
+            {cell, :rand.uniform() < 0.6}
+          end
+
+        state = DStarLite.update_cells(state, changes)
+
+        # the robot advances along its path, or is carried somewhere else
+        case {:rand.uniform(3), path} do
+          {1, [_ | _]} -> DStarLite.move_start(state, Enum.at(path, min(3, length(path) - 1)))
+          {2, _} -> DStarLite.move_start(state, random_cell.())
+          _ -> state
+        end
+      end)
+    end
+  end
+
+  test "a change near the robot is repaired with a few vertices" do
+    # a winding corridor: walls across rows 10, 20, ..., 50, with a gap
+    # alternately at the right and at the left end
+    walls =
+      for {row, k} <- Enum.with_index([10, 20, 30, 40, 50]),
+          col <- 0..60,
+          if(rem(k, 2) == 0, do: col < 57, else: col > 3),
+          do: {col, row}
+
+    grid = Grid.new(61, 61) |> Grid.put(walls, true)
+    {:ok, path, state} = DStarLite.new(grid, {1, 1}, {1, 59}) |> DStarLite.plan()
+    initial = state.expanded
+    assert initial > 2000
+
+    # an obstacle across the next steps of the path
+    {c, r} = Enum.at(path, 3)
+
+    wall =
+      for dc <- -1..1, dr <- -1..1, {c + dc, r + dr} != hd(path), do: {{c + dc, r + dr}, true}
+
+    state = DStarLite.update_cells(state, wall)
+    {new_path, state} = check_against_astar(state, "wall near the robot")
+    refute Enum.at(path, 3) in new_path
+    assert state.expanded > 0
+    assert state.expanded < initial / 20
+  end
+
+  test "blocked start or goal, and a path that opens again" do
+    grid = Grid.new(5, 3) |> Grid.put([{2, 0}, {2, 1}, {2, 2}], true)
+    state = DStarLite.new(grid, {0, 1}, {4, 1})
+    assert {:error, :no_path, state} = DStarLite.plan(state)
+
+    state = DStarLite.update_cells(state, [{{2, 2}, false}])
+    assert {:ok, path, state} = DStarLite.plan(state)
+    assert {2, 2} in path
+    assert_in_delta AStar.cost(path), 2 + 2 * :math.sqrt(2), 1.0e-12
+
+    state = DStarLite.update_cells(state, [{{4, 1}, true}])
+    assert {:error, :no_path, state} = DStarLite.plan(state)
+    state = DStarLite.update_cells(state, [{{4, 1}, false}, {{0, 1}, true}])
+    assert {:error, :no_path, state} = DStarLite.plan(state)
+    state = DStarLite.move_start(state, {0, 0})
+    assert {:ok, [{0, 0} | _] = path, _state} = DStarLite.plan(state)
+    assert List.last(path) == {4, 1}
+  end
+
+  test "start at the goal" do
+    assert {:ok, [{1, 1}], _} = DStarLite.new(Grid.new(3, 3), {1, 1}, {1, 1}) |> DStarLite.plan()
+  end
+
+  test "an old state is refused" do
+    state = DStarLite.new(Grid.new(4, 4), {0, 0}, {3, 3})
+    {:ok, _path, newer} = DStarLite.plan(state)
+    assert_raise ArgumentError, ~r/stale/, fn -> DStarLite.plan(state) end
+    assert_raise ArgumentError, ~r/stale/, fn -> DStarLite.update_cells(state, []) end
+    assert {:ok, _, _} = DStarLite.plan(newer)
+  end
+
+  test "cells outside the grid" do
+    assert_raise ArgumentError, fn -> DStarLite.new(Grid.new(4, 4), {0, 0}, {4, 0}) end
+    state = DStarLite.new(Grid.new(4, 4), {0, 0}, {3, 0})
+    assert_raise ArgumentError, fn -> DStarLite.move_start(state, {-1, 0}) end
+  end
+end
