@@ -45,6 +45,10 @@ defmodule ThinkingCap.Navigation.DStarLite do
   @d Cost.diagonal()
   @inf 1 <<< 58
 
+  # the store: per cell g, rhs (as ∞ - value, so that 0 is ∞), key
+  defmacrop g(a, i), do: quote(do: @inf - :atomics.get(unquote(a), 3 * unquote(i) + 1))
+  defmacrop rhs(a, i), do: quote(do: @inf - :atomics.get(unquote(a), 3 * unquote(i) + 2))
+
   @enforce_keys [:grid, :start, :goal, :store, :version]
   defstruct [:grid, :start, :goal, :store, :version, km: 0, heap: nil, work: 0, expanded: 0]
 
@@ -75,15 +79,15 @@ defmodule ThinkingCap.Navigation.DStarLite do
     inside!(grid, start)
     inside!(grid, goal)
     n = w * h
-    a = :atomics.new(4 * n + 1, signed: true)
+    a = :atomics.new(3 * n + 1, signed: true)
     {gc, gr} = goal
     gi = gr * w + gc
     # g stays infinite, rhs(goal) = 0: the goal is the one inconsistent vertex
     put_rhs(a, gi, 0)
     {sc, sr} = start
     k1 = Cost.octile(sc, sr, gc, gr)
-    put_key(a, gi, k1, 0)
-    :atomics.put(a, 4 * n + 1, 1)
+    put_key(a, gi, k1)
+    :atomics.put(a, 3 * n + 1, 1)
 
     %__MODULE__{
       grid: grid,
@@ -113,7 +117,7 @@ defmodule ThinkingCap.Navigation.DStarLite do
     ctx = {cells, w, h, a, sc, sr, state.km, gi}
 
     if Grid.passable?(grid, state.start) and Grid.passable?(grid, state.goal) do
-      {heap, processed} = compute(ctx, si, state.heap, 0)
+      {heap, processed} = compute(ctx, si, state.heap, 0, g(a, si), rhs(a, si))
       work = state.work + processed
       state = maybe_compact(%{state | heap: heap, work: work, expanded: processed})
 
@@ -176,7 +180,7 @@ defmodule ThinkingCap.Navigation.DStarLite do
 
             if rhs != rhs(a, u) do
               put_rhs(a, u, rhs)
-              update_vertex(ctx, u, heap)
+              update_vertex(ctx, u, g(a, u), rhs, heap)
             else
               heap
             end
@@ -204,105 +208,125 @@ defmodule ThinkingCap.Navigation.DStarLite do
   ## ComputeShortestPath
 
   # ctx: {cells, width, height, store, start col, start row, km, goal index}
-  defp compute({_, w, _, a, sc, sr, km, _} = ctx, si, heap, processed) do
+  # gs, rs: the start's g and rhs, read again whenever a vertex next to
+  # the start (whose processing may change them) was processed
+  defp compute({_, w, _, a, sc, sr, km, _} = ctx, si, heap, processed, gs, rs) do
     case pop_live(heap, a) do
       :empty ->
         {nil, processed}
 
-      {k1, k2, u, rest} ->
-        gs = g(a, si)
-        rs = rhs(a, si)
+      {k1, k2, u, rest, gu, ru} ->
         ms = min(gs, rs)
 
         if k1 < ms + km or (k1 == ms + km and k2 < ms) or rs > gs do
-          {n1, n2} = key(a, u, w, sc, sr, km)
+          col = rem(u, w)
+          row = div(u, w)
+          # the key's second part, min(g, rhs), is k2 for a live entry
+          n1 = k2 + octile(sc, sr, col, row) + km
 
-          if k1 < n1 or (k1 == n1 and k2 < n2) do
-            put_key(a, u, n1, n2)
-            compute(ctx, si, PairingHeap.insert(rest, n1, n2, u), processed)
-          else
-            compute(ctx, si, process(ctx, u, rest), processed + 1)
+          cond do
+            k1 < n1 ->
+              put_key(a, u, n1)
+              compute(ctx, si, insert(rest, n1, k2, u), processed, gs, rs)
+
+            gu > ru ->
+              # overconsistent: settle it, and offer the new g to its predecessors
+              put_g(a, u, ru)
+              remove(a, u)
+              heap = lower(ctx, edges(ctx, u), ru, rest)
+              computed(ctx, si, heap, processed + 1, gs, rs, col, row)
+
+            true ->
+              # underconsistent: forget its g; predecessors that relied on it look again
+              put_g(a, u, @inf)
+              heap = raise_preds(ctx, edges(ctx, u), gu, rest)
+              heap = update_vertex(ctx, u, @inf, ru, heap)
+              computed(ctx, si, heap, processed + 1, gs, rs, col, row)
           end
         else
-          {PairingHeap.insert(rest, k1, k2, u), processed}
+          {insert(rest, k1, k2, u), processed}
         end
     end
   end
 
-  defp process({cells, w, h, a, _, _, _, gi} = ctx, u, heap) do
-    gu = g(a, u)
-    ru = rhs(a, u)
+  defp computed({_, _, _, a, sc, sr, _, _} = ctx, si, heap, processed, gs, rs, col, row) do
+    if abs(col - sc) <= 1 and abs(row - sr) <= 1,
+      do: compute(ctx, si, heap, processed, g(a, si), rhs(a, si)),
+      else: compute(ctx, si, heap, processed, gs, rs)
+  end
 
-    if gu > ru do
-      # overconsistent: settle it, and offer the new g to its predecessors
-      put_g(a, u, ru)
-      remove(a, u)
+  defp octile(c1, r1, c2, r2) do
+    dx = abs(c1 - c2)
+    dy = abs(r1 - r2)
+    if dx > dy, do: @s * (dx - dy) + @d * dy, else: @s * (dy - dx) + @d * dx
+  end
 
-      Enum.reduce(edges(cells, w, h, u), heap, fn
-        {^gi, _}, heap ->
-          heap
+  defp lower(_ctx, [], _gu, heap), do: heap
 
-        {s, c}, heap ->
-          if c + ru < rhs(a, s) do
-            put_rhs(a, s, c + ru)
-            update_vertex(ctx, s, heap)
-          else
-            heap
-          end
-      end)
+  defp lower({_, _, _, _, _, _, _, gi} = ctx, [{gi, _} | rest], gu, heap),
+    do: lower(ctx, rest, gu, heap)
+
+  defp lower({_, _, _, a, _, _, _, _} = ctx, [{s, c} | rest], gu, heap) do
+    v = c + gu
+
+    if v < rhs(a, s) do
+      put_rhs(a, s, v)
+      lower(ctx, rest, gu, update_vertex(ctx, s, g(a, s), v, heap))
     else
-      # underconsistent: forget its g; predecessors that relied on it look again
-      put_g(a, u, @inf)
-
-      heap =
-        Enum.reduce(edges(cells, w, h, u), heap, fn
-          {^gi, _}, heap ->
-            heap
-
-          {s, c}, heap ->
-            if rhs(a, s) == c + gu do
-              put_rhs(a, s, best_rhs(ctx, s))
-              update_vertex(ctx, s, heap)
-            else
-              heap
-            end
-        end)
-
-      update_vertex(ctx, u, heap)
+      lower(ctx, rest, gu, heap)
     end
   end
 
-  defp update_vertex({_, w, _, a, sc, sr, km, _}, u, heap) do
-    if g(a, u) != rhs(a, u) do
-      {k1, k2} = key(a, u, w, sc, sr, km)
-      put_key(a, u, k1, k2)
-      PairingHeap.insert(heap, k1, k2, u)
+  defp raise_preds(_ctx, [], _g_old, heap), do: heap
+
+  defp raise_preds({_, _, _, _, _, _, _, gi} = ctx, [{gi, _} | rest], g_old, heap),
+    do: raise_preds(ctx, rest, g_old, heap)
+
+  defp raise_preds({_, _, _, a, _, _, _, _} = ctx, [{s, c} | rest], g_old, heap) do
+    if rhs(a, s) == c + g_old do
+      v = best_rhs(ctx, s)
+      put_rhs(a, s, v)
+      raise_preds(ctx, rest, g_old, update_vertex(ctx, s, g(a, s), v, heap))
+    else
+      raise_preds(ctx, rest, g_old, heap)
+    end
+  end
+
+  # u's g and rhs just changed to these
+  defp update_vertex({_, w, _, a, sc, sr, km, _}, u, g, rhs, heap) do
+    if g != rhs do
+      k2 = min(g, rhs)
+      k1 = k2 + octile(sc, sr, rem(u, w), div(u, w)) + km
+      put_key(a, u, k1)
+      insert(heap, k1, k2, u)
     else
       remove(a, u)
       heap
     end
   end
 
-  defp key(a, u, w, sc, sr, km) do
-    m = min(g(a, u), rhs(a, u))
-    {m + Cost.octile(sc, sr, rem(u, w), div(u, w)) + km, m}
-  end
+  defp best([], _a, best, next), do: {best, next}
 
-  # rhs(u) = min over successors s of c(u, s) + g(s)
-  defp best_rhs({cells, w, h, a, _, _, _, _}, u) do
-    Enum.reduce(edges(cells, w, h, u), @inf, fn {s, c}, best -> min(best, c + g(a, s)) end)
+  defp best([{s, c} | rest], a, best, next) do
+    v = c + g(a, s)
+    if v < best, do: best(rest, a, v, s), else: best(rest, a, best, next)
   end
 
   # the top live entry of the queue, stale entries dropped on the way
   defp pop_live(heap, a) do
-    case PairingHeap.pop(heap) do
+    case pop(heap) do
       :empty ->
         :empty
 
-      {k1, k2, u, rest} = top ->
-        if :atomics.get(a, 4 * u + 3) == k1 + 1 and :atomics.get(a, 4 * u + 4) == k2,
-          do: top,
-          else: pop_live(rest, a)
+      {k1, k2, u, rest} ->
+        with true <- :atomics.get(a, 3 * u + 3) == k1 + 1,
+             gu = g(a, u),
+             ru = rhs(a, u),
+             true <- min(gu, ru) == k2 do
+          {k1, k2, u, rest, gu, ru}
+        else
+          _ -> pop_live(rest, a)
+        end
     end
   end
 
@@ -310,20 +334,22 @@ defmodule ThinkingCap.Navigation.DStarLite do
   defp walk(_ctx, gi, gi, _left, path), do: {:ok, Enum.reverse(path)}
   defp walk(_ctx, _u, _gi, 0, _path), do: :no_path
 
-  defp walk({cells, w, h, a, _, _, _, _} = ctx, u, gi, left, path) do
-    {best, next} =
-      Enum.reduce(edges(cells, w, h, u), {@inf, nil}, fn {s, c}, {best, _} = acc ->
-        if c + g(a, s) < best, do: {c + g(a, s), s}, else: acc
-      end)
-
-    if best >= @inf,
-      do: :no_path,
-      else: walk(ctx, next, gi, left - 1, [{rem(next, w), div(next, w)} | path])
+  defp walk({_, w, _, a, _, _, _, _} = ctx, u, gi, left, path) do
+    case best(edges(ctx, u), a, @inf, nil) do
+      {best, _} when best >= @inf -> :no_path
+      {_, next} -> walk(ctx, next, gi, left - 1, [{rem(next, w), div(next, w)} | path])
+    end
   end
 
   ## The grid's edges: {neighbour index, cost}, none from a blocked cell
 
-  defp edges(cells, w, h, i) do
+  defp edges({cells, w, h, _, _, _, _, _}, i) do
+    {c, l, r, d, u, dl, dr, ul, ur} = around(cells, w, h, i)
+    edges(i, w, c, l, r, d, u, dl, dr, ul, ur)
+  end
+
+  # the cell values of i and its neighbours (outside the grid: blocked)
+  defp around(cells, w, h, i) do
     col = rem(i, w)
     row = div(i, w)
 
@@ -333,26 +359,34 @@ defmodule ThinkingCap.Navigation.DStarLite do
       <<_::binary-size(i - w - 1), dl, d, dr, _::binary-size(skip), l, c, r, _::binary-size(skip),
         ul, u, ur, _::binary>> = cells
 
-      edges(i, w, c, l, r, d, u, dl, dr, ul, ur)
+      {c, l, r, d, u, dl, dr, ul, ur}
     else
       at = fn dc, dr ->
         {cc, rr} = {col + dc, row + dr}
         if cc >= 0 and rr >= 0 and cc < w and rr < h, do: :binary.at(cells, rr * w + cc), else: 1
       end
 
-      edges(
-        i,
-        w,
-        at.(0, 0),
-        at.(-1, 0),
-        at.(1, 0),
-        at.(0, -1),
-        at.(0, 1),
-        at.(-1, -1),
-        at.(1, -1),
-        at.(-1, 1),
-        at.(1, 1)
-      )
+      {at.(0, 0), at.(-1, 0), at.(1, 0), at.(0, -1), at.(0, 1), at.(-1, -1), at.(1, -1),
+       at.(-1, 1), at.(1, 1)}
+    end
+  end
+
+  # rhs(i) = min over successors s of c(i, s) + g(s)
+  defp best_rhs({cells, w, h, a, _, _, _, _}, i) do
+    case around(cells, w, h, i) do
+      {0, l, r, d, u, dl, dr, ul, ur} ->
+        b = @inf
+        b = if l == 0, do: min(b, @s + g(a, i - 1)), else: b
+        b = if r == 0, do: min(b, @s + g(a, i + 1)), else: b
+        b = if d == 0, do: min(b, @s + g(a, i - w)), else: b
+        b = if u == 0, do: min(b, @s + g(a, i + w)), else: b
+        b = if (l ||| d ||| dl) == 0, do: min(b, @d + g(a, i - w - 1)), else: b
+        b = if (r ||| d ||| dr) == 0, do: min(b, @d + g(a, i - w + 1)), else: b
+        b = if (l ||| u ||| ul) == 0, do: min(b, @d + g(a, i + w - 1)), else: b
+        if (r ||| u ||| ur) == 0, do: min(b, @d + g(a, i + w + 1)), else: b
+
+      _blocked ->
+        @inf
     end
   end
 
@@ -371,20 +405,15 @@ defmodule ThinkingCap.Navigation.DStarLite do
 
   ## The store: per cell g, rhs (as ∞ - value, so that 0 is ∞), key
 
-  defp g(a, i), do: @inf - :atomics.get(a, 4 * i + 1)
-  defp put_g(a, i, v), do: :atomics.put(a, 4 * i + 1, @inf - v)
-  defp rhs(a, i), do: @inf - :atomics.get(a, 4 * i + 2)
-  defp put_rhs(a, i, v), do: :atomics.put(a, 4 * i + 2, @inf - v)
+  defp put_g(a, i, v), do: :atomics.put(a, 3 * i + 1, @inf - v)
+  defp put_rhs(a, i, v), do: :atomics.put(a, 3 * i + 2, @inf - v)
 
-  defp put_key(a, i, k1, k2) do
-    :atomics.put(a, 4 * i + 3, k1 + 1)
-    :atomics.put(a, 4 * i + 4, k2)
-  end
-
-  defp remove(a, i), do: :atomics.put(a, 4 * i + 3, 0)
+  # a queued cell's key is {k1, min(g, rhs)}: only k1 is kept (0: not queued)
+  defp put_key(a, i, k1), do: :atomics.put(a, 3 * i + 3, k1 + 1)
+  defp remove(a, i), do: :atomics.put(a, 3 * i + 3, 0)
 
   defp next_version(%__MODULE__{store: a, version: v, grid: %Grid{width: w, height: h}} = state) do
-    case :atomics.compare_exchange(a, 4 * w * h + 1, v, v + 1) do
+    case :atomics.compare_exchange(a, 3 * w * h + 1, v, v + 1) do
       :ok ->
         %{state | version: v + 1}
 
@@ -415,8 +444,32 @@ defmodule ThinkingCap.Navigation.DStarLite do
   defp compact([nil | rest], a, acc), do: compact(rest, a, acc)
 
   defp compact([{k1, k2, u, children} | rest], a, acc) do
-    live = :atomics.get(a, 4 * u + 3) == k1 + 1 and :atomics.get(a, 4 * u + 4) == k2
-    acc = if live, do: PairingHeap.insert(acc, k1, k2, u), else: acc
+    live = :atomics.get(a, 3 * u + 3) == k1 + 1 and min(g(a, u), rhs(a, u)) == k2
+    acc = if live, do: insert(acc, k1, k2, u), else: acc
     compact(children ++ rest, a, acc)
+  end
+
+  # the pairing heap of Core.PairingHeap, inlined
+  defp insert(nil, a, b, value), do: {a, b, value, []}
+
+  defp insert({ha, hb, hv, hc} = heap, a, b, value) do
+    if a < ha or (a == ha and b < hb),
+      do: {a, b, value, [heap]},
+      else: {ha, hb, hv, [{a, b, value, []} | hc]}
+  end
+
+  defp pop(nil), do: :empty
+  defp pop({a, b, value, children}), do: {a, b, value, merge_pairs(children)}
+
+  defp merge_pairs([]), do: nil
+  defp merge_pairs([h]), do: h
+  defp merge_pairs([h1, h2 | rest]), do: meld(meld(h1, h2), merge_pairs(rest))
+
+  defp meld(h, nil), do: h
+
+  defp meld({a1, b1, v1, c1} = h1, {a2, b2, v2, c2} = h2) do
+    if a1 < a2 or (a1 == a2 and b1 <= b2),
+      do: {a1, b1, v1, [h2 | c1]},
+      else: {a2, b2, v2, [h1 | c2]}
   end
 end
