@@ -70,7 +70,8 @@ defmodule Mix.Tasks.Tc.Movingai do
     |> Enum.sort()
     |> Enum.each(fn {b, group} ->
       n = length(group)
-      label = if band == 1, do: "bucket #{b}", else: "buckets #{b * band}-#{b * band + band - 1}"
+      last = min(b * band + band - 1, top)
+      label = if band == 1, do: "bucket #{b}", else: "buckets #{b * band}-#{last}"
 
       IO.puts(
         "  #{String.pad_trailing(label, 16)} #{n} problems, " <>

@@ -118,7 +118,8 @@ defmodule ThinkingCap.Navigation.MovingAI do
   Solves every problem with A* on `grid` (the problems' map), timing each
   plan. Options: `jobs` (default 1), how many problems run at once; each
   problem is still timed on its own, so with more jobs than idle cores the
-  times grow. One untimed plan runs first (loading the code). Solutions come in the problems' order.
+  times grow. One untimed plan runs first (loading the code). Solutions
+  come in the problems' order.
   """
   @spec solve(Grid.t(), [problem()], keyword()) :: [solution()]
   def solve(%Grid{} = grid, problems, opts \\ []) do
