@@ -137,7 +137,7 @@ defmodule ThinkingCap.RuntimeTest do
     {adf, _robot, n} =
       adf(dir,
         cruise:
-          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.008]"
+          "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.02, deadline: 0.018]"
       )
 
     {:ok, [%{pid: pid}]} = Runtime.start(adf)
@@ -147,7 +147,8 @@ defmodule ThinkingCap.RuntimeTest do
     assert {:error, {:module_not_available, No.Such, _}} = Runtime.swap(n.(:cruise), No.Such)
     :ok = Runtime.swap(n.(:cruise), Modules.CruiseV2)
 
-    events = for _ <- 1..30, do: applied(n.(:cruise))
+    # the cycles around the swap: the old implementation's last, the new one's first ones
+    events = until_swapped(n.(:cruise), 50) ++ for(_ <- 1..3, do: applied(n.(:cruise)))
     assert Enum.all?(events, &(&1.kind == :fresh)), inspect(events)
     assert List.last(events).command |> elem(0) == :vel2
     # the same process, consecutive cycles across the swap
@@ -243,5 +244,15 @@ defmodule ThinkingCap.RuntimeTest do
     Cluster.wait_until(fn ->
       (Cluster.call(a, Runtime, :timing, [])[n.(:cruise)] || %{cycles: 0}).cycles > 3
     end)
+  end
+
+  # applied events up to and including the first one from the new implementation
+  defp until_swapped(name, left) when left > 0 do
+    event = applied(name)
+
+    case event.command do
+      {:vel2, _, _} -> [event]
+      _ -> [event | until_swapped(name, left - 1)]
+    end
   end
 end
