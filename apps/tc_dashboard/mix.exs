@@ -16,6 +16,9 @@ defmodule ThinkingCap.Dashboard.MixProject do
       elixir: "~> 1.14",
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
+      # yaws is started by the dashboard itself, in embedded mode, when it
+      # is wanted (not as a dependency application)
+      xref: [exclude: [:yaws_api, :yaws]],
       elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       deps: [
         {:tc_cognition, in_umbrella: true},

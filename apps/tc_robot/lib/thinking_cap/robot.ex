@@ -39,6 +39,16 @@ defmodule ThinkingCap.Robot do
       fallback when the cycle was late) is what reaches `drive/2`: a stalled
       BEAM or a silent controller leaves the robot stopped, never running
       blind on an old command.
+    * Teleoperation and the E-stop arbitrate over autonomy, here at the
+      base, for every driver alike: a latched E-stop (`{:estop, robot,
+      %{engaged: true}}`, released by `engaged: false`) stops the robot; a
+      `{:teleop, robot, %{command: command(), by:, sent_at:}}` tuple
+      overrides the autonomous command while it is refreshed within
+      `teleop_timeout` seconds (ADF param, default 0.3: the deadman rule),
+      and `%{command: :release}` hands control back at once. Whenever who
+      drives (`mode`: `:estop`, `:teleop`, `:autonomy`, `:idle`) or the
+      applied command changes, the base publishes `{:control, robot,
+      %{mode:, command:, teleop_by:, teleop_sent_at:}}`.
     * At start the robot's capabilities (`capabilities/1`) are published as
       `{:robot, robot, capabilities}`.
 

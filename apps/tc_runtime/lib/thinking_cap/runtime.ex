@@ -34,6 +34,7 @@ defmodule ThinkingCap.Runtime do
       behind.
   """
 
+  alias ThinkingCap.Blackboard
   alias ThinkingCap.Config.ADF
   alias ThinkingCap.Runtime.Host
 
@@ -55,15 +56,22 @@ defmodule ThinkingCap.Runtime do
   @doc """
   Starts every module of `adf` (a `ThinkingCap.Config.ADF` or the path of
   an ADF file) on its node. Returns what was started, or every module that
-  could not be, with the reason.
+  could not be, with the reason. A started ADF is announced on the
+  blackboard as `{:adf, robot, %{node:, file:, rdf:, wdf:, dashboard:,
+  modules:}}` (the services that follow an ADF, such as the dashboard, start
+  from it).
   """
   @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
   def start(%ADF{} = adf) do
     results = for spec <- adf.modules, do: {spec.name, start_module(adf, spec)}
 
     case for({name, {:error, reason}} <- results, do: {name, reason}) do
-      [] -> {:ok, for({_name, {:ok, info}} <- results, do: info)}
-      failed -> {:error, failed}
+      [] ->
+        announce(adf)
+        {:ok, for({_name, {:ok, info}} <- results, do: info)}
+
+      failed ->
+        {:error, failed}
     end
   end
 
@@ -139,6 +147,27 @@ defmodule ThinkingCap.Runtime do
   end
 
   @doc """
+  Restarts a module, wherever it runs: it terminates (its `terminate/2`
+  runs, so a robot base leaves its robot stopped) and its supervisor starts
+  it again with the ADF's parameters. The periodic activity's fallback holds
+  meanwhile.
+  """
+  @spec restart(atom()) :: :ok | {:error, :not_running}
+  def restart(name) do
+    case whereis(name) do
+      nil ->
+        {:error, :not_running}
+
+      pid ->
+        try do
+          :proc_lib.stop(pid, :restart_requested, 5_000)
+        catch
+          :exit, _ -> :ok
+        end
+    end
+  end
+
+  @doc """
   Replaces a running module's implementation in place (hot swap): the new
   module takes over the same process, periodic slot and subscriptions
   between two messages, so no release is missed.
@@ -188,6 +217,23 @@ defmodule ThinkingCap.Runtime do
   def timing, do: ThinkingCap.Cycle.timing()
 
   defp info(pid), do: GenServer.call(pid, :info)
+
+  # What was started, for the services that follow an ADF (the dashboard
+  # starts itself when one enables it)
+  defp announce(%ADF{} = adf) do
+    Blackboard.out(
+      {:adf, adf.robot,
+       %{
+         node: node(),
+         file: adf.file,
+         rdf: adf.rdf,
+         wdf: adf.wdf,
+         dashboard: adf.dashboard,
+         modules: Enum.map(adf.modules, & &1.name)
+       }},
+      key: {:adf, adf.robot}
+    )
+  end
 
   defp node_of(_adf, :local), do: node()
   defp node_of(%ADF{nodes: nodes}, logical), do: Map.fetch!(nodes, logical)

@@ -9,6 +9,7 @@ defmodule ThinkingCap.Robot.Core.Base do
   alias ThinkingCap.Robot.Description
 
   @default_timeout 0.5
+  @default_teleop_timeout 0.3
 
   def init(driver, params, context) do
     params = if is_map(params), do: Map.to_list(params), else: params || []
@@ -29,16 +30,27 @@ defmodule ThinkingCap.Robot.Core.Base do
           robot: context.robot,
           description: description,
           timeout_ns: round(Keyword.get(params, :command_timeout, @default_timeout) * 1.0e9),
+          teleop_timeout_ns:
+            round(Keyword.get(params, :teleop_timeout, @default_teleop_timeout) * 1.0e9),
           command: :stop,
           received: nil,
-          applied: nil
+          teleop: nil,
+          estop: estop_latched?(context.robot),
+          mode: :idle,
+          applied: nil,
+          published: nil
         }
 
         capabilities =
           {{:robot, context.robot, Robot.capabilities(description)},
            [key: {:robot, context.robot}]}
 
-        {[out: capabilities, subscribe: {:drive, context.robot, :_}], state}
+        {[
+           out: capabilities,
+           subscribe: {:drive, context.robot, :_},
+           subscribe: {:teleop, context.robot, :_},
+           subscribe: {:estop, context.robot, :_}
+         ], state}
 
       {:error, reason} ->
         raise ArgumentError, "#{inspect(driver)} could not open the robot: #{inspect(reason)}"
@@ -51,12 +63,30 @@ defmodule ThinkingCap.Robot.Core.Base do
         do: state.driver.poll(state.dstate),
         else: {[], state.dstate}
 
-    command =
-      if state.received && System.monotonic_time() - state.received <= state.timeout_ns,
-        do: state.command,
-        else: :stop
+    {mode, command} = arbitrate(state, System.monotonic_time())
 
-    {[{:command, command} | publish(readings, state.robot)], %{state | dstate: dstate}}
+    {[{:command, command} | publish(readings, state.robot)],
+     %{state | dstate: dstate, mode: mode}}
+  end
+
+  # Who drives this cycle: a latched E-stop stops the robot; a fresh
+  # teleoperation command (refreshed within teleop_timeout: the deadman
+  # rule) overrides autonomy; then the autonomous command while fresh;
+  # otherwise the robot stops.
+  defp arbitrate(state, now) do
+    cond do
+      state.estop ->
+        {:estop, :stop}
+
+      state.teleop != nil and now - state.teleop.received <= state.teleop_timeout_ns ->
+        {:teleop, state.teleop.command}
+
+      state.received != nil and now - state.received <= state.timeout_ns ->
+        {:autonomy, state.command}
+
+      true ->
+        {:idle, :stop}
+    end
   end
 
   def handle_tuple({:drive, robot, %{command: command}}, %{robot: robot} = state) do
@@ -70,6 +100,31 @@ defmodule ThinkingCap.Robot.Core.Base do
     end
   end
 
+  def handle_tuple({:teleop, robot, %{command: :release}}, %{robot: robot} = state),
+    do: {[], %{state | teleop: nil}}
+
+  def handle_tuple({:teleop, robot, %{command: command} = teleop}, %{robot: robot} = state) do
+    case Robot.check_command(state.description, command) do
+      :ok ->
+        teleop = %{
+          command: command,
+          received: System.monotonic_time(),
+          sent_at: teleop[:sent_at],
+          by: teleop[:by]
+        }
+
+        {[], %{state | teleop: teleop}}
+
+      {:error, message} ->
+        Logger.warning("#{inspect(robot)}: teleoperation command refused: #{message}")
+        {[], %{state | teleop: nil}}
+    end
+  end
+
+  def handle_tuple({:estop, robot, %{engaged: engaged}}, %{robot: robot} = state)
+      when is_boolean(engaged),
+      do: {[], %{state | estop: engaged}}
+
   def handle_tuple(_tuple, state), do: {[], state}
 
   # fresh or fallback, this is what the robot does now; a late result was
@@ -78,10 +133,31 @@ defmodule ThinkingCap.Robot.Core.Base do
 
   def handle_applied(%{command: command}, state) do
     command = command || :stop
+    state = if command == state.applied, do: state, else: drive(command, state)
+    announce(state)
+  end
 
-    if command == state.applied,
-      do: {[], state},
-      else: {[], drive(command, state)}
+  # `{:control, robot, %{mode, command, ...}}` whenever who drives or what
+  # is driven changes: the dashboard shows it, and a teleoperation
+  # command's `sent_at` comes back in it (key press to applied latency)
+  defp announce(%{mode: mode, applied: applied} = state) do
+    if {mode, applied} == state.published do
+      {[], state}
+    else
+      control = %{
+        mode: mode,
+        command: applied,
+        teleop_by: if(mode == :teleop, do: state.teleop[:by]),
+        teleop_sent_at: if(mode == :teleop, do: state.teleop[:sent_at])
+      }
+
+      {[out: {{:control, state.robot, control}, [key: {:control, state.robot}]}],
+       %{state | published: {mode, applied}}}
+    end
+  end
+
+  defp estop_latched?(robot) do
+    match?({:ok, {:estop, _, %{engaged: true}}}, ThinkingCap.Blackboard.rdp({:estop, robot, :_}))
   end
 
   def handle_info(message, state) do

@@ -1,0 +1,164 @@
+defmodule ThinkingCap.Dashboard do
+  @moduledoc """
+  The web dashboard: live monitoring and teleoperation in the browser, and
+  a rosbridge v2 endpoint for the tools robotics engineers already use
+  (roslibjs apps, Foxglove).
+
+  It runs embedded yaws (Debian `erlang-yaws`) with two servers: the page
+  (`http://HOST:PORT/`, its static files, and `/ws`, the WebSocket of
+  `ThinkingCap.Dashboard.Session`, see `PROTOCOL.md`) and the rosbridge
+  endpoint (`ws://HOST:ROSBRIDGE_PORT/`, `ThinkingCap.Dashboard.Rosbridge`).
+  Telemetry is collected once per node by `ThinkingCap.Dashboard.Telemetry`
+  and each browser pulls what changed at its own pace, so a slow or stalled
+  browser gets fewer frames (and is dropped after 5 s of not reading); it
+  never slows the blackboard or the control cycle.
+
+  An ADF turns it on (`dashboard: [enabled: true, port: 4000]`): when
+  `ThinkingCap.Runtime` starts that ADF on this node, the dashboard starts
+  with it (`info/0` then tells where). It can also be started by hand:
+
+      {:ok, %{url: url}} = ThinkingCap.Dashboard.start(port: 4000)
+
+  ## Access
+  Controlling actions (teleoperation, goals, releasing an E-stop,
+  restarting a module, publishing `/cmd_vel`) need the access token, a
+  random string made at start and printed in the URL (as notebook servers
+  do). Without it the page is refused, unless `public_view: true` lets
+  viewers watch (never control). Engaging an E-stop needs no token: anyone
+  who sees the robot may stop it. Browsers must come from the dashboard's
+  own origin or one listed in `origins`.
+
+  ## Options
+  #{ThinkingCap.Dashboard.Core.Options.docs()}
+  """
+
+  alias ThinkingCap.Dashboard.Core.{Access, Options, Yaws}
+
+  @config {__MODULE__, :config}
+
+  @type info :: %{
+          url: String.t(),
+          token: String.t(),
+          host: String.t(),
+          port: :inet.port_number(),
+          rosbridge_port: :inet.port_number() | nil
+        }
+
+  @doc """
+  Starts the dashboard (see the options above). Returns where it listens and
+  its access token.
+  """
+  @spec start(keyword()) :: {:ok, info()} | {:error, term()}
+  def start(opts \\ []) do
+    opts = Options.validate!(opts)
+
+    if config() do
+      {:error, {:already_started, info()}}
+    else
+      config = Map.put(opts, :token, opts.token || Access.new_token())
+      do_start(config)
+    end
+  end
+
+  defp do_start(config) do
+    servers =
+      [
+        %{
+          name: :page,
+          host: config.host,
+          port: config.port,
+          docroot: config.static_dir,
+          appmods: [{"/ws", ThinkingCap.Dashboard.Core.Appmod}],
+          opaque: [handler: ThinkingCap.Dashboard.Session, view_needs_token: true]
+        }
+      ] ++
+        if config.rosbridge_port do
+          [
+            %{
+              name: :rosbridge,
+              host: config.host,
+              port: config.rosbridge_port,
+              docroot: config.static_dir,
+              appmods: [{"/", ThinkingCap.Dashboard.Core.Appmod}],
+              opaque: [handler: ThinkingCap.Dashboard.Rosbridge.Session, view_needs_token: false]
+            }
+          ]
+        else
+          []
+        end
+
+    # the appmods read the configuration: it is there before a port opens
+    :persistent_term.put(@config, config)
+
+    with {:ok, _} <- start_telemetry(config),
+         {:ok, ports} <- Yaws.start(servers) do
+      config = %{config | port: ports.page, rosbridge_port: ports[:rosbridge]}
+      :persistent_term.put(@config, config)
+      {:ok, info()}
+    else
+      error ->
+        stop()
+        error
+    end
+  end
+
+  @doc "Stops the dashboard (its servers and its telemetry)."
+  @spec stop() :: :ok
+  def stop do
+    Yaws.stop()
+
+    for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),
+        do: DynamicSupervisor.terminate_child(ThinkingCap.Dashboard.Supervisor, pid)
+
+    :persistent_term.erase(@config)
+    :ok
+  end
+
+  @doc "Where the running dashboard listens, with its token; nil when it is not running."
+  @spec info() :: info() | nil
+  def info do
+    case config() do
+      nil ->
+        nil
+
+      c ->
+        %{
+          url: "http://#{url_host(c.host)}:#{c.port}/?token=#{c.token}",
+          token: c.token,
+          host: c.host,
+          port: c.port,
+          rosbridge_port: c.rosbridge_port
+        }
+    end
+  end
+
+  @doc "Waits up to `timeout` ms for the dashboard to be running (an ADF starts it asynchronously)."
+  @spec await(timeout()) :: {:ok, info()} | {:error, :timeout}
+  def await(timeout \\ 5_000) do
+    deadline = System.monotonic_time(:millisecond) + timeout
+
+    Stream.repeatedly(fn ->
+      info() || (System.monotonic_time(:millisecond) < deadline && Process.sleep(20))
+    end)
+    |> Enum.find(&(is_map(&1) or &1 == false))
+    |> case do
+      %{} = info -> {:ok, info}
+      false -> {:error, :timeout}
+    end
+  end
+
+  @doc false
+  # the running configuration (the validated options and the token)
+  @spec config() :: map() | nil
+  def config, do: :persistent_term.get(@config, nil)
+
+  defp start_telemetry(config) do
+    DynamicSupervisor.start_child(
+      ThinkingCap.Dashboard.Supervisor,
+      {ThinkingCap.Dashboard.Telemetry, config}
+    )
+  end
+
+  defp url_host("0.0.0.0"), do: "127.0.0.1"
+  defp url_host(host), do: if(String.contains?(host, ":"), do: "[#{host}]", else: host)
+end

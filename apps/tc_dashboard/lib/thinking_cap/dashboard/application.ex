@@ -1,0 +1,26 @@
+defmodule ThinkingCap.Dashboard.Application do
+  @moduledoc false
+  # Supervision: ThinkingCap.Dashboard.Supervisor (one_for_one) holds
+  #   * Dashboard.Runs, a DynamicSupervisor for a running dashboard's
+  #     telemetry collector (started by ThinkingCap.Dashboard.start/1),
+  #   * Dashboard.Launcher, which starts the dashboard when an ADF that
+  #     enables it starts on this node.
+  # yaws runs as its own application, started and stopped with the dashboard.
+  use Application
+
+  @impl true
+  def start(_type, _args) do
+    children = [
+      {DynamicSupervisor, name: ThinkingCap.Dashboard.Supervisor, strategy: :one_for_one},
+      ThinkingCap.Dashboard.Launcher
+    ]
+
+    Supervisor.start_link(children, strategy: :one_for_one, name: ThinkingCap.Dashboard.Root)
+  end
+
+  @impl true
+  def prep_stop(state) do
+    ThinkingCap.Dashboard.stop()
+    state
+  end
+end

@@ -1,0 +1,177 @@
+defmodule ThinkingCap.Dashboard.Core.Socket do
+  @moduledoc false
+  # The yaws WebSocket callback module behind the page's `/ws` and the
+  # rosbridge port. It owns what every socket needs, and hands each text
+  # message to a handler module (the page's Session, rosbridge's Session):
+  #
+  #   * frames above `max_frame` bytes are refused by yaws (close 1009)
+  #     before they are read;
+  #   * a message-rate budget (a token bucket): messages over it are
+  #     dropped with an error reply, and a client that keeps flooding is
+  #     closed (1008);
+  #   * a send timeout: a browser that stops reading is dropped, so it never
+  #     holds the process that serves it (nor anything upstream of it);
+  #   * a handler that raises gets its error logged and an error reply sent,
+  #     the socket stays open;
+  #   * binary frames get an error reply.
+
+  require Logger
+  import ThinkingCap.Dashboard.Core.Records
+
+  @typedoc "What a handler learns about its client."
+  @type conn :: %{
+          control: boolean(),
+          query: %{String.t() => String.t()},
+          peer: {:inet.ip_address(), :inet.port_number()} | nil,
+          origin: String.t() | nil,
+          config: map()
+        }
+  @type result :: {:reply, [iodata()], term()} | {:noreply, term()} | {:close, term()}
+
+  @doc """
+  Called in the socket's process before the handshake completes: set up
+  state only. `handle_info(:open, state)` comes first once the socket is
+  open; subscribe and start timers there (messages that arrive earlier are
+  held until then).
+  """
+  @callback init(conn()) :: {:ok, term()} | {:error, term()}
+  @callback handle_text(binary(), term()) :: result()
+  @callback handle_info(term(), term()) :: result()
+  @callback error_frame(message :: String.t()) :: iodata()
+  @callback terminate(term(), term()) :: term()
+
+  @rate 100
+  @burst 200
+  @flood_close 2_000
+  @send_timeout 5_000
+
+  @doc false
+  def init([_arg, {handler, conn}]) do
+    case handler.init(conn) do
+      {:ok, hstate} ->
+        {:ok,
+         %{
+           handler: handler,
+           hstate: hstate,
+           tokens: @burst * 1.0,
+           last: now(),
+           dropped: 0,
+           warned: 0,
+           open: false,
+           held: []
+         }}
+
+      {:error, reason} ->
+        {:error, reason}
+    end
+  end
+
+  @doc false
+  def handle_open(ws, state) do
+    case ws_state(ws, :sock) do
+      sock when is_port(sock) ->
+        _ = :inet.setopts(sock, send_timeout: @send_timeout, send_timeout_close: true)
+
+      _ssl ->
+        :ok
+    end
+
+    send(self(), :"$tc_socket_open")
+    {:ok, state}
+  end
+
+  @doc false
+  def handle_message({:text, text}, state) do
+    case admit(state) do
+      {:ok, state} ->
+        call(state, :handle_text, [text, state.hstate])
+
+      {:drop, state} when state.dropped >= @flood_close ->
+        Logger.warning("dashboard: a client flooding the socket was closed")
+        {:close, {1008, "message flood"}, state}
+
+      {:drop, state} ->
+        if state.dropped - state.warned >= 50 or state.warned == 0,
+          do:
+            {:reply, [frame(state.handler.error_frame("too many messages: dropped"))],
+             %{state | warned: state.dropped}},
+          else: {:noreply, state}
+    end
+  end
+
+  def handle_message({:binary, _data}, state),
+    do: {:reply, [frame(state.handler.error_frame("binary frames are not understood"))], state}
+
+  def handle_message({:close, _status, _reason}, state), do: {:close, :normal, state}
+
+  def handle_message(_other, state), do: {:noreply, state}
+
+  @doc false
+  def handle_info(:"$tc_socket_open", state) do
+    state = %{state | open: true}
+
+    Enum.reduce(Enum.reverse(state.held), call(state, :handle_info, [:open, state.hstate]), fn
+      message, {:reply, frames, state} ->
+        case call(state, :handle_info, [message, state.hstate]) do
+          {:reply, more, state} -> {:reply, frames ++ more, state}
+          {:noreply, state} -> {:reply, frames, state}
+          closed -> closed
+        end
+
+      message, {:noreply, state} ->
+        call(state, :handle_info, [message, state.hstate])
+
+      _message, closed ->
+        closed
+    end)
+    |> case do
+      {:reply, frames, state} -> {:reply, frames, %{state | held: []}}
+      {:noreply, state} -> {:noreply, %{state | held: []}}
+      closed -> closed
+    end
+  end
+
+  def handle_info(message, %{open: false} = state),
+    do: {:noreply, %{state | held: [message | state.held]}}
+
+  def handle_info(message, state), do: call(state, :handle_info, [message, state.hstate])
+
+  @doc false
+  def terminate(reason, state) do
+    state.handler.terminate(reason, state.hstate)
+  rescue
+    _ -> :ok
+  end
+
+  defp call(state, fun, args) do
+    case apply(state.handler, fun, args) do
+      {:reply, frames, hstate} -> {:reply, Enum.map(frames, &frame/1), %{state | hstate: hstate}}
+      {:noreply, hstate} -> {:noreply, %{state | hstate: hstate}}
+      {:close, hstate} -> {:close, :normal, %{state | hstate: hstate}}
+    end
+  rescue
+    exception ->
+      Logger.error(
+        "dashboard: #{inspect(state.handler)}.#{fun} failed: " <>
+          Exception.format(:error, exception, __STACKTRACE__)
+      )
+
+      {:reply,
+       [frame(state.handler.error_frame("internal error: #{Exception.message(exception)}"))],
+       state}
+  end
+
+  # a token bucket: @rate messages a second, bursts of @burst
+  defp admit(state) do
+    t = now()
+    tokens = min(@burst * 1.0, state.tokens + (t - state.last) * @rate / 1000)
+
+    if tokens >= 1.0,
+      do: {:ok, %{state | tokens: tokens - 1.0, last: t, dropped: 0, warned: 0}},
+      else: {:drop, %{state | tokens: tokens, last: t, dropped: state.dropped + 1}}
+  end
+
+  defp frame(iodata), do: {:text, IO.iodata_to_binary(iodata)}
+
+  defp now, do: System.monotonic_time(:millisecond)
+end

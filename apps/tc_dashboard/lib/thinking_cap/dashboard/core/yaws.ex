@@ -1,0 +1,126 @@
+defmodule ThinkingCap.Dashboard.Core.Yaws do
+  @moduledoc false
+  # Embedded yaws (Debian's erlang-yaws): one yaws instance serving two
+  # servers, the dashboard (static files from its docroot, `/ws` for the
+  # page's WebSocket) and the rosbridge endpoint (every path a WebSocket).
+  # Debian installs yaws outside OTP's library directory, so its ebin is
+  # put on the code path here, and the `yaws` application is told it is
+  # embedded before it starts (or it would look for /etc/yaws/yaws.conf).
+
+  require Logger
+
+  @id ~c"thinkingcap"
+
+  @doc "Puts yaws on the code path; false if it is not installed."
+  @spec ensure_available() :: boolean()
+  def ensure_available do
+    case Code.ensure_loaded(:yaws_api) do
+      {:module, _} ->
+        true
+
+      _ ->
+        Enum.each(Path.wildcard("/usr/lib/yaws-*/ebin"), &Code.prepend_path/1)
+        match?({:module, _}, Code.ensure_loaded(:yaws_api))
+    end
+  end
+
+  @doc """
+  Starts yaws with `servers`, a list of `%{name, host, port, docroot,
+  appmods: [{path, module}], opaque: keyword}`; returns the ports bound (a
+  port 0 picks a free one).
+  """
+  @spec start([map()]) :: {:ok, %{atom() => :inet.port_number()}} | {:error, term()}
+  def start(servers) do
+    with true <- ensure_available() || {:error, :yaws_not_installed},
+         :ok <- load_yaws(),
+         servers = Enum.map(servers, &bind/1),
+         {:ok, sc_groups, gc, child_specs} <-
+           :yaws_api.embedded_start_conf(
+             docroot(servers),
+             Enum.map(servers, &sconf/1),
+             gconf(),
+             @id
+           ),
+         {:ok, _} <- Application.ensure_all_started(:yaws),
+         :ok <- start_children(child_specs),
+         :ok <- :yaws_api.setconf(gc, sc_groups) do
+      {:ok, Map.new(servers, &{&1.name, &1.port})}
+    else
+      {:error, reason} -> {:error, reason}
+      other -> {:error, other}
+    end
+  end
+
+  @doc "Stops yaws."
+  @spec stop() :: :ok
+  def stop do
+    _ = Application.stop(:yaws)
+    :ok
+  end
+
+  defp load_yaws do
+    case Application.load(:yaws) do
+      :ok -> :ok
+      {:error, {:already_loaded, :yaws}} -> :ok
+      error -> error
+    end
+    |> case do
+      :ok ->
+        Application.put_env(:yaws, :embedded, true)
+        :ok
+
+      error ->
+        error
+    end
+  end
+
+  # yaws binds as it starts, so a port 0 is replaced beforehand by a port
+  # the OS reports free
+  defp bind(%{port: 0} = server) do
+    {:ok, socket} = :gen_tcp.listen(0, ip: ip(server.host), reuseaddr: true)
+    {:ok, port} = :inet.port(socket)
+    :gen_tcp.close(socket)
+    %{server | port: port}
+  end
+
+  defp bind(server), do: server
+
+  defp docroot([first | _]), do: to_charlist(first.docroot)
+
+  defp sconf(server) do
+    [
+      port: server.port,
+      servername: to_charlist("#{server.name}"),
+      listen: ip(server.host),
+      docroot: to_charlist(server.docroot),
+      appmods: Enum.map(server.appmods, fn {path, mod} -> {to_charlist(path), mod} end),
+      opaque: server |> Map.get(:opaque, []) |> Enum.to_list(),
+      access_log: false,
+      deflate: false
+    ]
+    |> Keyword.merge(Map.get(server, :yaws, []))
+  end
+
+  defp gconf do
+    logdir = Path.join(System.tmp_dir!(), "thinkingcap-yaws")
+    File.mkdir_p!(logdir)
+    [id: @id, logdir: to_charlist(logdir), copy_errlog: false]
+  end
+
+  defp start_children(specs) do
+    Enum.reduce_while(specs, :ok, fn spec, :ok ->
+      case Supervisor.start_child(:yaws_sup, spec) do
+        {:ok, _} -> {:cont, :ok}
+        {:error, {:already_started, _}} -> {:cont, :ok}
+        {:error, reason} -> {:halt, {:error, reason}}
+      end
+    end)
+  end
+
+  defp ip(host) when is_binary(host) do
+    case :inet.parse_address(to_charlist(host)) do
+      {:ok, ip} -> ip
+      {:error, _} -> raise ArgumentError, "dashboard host #{inspect(host)} is not an IP address"
+    end
+  end
+end

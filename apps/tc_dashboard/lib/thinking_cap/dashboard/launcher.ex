@@ -1,0 +1,44 @@
+defmodule ThinkingCap.Dashboard.Launcher do
+  @moduledoc false
+  # Starts the dashboard when ThinkingCap.Runtime starts, on this node, an
+  # ADF whose `dashboard:` section enables it (the runtime announces every
+  # ADF it starts as `{:adf, robot, %{node:, wdf:, dashboard:, ...}}`).
+  use GenServer
+  require Logger
+
+  alias ThinkingCap.Blackboard
+
+  def start_link(_), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
+
+  @impl true
+  def init(nil) do
+    {:ok, _ref} = Blackboard.subscribe({:adf, :_, :_})
+    {:ok, nil}
+  end
+
+  @impl true
+  def handle_info({:blackboard, _ref, {:adf, robot, %{node: node} = adf}}, state)
+      when node == node() do
+    dashboard = Map.new(adf[:dashboard] || %{})
+
+    if dashboard[:enabled] && ThinkingCap.Dashboard.config() == nil do
+      opts =
+        dashboard
+        |> Map.take([:host, :port, :rosbridge_port, :public_view])
+        |> Map.put(:world, adf[:wdf])
+        |> Enum.to_list()
+
+      case ThinkingCap.Dashboard.start(opts) do
+        {:ok, info} ->
+          Logger.info("dashboard for #{inspect(robot)}: #{info.url}")
+
+        {:error, reason} ->
+          Logger.error("dashboard for #{inspect(robot)} could not start: #{inspect(reason)}")
+      end
+    end
+
+    {:noreply, state}
+  end
+
+  def handle_info(_message, state), do: {:noreply, state}
+end

@@ -1,0 +1,304 @@
+defmodule ThinkingCap.Dashboard.Session do
+  @moduledoc """
+  One browser's WebSocket session (`/ws`): the server side of the page's
+  protocol, written down in `apps/tc_dashboard/PROTOCOL.md`.
+
+  After a `welcome` (its rights, the robots, the world), it sends
+  `telemetry` frames of what changed since the browser's last frame, at most
+  `telemetry_hz` a second: the next frame is scheduled only once the last
+  one was written to the socket, so a slow browser gets fewer frames, each
+  with the latest values, and one that stops reading is dropped by the
+  socket's send timeout. Commands from the page become blackboard writes
+  through `ThinkingCap.Dashboard.Control`; controlling ones need the access
+  token. Every bad message gets an `error` reply and changes nothing.
+  """
+  @behaviour ThinkingCap.Dashboard.Core.Socket
+
+  alias ThinkingCap.Blackboard
+  alias ThinkingCap.Dashboard.{Control, Telemetry}
+  alias ThinkingCap.Dashboard.Core.JSON
+
+  @tail_rate 20
+  @max_tails 8
+
+  @impl true
+  def init(conn) do
+    {peer_ip, peer_port} = conn.peer || {nil, nil}
+
+    {:ok,
+     %{
+       control: conn.control,
+       by: "page #{format_ip(peer_ip)}:#{peer_port}",
+       interval: max(div(1000, conn.config.telemetry_hz), 1),
+       version: 0,
+       tails: %{}
+     }}
+  end
+
+  @impl true
+  def handle_info(:open, state) do
+    send(self(), :tick)
+
+    welcome = [
+      ~s({"op":"welcome","version":1,"control":),
+      to_string(state.control),
+      ~s(,"robots":),
+      JSON.encode!(Control.robots()),
+      ~s(,"world":),
+      Telemetry.world_json(),
+      "}"
+    ]
+
+    {:reply, [welcome], state}
+  end
+
+  def handle_info(:tick, state) do
+    Process.send_after(self(), :tick, state.interval)
+
+    case Telemetry.changes_since(state.version) do
+      {_version, []} ->
+        {:noreply, state}
+
+      {version, items} ->
+        frame = [
+          ~s({"op":"telemetry","t":),
+          Integer.to_string(System.os_time(:millisecond)),
+          ~s(,"items":{),
+          items
+          |> Enum.map(fn {key, json} -> [JSON.encode!(key), ?:, json] end)
+          |> Enum.intersperse(?,),
+          "}}"
+        ]
+
+        {:reply, [frame], %{state | version: version}}
+    end
+  end
+
+  def handle_info({:blackboard, ref, tuple}, state) do
+    case Enum.find(state.tails, fn {_id, tail} -> tail.ref == ref end) do
+      nil ->
+        {:noreply, state}
+
+      {id, tail} ->
+        now = System.monotonic_time(:millisecond)
+
+        {window, count} =
+          if now - tail.window >= 1000, do: {now, 0}, else: {tail.window, tail.count}
+
+        if count < @tail_rate do
+          tails = Map.put(state.tails, id, %{tail | window: window, count: count + 1})
+          {:reply, [encode(%{op: :tuple, id: id, tuple: tuple})], %{state | tails: tails}}
+        else
+          {:noreply,
+           %{state | tails: Map.put(state.tails, id, %{tail | window: window, count: count})}}
+        end
+    end
+  end
+
+  def handle_info(_message, state), do: {:noreply, state}
+
+  @impl true
+  def handle_text(text, state) do
+    with {:ok, message} <- JSON.decode(text),
+         {:ok, message} <- object(message),
+         {:ok, reply, state} <- handle(message["op"], message, state) do
+      {:reply, List.wrap(reply), state}
+    else
+      {:error, reason} -> {:reply, [error(id_of(text), reason)], state}
+      {:error, id, reason} -> {:reply, [error(id, reason)], state}
+    end
+  end
+
+  @impl true
+  def error_frame(message), do: error(nil, message)
+
+  @impl true
+  def terminate(_reason, _state), do: :ok
+
+  ## the ops
+
+  defp handle("ping", m, state), do: {:ok, encode(%{op: :pong, id: m["id"]}), state}
+
+  defp handle("teleop", m, state) do
+    with :ok <- may_control(m, state),
+         {:ok, robot} <- robot(m),
+         {:ok, v} <- number(m, "v"),
+         {:ok, w} <- number(m, "w"),
+         {:ok, _} <- wrap(m, Control.teleop(robot, v, w, by: state.by, sent_at: m["sent_at"])) do
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("teleop_release", m, state) do
+    with :ok <- may_control(m, state), {:ok, robot} <- robot(m) do
+      Control.teleop_release(robot, state.by)
+      {:ok, ok(m), state}
+    end
+  end
+
+  # anyone who sees the robot may stop it
+  defp handle("estop", m, state) do
+    with {:ok, robot} <- robot(m) do
+      Control.estop(robot, state.by)
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("estop_release", m, state) do
+    with :ok <- may_control(m, state), {:ok, robot} <- robot(m) do
+      Control.estop_release(robot, state.by)
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("goal", m, state) do
+    with :ok <- may_control(m, state), {:ok, robot} <- robot(m), {:ok, target} <- target(m) do
+      Control.goal(robot, target)
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("restart", m, state) do
+    with :ok <- may_control(m, state),
+         {:ok, name} <- string(m, "module"),
+         :ok <- wrap(m, Control.restart(name)) do
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("query", m, state) do
+    with {:ok, template} <- template(m) do
+      tuples = Blackboard.rd_all(template)
+      {:ok, encode(%{op: :result, id: m["id"], tuples: Enum.take(tuples, 500)}), state}
+    end
+  end
+
+  defp handle("tail", m, state) do
+    with {:ok, id} <- tail_id(m),
+         :ok <-
+           if(map_size(state.tails) < @max_tails,
+             do: :ok,
+             else: {:error, id, "at most #{@max_tails} tails"}
+           ),
+         {:ok, template} <- template(m) do
+      state = untail(id, state)
+      {:ok, ref} = Blackboard.subscribe(template)
+      tail = %{ref: ref, window: System.monotonic_time(:millisecond), count: 0}
+      {:ok, ok(m), %{state | tails: Map.put(state.tails, id, tail)}}
+    end
+  end
+
+  defp handle("untail", m, state) do
+    with {:ok, id} <- tail_id(m), do: {:ok, ok(m), untail(id, state)}
+  end
+
+  defp handle(nil, m, _state), do: {:error, m["id"], "a message needs an \"op\""}
+  defp handle(op, m, _state), do: {:error, m["id"], "unknown op #{inspect(op)}"}
+
+  ## checks
+
+  defp may_control(m, state) do
+    if state.control,
+      do: :ok,
+      else: {:error, m["id"], "#{m["op"]} needs the access token (this page is read-only)"}
+  end
+
+  defp robot(m) do
+    case Control.robot(m["robot"]) do
+      {:ok, robot} -> {:ok, robot}
+      {:error, reason} -> {:error, m["id"], reason}
+    end
+  end
+
+  defp number(m, field) do
+    case m[field] do
+      x when is_number(x) -> {:ok, x}
+      other -> {:error, m["id"], "#{field} must be a number, not #{inspect(other)}"}
+    end
+  end
+
+  defp string(m, field) do
+    case m[field] do
+      s when is_binary(s) -> {:ok, s}
+      other -> {:error, m["id"], "#{field} must be a string, not #{inspect(other)}"}
+    end
+  end
+
+  defp target(%{"x" => x, "y" => y}) when is_number(x) and is_number(y),
+    do: {:ok, {x * 1.0, y * 1.0}}
+
+  defp target(%{"waypoint" => name} = m) when is_binary(name) do
+    {:ok, String.to_existing_atom(name)}
+  rescue
+    ArgumentError -> {:error, m["id"], "no waypoint #{inspect(name)}"}
+  end
+
+  defp target(m), do: {:error, m["id"], "a goal needs numbers x and y, or a waypoint name"}
+
+  defp template(%{"template" => list} = m)
+       when is_list(list) and list != [] and length(list) <= 16 do
+    {:ok, list |> Enum.map(&template_element/1) |> List.to_tuple()}
+  rescue
+    e in ArgumentError -> {:error, m["id"], Exception.message(e)}
+  end
+
+  defp template(m), do: {:error, m["id"], "a template is a non-empty list of at most 16 elements"}
+
+  defp template_element("_"), do: :_
+
+  defp template_element(s) when is_binary(s) do
+    String.to_existing_atom(s)
+  rescue
+    ArgumentError -> s
+  end
+
+  defp template_element(x) when is_number(x), do: x
+  defp template_element(nil), do: nil
+  defp template_element(b) when is_boolean(b), do: b
+
+  defp template_element(other),
+    do:
+      raise(
+        ArgumentError,
+        "a template element is a string, a number or \"_\", not #{inspect(other)}"
+      )
+
+  defp tail_id(%{"id" => id}) when is_integer(id) or is_binary(id), do: {:ok, id}
+  defp tail_id(m), do: {:error, m["id"], "a tail needs an id (a number or a string)"}
+
+  defp untail(id, state) do
+    case Map.pop(state.tails, id) do
+      {nil, _} ->
+        state
+
+      {tail, tails} ->
+        Blackboard.unsubscribe(tail.ref)
+        %{state | tails: tails}
+    end
+  end
+
+  defp object(m) when is_map(m), do: {:ok, m}
+  defp object(_), do: {:error, "a message is a JSON object"}
+
+  defp wrap(_m, :ok), do: :ok
+  defp wrap(_m, {:ok, x}), do: {:ok, x}
+  defp wrap(m, {:error, reason}), do: {:error, m["id"], reason}
+
+  ## replies
+
+  defp ok(m), do: encode(%{op: :ok, id: m["id"]})
+  defp error(id, message), do: encode(%{op: :error, id: id, message: message})
+  defp encode(map), do: JSON.encode!(map)
+
+  # the id of a message we could not read, if it is readable at all
+  defp id_of(text) do
+    case JSON.decode(text) do
+      {:ok, %{"id" => id}} -> id
+      _ -> nil
+    end
+  end
+
+  defp format_ip(nil), do: "?"
+  defp format_ip(ip) when is_tuple(ip), do: ip |> :inet.ntoa() |> to_string()
+  defp format_ip(other), do: inspect(other)
+end

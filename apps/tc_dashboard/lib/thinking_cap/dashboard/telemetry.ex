@@ -1,0 +1,194 @@
+defmodule ThinkingCap.Dashboard.Telemetry do
+  @moduledoc """
+  Collects what the dashboard shows, once per node however many browsers
+  watch: it subscribes to the blackboard's latest-value streams, encodes
+  each changed stream to JSON at most `telemetry_hz` times a second, and
+  keeps the result in an ETS table with a version number. Every browser's
+  session then takes, at its own pace, what changed since the version it
+  last saw (`changes_since/1`), so a slow browser gets fewer, fresher frames
+  and never a queue, and the blackboard's writers never wait for a browser.
+
+  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door)a)}`
+  (`{tag, id, payload}` tuples, keyed `"tag/id"`), plus `modules/all`, the
+  modules running in the cluster, once a second.
+  """
+  use GenServer
+  require Logger
+
+  alias ThinkingCap.Blackboard
+  alias ThinkingCap.Dashboard.Core.JSON
+
+  @table __MODULE__
+  @streams ~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door)a
+  @modules_every 1_000
+
+  @doc false
+  def start_link(config), do: GenServer.start_link(__MODULE__, config, name: __MODULE__)
+
+  @doc false
+  def child_spec(config),
+    do: %{id: __MODULE__, start: {__MODULE__, :start_link, [config]}, restart: :permanent}
+
+  @doc """
+  The streams changed since `version`: `{latest_version, [{key, json}]}`
+  (json is the encoded payload, `"null"` for a stream that went away).
+  """
+  @spec changes_since(non_neg_integer()) :: {non_neg_integer(), [{String.t(), binary()}]}
+  def changes_since(version) do
+    latest =
+      case :ets.lookup(@table, :version) do
+        [{:version, v}] -> v
+        [] -> 0
+      end
+
+    if latest == version do
+      {latest, []}
+    else
+      items =
+        :ets.select(@table, [
+          {{{:item, :"$1"}, :"$2", :"$3"}, [{:>, :"$2", version}], [{{:"$1", :"$3"}}]}
+        ])
+
+      {latest, items}
+    end
+  catch
+    :error, :badarg -> {version, []}
+  end
+
+  @doc "The world (the WDF shown on the map) as JSON, or `\"null\"`."
+  @spec world_json() :: binary()
+  def world_json do
+    case :ets.lookup(@table, :world) do
+      [{:world, json}] -> json
+      [] -> "null"
+    end
+  catch
+    :error, :badarg -> "null"
+  end
+
+  @impl true
+  def init(config) do
+    table = :ets.new(@table, [:named_table, :protected, :set, read_concurrency: true])
+    :ets.insert(table, [{:version, 0}, {:world, world(config.world)}])
+
+    for tag <- @streams, do: {:ok, _} = Blackboard.subscribe({tag, :_, :_})
+
+    dirty =
+      for tag <- @streams, {^tag, id, payload} <- Blackboard.rd_all({tag, :_, :_}), into: %{} do
+        {key(tag, id), payload}
+      end
+
+    interval = max(div(1000, config.telemetry_hz), 1)
+    :timer.send_interval(interval, :flush)
+    send(self(), :modules)
+
+    {:ok,
+     %{table: table, version: 0, dirty: dirty, modules: nil, pids: %{}, restarts: %{}, task: nil}}
+  end
+
+  @impl true
+  def handle_info({:blackboard, _ref, {tag, id, payload}}, state),
+    do: {:noreply, %{state | dirty: Map.put(state.dirty, key(tag, id), payload)}}
+
+  def handle_info(:flush, %{dirty: dirty} = state) when map_size(dirty) == 0,
+    do: {:noreply, state}
+
+  def handle_info(:flush, state) do
+    version = state.version + 1
+
+    rows =
+      for {key, payload} <- state.dirty do
+        {{:item, key}, version, encode(key, payload)}
+      end
+
+    :ets.insert(state.table, rows)
+    :ets.insert(state.table, {:version, version})
+    {:noreply, %{state | version: version, dirty: %{}}}
+  end
+
+  # which_modules asks every module: done in a task, never blocking the
+  # collection of streams
+  def handle_info(:modules, %{task: nil} = state) do
+    task = Task.async(fn -> ThinkingCap.Runtime.which_modules() end)
+    {:noreply, %{state | task: task}}
+  end
+
+  def handle_info(:modules, state), do: {:noreply, state}
+
+  def handle_info({ref, modules}, %{task: %Task{ref: ref}} = state) do
+    Process.demonitor(ref, [:flush])
+    Process.send_after(self(), :modules, @modules_every)
+    {:noreply, modules(modules, %{state | task: nil})}
+  end
+
+  def handle_info({:DOWN, ref, :process, _, reason}, %{task: %Task{ref: ref}} = state) do
+    Logger.warning("dashboard: listing the modules failed: #{inspect(reason)}")
+    Process.send_after(self(), :modules, @modules_every)
+    {:noreply, %{state | task: nil}}
+  end
+
+  def handle_info(_message, state), do: {:noreply, state}
+
+  # restarts: a module seen under a new pid was restarted
+  defp modules(modules, state) do
+    restarts =
+      Enum.reduce(modules, state.restarts, fn m, acc ->
+        case state.pids[m.name] do
+          nil -> acc
+          pid when pid == m.pid -> acc
+          _other -> Map.update(acc, m.name, 1, &(&1 + 1))
+        end
+      end)
+
+    payload = %{
+      modules:
+        for m <- modules do
+          %{
+            name: m.name,
+            module: inspect(m.module),
+            node: m.node,
+            activity: m.activity,
+            status: :running,
+            pid: inspect(m.pid),
+            started_at: m[:started_at],
+            restarts: Map.get(restarts, m.name, 0)
+          }
+        end
+    }
+
+    state = %{state | pids: Map.new(modules, &{&1.name, &1.pid}), restarts: restarts}
+
+    if payload == state.modules,
+      do: state,
+      else: %{state | modules: payload, dirty: Map.put(state.dirty, "modules/all", payload)}
+  end
+
+  defp encode(key, payload) do
+    payload |> JSON.encode!() |> IO.iodata_to_binary()
+  rescue
+    e ->
+      Logger.warning("dashboard: #{key} could not be encoded: #{Exception.message(e)}")
+      "null"
+  end
+
+  defp key(tag, id), do: "#{tag}/#{id}"
+
+  defp world(nil), do: "null"
+
+  defp world(path) when is_binary(path) do
+    case ThinkingCap.Config.read(path) do
+      {:ok, wdf} ->
+        world(wdf)
+
+      {:error, errors} ->
+        Logger.warning("dashboard: #{ThinkingCap.Config.format_errors(errors)}")
+        "null"
+    end
+  end
+
+  defp world(%ThinkingCap.Config.WDF{} = wdf) do
+    wdf |> Map.from_struct() |> Map.delete(:file) |> JSON.encode!() |> IO.iodata_to_binary()
+  end
+
+  defp world(_other), do: "null"
+end
