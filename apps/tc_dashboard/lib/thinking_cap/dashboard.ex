@@ -88,11 +88,13 @@ defmodule ThinkingCap.Dashboard do
         end
 
     # the appmods read the configuration: it is there before a port opens
-    :persistent_term.put(@config, config)
+    :persistent_term.put(@config, Map.put(config, :ready, false))
 
     with {:ok, _} <- start_telemetry(config),
          {:ok, ports} <- Yaws.start(servers) do
-      config = %{config | port: ports.page, rosbridge_port: ports[:rosbridge]}
+      config =
+        Map.merge(config, %{port: ports.page, rosbridge_port: ports[:rosbridge], ready: true})
+
       :persistent_term.put(@config, config)
       {:ok, info()}
     else
@@ -118,10 +120,7 @@ defmodule ThinkingCap.Dashboard do
   @spec info() :: info() | nil
   def info do
     case config() do
-      nil ->
-        nil
-
-      c ->
+      %{ready: true} = c ->
         %{
           url: "http://#{url_host(c.host)}:#{c.port}/?token=#{c.token}",
           token: c.token,
@@ -129,6 +128,9 @@ defmodule ThinkingCap.Dashboard do
           port: c.port,
           rosbridge_port: c.rosbridge_port
         }
+
+      _starting_or_stopped ->
+        nil
     end
   end
 

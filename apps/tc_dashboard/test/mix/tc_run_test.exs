@@ -11,7 +11,7 @@ defmodule Mix.Tasks.Tc.RunTest do
     assert File.exists?(Path.join(root, "priv/examples/office_sim.adf"))
 
     {output, status} =
-      System.cmd("mix", ["tc.run", "--seconds", "4"],
+      System.cmd("mix", ["tc.run", "--seconds", "4", "--port", "0", "--rosbridge-port", "0"],
         cd: root,
         env: [
           {"MIX_ENV", "test"},
@@ -23,6 +23,8 @@ defmodule Mix.Tasks.Tc.RunTest do
     assert status == 0, output
     assert output =~ "robot :r1 in office.wdf"
     assert output =~ "base (ThinkingCap.Sim.Robot)"
+    # the dashboard's URL, with its access token, for the user to open
+    assert output =~ ~r"dashboard: http://127\.0\.0\.1:\d+/\?token=[\w-]{16,}"
 
     poses =
       for [x, y] <-

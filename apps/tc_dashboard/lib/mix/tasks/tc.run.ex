@@ -7,9 +7,14 @@ defmodule Mix.Tasks.Tc.Run do
   `priv/examples/office_sim.adf` by the runtime, in real time. Prints a
   status line a second: simulated time, the robot's true and estimated
   poses, its plan and waypoint, the active behaviours, its nearest
-  obstacle, bumper, and the control cycle's timing.
+  obstacle, bumper, and the control cycle's timing. The ADF enables the web
+  dashboard: its URL, with the access token, is printed at start; open it
+  to watch the robot and drive it by hand.
 
-      mix tc.run [--adf PATH] [--seconds N]
+      mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P]
+
+  `--port` and `--rosbridge-port` override the ADF's dashboard ports (0:
+  any free port).
 
   `bin/run` does the set-up and starts it.
   """
@@ -19,13 +24,17 @@ defmodule Mix.Tasks.Tc.Run do
 
   @impl true
   def run(args) do
-    {opts, _rest} = OptionParser.parse!(args, strict: [seconds: :integer, adf: :string])
+    {opts, _rest} =
+      OptionParser.parse!(args,
+        strict: [seconds: :integer, adf: :string, port: :integer, rosbridge_port: :integer]
+      )
+
     Mix.Task.run("app.start")
     adf_path = opts[:adf] || Path.join(root(), "priv/examples/office_sim.adf")
 
     adf =
       case ThinkingCap.Config.read(adf_path) do
-        {:ok, adf} -> adf
+        {:ok, adf} -> dashboard_ports(adf, opts)
         {:error, errors} -> Mix.raise(ThinkingCap.Config.format_errors(errors))
       end
 
@@ -41,7 +50,26 @@ defmodule Mix.Tasks.Tc.Run do
         Mix.raise("could not start #{adf_path}: #{inspect(failed)}")
     end
 
+    if adf.dashboard[:enabled] do
+      case ThinkingCap.Dashboard.await(10_000) do
+        {:ok, info} ->
+          IO.puts("dashboard: #{info.url}")
+
+          if info.rosbridge_port,
+            do:
+              IO.puts("rosbridge: ws://#{info.host}:#{info.rosbridge_port}/?token=#{info.token}")
+
+        {:error, :timeout} ->
+          IO.puts("dashboard: did not start (see the log)")
+      end
+    end
+
     report(adf.robot, opts[:seconds])
+  end
+
+  defp dashboard_ports(adf, opts) do
+    overrides = Keyword.take(opts, [:port, :rosbridge_port])
+    %{adf | dashboard: Map.merge(adf.dashboard, Map.new(overrides))}
   end
 
   defp report(_robot, 0), do: :ok
