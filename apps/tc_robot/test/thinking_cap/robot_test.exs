@@ -16,8 +16,8 @@ defmodule ThinkingCap.RobotTest do
   ]
   """
 
-  defp start(dir, params) do
-    robot = :"t#{System.unique_integer([:positive])}"
+  defp start(dir, params, robot \\ nil) do
+    robot = robot || :"t#{System.unique_integer([:positive])}"
     base = :"base_#{robot}"
     File.write!(Path.join(dir, "r.rdf"), @rdf)
 
@@ -85,6 +85,101 @@ defmodule ThinkingCap.RobotTest do
     t0 = System.monotonic_time(:millisecond)
     driven(robot, :stop)
     assert System.monotonic_time(:millisecond) - t0 >= 150
+  end
+
+  defp teleop(robot, command, extra \\ %{}),
+    do:
+      Blackboard.out({:teleop, robot, Map.merge(%{command: command}, extra)},
+        key: {:teleop, robot}
+      )
+
+  defp estop(robot, engaged),
+    do: Blackboard.out({:estop, robot, %{engaged: engaged}}, key: {:estop, robot})
+
+  defp control(robot, mode, timeout \\ 2000) do
+    deadline = System.monotonic_time(:millisecond) + timeout
+
+    Stream.repeatedly(fn ->
+      case Blackboard.rdp({:control, robot, :_}) do
+        {:ok, {:control, ^robot, %{mode: ^mode} = c}} ->
+          c
+
+        other ->
+          if System.monotonic_time(:millisecond) > deadline,
+            do: flunk("#{inspect(robot)} never in #{mode}: #{inspect(other)}")
+
+          Process.sleep(5)
+          nil
+      end
+    end)
+    |> Enum.find(& &1)
+  end
+
+  test "teleoperation overrides autonomy while it is refreshed, and hands it back", %{
+    tmp_dir: dir
+  } do
+    {robot, _base} = start(dir, command_timeout: 5.0, teleop_timeout: 0.3)
+
+    drive(robot, {:velocity, 0.1, 0.0})
+    driven(robot, {:velocity, 0.1, 0.0})
+    assert %{command: {:velocity, 0.1, 0.0}} = control(robot, :autonomy)
+
+    teleop(robot, {:velocity, 0.4, 0.2}, %{by: "tester", sent_at: 1234.5})
+    driven(robot, {:velocity, 0.4, 0.2})
+    # who drives, and the client's stamp echoed back
+    assert %{teleop_by: "tester", teleop_sent_at: 1234.5} = control(robot, :teleop)
+
+    # released: autonomy's command again, at once
+    teleop(robot, :release)
+    driven(robot, {:velocity, 0.1, 0.0}, 250)
+    control(robot, :autonomy)
+  end
+
+  test "the deadman rule: teleoperation not refreshed expires and the robot stops", %{
+    tmp_dir: dir
+  } do
+    {robot, _base} = start(dir, teleop_timeout: 0.3)
+    teleop(robot, {:velocity, 0.3, 0.0})
+    driven(robot, {:velocity, 0.3, 0.0})
+    t0 = System.monotonic_time(:millisecond)
+    # no autonomy either: stopped once the teleoperation command is stale
+    driven(robot, :stop)
+    assert System.monotonic_time(:millisecond) - t0 >= 250
+    control(robot, :idle)
+  end
+
+  test "an E-stop stops the robot over teleoperation and autonomy until released", %{
+    tmp_dir: dir
+  } do
+    {robot, _base} = start(dir, command_timeout: 5.0, teleop_timeout: 5.0)
+    drive(robot, {:velocity, 0.2, 0.0})
+    teleop(robot, {:velocity, 0.4, 0.0})
+    driven(robot, {:velocity, 0.4, 0.0})
+
+    estop(robot, true)
+    driven(robot, :stop)
+    control(robot, :estop)
+    # fresh commands do not undo it
+    teleop(robot, {:velocity, 0.5, 0.0})
+    drive(robot, {:velocity, 0.5, 0.0})
+    Process.sleep(50)
+    assert {:ok, {:driven, ^robot, %{command: :stop}}} = Blackboard.rdp({:driven, robot, :_})
+
+    estop(robot, false)
+    driven(robot, {:velocity, 0.5, 0.0})
+    control(robot, :teleop)
+  end
+
+  test "a latched E-stop holds for a driver that starts after it", %{tmp_dir: dir} do
+    robot = :"t#{System.unique_integer([:positive])}"
+    estop(robot, true)
+    {^robot, _base} = start(dir, [command_timeout: 5.0], robot)
+    drive(robot, {:velocity, 0.2, 0.0})
+    control(robot, :estop)
+    Process.sleep(50)
+    assert {:ok, {:driven, ^robot, %{command: :stop}}} = Blackboard.rdp({:driven, robot, :_})
+    estop(robot, false)
+    driven(robot, {:velocity, 0.2, 0.0})
   end
 
   test "a command the drive cannot take is refused and the robot stops", %{tmp_dir: dir} do
