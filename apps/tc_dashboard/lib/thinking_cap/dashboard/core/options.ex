@@ -13,6 +13,7 @@ defmodule ThinkingCap.Dashboard.Core.Options do
     origins: {[], "browser origins allowed besides the dashboard's own", :strings?},
     world: {nil, "the WDF shown on the map (a path or a ThinkingCap.Config.WDF)", :any?},
     max_frame: {1_048_576, "the largest WebSocket frame accepted, bytes", :pos_int?},
+    send_timeout: {5_000, "ms a browser may stop reading before it is dropped", :pos_int?},
     telemetry_hz: {25, "telemetry frames per second at most, per browser", :pos_int?},
     static_dir: {nil, "the page's files (default: the app's priv/static)", :string_or_nil?}
   ]

@@ -58,7 +58,8 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
            dropped: 0,
            warned: 0,
            open: false,
-           held: []
+           held: [],
+           send_timeout: conn.config[:send_timeout] || @send_timeout
          }}
 
       {:error, reason} ->
@@ -70,7 +71,7 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
   def handle_open(ws, state) do
     case ws_state(ws, :sock) do
       sock when is_port(sock) ->
-        _ = :inet.setopts(sock, send_timeout: @send_timeout, send_timeout_close: true)
+        _ = :inet.setopts(sock, send_timeout: state.send_timeout, send_timeout_close: true)
 
       _ssl ->
         :ok
