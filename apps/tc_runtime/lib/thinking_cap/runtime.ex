@@ -160,7 +160,7 @@ defmodule ThinkingCap.Runtime do
 
       pid ->
         try do
-          :proc_lib.stop(pid, :restart_requested, 5_000)
+          :proc_lib.stop(pid, {:shutdown, :restart_requested}, 5_000)
         catch
           :exit, _ -> :ok
         end

@@ -52,6 +52,16 @@ defmodule ThinkingCap.Test.Modules do
     def handle_tuple({:crash, _robot}, _state), do: raise("asked to crash")
   end
 
+  defmodule Parting do
+    @moduledoc false
+    use ThinkingCap.Module
+    @impl true
+    def init(_params, ctx), do: {:ok, %{robot: ctx.robot}}
+    @impl true
+    def terminate(reason, state),
+      do: ThinkingCap.Blackboard.out({:parted, state.robot, %{reason: reason, pid: self()}})
+  end
+
   defmodule Echo do
     @moduledoc false
     use ThinkingCap.Module

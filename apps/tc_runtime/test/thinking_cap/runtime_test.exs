@@ -108,6 +108,21 @@ defmodule ThinkingCap.RuntimeTest do
     )
   end
 
+  test "restart/1 ends a module cleanly (its terminate runs) and its supervisor starts it again",
+       %{tmp_dir: dir} do
+    {adf, robot, n} =
+      adf(dir, parting: "[module: ThinkingCap.Test.Modules.Parting, activity: :event]")
+
+    {:ok, [%{pid: pid}]} = Runtime.start(adf)
+    assert :ok = Runtime.restart(n.(:parting))
+
+    assert {:ok, {:parted, ^robot, %{reason: {:shutdown, :restart_requested}, pid: ^pid}}} =
+             Blackboard.rd({:parted, robot, :_}, 1000)
+
+    Cluster.wait_until(fn -> Runtime.whereis(n.(:parting)) not in [nil, pid] end)
+    assert {:error, :not_running} = Runtime.restart(:no_such_module)
+  end
+
   test "a crashing module is restarted, and its fallback holds meanwhile", %{tmp_dir: dir} do
     {adf, robot, n} =
       adf(dir,
