@@ -2,8 +2,11 @@ defmodule ThinkingCap.Config.ADF do
   @dashboard_fields [
     enabled: {:boolean, default: false, doc: "serve the web dashboard"},
     host: {:string, default: "127.0.0.1", doc: "interface to bind"},
-    port: {:port, default: 4000, doc: "HTTP and WebSocket port"},
-    rosbridge_port: {:port, default: 9090, doc: "rosbridge v2 endpoint port"},
+    port:
+      {{:int_range, 0, 65_535}, default: 4000, doc: "HTTP and WebSocket port (0: any free port)"},
+    rosbridge_port:
+      {{:int_range, 0, 65_535},
+       default: 9090, doc: "rosbridge v2 endpoint port (0: any free port)"},
     public_view:
       {:boolean,
        default: false, doc: "let viewers without the access token watch (never control)"}
