@@ -107,6 +107,7 @@ defmodule ThinkingCap.Dashboard do
   @doc "Stops the dashboard (its servers and its telemetry)."
   @spec stop() :: :ok
   def stop do
+    ThinkingCap.Dashboard.Core.Socket.close_all()
     Yaws.stop()
 
     for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),

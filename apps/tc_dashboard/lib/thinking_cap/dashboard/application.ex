@@ -1,7 +1,9 @@
 defmodule ThinkingCap.Dashboard.Application do
   @moduledoc false
-  # Supervision: ThinkingCap.Dashboard.Supervisor (one_for_one) holds
-  #   * Dashboard.Runs, a DynamicSupervisor for a running dashboard's
+  # Supervision: ThinkingCap.Dashboard.Root (one_for_one) holds
+  #   * Dashboard.Sockets, a registry of the open WebSockets (yaws owns
+  #     their processes; the registry lets stop/0 close them),
+  #   * Dashboard.Supervisor, a DynamicSupervisor for a running dashboard's
   #     telemetry collector (started by ThinkingCap.Dashboard.start/1),
   #   * Dashboard.Launcher, which starts the dashboard when an ADF that
   #     enables it starts on this node.
@@ -11,6 +13,7 @@ defmodule ThinkingCap.Dashboard.Application do
   @impl true
   def start(_type, _args) do
     children = [
+      {Registry, keys: :duplicate, name: ThinkingCap.Dashboard.Sockets},
       {DynamicSupervisor, name: ThinkingCap.Dashboard.Supervisor, strategy: :one_for_one},
       ThinkingCap.Dashboard.Launcher
     ]

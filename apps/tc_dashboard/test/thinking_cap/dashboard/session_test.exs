@@ -260,6 +260,14 @@ defmodule ThinkingCap.Dashboard.SessionTest do
     assert drained_to_close?(stalled)
   end
 
+  test "stopping the dashboard closes its sockets", ctx do
+    {_welcome, client} = connect!(ctx.dashboard)
+    assert [_] = ThinkingCap.Dashboard.Core.Socket.open_sockets()
+    ThinkingCap.Dashboard.stop()
+    assert drained_to_close?(client)
+    assert {:error, _} = connect(ctx.dashboard)
+  end
+
   defp read_stamps(client, key, deadline, acc) do
     if System.monotonic_time(:millisecond) > deadline do
       WSClient.close(client)

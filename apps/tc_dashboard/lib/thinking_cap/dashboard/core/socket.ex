@@ -45,10 +45,25 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
   @flood_close 2_000
   @send_timeout 5_000
 
+  @doc "The open sockets: `[{pid, handler}]`."
+  @spec open_sockets() :: [{pid(), module()}]
+  def open_sockets, do: Registry.lookup(ThinkingCap.Dashboard.Sockets, :socket)
+
+  @doc "Closes every open socket (1001: going away)."
+  @spec close_all() :: :ok
+  def close_all do
+    for {pid, _handler} <- open_sockets(),
+        do: :yaws_api.websocket_close(pid, {1001, "going away"})
+
+    :ok
+  end
+
   @doc false
   def init([_arg, {handler, conn}]) do
     case handler.init(conn) do
       {:ok, hstate} ->
+        {:ok, _} = Registry.register(ThinkingCap.Dashboard.Sockets, :socket, handler)
+
         {:ok,
          %{
            handler: handler,
