@@ -1,0 +1,408 @@
+defmodule ThinkingCap.Dashboard.BrowserTest do
+  # The dashboard in a real browser: Debian's chromium driven by npm
+  # playwright-core (test/support/js/driver.mjs). Each test starts an ADF
+  # with a simulated robot and the dashboard, opens the page, drives it
+  # like a user (keys, clicks), and checks what the robot did on the
+  # blackboard. Screenshots go to apps/tc_dashboard/test/artifacts/.
+  use ExUnit.Case, async: false
+
+  alias ThinkingCap.{Blackboard, Dashboard, Runtime, Sim}
+  alias ThinkingCap.Dashboard.Test.Browser
+
+  @moduletag :browser
+  @moduletag :tmp_dir
+
+  @examples Path.expand("../../../../../priv/examples", __DIR__)
+  @wdf Path.join(@examples, "office.wdf")
+
+  # generous bounds on what must happen "at once": these are not timing
+  # measurements (the benchmark measures latency), only "it did happen"
+  @soon 1_000
+
+  setup_all do
+    :ok = Browser.ensure_assets!()
+    {:ok, browser} = Browser.start_link()
+    on_exit(fn -> Browser.stop(browser) end)
+    %{browser: browser}
+  end
+
+  setup %{tmp_dir: dir} = ctx do
+    robot = :"web#{System.unique_integer([:positive])}"
+    # each test's robot has its own stretch of the hall, heading east
+    x = 4.0 + rem(System.unique_integer([:positive]), 8) * 1.5
+    path = Path.join(dir, "browser.adf")
+
+    File.write!(path, """
+    [
+      robot: :#{robot},
+      rdf: "#{@examples}/office_robot.rdf",
+      wdf: "#{@wdf}",
+      dashboard: [enabled: true, port: 0, rosbridge_port: 0, public_view: #{ctx[:public_view] == true}],
+      modules: [
+        base_#{robot}: [module: ThinkingCap.Sim.Robot, activity: :periodic, period: 0.01,
+                         deadline: 0.005, fallback: :stop, params: [at: {#{x}, 1.8, 0.0}, seed: 5]]
+      ]
+    ]
+    """)
+
+    {:ok, _} = Runtime.start(path)
+
+    on_exit(fn ->
+      Runtime.stop(:"base_#{robot}")
+      Dashboard.stop()
+      with {:ok, sim} <- Sim.Worlds.lookup(@wdf), do: Sim.remove_robot(sim, robot)
+    end)
+
+    {:ok, info} = Dashboard.await(10_000)
+    {:ok, _} = Blackboard.rd({:sim_pose, robot, :_}, 5_000)
+    %{robot: robot, name: Atom.to_string(robot), info: info}
+  end
+
+  test "the page loads, connects with control, and the map shows the robot where it is", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+
+    # the robot is drawn on the map, at its simulated pose
+    [sx, sy, radius] = wait!(b, "tc.drawn[#{js(ctx.name)}]")
+    {x, y, th} = pose(ctx.robot)
+    [ex, ey] = eval!(b, "tc.worldToScreen(#{x}, #{y})")
+    assert_in_delta sx, ex, 3
+    assert_in_delta sy, ey, 3
+
+    # and painted there: the map's pixel beside the centre (off the heading
+    # line) has the robot's colour (drawn at 90 % opacity), not the floor's
+    "#" <> hex = eval!(b, "tc.robotColor(#{js(ctx.name)})")
+    colour = for <<c::binary-size(2) <- hex>>, do: String.to_integer(c, 16)
+
+    pixel =
+      eval!(b, pixel_js(sx - radius * 0.5 * :math.sin(th), sy - radius * 0.5 * :math.cos(th)))
+
+    for {want, got} <- Enum.zip(colour, Enum.take(pixel, 3)),
+        do:
+          assert_in_delta(
+            got,
+            want,
+            30,
+            "the robot's pixel is #{inspect(pixel)}, its colour #{hex}"
+          )
+
+    # the panels and the status bar follow the telemetry
+    assert eval!(b, "tc.canControl") == true
+    assert eval!(b, "tc.world && tc.world.name") == "office"
+    wait!(b, "tc.frames > 3 && tc.fps > 0")
+    wait!(b, "document.querySelector('#control-badge').textContent === 'IDLE'")
+    assert eval!(b, "document.querySelector('#banner').hidden") == true
+    assert eval!(b, "tc.item('robot/' + #{js(ctx.name)}).limits.max_speed") == 0.4
+
+    Browser.screenshot(b, "page_loaded")
+    assert page_errors(b) == []
+  end
+
+  test "holding an arrow key drives the robot; letting go stops it", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+    {x0, y0, _} = pose(ctx.robot)
+
+    :ok = Browser.keydown(b, "ArrowUp")
+
+    await(fn ->
+      match?(%{mode: :teleop, command: {:velocity, v, _}} when v > 0, control(ctx.robot))
+    end)
+
+    # held for a second, three times the deadman time: the page's refreshes
+    # keep teleoperation on all along, and the robot moves forward
+    {:ok, ref} = Blackboard.subscribe({:control, ctx.robot, :_})
+    Process.sleep(1_000)
+    changes = for {:blackboard, ^ref, {:control, _, c}} <- flush(), do: c.mode
+    # (unsubscribing drops what is left in the mailbox)
+    :ok = Blackboard.unsubscribe(ref)
+    assert Enum.all?(changes, &(&1 == :teleop)), "control went #{inspect(changes)} while held"
+    assert %{mode: :teleop, teleop_sent_at: sent_at} = control(ctx.robot)
+    assert is_float(sent_at) or is_integer(sent_at)
+    assert wait!(b, "tc.control === 'teleop' && tc.control") == "teleop"
+    assert eval!(b, "document.querySelector('#control-badge').textContent") == "TELEOP"
+    {x1, y1, _} = pose(ctx.robot)
+    assert x1 - x0 > 0.05, "moved #{x1 - x0} m east"
+    assert abs(y1 - y0) < 0.05
+    # at the speed slider's default, half the RDF's 0.4 m/s
+    assert %{command: {:velocity, v, w}} = control(ctx.robot)
+    assert_in_delta v, 0.2, 1.0e-6
+    assert_in_delta w, 0.0, 1.0e-6
+    Browser.screenshot(b, "teleop_held")
+
+    :ok = Browser.keyup(b, "ArrowUp")
+    await(fn -> match?(%{command: :stop}, control(ctx.robot)) end)
+    refute control(ctx.robot).mode == :teleop
+    await(fn -> speed(ctx.robot) < 0.01 end, 2_000)
+    wait!(b, "tc.control !== 'teleop'")
+    assert eval!(b, "tc.teleop.command") == nil
+
+    # another key: turning on the spot, left
+    :ok = Browser.keydown(b, "KeyA")
+
+    await(fn ->
+      match?(
+        %{mode: :teleop, command: {:velocity, v, w}} when v == 0 and w > 0,
+        control(ctx.robot)
+      )
+    end)
+
+    :ok = Browser.keyup(b, "KeyA")
+    await(fn -> match?(%{command: :stop}, control(ctx.robot)) end)
+    assert page_errors(b) == []
+  end
+
+  test "a page that stalls while a key is held: the deadman rule stops the robot", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+
+    :ok = Browser.keydown(b, "ArrowUp")
+    await(fn -> match?(%{mode: :teleop}, control(ctx.robot)) end)
+
+    # the page's main thread freezes for 3 s: no refresh, no release
+    stall =
+      Task.async(fn ->
+        Browser.eval(
+          b,
+          "(() => { const t = Date.now(); while (Date.now() - t < 3000); return true })()"
+        )
+      end)
+
+    Process.sleep(50)
+    await(fn -> match?(%{mode: :idle, command: :stop}, control(ctx.robot)) end)
+    assert Task.yield(stall, 0) == nil, "the robot stopped only after the page came back"
+    assert {:ok, true} = Task.await(stall, 10_000)
+
+    :ok = Browser.keyup(b, "ArrowUp")
+    await(fn -> match?(%{command: :stop}, control(ctx.robot)) end)
+  end
+
+  test "the E-stop stops the robot, holds against the keys, and is released from the page", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+
+    :ok = Browser.keydown(b, "ArrowUp")
+    await(fn -> match?(%{mode: :teleop, command: {:velocity, _, _}}, control(ctx.robot)) end)
+    await(fn -> speed(ctx.robot) > 0.05 end, 2_000)
+
+    :ok = Browser.click(b, "#estop")
+    await(fn -> match?(%{mode: :estop, command: :stop}, control(ctx.robot)) end)
+    await(fn -> speed(ctx.robot) < 0.01 end, 2_000)
+    assert {:ok, {:estop, _, %{engaged: true}}} = Blackboard.rdp({:estop, ctx.robot, :_})
+    wait!(b, "tc.control === 'estop'")
+    assert eval!(b, "document.querySelector('#control-badge').textContent") == "E-STOP"
+    Browser.screenshot(b, "estop")
+
+    # keys while stopped: the robot stays stopped
+    :ok = Browser.keyup(b, "ArrowUp")
+    :ok = Browser.keydown(b, "ArrowUp")
+    Process.sleep(400)
+    assert %{mode: :estop, command: :stop} = control(ctx.robot)
+    :ok = Browser.keyup(b, "ArrowUp")
+
+    :ok = Browser.click(b, "#estop-release")
+
+    await(fn ->
+      match?({:ok, {:estop, _, %{engaged: false}}}, Blackboard.rdp({:estop, ctx.robot, :_}))
+    end)
+
+    await(fn -> control(ctx.robot).mode != :estop end)
+    wait!(b, "tc.control !== 'estop'")
+
+    # Space is the E-stop too
+    :ok = Browser.command(b, %{cmd: "press", key: "Space"}) |> ok()
+    await(fn -> match?(%{mode: :estop}, control(ctx.robot)) end)
+    assert page_errors(b) == []
+  end
+
+  test "a click on the map sends the robot a goal there; a click on a waypoint, to it by name",
+       ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+    {rx, _, _} = pose(ctx.robot)
+
+    # a point of the hall away from the robot
+    gx = if rx > 10, do: 3.0, else: 17.0
+    click_world(b, gx, 1.2)
+
+    assert {:ok, {:task, _, %{task: {:go_to, {x, y}}}}} =
+             Blackboard.rd({:task, ctx.robot, :_}, @soon)
+
+    assert_in_delta x, gx, 0.05
+    assert_in_delta y, 1.2, 0.05
+
+    # desk_b, a waypoint of office.wdf at (16.5, 7.5)
+    click_world(b, 16.5, 7.5)
+
+    await(fn ->
+      match?(
+        {:ok, {:task, _, %{task: {:go_to, :desk_b}}}},
+        Blackboard.rdp({:task, ctx.robot, :_})
+      )
+    end)
+
+    Browser.screenshot(b, "goal")
+  end
+
+  test "a wrong token is refused: the page says so and drives nothing", ctx do
+    b = ctx.browser
+    {x0, y0, _} = pose(ctx.robot)
+    open!(b, "http://127.0.0.1:#{ctx.info.port}/?token=not-the-token-0000&robot=#{ctx.name}")
+
+    reason = wait!(b, "tc.refused", timeout: 5_000)
+    assert reason =~ "token"
+    assert eval!(b, "tc.connected") == false
+    assert eval!(b, "tc.welcomed") == false
+
+    banner =
+      wait!(
+        b,
+        "!document.querySelector('#banner').hidden && document.querySelector('#banner').textContent"
+      )
+
+    assert banner =~ "refused"
+    Browser.screenshot(b, "wrong_token")
+
+    :ok = Browser.keydown(b, "ArrowUp")
+    Process.sleep(500)
+    :ok = Browser.keyup(b, "ArrowUp")
+    assert Blackboard.rdp({:teleop, ctx.robot, :_}) == :none
+    {x1, y1, _} = pose(ctx.robot)
+    assert_in_delta x1, x0, 0.01
+    assert_in_delta y1, y0, 0.01
+
+    # no token at all: refused as well
+    open!(b, "http://127.0.0.1:#{ctx.info.port}/")
+    assert wait!(b, "tc.refused", timeout: 5_000) =~ "token"
+  end
+
+  @tag public_view: true
+  test "with public_view, a viewer without the token watches read-only but may press the E-stop",
+       ctx do
+    b = ctx.browser
+    open!(b, "http://127.0.0.1:#{ctx.info.port}/?robot=#{ctx.name}")
+    wait!(b, "tc.connected && tc.welcomed && tc.drawn[#{js(ctx.name)}]")
+    assert eval!(b, "tc.canControl") == false
+
+    assert wait!(
+             b,
+             "!document.querySelector('#banner').hidden && document.querySelector('#banner').textContent"
+           ) =~
+             "Read-only"
+
+    assert eval!(b, "document.body.classList.contains('read-only')") == true
+
+    :ok = Browser.keydown(b, "ArrowUp")
+    Process.sleep(400)
+    :ok = Browser.keyup(b, "ArrowUp")
+    assert Blackboard.rdp({:teleop, ctx.robot, :_}) == :none
+    assert eval!(b, "tc.teleop.sent") == 0
+    Browser.screenshot(b, "read_only")
+
+    :ok = Browser.click(b, "#estop")
+    await(fn -> match?(%{mode: :estop}, control(ctx.robot)) end)
+  end
+
+  # ---- helpers ------------------------------------------------------------------
+
+  defp url(ctx), do: ctx.info.url <> "&robot=#{ctx.name}"
+
+  defp open!(b, url) do
+    assert {:ok, %{"status" => 200}} = Browser.open(b, url)
+  end
+
+  defp eval!(b, expr) do
+    case Browser.eval(b, expr) do
+      {:ok, value} -> value
+      {:error, message} -> flunk("#{expr}: #{message}")
+    end
+  end
+
+  defp wait!(b, expr, opts \\ []) do
+    case Browser.wait(b, expr, Keyword.put_new(opts, :timeout, 5_000)) do
+      {:ok, value} ->
+        value
+
+      {:error, message} ->
+        {:ok, log} = Browser.console(b)
+        flunk("waiting for #{expr}: #{message}\nthe page's console: #{inspect(log)}")
+    end
+  end
+
+  defp ok({:ok, _}), do: :ok
+  defp ok(other), do: other
+
+  defp js(string), do: :jiffy.encode(string)
+
+  defp page_errors(b) do
+    {:ok, log} = Browser.console(b)
+    Enum.filter(log, &String.starts_with?(&1, ["pageerror", "error"]))
+  end
+
+  # a pixel of the map canvas, at CSS pixel coordinates
+  defp pixel_js(x, y) do
+    """
+    (() => {
+      const c = document.getElementById('map');
+      const dpr = window.devicePixelRatio || 1;
+      return [...c.getContext('2d').getImageData(Math.round(#{x} * dpr), Math.round(#{y} * dpr), 1, 1).data];
+    })()
+    """
+  end
+
+  # clicks the map at a world point
+  defp click_world(b, x, y) do
+    [px, py] =
+      eval!(b, """
+      (() => {
+        const r = document.getElementById('map').getBoundingClientRect();
+        const [sx, sy] = tc.worldToScreen(#{x}, #{y});
+        return [r.left + sx, r.top + sy];
+      })()
+      """)
+
+    {:ok, _} = Browser.command(b, %{cmd: "mouse", x: px, y: py})
+  end
+
+  defp pose(robot) do
+    {:ok, {:sim_pose, ^robot, %{pose: pose}}} = Blackboard.rd({:sim_pose, robot, :_}, 2_000)
+    pose
+  end
+
+  defp speed(robot) do
+    {:ok, {:odom, ^robot, %{twist: {v, _w}}}} = Blackboard.rd({:odom, robot, :_}, 2_000)
+    abs(v)
+  end
+
+  defp control(robot) do
+    case Blackboard.rdp({:control, robot, :_}) do
+      {:ok, {:control, ^robot, control}} -> control
+      :none -> nil
+    end
+  end
+
+  defp flush do
+    receive do
+      message -> [message | flush()]
+    after
+      0 -> []
+    end
+  end
+
+  defp await(fun, timeout \\ @soon) do
+    deadline = System.monotonic_time(:millisecond) + timeout
+
+    Stream.repeatedly(fn ->
+      cond do
+        fun.() -> true
+        System.monotonic_time(:millisecond) > deadline -> flunk("not reached in #{timeout} ms")
+        true -> Process.sleep(10) && nil
+      end
+    end)
+    |> Enum.find(& &1)
+  end
+end
