@@ -97,6 +97,12 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
       {[], s} = send_msg(s, %{op: "subscribe", id: "b", topic: topic})
       assert Map.has_key?(s.tags, :odom)
 
+      # an id it does not know: nothing changes (a warning says so)
+      {[], s} = send_msg(s, %{op: "set_level", level: "warning"})
+
+      assert {[%{"level" => "warning", "msg" => "unsubscribe: no subscription \"z\"" <> _}], ^s} =
+               send_msg(s, %{op: "unsubscribe", id: "z", topic: topic})
+
       # one of two ids: still subscribed
       {[], s} = send_msg(s, %{op: "unsubscribe", id: "a", topic: topic})
       odom(robot, 1.0, 1.0)

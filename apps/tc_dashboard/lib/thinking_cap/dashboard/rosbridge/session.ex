@@ -196,26 +196,26 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
 
     case state.subs[name] do
       nil ->
-        {status(state, "warning", "unsubscribe: not subscribed to #{inspect(m["topic"])}", id),
+        {status(state, "warning", "unsubscribe: not subscribed to #{short(m["topic"])}", id),
          state}
 
-      sub ->
-        ids = if id != nil and Map.has_key?(sub.ids, id), do: Map.delete(sub.ids, id), else: %{}
+      # without an id, every subscription to the topic goes
+      sub when id == nil or is_map_key(sub.ids, id) ->
+        ids = if id == nil, do: %{}, else: Map.delete(sub.ids, id)
 
-        if id != nil and not Map.has_key?(sub.ids, id) and map_size(sub.ids) > 1 do
-          {status(state, "warning", "unsubscribe: no subscription #{inspect(id)} to #{name}", id),
-           state}
-        else
-          state =
-            if ids == %{} do
-              for {_key, ref} <- sub.timers, do: Process.cancel_timer(ref)
-              sync_tags(%{state | subs: Map.delete(state.subs, name)})
-            else
-              put_in(state.subs[name].ids, ids)
-            end
+        state =
+          if ids == %{} do
+            for {_key, ref} <- sub.timers, do: Process.cancel_timer(ref)
+            sync_tags(%{state | subs: Map.delete(state.subs, name)})
+          else
+            put_in(state.subs[name].ids, ids)
+          end
 
-          {[], state}
-        end
+        {[], state}
+
+      _sub ->
+        {status(state, "warning", "unsubscribe: no subscription #{short(id)} to #{name}", id),
+         state}
     end
   end
 
@@ -247,7 +247,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
 
     case state.adverts[name] do
       nil ->
-        {status(state, "warning", "unadvertise: #{inspect(m["topic"])} is not advertised", id),
+        {status(state, "warning", "unadvertise: #{short(m["topic"])} is not advertised", id),
          state}
 
       _ids ->
