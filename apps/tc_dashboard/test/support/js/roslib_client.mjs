@@ -5,7 +5,7 @@
 //   node roslib_client.mjs URL ROBOT MODE
 //
 // MODE "drive": list the topics, ask the ROS version, subscribe
-//   /ROBOT/odom and /ROBOT/scan, then publish /ROBOT/cmd_vel (0.3 m/s
+//   /ROBOT/odom, /ROBOT/scan, /map and /tf, then publish /ROBOT/cmd_vel (0.3 m/s
 //   forward) every 100 ms for 1.5 s, wait 0.6 s, and report the first and
 //   last odometry poses.
 // MODE "denied": the same publishing, expecting status errors (no token).
@@ -72,7 +72,28 @@ scan.subscribe((m) => {
   }
 });
 
-while (poses.length === 0 || firstScan === null) await sleep(20);
+let map = null;
+const mapTopic = new ROSLIB.Topic({ ros, name: "/map", messageType: "nav_msgs/msg/OccupancyGrid" });
+mapTopic.subscribe((m) => {
+  if (map === null) {
+    map = m;
+    print("map", { header: m.header, info: m.info, n: m.data.length, occupied: m.data.filter((v) => v === 100).length });
+  }
+});
+
+let tf = null;
+const tfTopic = new ROSLIB.Topic({ ros, name: "/tf", messageType: "tf2_msgs/msg/TFMessage" });
+tfTopic.subscribe((m) => {
+  const mine = m.transforms.filter((t) => t.child_frame_id.startsWith(`${robot}/`));
+  if (tf === null && mine.length > 0) {
+    tf = mine;
+    print("tf", { transforms: mine.map((t) => ({ parent: t.header.frame_id, child: t.child_frame_id })) });
+  }
+});
+
+while (poses.length === 0 || firstScan === null || map === null || tf === null) await sleep(20);
+mapTopic.unsubscribe();
+tfTopic.unsubscribe();
 
 const cmdVel = new ROSLIB.Topic({ ros, name: `/${robot}/cmd_vel`, messageType: "geometry_msgs/msg/Twist" });
 const start = poses[poses.length - 1];

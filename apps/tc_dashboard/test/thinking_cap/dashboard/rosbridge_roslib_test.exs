@@ -1,8 +1,8 @@
 defmodule ThinkingCap.Dashboard.RosbridgeRoslibTest do
   # The rosbridge port with the real npm `roslib` client, in Node, and a
-  # simulated robot (in the office's hall, facing along it): it lists the topics, learns the ROS version,
-  # subscribes /odom and /scan, and drives the robot with /cmd_vel — or is
-  # refused without the token.
+  # simulated robot (in the office's hall, facing along it): it lists the
+  # topics, learns the ROS version, subscribes /odom, /scan, /map and /tf,
+  # and drives the robot with /cmd_vel — or is refused without the token.
   use ExUnit.Case, async: false
 
   alias ThinkingCap.{Blackboard, Dashboard, Runtime}
@@ -86,7 +86,8 @@ defmodule ThinkingCap.Dashboard.RosbridgeRoslibTest do
   defp distance(%{"x" => x0, "y" => y0}, %{"x" => x1, "y" => y1}),
     do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
 
-  test "roslib subscribes /odom and /scan, publishes /cmd_vel, and the robot moves", ctx do
+  test "roslib subscribes /odom, /scan, /map and /tf, publishes /cmd_vel, and the robot moves",
+       ctx do
     name = Atom.to_string(ctx.robot)
     events = run(ctx, "?token=#{@token}", "drive")
 
@@ -111,6 +112,18 @@ defmodule ThinkingCap.Dashboard.RosbridgeRoslibTest do
     # the office robot's laser: 181 beams over 180°
     assert scan["n"] == 181
     assert_in_delta scan["angle_min"], -1.5708, 1.0e-3
+
+    # the office, rasterized (frame map), and where the robot is in it
+    map = event(events, "map")
+    assert map["header"]["frame_id"] == "map"
+    assert map["n"] == map["info"]["width"] * map["info"]["height"]
+    assert map["occupied"] > 0
+    assert map["info"]["resolution"] == 0.05
+
+    assert event(events, "tf")["transforms"] == [
+             %{"parent" => "map", "child" => "#{name}/odom"},
+             %{"parent" => "#{name}/odom", "child" => "#{name}/base_link"}
+           ]
 
     # 1.5 s at 0.3 m/s, then the deadman stops it: about 0.5 m
     moved = event(events, "moved")
