@@ -171,7 +171,9 @@ defmodule ThinkingCap.Dashboard.Telemetry do
       "null"
   end
 
-  defp key(tag, id), do: "#{tag}/#{id}"
+  # ids are robot names (atoms) by convention, but any term may be there
+  defp key(tag, id) when is_atom(id) or is_binary(id) or is_number(id), do: "#{tag}/#{id}"
+  defp key(tag, id), do: "#{tag}/#{inspect(id)}"
 
   defp world(nil), do: "null"
 
