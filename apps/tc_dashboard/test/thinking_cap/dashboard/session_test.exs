@@ -208,6 +208,27 @@ defmodule ThinkingCap.Dashboard.SessionTest do
     WSClient.close(client)
   end
 
+  test "streams whose id is not a name are shown too, under a printed key", ctx do
+    id = {:cart, make_ref()}
+    Blackboard.out({:pose, id, %{pose: {0.0, 0.0, 0.0}}}, key: {:pose, id})
+    # already there when the dashboard starts, and written while it runs
+    ThinkingCap.Dashboard.stop()
+    {:ok, info} = ThinkingCap.Dashboard.start(port: 0, rosbridge_port: nil, token: token())
+    {_welcome, client} = connect!(info)
+    Blackboard.out({:pose, id, %{pose: {1.0, 0.0, 0.0}}}, key: {:pose, id})
+    key = "pose/#{inspect(id)}"
+
+    {:ok, frame, client} =
+      WSClient.recv_json_until(
+        client,
+        &(&1["op"] == "telemetry" and Map.has_key?(&1["items"], key))
+      )
+
+    assert frame["items"][key]["pose"] == [1.0, 0.0, 0.0]
+    _ = ctx
+    WSClient.close(client)
+  end
+
   test "the blackboard inspector: query by template, live tail", ctx do
     {_welcome, client} = connect!(ctx.dashboard)
 
