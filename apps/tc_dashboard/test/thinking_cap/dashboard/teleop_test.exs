@@ -32,6 +32,9 @@ defmodule ThinkingCap.Dashboard.TeleopTest do
     on_exit(fn ->
       Runtime.stop(:"base_#{robot}")
       Dashboard.stop()
+      # a stopped driver leaves its robot in the world: take it out
+      with {:ok, sim} <- ThinkingCap.Sim.Worlds.lookup("#{@examples}/office.wdf"),
+           do: ThinkingCap.Sim.remove_robot(sim, robot)
     end)
 
     {:ok, info} = Dashboard.await(10_000)
