@@ -629,7 +629,7 @@ export class MapView {
       if (!reading || !Array.isArray(reading.ranges)) continue;
       const sp = pose3(sensor.pose) || [0, 0, 0];
       if (type === 'laser' && this.layers.laser) this._drawLaser(ctx, p, sp, reading, selected);
-      if (type === 'sonar' && this.layers.sonar) this._drawSonar(ctx, p, sensor, reading, radius);
+      if (type === 'sonar' && this.layers.sonar) this._drawSonar(ctx, p, sensor, reading, radius, selected);
     }
 
     if (this.layers.beacons) {
@@ -741,19 +741,21 @@ export class MapView {
       const wy = origin[1] + s * lx + c * ly;
       pts[i] = [...this.worldToScreen(wx, wy), typeof r === 'number' && r < rmax];
     }
-    // the swept area, then the hits
-    ctx.beginPath();
-    ctx.moveTo(ox, oy);
-    for (const q of pts) ctx.lineTo(q[0], q[1]);
-    ctx.closePath();
-    ctx.fillStyle = selected ? 'rgba(255,82,82,0.06)' : 'rgba(255,82,82,0.03)';
-    ctx.fill();
+    // the swept area (the selected robot's only: large fills cost), then the hits
+    if (selected) {
+      ctx.beginPath();
+      ctx.moveTo(ox, oy);
+      for (const q of pts) ctx.lineTo(q[0], q[1]);
+      ctx.closePath();
+      ctx.fillStyle = 'rgba(255,82,82,0.06)';
+      ctx.fill();
+    }
     ctx.fillStyle = '#ff5252';
     const size = this.scale > 60 ? 3 : 2;
     for (const q of pts) if (q[2]) ctx.fillRect(q[0] - size / 2, q[1] - size / 2, size, size);
   }
 
-  _drawSonar(ctx, p, sensor, reading, radius) {
+  _drawSonar(ctx, p, sensor, reading, radius, selected) {
     const n = reading.ranges.length;
     const fov = typeof sensor.fov === 'number' ? sensor.fov : 0.26;
     const range = pt(sensor.range);
@@ -770,16 +772,18 @@ export class MapView {
       const echo = r < rmax;
       const rr = Math.min(r, rmax) * this.scale;
       const a = p[2] + h;
-      ctx.beginPath();
-      ctx.moveTo(ox, oy);
-      // canvas angles run clockwise (y down): negate
-      ctx.arc(ox, oy, rr, -(a + fov / 2), -(a - fov / 2));
-      ctx.closePath();
-      // a faint cone, and its echo as an arc at the range read
+      // a faint cone (the selected robot's only), and the echo as an arc at the range read
       const near = Math.max(0, Math.min(1, 1 - r / 1.5));
       const rgb = `${Math.round(100 + 155 * near)},${Math.round(200 - 120 * near)},255`;
-      ctx.fillStyle = `rgba(${rgb},${echo ? 0.05 + 0.1 * near : 0.015})`;
-      ctx.fill();
+      if (selected) {
+        ctx.beginPath();
+        ctx.moveTo(ox, oy);
+        // canvas angles run clockwise (y down): negate
+        ctx.arc(ox, oy, rr, -(a + fov / 2), -(a - fov / 2));
+        ctx.closePath();
+        ctx.fillStyle = `rgba(${rgb},${echo ? 0.05 + 0.1 * near : 0.015})`;
+        ctx.fill();
+      }
       if (echo) {
         ctx.beginPath();
         ctx.arc(ox, oy, rr, -(a + fov / 2), -(a - fov / 2));
