@@ -10,6 +10,7 @@
 //   {"cmd":"press","key":K}                  press and release
 //   {"cmd":"click","selector":S}             click an element
 //   {"cmd":"mouse","x":X,"y":Y}              click at page coordinates
+//   {"cmd":"mousedown","x":X,"y":Y} / "mousemove" (x, y, steps) / "mouseup"   drag
 //   {"cmd":"screenshot","path":F}            a PNG of the page
 //   {"cmd":"console"}                        console messages and page errors so far
 //   {"cmd":"close","page":P}                 close one page
@@ -80,6 +81,18 @@ async function run(c) {
       return null;
     case 'mouse':
       await page(c.page).mouse.click(c.x, c.y);
+      return null;
+    case 'mousedown': {
+      const m = page(c.page).mouse;
+      await m.move(c.x, c.y);
+      await m.down();
+      return null;
+    }
+    case 'mousemove':
+      await page(c.page).mouse.move(c.x, c.y, { steps: c.steps || 1 });
+      return null;
+    case 'mouseup':
+      await page(c.page).mouse.up();
       return null;
     case 'screenshot':
       await page(c.page).screenshot({ path: c.path, fullPage: false });

@@ -218,6 +218,122 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
     assert page_errors(b) == []
   end
 
+  test "the joystick overrides autonomy only while held, and the page shows who is in control",
+       ctx do
+    b = ctx.browser
+    autonomy = start_autonomy(ctx.robot, {:velocity, 0.0, 0.3})
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+    await(fn -> match?(%{mode: :autonomy}, control(ctx.robot)) end)
+    wait!(b, "document.querySelector('#control-badge').textContent === 'AUTONOMY'")
+
+    # drag the joystick's knob straight up: forward
+    [cx, cy] = centre(b, "#joystick")
+    {:ok, _} = Browser.command(b, %{cmd: "mousedown", x: cx, y: cy})
+    {:ok, _} = Browser.command(b, %{cmd: "mousemove", x: cx, y: cy - 40, steps: 4})
+
+    await(fn ->
+      match?(
+        %{mode: :teleop, command: {:velocity, v, w}} when v > 0.05 and abs(w) < 0.01,
+        control(ctx.robot)
+      )
+    end)
+
+    wait!(b, "document.querySelector('#control-badge').textContent === 'TELEOP'")
+    assert eval!(b, "tc.teleop.command.source") == "joystick"
+    Browser.screenshot(b, "joystick")
+
+    # let go: autonomy drives again
+    {:ok, _} = Browser.command(b, %{cmd: "mouseup"})
+
+    await(fn ->
+      match?(%{mode: :autonomy, command: {:velocity, +0.0, 0.3}}, control(ctx.robot))
+    end)
+
+    wait!(b, "document.querySelector('#control-badge').textContent === 'AUTONOMY'")
+    Task.shutdown(autonomy, :brutal_kill)
+  end
+
+  test "a gamepad drives the robot while its stick is pushed; its B button is the E-stop", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.canControl")
+
+    # a gamepad, as the Gamepad API would show it, stick pushed forward
+    eval!(b, """
+    (() => {
+      const pad = { index: 0, id: 'Test pad', connected: true, axes: [0, -0.8, 0, 0],
+                    buttons: Array.from({ length: 16 }, () => ({ pressed: false, value: 0 })) };
+      navigator.getGamepads = () => [pad];
+      window.testPad = pad;
+      const e = new Event('gamepadconnected');
+      e.gamepad = pad;
+      window.dispatchEvent(e);
+      return true;
+    })()
+    """)
+
+    await(fn ->
+      match?(%{mode: :teleop, command: {:velocity, v, _}} when v > 0.05, control(ctx.robot))
+    end)
+
+    assert eval!(b, "tc.teleop.command.source") == "gamepad"
+
+    # the stick back in its dead zone: let go
+    eval!(b, "(testPad.axes[1] = 0.05, true)")
+    await(fn -> match?(%{mode: :idle, command: :stop}, control(ctx.robot)) end)
+
+    eval!(b, "(testPad.buttons[1].pressed = true, true)")
+    await(fn -> match?(%{mode: :estop}, control(ctx.robot)) end)
+    assert page_errors(b) == []
+  end
+
+  test "the blackboard inspector queries by template and tails a tag", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.connected")
+    eval!(b, "(document.querySelector('button[data-tab=blackboard]').click(), true)")
+
+    # a query: the robot's true pose, one tuple
+    eval!(b, "(document.querySelector('#bb-template').value = 'sim_pose, #{ctx.name}, _', true)")
+    :ok = Browser.click(b, "#bb-query")
+    wait!(b, "document.querySelectorAll('#bb-results details').length === 1")
+    text = eval!(b, "document.querySelector('#bb-results details summary').textContent")
+    assert text =~ "sim_pose" and text =~ ctx.name and text =~ "pose"
+
+    # a template that matches nothing, and one that is not a template
+    eval!(
+      b,
+      "(document.querySelector('#bb-template').value = 'sim_pose, nobody_here_#{ctx.name}, _', true)"
+    )
+
+    :ok = Browser.click(b, "#bb-query")
+    wait!(b, "document.querySelector('.bb-status').textContent.startsWith('0 tuples')")
+    eval!(b, "(document.querySelector('#bb-template').value = '[1, 2', true)")
+    :ok = Browser.click(b, "#bb-query")
+    wait!(b, "document.querySelector('.bb-status').classList.contains('error')")
+
+    # a tail: the odometry as it comes
+    eval!(
+      b,
+      "(document.querySelector('#bb-template').value = '[\"odom\", \"#{ctx.name}\", \"_\"]', true)"
+    )
+
+    :ok = Browser.click(b, "#bb-tail")
+    wait!(b, "document.querySelectorAll('#bb-results details').length >= 3")
+    Browser.screenshot(b, "blackboard_tail")
+    :ok = Browser.click(b, "#bb-tail")
+
+    n =
+      wait!(
+        b,
+        "document.querySelector('.bb-status').textContent.startsWith('Tail stopped') && tc.frames"
+      )
+
+    assert is_integer(n)
+    assert page_errors(b) == []
+  end
+
   test "a click on the map sends the robot a goal there; a click on a waypoint, to it by name",
        ctx do
     b = ctx.browser
@@ -366,6 +482,28 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
       """)
 
     {:ok, _} = Browser.command(b, %{cmd: "mouse", x: px, y: py})
+  end
+
+  # the centre of an element, in page coordinates
+  defp centre(b, selector) do
+    eval!(b, """
+    (() => {
+      const r = document.querySelector(#{js(selector)}).getBoundingClientRect();
+      return [r.left + r.width / 2, r.top + r.height / 2];
+    })()
+    """)
+  end
+
+  # "autonomy": a controller's command on the blackboard, refreshed within
+  # the base's command timeout, until the task is stopped
+  defp start_autonomy(robot, command) do
+    Task.async(fn ->
+      Stream.repeatedly(fn ->
+        Blackboard.out({:drive, robot, %{command: command}}, key: {:drive, robot})
+        Process.sleep(100)
+      end)
+      |> Stream.run()
+    end)
   end
 
   defp pose(robot) do
