@@ -122,8 +122,11 @@ export class MapView {
       const g = obj(w.grid);
       if (g && g.width) {
         const o = pose3(g.origin) || [0, 0, 0];
-        add([o[0], o[1]]);
-        add([o[0] + g.width * g.resolution, o[1] + g.height * g.resolution]);
+        const grid = this._gridCanvas(g);
+        // the known part of the map (not the unknown margin around it)
+        const k = grid && grid.known && !o[2] ? grid.known : [0, 0, g.width, g.height];
+        add([o[0] + k[0] * g.resolution, o[1] + k[1] * g.resolution]);
+        add([o[0] + k[2] * g.resolution, o[1] + k[3] * g.resolution]);
       }
     }
     for (const id of this.store.robots) {
@@ -357,10 +360,29 @@ export class MapView {
     if (this._gridImage) return this._gridImage;
     const width = g.width | 0;
     const height = g.height | 0;
-    if (!width || !height || typeof g.cells !== 'string') return null;
-    const bin = atob(g.cells);
+    // PROTOCOL.md calls the cells `cells`; the WDF struct (as sent) `data`
+    const cells = typeof g.cells === 'string' ? g.cells : g.data;
+    if (!width || !height || typeof cells !== 'string') return null;
+    // base64, as the protocol says; but the server's JSON sends a binary
+    // that happens to be valid UTF-8 (a map with no unknown cell) as is
+    let bin;
+    if (cells.length === width * height) bin = cells;
+    else {
+      try {
+        bin = atob(cells);
+      } catch (e) {
+        console.warn('dashboard: the occupancy grid is neither base64 nor raw cells', e);
+        this._gridImage = null;
+        return null;
+      }
+    }
     const img = new ImageData(width, height);
     const d = img.data;
+    // the known cells' bounds, in cells from the bottom left: [c0, r0, c1, r1)
+    let c0 = width;
+    let r0 = height;
+    let c1 = 0;
+    let r1 = 0;
     for (let r = 0; r < height; r++) {
       // cells are row-major from the bottom row; images from the top
       const row = height - 1 - r;
@@ -373,6 +395,10 @@ export class MapView {
         if (v < 0) {
           d[k] = 22; d[k + 1] = 27; d[k + 2] = 34; d[k + 3] = 255;
         } else {
+          if (c < c0) c0 = c;
+          if (c >= c1) c1 = c + 1;
+          if (r < r0) r0 = r;
+          if (r >= r1) r1 = r + 1;
           // free: dark blue-grey; occupied: light
           const t = Math.min(v, 100) / 100;
           d[k] = 30 + t * 170;
@@ -386,6 +412,7 @@ export class MapView {
     cv.width = width;
     cv.height = height;
     cv.getContext('2d').putImageData(img, 0, 0);
+    cv.known = c1 > c0 && r1 > r0 ? [c0, r0, c1, r1] : null;
     this._gridImage = cv;
     return cv;
   }

@@ -28,19 +28,25 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
 
   setup %{tmp_dir: dir} = ctx do
     robot = :"web#{System.unique_integer([:positive])}"
-    # each test's robot has its own stretch of the hall, heading east
-    x = 4.0 + rem(System.unique_integer([:positive]), 8) * 1.5
+
+    # the office (each test's robot on its own stretch of the hall, heading
+    # east), or a small occupancy map made for the test
+    {wdf, at} =
+      if ctx[:grid],
+        do: {grid_world(dir), {4.0, 1.0, 0.0}},
+        else: {@wdf, {4.0 + rem(System.unique_integer([:positive]), 8) * 1.5, 1.8, 0.0}}
+
     path = Path.join(dir, "browser.adf")
 
     File.write!(path, """
     [
       robot: :#{robot},
       rdf: "#{@examples}/office_robot.rdf",
-      wdf: "#{@wdf}",
+      wdf: "#{wdf}",
       dashboard: [enabled: true, port: 0, rosbridge_port: 0, public_view: #{ctx[:public_view] == true}],
       modules: [
         base_#{robot}: [module: ThinkingCap.Sim.Robot, activity: :periodic, period: 0.01,
-                         deadline: 0.005, fallback: :stop, params: [at: {#{x}, 1.8, 0.0}, seed: 5]]
+                         deadline: 0.005, fallback: :stop, params: [at: #{inspect(at)}, seed: 5]]
       ]
     ]
     """)
@@ -50,7 +56,7 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
     on_exit(fn ->
       Runtime.stop(:"base_#{robot}")
       Dashboard.stop()
-      with {:ok, sim} <- Sim.Worlds.lookup(@wdf), do: Sim.remove_robot(sim, robot)
+      with {:ok, sim} <- Sim.Worlds.lookup(wdf), do: Sim.remove_robot(sim, robot)
     end)
 
     {:ok, info} = Dashboard.await(10_000)
@@ -364,6 +370,33 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
     Browser.screenshot(b, "goal")
   end
 
+  @tag grid: true
+  test "an occupancy map is drawn the right way up", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}] && tc.world && tc.world.grid")
+
+    # the robot's own readings off, to see the map alone
+    eval!(b, """
+    (() => {
+      for (const l of document.querySelectorAll('#layers-menu label'))
+        if (['Laser', 'Sonar', 'LPS'].includes(l.textContent)) l.querySelector('input').click();
+      return true;
+    })()
+    """)
+
+    Process.sleep(100)
+    # the occupied block is in the map's top left (north-west), its mirror
+    # image across the map's middle is free floor, outside the map is
+    # nothing (points off the origin's axes)
+    occupied = world_pixel(b, 0.3, 2.2)
+    free = world_pixel(b, 0.3, -0.2)
+    assert Enum.all?(Enum.take(occupied, 3), &(&1 > 150)), "occupied: #{inspect(occupied)}"
+    assert Enum.all?(Enum.take(free, 3), &(&1 < 80)), "free: #{inspect(free)}"
+    refute Enum.take(free, 3) == Enum.take(world_pixel(b, -3.0, 2.0), 3)
+    Browser.screenshot(b, "occupancy_map")
+  end
+
   test "a wrong token is refused: the page says so and drives nothing", ctx do
     b = ctx.browser
     {x0, y0, _} = pose(ctx.robot)
@@ -457,6 +490,41 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
   defp page_errors(b) do
     {:ok, log} = Browser.console(b)
     Enum.filter(log, &String.starts_with?(&1, ["pageerror", "error"]))
+  end
+
+  # a ROS map_server map, 6 m x 4 m at 10 cm, its origin at (-1, -1): free
+  # floor inside a wall, and an occupied 1 m block whose centre is at
+  # (0, 2), near the top left of the image (a PGM's first row is the map's
+  # top, its north)
+  defp grid_world(dir) do
+    {w, h} = {60, 40}
+
+    pixels =
+      for row <- 0..(h - 1), col <- 0..(w - 1), into: <<>> do
+        wall = row == 0 or col == 0 or row == h - 1 or col == w - 1
+        block = row in 5..14 and col in 5..14
+        if wall or block, do: <<0>>, else: <<254>>
+      end
+
+    File.write!(Path.join(dir, "grid.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
+
+    File.write!(Path.join(dir, "grid.yaml"), """
+    image: grid.pgm
+    resolution: 0.1
+    origin: [-1.0, -1.0, 0.0]
+    negate: 0
+    occupied_thresh: 0.65
+    free_thresh: 0.196
+    """)
+
+    path = Path.join(dir, "grid.wdf")
+    File.write!(path, ~s([name: "grid_test", map: [yaml: "#{Path.join(dir, "grid.yaml")}"]]))
+    path
+  end
+
+  defp world_pixel(b, x, y) do
+    [sx, sy] = eval!(b, "tc.worldToScreen(#{x}, #{y})")
+    eval!(b, pixel_js(sx, sy))
   end
 
   # a pixel of the map canvas, at CSS pixel coordinates
