@@ -118,8 +118,15 @@ export class ModulesPanel {
       if (typeof v === 'object') return JSON.stringify(v);
       return String(v);
     };
+    // a task as the planner writes it: ["patrol", ["a", "b"]], ["go_to", [x, y]], ...
+    const task = (t) => {
+      if (!Array.isArray(t) || typeof t[0] !== 'string') return show(t);
+      const [kind, arg] = t;
+      if (Array.isArray(arg) && arg.every((x) => typeof x === 'string')) return `${kind}: ${arg.join(' → ')}`;
+      return arg === undefined ? kind : `${kind} ${show(arg)}`;
+    };
     const rows = [
-      ['task', show(p.task)],
+      ['task', task(p.task)],
       ['state', show(p.state)],
       ['waypoint', show(p.waypoint)],
       ['goal', show(p.goal)],
