@@ -6,9 +6,9 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
   #
   #   * frames above `max_frame` bytes are refused by yaws (close 1009)
   #     before they are read;
-  #   * a message-rate budget (a token bucket): messages over it are
-  #     dropped with an error reply, and a client that keeps flooding is
-  #     closed (1008);
+  #   * a message-rate budget (`RateBudget`, a token bucket): messages over
+  #     it are dropped with an error reply, and a client that goes on
+  #     flooding (@flood_close drops without a pause) is closed (1008);
   #   * a send timeout: a browser that stops reading is dropped, so it never
   #     holds the process that serves it (nor anything upstream of it);
   #   * a handler that raises gets its error logged and an error reply sent,
@@ -17,6 +17,7 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
 
   require Logger
   import ThinkingCap.Dashboard.Core.Records
+  alias ThinkingCap.Dashboard.Core.RateBudget
 
   @typedoc "What a handler learns about its client."
   @type conn :: %{
@@ -68,10 +69,7 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
          %{
            handler: handler,
            hstate: hstate,
-           tokens: @burst * 1.0,
-           last: now(),
-           dropped: 0,
-           warned: 0,
+           budget: RateBudget.new(@rate, @burst),
            open: false,
            held: [],
            send_timeout: conn.config[:send_timeout] || @send_timeout
@@ -98,20 +96,24 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
 
   @doc false
   def handle_message({:text, text}, state) do
-    case admit(state) do
-      {:ok, state} ->
-        call(state, :handle_text, [text, state.hstate])
+    case RateBudget.admit(state.budget, now()) do
+      {:ok, budget} ->
+        call(%{state | budget: budget}, :handle_text, [text, state.hstate])
 
-      {:drop, state} when state.dropped >= @flood_close ->
-        Logger.warning("dashboard: a client flooding the socket was closed")
-        {:close, {1008, "message flood"}, state}
+      {:drop, budget} ->
+        if RateBudget.flooding?(budget, @flood_close) do
+          Logger.warning("dashboard: a client flooding the socket was closed")
+          {:close, {1008, "message flood"}, %{state | budget: budget}}
+        else
+          case RateBudget.warn?(budget, 50) do
+            {true, budget} ->
+              {:reply, [frame(state.handler.error_frame("too many messages: dropped"))],
+               %{state | budget: budget}}
 
-      {:drop, state} ->
-        if state.dropped - state.warned >= 50 or state.warned == 0,
-          do:
-            {:reply, [frame(state.handler.error_frame("too many messages: dropped"))],
-             %{state | warned: state.dropped}},
-          else: {:noreply, state}
+            {false, budget} ->
+              {:noreply, %{state | budget: budget}}
+          end
+        end
     end
   end
 
@@ -175,16 +177,6 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
       {:reply,
        [frame(state.handler.error_frame("internal error: #{Exception.message(exception)}"))],
        state}
-  end
-
-  # a token bucket: @rate messages a second, bursts of @burst
-  defp admit(state) do
-    t = now()
-    tokens = min(@burst * 1.0, state.tokens + (t - state.last) * @rate / 1000)
-
-    if tokens >= 1.0,
-      do: {:ok, %{state | tokens: tokens - 1.0, last: t, dropped: 0, warned: 0}},
-      else: {:drop, %{state | tokens: tokens, last: t, dropped: state.dropped + 1}}
   end
 
   defp frame(iodata), do: {:text, IO.iodata_to_binary(iodata)}
