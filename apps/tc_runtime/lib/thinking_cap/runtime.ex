@@ -196,6 +196,55 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
+  @doc "Every process hosting module `name`, on any node (more than one only across a partition)."
+  @spec whereis_all(atom()) :: [pid()]
+  def whereis_all(name), do: :pg.get_members(@scope, {:module, name})
+
+  @doc "The process of module `name` on this node, or nil."
+  @spec local_whereis(atom()) :: pid() | nil
+  def local_whereis(name) do
+    case :pg.get_local_members(@scope, {:module, name}) do
+      [pid | _] -> pid
+      [] -> nil
+    end
+  end
+
+  @doc "The modules running on this node: `[{name, pid}]`."
+  @spec local_modules() :: [{atom(), pid()}]
+  def local_modules do
+    for {:module, name} = group <- :pg.which_groups(@scope),
+        pid <- :pg.get_local_members(@scope, group),
+        do: {name, pid}
+  end
+
+  @doc false
+  # Stops module `name` if it runs on this node.
+  def stop_here(name) do
+    case local_whereis(name) do
+      nil -> :ok
+      pid -> DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid)
+    end
+  end
+
+  @doc """
+  Deploys `adf` (a path or a `ThinkingCap.Config.ADF`) on this node: starts
+  its `ThinkingCap.Runtime.Deployment`, which connects to the ADF's other
+  nodes and runs this node's share of its modules, with failover. Every
+  node of the cluster deploys the same ADF. A release does this at boot
+  when `TC_ADF` names an ADF.
+  """
+  @spec deploy(ADF.t() | Path.t()) :: {:ok, pid()} | {:error, term()}
+  def deploy(adf) do
+    case Supervisor.start_child(
+           ThinkingCap.Runtime.Supervisor,
+           {ThinkingCap.Runtime.Deployment, adf: adf}
+         ) do
+      {:ok, pid} -> {:ok, pid}
+      {:error, {{:shutdown, message}, _child}} -> {:error, message}
+      {:error, reason} -> {:error, reason}
+    end
+  end
+
   @doc "Every running module of the cluster: name, module, node, pid, activity."
   @spec which_modules() :: [module_info()]
   def which_modules do

@@ -28,17 +28,26 @@ defmodule ThinkingCap.Testing.Cluster do
           | {:connection, :standard_io | :dist}
           | {:connect, boolean()}
           | {:log_level, Logger.level()}
+          | {:names, [atom()]}
+          | {:cookie, atom()}
 
   @doc """
   Starts `count` nodes, starts `apps` (default `[:tc_blackboard]`) on each
   and, unless `connect: false`, connects them all to each other and waits
   until their blackboards replicate to each other.
+
+  `names:` gives the nodes' short names (they run on host 127.0.0.1;
+  default: random names), so a test can write them into an ADF or start a
+  killed node again under its name; `cookie:` joins nodes started earlier
+  (`cookie/1` tells theirs).
   """
   @spec start(pos_integer(), [option()]) :: [t()]
   def start(count, opts \\ []) do
     connection = Keyword.get(opts, :connection, :standard_io)
-    cookie = if connection == :dist, do: Node.get_cookie(), else: random_cookie()
-    nodes = for _ <- 1..count, do: start_node(connection, cookie, opts)
+    default_cookie = if connection == :dist, do: Node.get_cookie(), else: random_cookie()
+    cookie = Keyword.get(opts, :cookie, default_cookie)
+    names = Keyword.get_lazy(opts, :names, fn -> for _ <- 1..count, do: random_name() end)
+    nodes = for name <- Enum.take(names, count), do: start_node(connection, cookie, opts, name)
 
     if Keyword.get(opts, :connect, true) do
       for a <- nodes, b <- nodes, a.node < b.node, do: true = connect(a, b)
@@ -48,8 +57,20 @@ defmodule ThinkingCap.Testing.Cluster do
     nodes
   end
 
-  defp start_node(connection, cookie, opts) do
-    name = :peer.random_name(~c"tc")
+  @doc "A fresh short node name for `start/2`'s `names:`."
+  @spec random_name() :: atom()
+  def random_name, do: List.to_atom(:peer.random_name(~c"tc"))
+
+  @doc "The full node name `start/2` gives a node of short name `name`."
+  @spec node_name(atom()) :: node()
+  def node_name(name), do: :"#{name}@127.0.0.1"
+
+  @doc "The cookie of a started node, for `start/2`'s `cookie:`."
+  @spec cookie(t()) :: atom()
+  def cookie(node), do: call(node, Node, :get_cookie, [])
+
+  defp start_node(connection, cookie, opts, name) do
+    name = Atom.to_charlist(name)
     level = opts |> Keyword.get(:log_level, :warning) |> Atom.to_charlist()
 
     # no busy-waiting: the runtime may run schedulers at real-time priority

@@ -20,6 +20,11 @@ defmodule ThinkingCap.Config.ADF do
        doc:
          "the logical node (a key of `nodes`) it runs on; `:local`: the node that reads the ADF"},
     standby: {{:list, :atom}, default: [], doc: "logical nodes it fails over to, in order"},
+    failback:
+      {{:one_of, [:manual, :auto]},
+       default: :manual,
+       doc:
+         "after a failover: `:manual` stays on the standby until moved (`ThinkingCap.Runtime.Deployment.move/2`); `:auto` goes back to the first live node of `[node | standby]`"},
     activity:
       {{:one_of, [:periodic, :event, :background]}, required: true, doc: "how it is released"},
     period: {:pos_number, doc: "seconds between releases (periodic only; required there)"},
@@ -36,6 +41,16 @@ defmodule ThinkingCap.Config.ADF do
     params: {:params, default: [], doc: "passed to the module's `init/2`"}
   ]
 
+  @cluster_fields [
+    connect_every:
+      {:pos_number, default: 1.0, doc: "seconds between attempts to connect to missing nodes"},
+    settle:
+      {:non_neg_number,
+       default: 3.0,
+       doc:
+         "seconds a starting node waits for the other nodes before it takes over modules whose nodes are missing"}
+  ]
+
   @fields [
     robot:
       {:atom,
@@ -45,6 +60,9 @@ defmodule ThinkingCap.Config.ADF do
     nodes:
       {{:keyword_of, :atom},
        default: [], doc: "`logical_name: :\"name@host\"`; empty: everything on one node"},
+    cluster:
+      {{:keyword, @cluster_fields},
+       default: [], doc: "how a deployment's nodes find each other (below)"},
     dashboard:
       {{:keyword, @dashboard_fields}, default: [], doc: "web dashboard settings (below)"},
     modules:
@@ -79,6 +97,10 @@ defmodule ThinkingCap.Config.ADF do
 
   #{ThinkingCap.Config.Schema.describe(@module_fields)}
 
+  ## Cluster keys
+
+  #{ThinkingCap.Config.Schema.describe(@cluster_fields)}
+
   ## Dashboard keys
 
   #{ThinkingCap.Config.Schema.describe(@dashboard_fields)}
@@ -86,7 +108,7 @@ defmodule ThinkingCap.Config.ADF do
 
   alias ThinkingCap.Config.Schema
 
-  defstruct [:file, :robot, :rdf, :wdf, nodes: %{}, dashboard: %{}, modules: []]
+  defstruct [:file, :robot, :rdf, :wdf, nodes: %{}, cluster: %{}, dashboard: %{}, modules: []]
 
   @typedoc "One module entry, with defaults filled in (`deadline` defaults to `period`)."
   @type module_spec :: %{
@@ -94,6 +116,7 @@ defmodule ThinkingCap.Config.ADF do
           module: module(),
           node: atom(),
           standby: [atom()],
+          failback: :manual | :auto,
           activity: :periodic | :event | :background,
           period: float() | nil,
           deadline: float() | nil,
@@ -109,6 +132,7 @@ defmodule ThinkingCap.Config.ADF do
           rdf: Path.t() | nil,
           wdf: Path.t() | nil,
           nodes: %{atom() => node()},
+          cluster: %{connect_every: float(), settle: float()},
           dashboard: map(),
           modules: [module_spec()]
         }
@@ -140,7 +164,14 @@ defmodule ThinkingCap.Config.ADF do
           wdf: resolve(file, value.wdf)
         }
 
-        {:ok, %{adf | nodes: Map.new(nodes), dashboard: value.dashboard, modules: modules}}
+        {:ok,
+         %{
+           adf
+           | nodes: Map.new(nodes),
+             cluster: value.cluster,
+             dashboard: value.dashboard,
+             modules: modules
+         }}
 
       errors ->
         {:error, errors}
