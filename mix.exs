@@ -7,7 +7,29 @@ defmodule ThinkingCap.Umbrella.MixProject do
       version: "0.1.0",
       start_permanent: Mix.env() == :prod,
       elixirc_options: [warnings_as_errors: true],
-      deps: []
+      deps: [],
+      releases: releases()
+    ]
+  end
+
+  # One release, installed on every CPU of the robot; which node it is,
+  # its cookie, its ADF and its network interface come from the
+  # environment when it starts (rel/env.sh.eex, rel/README.md).
+  defp releases do
+    [
+      thinking_cap: [
+        applications: [
+          tc_blackboard: :permanent,
+          tc_runtime: :permanent,
+          tc_robot: :permanent,
+          tc_sim: :permanent,
+          tc_cognition: :permanent,
+          tc_dashboard: :permanent
+        ],
+        include_executables_for: [:unix],
+        rel_templates_path: "rel",
+        steps: [:assemble]
+      ]
     ]
   end
 end

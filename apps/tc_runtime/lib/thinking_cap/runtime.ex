@@ -101,8 +101,20 @@ defmodule ThinkingCap.Runtime do
   # Runs on the module's node.
   def start_here(spec) do
     with :ok <- check_module(spec.module),
+         :ok <- start_application_of(spec.module),
          {:ok, pid} <- start_child(spec) do
       {:ok, pid}
+    end
+  end
+
+  # the application a module belongs to runs before the module does (a
+  # node that was started with the runtime alone, or a release booting)
+  defp start_application_of(module) do
+    with {:ok, app} <- :application.get_application(module),
+         {:error, reason} <- Application.ensure_all_started(app) do
+      {:error, {:application_not_started, app, reason}}
+    else
+      _ -> :ok
     end
   end
 
@@ -267,9 +279,10 @@ defmodule ThinkingCap.Runtime do
 
   defp info(pid), do: GenServer.call(pid, :info)
 
+  @doc false
   # What was started, for the services that follow an ADF (the dashboard
-  # starts itself when one enables it)
-  defp announce(%ADF{} = adf) do
+  # starts itself on the announcing node when the ADF enables it)
+  def announce(%ADF{} = adf) do
     Blackboard.out(
       {:adf, adf.robot,
        %{

@@ -13,7 +13,6 @@ defmodule Mix.Tasks.Tc.Check do
 
   def run(paths) do
     Mix.Task.run("loadpaths")
-    Application.ensure_all_started(:fast_yaml)
 
     case ThinkingCap.Config.check(paths) do
       [] ->

@@ -1,6 +1,11 @@
 defmodule ThinkingCap.Config.ADF do
   @dashboard_fields [
     enabled: {:boolean, default: false, doc: "serve the web dashboard"},
+    node:
+      {:atom,
+       default: :local,
+       doc:
+         "the logical node serving it in a deployment (`:local`: the first of `nodes`); `ThinkingCap.Runtime.start/1` serves it on the starting node"},
     host: {:string, default: "127.0.0.1", doc: "interface to bind"},
     port:
       {{:int_range, 0, 65_535}, default: 4000, doc: "HTTP and WebSocket port (0: any free port)"},
@@ -150,6 +155,7 @@ defmodule ThinkingCap.Config.ADF do
       st
       |> check_nodes(nodes)
       |> check_modules(modules, Keyword.keys(nodes))
+      |> check_node([:dashboard, :node], value[:dashboard][:node], Keyword.keys(nodes))
       |> check_file(:rdf, value[:rdf])
       |> check_file(:wdf, value[:wdf])
 
@@ -169,7 +175,7 @@ defmodule ThinkingCap.Config.ADF do
            adf
            | nodes: Map.new(nodes),
              cluster: value.cluster,
-             dashboard: value.dashboard,
+             dashboard: resolve_dashboard_node(value.dashboard, nodes),
              modules: modules
          }}
 
@@ -177,6 +183,11 @@ defmodule ThinkingCap.Config.ADF do
         {:error, errors}
     end
   end
+
+  defp resolve_dashboard_node(%{node: :local} = dashboard, [{first, _} | _]),
+    do: %{dashboard | node: first}
+
+  defp resolve_dashboard_node(dashboard, _nodes), do: dashboard
 
   defp check_nodes(st, nodes) do
     Enum.reduce(nodes, st, fn {name, node}, st ->

@@ -73,11 +73,22 @@ defmodule ThinkingCap.Config.RosMap do
   ## YAML
 
   defp parse_yaml(text, path) do
-    case :fast_yaml.decode(text) do
+    case ensure_yaml() && :fast_yaml.decode(text) do
+      false -> {:error, "#{path}: the YAML reader (Debian's erlang-p1-yaml) is not installed"}
       {:ok, [doc]} when is_list(doc) -> yaml_params(Map.new(doc), path)
       {:ok, _} -> {:error, "#{path}: expected one YAML mapping of map parameters"}
       {:error, reason} -> {:error, "#{path}: invalid YAML: #{inspect(reason)}"}
     end
+  end
+
+  # Debian installs fast_yaml as lib/p1_yaml-VSN: a release (whose code
+  # path holds only its own libraries) finds it there.
+  defp ensure_yaml do
+    match?({:ok, _}, Application.ensure_all_started(:fast_yaml)) or
+      (Enum.each(
+         Path.wildcard("{#{:code.lib_dir()},/usr/lib/erlang/lib}/{p1_yaml,p1_utils}-*/ebin"),
+         &Code.append_path/1
+       ) && match?({:ok, _}, Application.ensure_all_started(:fast_yaml)))
   end
 
   defp yaml_params(doc, path) do

@@ -6,10 +6,16 @@ defmodule ThinkingCap.Runtime.Application do
   #   :pg scope                  finds every node's modules
   #   ThinkingCap.Cycle          the timing worker's owner
   #   ThinkingCap.Runtime.Modules  DynamicSupervisor of module hosts
+  #   (a release's boot deployment, when `config :tc_runtime, deploy: adf`)
   #
+  # A release deploys its ADF once the whole release has booted (the
+  # modules an ADF names live in later applications), from a task that
+  # logs a bad ADF instead of failing the boot: the node stays up for a
+  # remote shell.
   # One crash-looping module must not take the others down with the
   # supervisor, hence the generous restart intensity of Modules.
   use Application
+  require Logger
 
   @impl true
   def start(_type, _args) do
@@ -25,6 +31,38 @@ defmodule ThinkingCap.Runtime.Application do
        max_seconds: 10}
     ]
 
-    Supervisor.start_link(children, strategy: :rest_for_one, name: ThinkingCap.Runtime.Supervisor)
+    boot =
+      case Application.get_env(:tc_runtime, :deploy) do
+        nil ->
+          []
+
+        adf ->
+          [Supervisor.child_spec({Task, fn -> deploy_after_boot(adf) end}, restart: :temporary)]
+      end
+
+    Supervisor.start_link(children ++ boot,
+      strategy: :rest_for_one,
+      name: ThinkingCap.Runtime.Supervisor
+    )
+  end
+
+  defp deploy_after_boot(adf) do
+    wait_for_boot()
+
+    case ThinkingCap.Runtime.deploy(adf) do
+      {:ok, _pid} -> :ok
+      {:error, message} -> Logger.error("could not deploy #{adf}: #{message}")
+    end
+  end
+
+  defp wait_for_boot do
+    case :init.get_status() do
+      {:started, _} ->
+        :ok
+
+      _ ->
+        Process.sleep(50)
+        wait_for_boot()
+    end
   end
 end

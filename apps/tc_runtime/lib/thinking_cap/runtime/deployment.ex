@@ -117,6 +117,7 @@ defmodule ThinkingCap.Runtime.Deployment do
         logical: logical,
         by_node: Map.new(adf.nodes, fn {logical, node} -> {node, logical} end),
         settled: map_size(adf.nodes) == 0,
+        announced: false,
         reported: nil
       }
 
@@ -166,12 +167,28 @@ defmodule ThinkingCap.Runtime.Deployment do
     settled = state.settled or Enum.all?(Map.values(state.adf.nodes), &(&1 in up))
     state = %{state | settled: settled}
 
-    if settled do
-      for spec <- state.adf.modules, do: place(state, spec, up)
-    end
+    state =
+      if settled do
+        for spec <- state.adf.modules, do: place(state, spec, up)
+        announce(state)
+      else
+        state
+      end
 
     report(state, up)
   end
+
+  # The ADF is announced (the dashboard follows it) by its dashboard's node.
+  defp announce(%{announced: true} = state), do: state
+
+  defp announce(state) do
+    if dashboard_node(state.adf) == node(), do: Runtime.announce(state.adf)
+    %{state | announced: true}
+  end
+
+  defp dashboard_node(%ADF{nodes: nodes}) when map_size(nodes) == 0, do: node()
+
+  defp dashboard_node(%ADF{nodes: nodes, dashboard: dashboard}), do: nodes[dashboard[:node]]
 
   # The lock and the authoritative look at every node are taken only when
   # `:pg`'s (eventually consistent) view says something may need doing.
