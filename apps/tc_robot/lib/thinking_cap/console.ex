@@ -1,0 +1,151 @@
+defmodule ThinkingCap.Console do
+  @moduledoc """
+  Helpers for a remote shell on a running robot (a release's
+  `bin/thinking_cap remote`, or `iex --remsh`):
+
+      iex> import ThinkingCap.Console
+      iex> estop(:r1)              # stop the robot now (latched)
+      iex> modules()               # what runs where
+      iex> cluster()               # this node's view of the deployment
+      iex> timing()                # the control cycle's figures, every node
+      iex> tuples({:pose, :_, :_}) # blackboard tuples by template
+      iex> move(:control, :brain)  # move a module (after a failover)
+      iex> release_estop(:r1)
+
+  Each prints a table and returns its data, so the result can be worked
+  on in the shell.
+  """
+
+  alias ThinkingCap.{Blackboard, Runtime}
+  alias ThinkingCap.Runtime.Deployment
+
+  @doc """
+  Engages the E-stop of `robot`: its base stops at its next cycle and stays
+  stopped (teleoperation and autonomy alike) until `release_estop/1`.
+  """
+  @spec estop(atom()) :: :ok
+  def estop(robot) do
+    :ok = Blackboard.out({:estop, robot, %{engaged: true, by: :console}}, key: {:estop, robot})
+    IO.puts("#{robot}: E-stop engaged")
+  end
+
+  @doc "Releases the E-stop of `robot`: autonomy (or teleoperation) drives again."
+  @spec release_estop(atom()) :: :ok
+  def release_estop(robot) do
+    :ok = Blackboard.out({:estop, robot, %{engaged: false, by: :console}}, key: {:estop, robot})
+    IO.puts("#{robot}: E-stop released")
+  end
+
+  @doc "Every running module of the cluster: where it runs and how it is released."
+  @spec modules() :: [Runtime.module_info()]
+  def modules do
+    modules = Runtime.which_modules()
+
+    table(
+      ["module", "implementation", "node", "activity"],
+      for(m <- modules, do: [m.name, inspect(m.module), m.node, m.activity])
+    )
+
+    modules
+  end
+
+  @doc """
+  This node's view of its deployment (`ThinkingCap.Runtime.Deployment`):
+  nodes up and missing, where each module runs, modules with no live node.
+  """
+  @spec cluster() :: Deployment.status() | :not_deployed
+  def cluster do
+    if Process.whereis(Deployment) do
+      status = Deployment.status()
+      IO.puts("robot #{status.robot}, this node #{status.logical} (#{status.node})")
+      IO.puts("up: #{inspect(status.up)}  missing: #{inspect(status.missing)}")
+
+      table(
+        ["module", "runs on"],
+        for({name, node} <- Enum.sort(status.modules), do: [name, node || "-- not running --"])
+      )
+
+      status
+    else
+      IO.puts("this node runs no deployment (modules started with ThinkingCap.Runtime.start/1)")
+      :not_deployed
+    end
+  end
+
+  @doc """
+  The timing statistics of every periodic activity on every connected
+  node (`ThinkingCap.Runtime.timing/0` per node): cycles, release jitter,
+  response time, fallbacks and late results.
+  """
+  @spec timing() :: %{node() => %{atom() => map()}}
+  def timing do
+    nodes = [node() | Node.list()]
+
+    figures =
+      nodes
+      |> :erpc.multicall(Runtime, :timing, [], 5_000)
+      |> Enum.zip(nodes)
+      |> Enum.flat_map(fn
+        {{:ok, timing}, node} -> [{node, timing}]
+        _ -> []
+      end)
+      |> Map.new()
+
+    rows =
+      for {node, activities} <- figures, {name, s} <- activities do
+        [
+          name,
+          node,
+          s.cycles,
+          us(get_in(s, [:jitter_us, :mean])),
+          us(get_in(s, [:jitter_us, :max])),
+          us(get_in(s, [:response_us, :mean])),
+          us(get_in(s, [:response_us, :max])),
+          s[:fallbacks],
+          s[:late]
+        ]
+      end
+
+    table(
+      ~w(activity node cycles jitter_mean jitter_max response_mean response_max fallbacks late),
+      rows
+    )
+
+    figures
+  end
+
+  @doc "Moves a module to another node of the deployment (`ThinkingCap.Runtime.Deployment.move/2`)."
+  @spec move(atom(), atom()) :: :ok | {:error, term()}
+  def move(name, node), do: Deployment.move(name, node)
+
+  @doc "Prints the tuples matching `template` (all by default), at most `limit`; returns the count."
+  @spec tuples(Blackboard.template() | :all, pos_integer()) :: non_neg_integer()
+  defdelegate tuples(template \\ :all, limit \\ 50), to: ThinkingCap.Blackboard.IEx, as: :bb_ls
+
+  defp us(nil), do: "-"
+  defp us(value), do: "#{Float.round(value / 1, 1)} µs"
+
+  defp table(header, rows) do
+    rows = Enum.map(rows, fn row -> Enum.map(row, &cell/1) end)
+
+    widths =
+      Enum.reduce([header | rows], List.duplicate(0, length(header)), fn row, widths ->
+        Enum.zip_with(row, widths, &max(String.length(to_string(&1)), &2))
+      end)
+
+    for row <- [header | rows] do
+      row
+      |> Enum.zip(widths)
+      |> Enum.map_join("  ", fn {cell, width} -> String.pad_trailing(to_string(cell), width) end)
+      |> String.trim_trailing()
+      |> IO.puts()
+    end
+
+    :ok
+  end
+
+  defp cell(value) when is_binary(value), do: value
+  defp cell(nil), do: "-"
+  defp cell(value) when is_atom(value), do: Atom.to_string(value)
+  defp cell(value), do: to_string(value)
+end
