@@ -97,7 +97,11 @@ defmodule ThinkingCap.Cycle do
     :ok
   end
 
-  @doc "Sends the caller every command applied for activity `name`."
+  @doc """
+  Sends the caller every command applied for activity `name`, from now
+  until the caller exits: across the activity's removal and re-adding (a
+  module that restarts), and for an activity not added yet.
+  """
   @spec subscribe(name()) :: :ok
   def subscribe(name), do: GenServer.call(__MODULE__, {:subscribe, name, self()})
 
@@ -129,7 +133,16 @@ defmodule ThinkingCap.Cycle do
     publish_ms = Keyword.get(opts, :publish_every, 1000)
     if publish_ms, do: :timer.send_interval(publish_ms, :publish)
 
-    state = %{port: nil, status: nil, activities: %{}, ids: %{}, next_id: 1, restarts: 0}
+    state = %{
+      port: nil,
+      status: nil,
+      activities: %{},
+      ids: %{},
+      next_id: 1,
+      restarts: 0,
+      watchers: %{}
+    }
+
     {:ok, open(state)}
   end
 
@@ -157,7 +170,6 @@ defmodule ThinkingCap.Cycle do
       priority: priority,
       fallback: fallback,
       owner: owner,
-      subscribers: MapSet.new([owner]),
       stats: Stats.new(round(period * 1.0e9))
     }
 
@@ -168,13 +180,9 @@ defmodule ThinkingCap.Cycle do
   def handle_call({:remove, name}, _from, state), do: {:reply, :ok, remove_activity(state, name)}
 
   def handle_call({:subscribe, name, pid}, _from, state) do
-    case state.ids do
-      %{^name => id} ->
-        {:reply, :ok, update_in(state.activities[id].subscribers, &MapSet.put(&1, pid))}
-
-      _ ->
-        {:reply, {:error, :unknown_activity}, state}
-    end
+    Process.monitor(pid)
+    watchers = Map.update(state.watchers, name, MapSet.new([pid]), &MapSet.put(&1, pid))
+    {:reply, :ok, %{state | watchers: watchers}}
   end
 
   def handle_call(:status, _from, state),
@@ -211,10 +219,17 @@ defmodule ThinkingCap.Cycle do
     state =
       Enum.reduce(state.activities, state, fn
         {_id, %{owner: ^pid, name: name}}, st -> remove_activity(st, name)
-        {id, a}, st -> put_in(st.activities[id].subscribers, MapSet.delete(a.subscribers, pid))
+        _other, st -> st
       end)
 
-    {:noreply, state}
+    watchers =
+      for {name, pids} <- state.watchers,
+          pids = MapSet.delete(pids, pid),
+          MapSet.size(pids) > 0,
+          into: %{},
+          do: {name, pids}
+
+    {:noreply, %{state | watchers: watchers}}
   end
 
   def handle_info({:cpu, id, ns}, state) do
@@ -266,7 +281,7 @@ defmodule ThinkingCap.Cycle do
         kind = Map.fetch!(@kinds, kind)
         command = if command == "", do: nil, else: :erlang.binary_to_term(command)
         event = %{cycle: cycle, kind: kind, command: command, response_us: response / 1000}
-        Enum.each(a.subscribers, &send(&1, {:tc_cycle, :applied, a.name, event}))
+        tell(state, a, event)
         put_in(state.activities[id].stats, Stats.applied(a.stats, kind, response))
 
       _ ->
@@ -310,11 +325,19 @@ defmodule ThinkingCap.Cycle do
     # every activity again; until its next fresh result, its fallback holds
     for {_id, a} <- state.activities do
       send_add(state.port, a)
-      event = %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0}
-      Enum.each(a.subscribers, &send(&1, {:tc_cycle, :applied, a.name, event}))
+      tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
     end
 
     state
+  end
+
+  # an applied command goes to the activity's owner and its watchers
+  defp tell(state, a, event) do
+    message = {:tc_cycle, :applied, a.name, event}
+    send(a.owner, message)
+
+    for pid <- Map.get(state.watchers, a.name, []), pid != a.owner, do: send(pid, message)
+    :ok
   end
 
   defp send_add(port, a) do
@@ -333,8 +356,7 @@ defmodule ThinkingCap.Cycle do
       %{^name => id} when is_map_key(state.activities, id) ->
         a = state.activities[id]
         if state.port, do: Port.command(state.port, <<?R, id::16>>)
-        event = %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0}
-        Enum.each(a.subscribers, &send(&1, {:tc_cycle, :applied, name, event}))
+        tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
         %{state | activities: Map.delete(state.activities, id)}
 
       _ ->
