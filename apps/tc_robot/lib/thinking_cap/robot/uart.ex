@@ -60,7 +60,8 @@ defmodule ThinkingCap.Robot.UART do
 
   For a pty master, `path` is the slave's path. A pty master stays open
   while no process has its slave open (between the slave's closing and its
-  reopening): only closing the master ends the pair.
+  reopening): only closing the master ends the pair. What the master
+  writes meanwhile waits in the pty for the next process to open the slave.
 
   In passive mode the same frames (and the error) are queued for `read/2`.
 
