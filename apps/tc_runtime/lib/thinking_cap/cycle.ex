@@ -200,6 +200,15 @@ defmodule ThinkingCap.Cycle do
   def handle_info({port, {:data, frame}}, %{port: port} = state),
     do: {:noreply, handle_frame(frame, state)}
 
+  def handle_info({port, :eof}, %{port: port} = state) do
+    Logger.error(
+      "timing worker closed its output (it died); restarting it, robot stopped until a fresh command"
+    )
+
+    Port.close(port)
+    {:noreply, restart(state)}
+  end
+
   def handle_info({port, {:exit_status, status}}, %{port: port} = state) do
     Logger.error(
       "timing worker exited with status #{status}; restarting it, robot stopped until a fresh command"
@@ -309,7 +318,9 @@ defmodule ThinkingCap.Cycle do
 
   defp open(state) do
     path = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")
-    port = Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status])
+    # :eof: the worker's output closing is the first sign of its death
+    # (its exit status comes later, through the child-process helper)
+    port = Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status, :eof])
     :persistent_term.put({__MODULE__, :port}, port)
 
     receive do
@@ -320,13 +331,15 @@ defmodule ThinkingCap.Cycle do
   end
 
   defp restart(state) do
+    # the dead worker applies nothing: every activity's fallback holds from
+    # now (its owner drives it), before a new worker is even spawned
+    for {_id, a} <- state.activities,
+        do: tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
+
     state = open(%{state | port: nil, restarts: state.restarts + 1})
 
     # every activity again; until its next fresh result, its fallback holds
-    for {_id, a} <- state.activities do
-      send_add(state.port, a)
-      tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
-    end
+    for {_id, a} <- state.activities, do: send_add(state.port, a)
 
     state
   end

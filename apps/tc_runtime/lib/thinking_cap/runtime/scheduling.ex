@@ -21,6 +21,10 @@ defmodule ThinkingCap.Runtime.Scheduling do
     * schedulers should not busy-wait at real-time priority: run the VM with
       `+sbwt none +sbwtdcpu none +sbwtdio none` (`bin/run` does; the runtime
       logs a warning when busy-waiting is on);
+    * so does `erl_child_setup`, the BEAM's helper process that reports
+      how port programs exit: when the timing worker dies, the robot is
+      stopped as soon as the BEAM hears of it, and under load a helper at
+      normal priority made that take 10-60 ms instead of a few;
     * dirty schedulers (long NIFs, file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
@@ -44,12 +48,34 @@ defmodule ThinkingCap.Runtime.Scheduling do
           nice: integer()
         }
 
-  @doc "Puts the BEAM's scheduler and poller threads at `SCHED_FIFO` `priority`."
+  @doc """
+  Puts the BEAM's scheduler and poller threads, and its `erl_child_setup`
+  helper, at `SCHED_FIFO` `priority`.
+  """
   @spec realtime(1..99) :: {:ok, [String.t()]} | {:error, String.t()}
   def realtime(priority \\ 1) do
     each_thread(fn tid ->
       System.cmd("chrt", ["-f", "-p", "#{priority}", tid], stderr_to_stdout: true)
     end)
+    |> tap(fn
+      {:ok, _} ->
+        for pid <- child_setup(),
+            do: System.cmd("chrt", ["-f", "-p", "#{priority}", pid], stderr_to_stdout: true)
+
+      _ ->
+        :ok
+    end)
+  end
+
+  # the BEAM's erl_child_setup process (a child of the VM's OS process)
+  defp child_setup do
+    me = System.pid()
+
+    for dir <- Path.wildcard("/proc/[0-9]*"),
+        {:ok, stat} <- [File.read(Path.join(dir, "stat"))],
+        [_, "erl_child_setup", rest] <- [Regex.run(~r/^\d+ \((.*)\) (.*)$/s, stat)],
+        [_state, ^me | _] <- [String.split(rest, " ")],
+        do: Path.basename(dir)
   end
 
   @doc "Sets the nice value of the BEAM's scheduler and poller threads (back to `SCHED_OTHER`)."

@@ -1,0 +1,129 @@
+defmodule ThinkingCap.FaultSuite.Case do
+  @moduledoc false
+  # Shared helpers of the fault-injection suite: a robot hosted by the
+  # runtime, an observer of the commands its cycle applies, and how long
+  # the robot ran on a command with no next one.
+
+  alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
+
+  @rdf """
+  [
+    name: "fault-diff",
+    footprint: [radius: 0.2],
+    kinematics: [type: :differential, wheel_radius: 0.03, wheel_separation: 0.16, max_speed: 0.5]
+  ]
+  """
+
+  @doc """
+  Starts an ADF on this node: a test robot's base (10 ms period, 3 ms
+  deadline) plus `extra` module lines. Returns `{robot, names}`; every
+  module is stopped when the test ends.
+  """
+  def start_robot(dir, extra \\ []) do
+    robot = :"f#{System.unique_integer([:positive])}"
+    File.write!(Path.join(dir, "fault.rdf"), @rdf)
+
+    modules =
+      [
+        base:
+          "[module: ThinkingCap.Testing.Robot, activity: :periodic, period: 0.01, deadline: 0.003, priority: 90, fallback: :stop]"
+      ] ++ extra
+
+    body = Enum.map_join(modules, ",\n", fn {name, spec} -> "    #{name}_#{robot}: #{spec}" end)
+    path = Path.join(dir, "#{robot}.adf")
+
+    File.write!(
+      path,
+      "[\n  robot: :#{robot},\n  rdf: \"fault.rdf\",\n  modules: [\n#{body}\n  ]\n]\n"
+    )
+
+    adf = Config.read!(path)
+    ExUnit.Callbacks.on_exit(fn -> for m <- adf.modules, do: Runtime.stop(m.name) end)
+    {:ok, _} = Runtime.start(adf)
+    {robot, Map.new(modules, fn {name, _} -> {name, :"#{name}_#{robot}"} end)}
+  end
+
+  @doc "Keeps writing an autonomous drive command for `robot` every 20 ms."
+  def autonomy(robot, command \\ {:velocity, 0.2, 0.0}) do
+    pid =
+      spawn_link(fn ->
+        Stream.repeatedly(fn ->
+          Blackboard.out({:drive, robot, %{command: command}}, key: {:drive, robot})
+          Process.sleep(20)
+        end)
+        |> Stream.run()
+      end)
+
+    ExUnit.Callbacks.on_exit(fn -> Process.exit(pid, :kill) end)
+    pid
+  end
+
+  @doc """
+  Starts a process recording every command applied for activity `name`
+  (`ThinkingCap.Cycle.subscribe/1`, across restarts) with the time it
+  arrived, in ms.
+  """
+  def observe(name) do
+    parent = self()
+
+    pid =
+      spawn_link(fn ->
+        :ok = Cycle.subscribe(name)
+        send(parent, {:observing, self()})
+        observe_loop([])
+      end)
+
+    receive do
+      {:observing, ^pid} -> pid
+    end
+  end
+
+  defp observe_loop(acc) do
+    receive do
+      {:tc_cycle, :applied, _name, event} ->
+        observe_loop([Map.put(event, :at, now_ms()) | acc])
+
+      {:events, from} ->
+        send(from, {:events, Enum.reverse(acc)})
+        observe_loop(acc)
+    end
+  end
+
+  @doc "The events an observer recorded, oldest first."
+  def events(observer) do
+    send(observer, {:events, self()})
+
+    receive do
+      {:events, events} -> events
+    after
+      5_000 -> raise "observer did not answer"
+    end
+  end
+
+  @doc "Waits until the observer has recorded an event after `since` (ms) that satisfies `fun`."
+  def await_event(observer, since, fun, timeout \\ 10_000) do
+    ThinkingCap.Testing.Cluster.wait_until(
+      fn -> Enum.any?(events(observer), &(&1.at >= since and fun.(&1))) end,
+      timeout
+    )
+
+    Enum.find(events(observer), &(&1.at >= since and fun.(&1)))
+  end
+
+  @doc """
+  The longest time, in ms, the robot ran on a fresh moving command before
+  the next command (fresh or fallback) was applied, among the events from
+  `from` ms on. Late results are not applied, so they do not count.
+  """
+  def uncommanded_ms(events, from) do
+    events
+    |> Enum.reject(&(&1.kind == :late))
+    |> Enum.drop_while(&(&1.at < from))
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.filter(fn [a, _b] -> a.kind == :fresh and a.command not in [:stop, nil] end)
+    |> Enum.map(fn [a, b] -> b.at - a.at end)
+    |> Enum.max(fn -> 0.0 end)
+  end
+
+  def now_ms, do: System.monotonic_time(:microsecond) / 1000
+end
