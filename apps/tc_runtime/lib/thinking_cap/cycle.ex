@@ -205,7 +205,7 @@ defmodule ThinkingCap.Cycle do
       "timing worker closed its output (it died); restarting it, robot stopped until a fresh command"
     )
 
-    Port.close(port)
+    close_port(port)
     {:noreply, restart(state)}
   end
 
@@ -214,6 +214,8 @@ defmodule ThinkingCap.Cycle do
       "timing worker exited with status #{status}; restarting it, robot stopped until a fresh command"
     )
 
+    # with :eof the port outlives its program until closed
+    close_port(port)
     {:noreply, restart(state)}
   end
 
@@ -328,6 +330,12 @@ defmodule ThinkingCap.Cycle do
     after
       5000 -> raise "the timing worker did not say hello within 5 s"
     end
+  end
+
+  defp close_port(port) do
+    Port.close(port)
+  rescue
+    ArgumentError -> :ok
   end
 
   defp restart(state) do
