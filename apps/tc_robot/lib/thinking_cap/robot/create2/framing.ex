@@ -38,20 +38,20 @@ defmodule ThinkingCap.Robot.Create2.Framing do
 
   @doc """
   The framing state for a stream of the packets `ids` (a list, or `ids:`
-  in a keyword list). Raises `ArgumentError` for an empty list or an
-  unknown id.
+  in a keyword list); `{:error, {:bad_packets, ids}}` for an empty list,
+  an unknown id, or more than a frame can carry.
   """
-  @spec init([Protocol.packet_id()] | keyword()) :: {:ok, t()}
+  @spec init([Protocol.packet_id()] | keyword()) :: {:ok, t()} | {:error, term()}
   def init([{:ids, ids} | _]), do: init(ids)
 
   def init([_ | _] = ids) do
     case Protocol.stream_length(ids) do
       n when is_integer(n) and n < 256 -> {:ok, %__MODULE__{ids: ids, n: n}}
-      _ -> raise ArgumentError, "Create 2 framing: cannot stream #{inspect(ids)}"
+      _ -> {:error, {:bad_packets, ids}}
     end
   end
 
-  def init(other), do: raise(ArgumentError, "Create 2 framing: no packet ids: #{inspect(other)}")
+  def init(other), do: {:error, {:bad_packets, other}}
 
   @doc "Commands to the robot are not framed: `iodata` goes out as it is."
   @spec add_framing(iodata(), t()) :: {:ok, iodata(), t()}
