@@ -1,3 +1,22 @@
+Code.require_file("../../mix/c_build.exs", __DIR__)
+
+defmodule Mix.Tasks.Compile.TcUart do
+  @moduledoc false
+  # Builds the serial line worker (c_src/tc_uart.c -> priv/bin/tc_uart).
+  use Mix.Task.Compiler
+
+  # run inside the app's project (cwd), not the umbrella's
+  @recursive true
+  @target "priv/bin/tc_uart"
+
+  @impl true
+  def run(_args),
+    do: ThinkingCap.Build.C.compile("tc_uart", __DIR__, ["c_src/tc_uart.c"], @target)
+
+  @impl true
+  def clean, do: File.rm(Path.join(__DIR__, @target))
+end
+
 defmodule ThinkingCap.Robot.MixProject do
   use Mix.Project
 
@@ -12,6 +31,7 @@ defmodule ThinkingCap.Robot.MixProject do
       elixir: "~> 1.14",
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
+      compilers: [:tc_uart | Mix.compilers()],
       deps: [{:tc_runtime, in_umbrella: true}]
     ]
   end
