@@ -25,6 +25,8 @@ defmodule ThinkingCap.Robot.Create2.Framing do
   raises on any input.
   """
 
+  @behaviour ThinkingCap.Robot.UART.Framing
+
   alias ThinkingCap.Robot.Create2.Protocol
 
   @header 19
@@ -42,6 +44,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
   an unknown id, or more than a frame can carry.
   """
   @spec init([Protocol.packet_id()] | keyword()) :: {:ok, t()} | {:error, term()}
+  @impl true
   def init([{:ids, ids} | _]), do: init(ids)
 
   def init([_ | _] = ids) do
@@ -55,6 +58,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
 
   @doc "Commands to the robot are not framed: `iodata` goes out as it is."
   @spec add_framing(iodata(), t()) :: {:ok, iodata(), t()}
+  @impl true
   def add_framing(iodata, state), do: {:ok, iodata, state}
 
   @doc """
@@ -63,6 +67,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
   for more bytes, `:ok` otherwise.
   """
   @spec remove_framing(binary(), t()) :: {:in_frame | :ok, [frame()], t()}
+  @impl true
   def remove_framing(data, %__MODULE__{} = state) when is_binary(data) do
     {frames, buffer} = scan(state.buffer <> data, state, [])
     {if(buffer == <<>>, do: :ok, else: :in_frame), frames, %{state | buffer: buffer}}
@@ -70,6 +75,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
 
   @doc "The line went quiet in the middle of a frame: the partial frame, dropped from the state."
   @spec frame_timeout(t()) :: {:ok, [binary()], t()}
+  @impl true
   def frame_timeout(%__MODULE__{buffer: <<>>} = state), do: {:ok, [], state}
 
   def frame_timeout(%__MODULE__{buffer: partial} = state),
@@ -77,6 +83,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
 
   @doc "Forgets a frame begun when the receiving direction is flushed."
   @spec flush(atom(), t()) :: t()
+  @impl true
   def flush(direction, state) when direction in [:receive, :both], do: %{state | buffer: <<>>}
   def flush(_direction, state), do: state
 
