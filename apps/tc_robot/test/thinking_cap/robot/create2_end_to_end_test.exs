@@ -161,6 +161,38 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
     eventually(fn -> assert %{wheel_drop: true} = latest(:bumper, robot) end)
     eventually(fn -> assert %{mode: :passive} = latest(:link, robot) end)
     assert %{left: 0, right: 0} = Emulator.state(emu)
+
+    # the wheels back on the floor: the next command re-enters Safe mode
+    Emulator.wheel_drop(emu, false)
+    eventually(fn -> assert %{wheel_drop: false} = latest(:bumper, robot) end)
+    drive(robot, {:velocity, 0.12, 0.0})
+    eventually(fn -> assert %{mode: :safe, left: 120, right: 120} = Emulator.state(emu) end)
+  end
+
+  test "a storm of random bytes on the line: nothing crashes, the stream goes on",
+       %{emu: emu} = ctx do
+    {robot, base} = start_create2(ctx)
+    pid = Runtime.whereis(base)
+    drive(robot, {:velocity, 0.1, -0.2})
+    eventually(fn -> assert %{left: 124, right: 77} = Emulator.state(emu) end)
+
+    for _ <- 1..50 do
+      Emulator.garbage(emu, :crypto.strong_rand_bytes(:rand.uniform(64)))
+      Process.sleep(:rand.uniform(20))
+    end
+
+    %{frames: f} = latest(:link, robot)
+
+    eventually(fn ->
+      assert %{connected: true, streaming: true, frames: f2, garbage_bytes: g} =
+               latest(:link, robot)
+
+      assert f2 > f + 10
+      assert g > 0
+    end)
+
+    assert_odometry_matches(robot, emu)
+    assert Runtime.whereis(base) == pid
   end
 
   test "corrupted and truncated frames and garbage are rejected and counted; odometry stays right",
