@@ -342,7 +342,13 @@ defmodule ThinkingCap.Robot.Create2 do
     {[], %{state | rejected: state.rejected + 1}}
   end
 
-  defp line({:partial, bytes}, state), do: line({:rejected, :truncated, bytes}, state)
+  # a frame the framing held back when the line went quiet is whole
+  defp line({:partial, bytes}, state) when is_binary(bytes) do
+    case Protocol.parse_frame(bytes, @packets) do
+      {:ok, _} -> line(bytes, state)
+      {:error, _} -> line({:rejected, :truncated, bytes}, state)
+    end
+  end
 
   defp line(frame, state) when is_binary(frame) do
     case Protocol.parse_frame(frame, @packets) do

@@ -61,7 +61,8 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
       # encoder counts are unsigned
       assert Protocol.decode(43, <<0xFF, 0xFF>>) == 65_535
       assert Protocol.decode(35, <<2>>) == :safe
-      assert Protocol.decode(35, <<9>>) == {:unknown, 9}
+      assert Protocol.decode(35, <<9>>) == :error
+      assert Protocol.decode(7, <<0x10>>) == :error
       assert Protocol.decode(22, <<1>>) == :error
       assert Protocol.decode(99, <<1>>) == :error
     end
@@ -177,44 +178,53 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
       seed = :rand.uniform(1_000_000)
       :rand.seed(:exsss, {seed, 7, 11})
 
-      for _round <- 1..200 do
-        pieces =
-          for i <- 1..20 do
-            f = frame(left: :rand.uniform(65_536) - 1, right: i)
+      extras =
+        for _round <- 1..200 do
+          pieces =
+            for i <- 1..20 do
+              f = frame(left: :rand.uniform(65_536) - 1, right: i)
 
-            case :rand.uniform(6) do
-              1 -> {:garbage, random_bytes(:rand.uniform(40))}
-              2 -> {:corrupt, corrupt(f)}
-              3 -> {:cut, binary_part(f, 0, :rand.uniform(byte_size(f) - 1))}
-              _ -> {:good, f}
+              case :rand.uniform(6) do
+                1 -> {:garbage, random_bytes(:rand.uniform(40))}
+                2 -> {:corrupt, corrupt(f)}
+                3 -> {:cut, binary_part(f, 0, :rand.uniform(byte_size(f) - 1))}
+                _ -> {:good, f}
+              end
             end
-          end
 
-        bytes = IO.iodata_to_binary(for {_, b} <- pieces, do: b)
-        chunks = chunk(bytes)
-        {:ok, st} = Framing.init(@ids)
+          bytes = IO.iodata_to_binary(for {_, b} <- pieces, do: b)
+          chunks = chunk(bytes)
+          {:ok, st} = Framing.init(@ids)
 
-        {out, st} =
-          Enum.flat_map_reduce(chunks, st, fn c, st ->
-            {_, fs, st} = Framing.remove_framing(c, st)
-            {fs, st}
-          end)
+          {out, st} =
+            Enum.flat_map_reduce(chunks, st, fn c, st ->
+              {_, fs, st} = Framing.remove_framing(c, st)
+              {fs, st}
+            end)
 
-        {:ok, partial, _} = Framing.frame_timeout(st)
-        out = out ++ Enum.map(partial, &{:rejected, :partial, &1})
+          # as the driver does: a partial that is a whole frame is one
+          {:ok, partial, _} = Framing.frame_timeout(st)
+          out = out ++ Enum.map(partial, &partial_frame/1)
 
-        delivered = Enum.filter(out, &is_binary/1)
-        # everything delivered is a valid frame
-        assert Enum.all?(delivered, &match?({:ok, _}, Protocol.parse_frame(&1, @ids))),
-               "seed #{seed}"
+          delivered = Enum.filter(out, &is_binary/1)
+          # everything delivered is a valid frame
+          assert Enum.all?(delivered, &match?({:ok, _}, Protocol.parse_frame(&1, @ids))),
+                 "seed #{seed}"
 
-        # every good frame came through, in order, whatever came before it
-        expected = for {:good, f} <- pieces, do: f
-        assert delivered == expected, "seed #{seed}"
-        # bad pieces (adjacent ones may merge) are rejected, not silently dropped
-        if Enum.any?(pieces, fn {k, _} -> k != :good end),
-          do: assert(Enum.any?(out, &match?({:rejected, _, _}, &1)), "seed #{seed}")
-      end
+          # every good frame came through, in order, whatever came before it
+          expected = for {:good, f} <- pieces, do: f
+          assert subsequence?(expected, delivered), "seed #{seed}"
+
+          # bad pieces (adjacent ones may merge) are rejected, not silently dropped
+          if Enum.any?(pieces, fn {k, _} -> k != :good end),
+            do: assert(Enum.any?(out, &match?({:rejected, _, _}, &1)), "seed #{seed}")
+
+          length(delivered) - length(expected)
+        end
+
+      # frames made of random bytes that pass every check (an 8-bit
+      # checksum: it happens) are rare
+      assert Enum.sum(extras) <= 3, "seed #{seed}: #{Enum.sum(extras)} frames out of nothing"
     end
 
     test "pure garbage never raises" do
@@ -257,6 +267,11 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
     body <> <<sum + 1 &&& 0xFF>>
   end
 
+  defp subsequence?([], _), do: true
+  defp subsequence?(_, []), do: false
+  defp subsequence?([x | xs], [x | ys]), do: subsequence?(xs, ys)
+  defp subsequence?(xs, [_ | ys]), do: subsequence?(xs, ys)
+
   defp random_bytes(n), do: for(_ <- 1..n, into: <<>>, do: <<:rand.uniform(256) - 1>>)
 
   defp chunk(<<>>), do: []
@@ -277,6 +292,13 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
       end)
 
     {:ok, partial, _} = Framing.frame_timeout(st)
-    out ++ Enum.map(partial, &{:rejected, :partial, &1})
+    out ++ Enum.map(partial, &partial_frame/1)
+  end
+
+  defp partial_frame(bytes) do
+    case Protocol.parse_frame(bytes, @ids) do
+      {:ok, _} -> bytes
+      {:error, _} -> {:rejected, :partial, bytes}
+    end
   end
 end

@@ -19,7 +19,11 @@ defmodule ThinkingCap.Robot.Create2.Framing do
       outside any frame).
 
   After a rejected frame it resynchronises on the next plausible header:
-  `19`, then the expected `n`, then the first expected id. A header
+  `19`, then the expected `n`, then the first expected id. A frame cut
+  short whose bytes and the next frame's first ones happen to make a valid
+  frame (the checksum is right by chance, 1 in 256) is caught by the
+  plausible header inside it; a frame whose last byte is a header byte
+  waits for the bytes after it. A header
   without enough bytes after it waits for more (`:in_frame`); if the line
   stays quiet, `frame_timeout/1` hands the partial frame back. It never
   raises on any input.
@@ -73,13 +77,29 @@ defmodule ThinkingCap.Robot.Create2.Framing do
     {if(buffer == <<>>, do: :ok, else: :in_frame), frames, %{state | buffer: buffer}}
   end
 
-  @doc "The line went quiet in the middle of a frame: the partial frame, dropped from the state."
+  @doc """
+  The line went quiet in the middle of a frame: the partial frame,
+  dropped from the state. A complete frame held back to see what came
+  after it (see the moduledoc) is handed back as a partial of its own,
+  which `ThinkingCap.Robot.Create2.Protocol.parse_frame/2` accepts.
+  """
   @spec frame_timeout(t()) :: {:ok, [binary()], t()}
   @impl true
   def frame_timeout(%__MODULE__{buffer: <<>>} = state), do: {:ok, [], state}
 
-  def frame_timeout(%__MODULE__{buffer: partial} = state),
-    do: {:ok, [partial], %{state | buffer: <<>>}}
+  def frame_timeout(%__MODULE__{buffer: buffer} = state) do
+    length = state.n + 3
+
+    partials =
+      with <<candidate::binary-size(length), rest::binary>> <- buffer,
+           {:ok, _} <- Protocol.parse_frame(candidate, state.ids) do
+        Enum.reject([candidate, rest], &(&1 == <<>>))
+      else
+        _ -> [buffer]
+      end
+
+    {:ok, partials, %{state | buffer: <<>>}}
+  end
 
   @doc "Forgets a frame begun when the receiving direction is flushed."
   @spec flush(atom(), t()) :: t()
@@ -123,7 +143,7 @@ defmodule ThinkingCap.Robot.Create2.Framing do
 
       case Protocol.parse_frame(candidate, state.ids) do
         {:ok, _} ->
-          scan(rest, state, [candidate | acc])
+          valid(bytes, candidate, rest, state, acc)
 
         {:error, reason} ->
           case resync(bytes, state, 1, length) do
@@ -138,6 +158,26 @@ defmodule ThinkingCap.Robot.Create2.Framing do
               scan(rest, state, [{:rejected, reason, candidate} | acc])
           end
       end
+    end
+  end
+
+  # A valid frame, unless a plausible header (19, n, first id) is inside
+  # it: then it was a frame cut short whose bytes and the next frame's
+  # first ones happened to sum right (1 in 256), and decoding it would
+  # give wrong values. A real frame holds such a header only if its last
+  # encoder count and checksum spell it. Only frames ending in a header
+  # byte wait for the bytes after them.
+  defp valid(bytes, candidate, rest, state, acc) do
+    case resync(bytes, state, 1, byte_size(candidate)) do
+      :none ->
+        scan(rest, state, [candidate | acc])
+
+      :wait ->
+        {Enum.reverse(acc), bytes}
+
+      {:at, p} ->
+        <<cut::binary-size(p), rest::binary>> = bytes
+        header(rest, state, [{:rejected, :truncated, cut} | acc])
     end
   end
 

@@ -42,7 +42,11 @@ defmodule ThinkingCap.Robot.Create2.Protocol do
 
     * 7 (bumps and wheel drops): `%{bump_right:, bump_left:,
       wheel_drop_right:, wheel_drop_left:}` booleans;
-    * 35 (OI mode): `:off`, `:passive`, `:safe`, `:full` (or `{:unknown, n}`).
+    * 35 (OI mode): `:off`, `:passive`, `:safe`, `:full`.
+
+  A reserved bit set in packet 7, or a mode above 3, is `:error`: a
+  frame holding one is refused (`:bad_packets`), a cheap check on top of
+  the 8-bit checksum.
   """
 
   import Bitwise
@@ -223,7 +227,7 @@ defmodule ThinkingCap.Robot.Create2.Protocol do
 
   @doc "Decodes packet `id`'s data bytes; `:error` for a wrong size or an unknown id."
   @spec decode(integer(), binary()) :: term() | :error
-  def decode(7, <<_::4, drop_left::1, drop_right::1, bump_left::1, bump_right::1>>) do
+  def decode(7, <<0::4, drop_left::1, drop_right::1, bump_left::1, bump_right::1>>) do
     %{
       bump_right: bump_right == 1,
       bump_left: bump_left == 1,
@@ -232,7 +236,8 @@ defmodule ThinkingCap.Robot.Create2.Protocol do
     }
   end
 
-  def decode(35, <<n>>), do: Map.get(@modes, n, {:unknown, n})
+  def decode(7, <<_>>), do: :error
+  def decode(35, <<n>>), do: Map.get(@modes, n, :error)
 
   def decode(id, data) when is_binary(data) do
     case {@packets[id], data} do
