@@ -58,6 +58,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -251,6 +253,15 @@ static void decode_settings(const uint8_t *p, settings *s) {
     s->flow = p[7];
 }
 
+/* Whether fd is the slave of a Unix 98 pseudo-terminal (settings are
+ * always applied through the slave, also for a pty we hold the master of). */
+static int is_pty(int fd) {
+    struct stat st;
+    if (fstat(fd, &st) < 0 || !S_ISCHR(st.st_mode)) return 0;
+    unsigned int maj = major(st.st_rdev);
+    return maj >= 136 && maj <= 143;
+}
+
 /* Sets fd's line up; on failure replies with the error and returns -1. */
 static int apply_settings(int fd, const char *what, const settings *s) {
     speed_t code;
@@ -266,9 +277,13 @@ static int apply_settings(int fd, const char *what, const settings *s) {
     t.c_cflag |= CLOCAL | CREAD;
     t.c_cflag &= ~(tcflag_t)(CSIZE | PARENB | PARODD | CSTOPB | CRTSCTS);
     static const tcflag_t sizes[] = {CS5, CS6, CS7, CS8};
-    t.c_cflag |= sizes[s->data_bits - 5];
-    if (s->parity != PARITY_NONE) t.c_cflag |= PARENB;
-    if (s->parity == PARITY_ODD) t.c_cflag |= PARODD;
+    /* a pty has no bits on a wire: the Linux pty driver forces 8 data bits
+     * and no parity (and refuses some other sizes), so a pty takes any
+     * data bits and parity and keeps CS8 without parity */
+    int pty = is_pty(fd);
+    t.c_cflag |= pty ? CS8 : sizes[s->data_bits - 5];
+    if (!pty && s->parity != PARITY_NONE) t.c_cflag |= PARENB;
+    if (!pty && s->parity == PARITY_ODD) t.c_cflag |= PARODD;
     if (s->stop_bits == 2) t.c_cflag |= CSTOPB;
     t.c_iflag &= ~(tcflag_t)(IXON | IXOFF | IXANY);
     if (s->flow == FLOW_HARDWARE) t.c_cflag |= CRTSCTS;
@@ -282,10 +297,15 @@ static int apply_settings(int fd, const char *what, const settings *s) {
     /* tcsetattr succeeds if any change was made: check they all were */
     struct termios got;
     if (tcgetattr(fd, &got) < 0) { reply_error(errno_name(errno), "tcgetattr %s: %s", what, strerror(errno)); return -1; }
-    tcflag_t mask = CSIZE | PARENB | PARODD | CSTOPB | CRTSCTS;
-    if ((got.c_cflag & mask) != (t.c_cflag & mask) || cfgetospeed(&got) != code ||
-        (got.c_iflag & (IXON | IXOFF)) != (t.c_iflag & (IXON | IXOFF))) {
-        reply_error("einval", "tcsetattr %s: the driver did not take every setting", what);
+    const char *refused = NULL;
+    if (cfgetospeed(&got) != code) refused = "speed";
+    else if ((got.c_cflag & CSTOPB) != (t.c_cflag & CSTOPB)) refused = "stop bits";
+    else if ((got.c_cflag & CRTSCTS) != (t.c_cflag & CRTSCTS) ||
+             (got.c_iflag & (IXON | IXOFF)) != (t.c_iflag & (IXON | IXOFF))) refused = "flow control";
+    else if ((got.c_cflag & CSIZE) != (t.c_cflag & CSIZE)) refused = "data bits";
+    else if ((got.c_cflag & (PARENB | PARODD)) != (t.c_cflag & (PARENB | PARODD))) refused = "parity";
+    if (refused) {
+        reply_error("einval", "tcsetattr %s: the driver refused the %s", what, refused);
         return -1;
     }
     return 0;

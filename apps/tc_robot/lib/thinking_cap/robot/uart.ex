@@ -37,7 +37,11 @@ defmodule ThinkingCap.Robot.UART do
   a value out of range, a speed the port program does not support) is
   `{:error, {:bad_option, key, value}}`. The line itself is always raw
   (no echo, no character translation), with `VMIN = VTIME = 0`, `CLOCAL`
-  and `CREAD`.
+  and `CREAD`. A setting the driver does not take is an error naming it
+  (`{:einval, "tcsetattr /dev/ttyUSB0: the driver refused the data bits"}`),
+  A pty has no wire and its Linux driver forces 8 data bits and no
+  parity: on a pty any `data_bits` and `parity` are accepted and the line
+  stays 8 bits without parity (what `settings/1` reports).
 
   ## Messages (active mode)
 
@@ -56,7 +60,8 @@ defmodule ThinkingCap.Robot.UART do
 
   For a pty master, `path` is the slave's path. A pty master stays open
   while no process has its slave open (between the slave's closing and its
-  reopening): only closing the master ends the pair.
+  reopening): only closing the master ends the pair. What the master
+  writes meanwhile waits in the pty for the next process to open the slave.
 
   In passive mode the same frames (and the error) are queued for `read/2`.
 
@@ -276,9 +281,6 @@ defmodule ThinkingCap.Robot.UART do
     command(state, <<?F, code>>, from, {:flush, direction})
   end
 
-  def handle_call({:read, _timeout}, _from, %{config: %{active: true}} = state),
-    do: {:reply, {:error, :einval}, state}
-
   def handle_call({:read, timeout}, from, state) do
     cond do
       not :queue.is_empty(state.rx_queue) ->
@@ -287,6 +289,9 @@ defmodule ThinkingCap.Robot.UART do
 
       state.line == nil ->
         {:reply, {:error, :ebadf}, state}
+
+      state.config.active ->
+        {:reply, {:error, :einval}, state}
 
       state.reader != nil ->
         {:reply, {:error, :ebusy}, state}
