@@ -45,10 +45,12 @@ defmodule ThinkingCap.Robot.Create2 do
     * `:battery`, once a second: `%{voltage:, current:, charge:, capacity:,
       percent:}` (V, A, Ah, Ah, 0-100);
     * `:link`, on change (connected, OI mode) and once a second:
-      `%{connected:, device:, frames:, rejected:, garbage_bytes:, mode:,
-      streaming:}`; `frames` counts the valid stream frames, `rejected`
-      the refused ones (bad checksum, bad length, truncated), and
-      `garbage_bytes` the bytes outside any frame.
+      `%{connected:, device:, frames:, rejected:, garbage_bytes:,
+      odometry_jumps:, mode:, streaming:}`; `frames` counts the valid
+      stream frames, `rejected` the refused ones (bad checksum, bad
+      length, truncated), `garbage_bytes` the bytes outside any frame, and
+      `odometry_jumps` the encoder steps no wheel could make (not
+      integrated).
 
   ## Faults
 
@@ -433,6 +435,7 @@ defmodule ThinkingCap.Robot.Create2 do
         frames: state.frames,
         rejected: state.rejected,
         garbage_bytes: state.garbage_bytes,
+        odometry_jumps: state.odometry.jumps,
         mode: state.oi_mode,
         streaming: streaming
       }

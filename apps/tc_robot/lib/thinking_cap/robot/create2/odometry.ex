@@ -6,6 +6,12 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
   (`ThinkingCap.Robot.Kinematics.integrate/3`); a step of more than half
   the counter's range is taken as a wrap the other way.
 
+  A step no wheel could make (faster than the OI's 500 mm/s, with a
+  generous margin, over the time since the previous counts) is not
+  integrated: such counts came from a frame that passed its 8-bit
+  checksum by chance. They become the new reference and `jumps` counts
+  them.
+
   Speeds `v` (m/s) and `w` (rad/s) are the last step over the stream's
   period (15 ms): the robot samples its encoders on its own clock, so
   this is steadier than the frames' arrival times on a busy host.
@@ -15,6 +21,10 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
 
   @counts_per_rev 508.8
   @period 0.015
+  # the fastest wheel (m/s), the margin on it, and counts always allowed
+  @max_wheel_speed 0.5
+  @margin 1.5
+  @slack 50
 
   @typedoc "The odometry: pose, last counts (nil before the first), speeds."
   @type t :: %__MODULE__{
@@ -25,7 +35,8 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
           w: float(),
           stamp: float() | nil,
           meters_per_count: float(),
-          separation: float()
+          separation: float(),
+          jumps: non_neg_integer()
         }
   defstruct pose: {0.0, 0.0, 0.0},
             left: nil,
@@ -34,7 +45,8 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
             w: 0.0,
             stamp: nil,
             meters_per_count: 2 * :math.pi() * 0.036 / @counts_per_rev,
-            separation: 0.235
+            separation: 0.235,
+            jumps: 0
 
   @doc "The encoder counts per wheel revolution (508.8)."
   @spec counts_per_rev() :: float()
@@ -57,8 +69,22 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
     do: %{odo | left: left, right: right, stamp: stamp, v: 0.0, w: 0.0}
 
   def update(%__MODULE__{} = odo, left, right, stamp) do
-    dl = wrap(left - odo.left) * odo.meters_per_count
-    dr = wrap(right - odo.right) * odo.meters_per_count
+    steps = {wrap(left - odo.left), wrap(right - odo.right)}
+
+    if plausible?(odo, steps, stamp),
+      do: step(odo, steps, left, right, stamp),
+      else: %{odo | left: left, right: right, stamp: stamp, jumps: odo.jumps + 1}
+  end
+
+  defp plausible?(odo, {sl, sr}, stamp) do
+    dt = max(stamp - (odo.stamp || stamp), 0.0)
+    allowed = @max_wheel_speed * @margin * dt / odo.meters_per_count + @slack
+    abs(sl) <= allowed and abs(sr) <= allowed
+  end
+
+  defp step(odo, {sl, sr}, left, right, stamp) do
+    dl = sl * odo.meters_per_count
+    dr = sr * odo.meters_per_count
     d = (dl + dr) / 2
     dtheta = (dr - dl) / odo.separation
 
