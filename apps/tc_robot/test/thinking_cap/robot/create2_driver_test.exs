@@ -64,6 +64,14 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
     end
   end
 
+  test "the example ADF selects the driver on a device, over the example RDF" do
+    adf = Path.join(Path.dirname(@rdf), "create2.adf")
+    assert {:ok, %ThinkingCap.Config.ADF{rdf: @rdf} = config} = ThinkingCap.Config.read(adf)
+    assert [{:base, base}] = Enum.map(config.modules, &{&1.name, &1})
+    assert base.module == Create2
+    assert base.params[:device] == "/dev/ttyUSB0"
+  end
+
   test "the streamed packets are known and fit a frame" do
     assert is_integer(Protocol.stream_length(Create2.packets()))
   end
