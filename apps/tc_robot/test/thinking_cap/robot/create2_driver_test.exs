@@ -1,0 +1,78 @@
+defmodule ThinkingCap.Robot.Create2DriverTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Robot.{Create2, Description}
+  alias ThinkingCap.Robot.Create2.Protocol
+
+  @rdf Path.expand("../../../../../priv/examples/create2.rdf", __DIR__)
+
+  setup_all do
+    {:ok, description} = Description.load(@rdf)
+    %{description: description}
+  end
+
+  defp wheels(<<145, right::16-signed, left::16-signed>>), do: {left, right}
+
+  describe "wire_command/2" do
+    test "velocities through the RDF's kinematics, in mm/s a wheel", %{description: d} do
+      assert Create2.wire_command({:velocity, 0.2, 0.0}, d) == Protocol.drive_direct(200, 200)
+      assert wheels(Create2.wire_command({:velocity, -0.1, 0.0}, d)) == {-100, -100}
+      # turning in place: omega * b / 2 = 117.5 mm/s
+      assert wheels(Create2.wire_command({:velocity, 0.0, 1.0}, d)) == {-118, 118}
+      # an arc to the left: the right wheel faster
+      {l, r} = wheels(Create2.wire_command({:velocity, 0.2, 0.5}, d))
+      assert_in_delta l, 200 - 58.75, 1
+      assert_in_delta r, 200 + 58.75, 1
+    end
+
+    test "wheel speeds in rad/s times the wheel radius", %{description: d} do
+      # 5 rad/s * 36 mm = 180 mm/s
+      assert wheels(Create2.wire_command({:wheels, 5.0, -2.5}, d)) == {180, -90}
+    end
+
+    test "too fast: both wheels scaled down together, the curvature kept", %{description: d} do
+      {l, r} = wheels(Create2.wire_command({:velocity, 0.5, 2.0}, d))
+      assert r == 500
+      # unscaled: 265 and 735 mm/s
+      assert_in_delta l / r, 265 / 735, 0.01
+      assert wheels(Create2.wire_command({:wheels, 100.0, 100.0}, d)) == {500, 500}
+    end
+
+    test ":stop is Drive Direct 0 0; other commands and drives are refused", %{description: d} do
+      assert Create2.wire_command(:stop, d) == <<145, 0, 0, 0, 0>>
+      assert {:error, _} = Create2.wire_command({:steer, 0.2, 0.1}, d)
+      assert {:error, _} = Create2.wire_command(:fly, d)
+
+      car = %{
+        d
+        | kinematics:
+            ThinkingCap.Robot.Kinematics.new(type: :tricycle, wheelbase: 0.5, max_steering: 1.0)
+      }
+
+      assert {:error, :not_differential} = Create2.wire_command(:stop, car)
+    end
+  end
+
+  describe "open/2" do
+    test "refuses a missing device, a bad mode, a device that is not there", %{description: d} do
+      context = fn params -> %{robot: :c, params: params} end
+      assert {:error, "device:" <> _} = Create2.open(d, context.([]))
+      assert {:error, "mode:" <> _} = Create2.open(d, context.(device: "/dev/null", mode: :turbo))
+
+      assert {:error, {:open, "/nonexistent/tty", _}} =
+               Create2.open(d, context.(device: "/nonexistent/tty"))
+    end
+  end
+
+  test "the example ADF selects the driver on a device, over the example RDF" do
+    adf = Path.join(Path.dirname(@rdf), "create2.adf")
+    assert {:ok, %ThinkingCap.Config.ADF{rdf: @rdf} = config} = ThinkingCap.Config.read(adf)
+    assert [{:base, base}] = Enum.map(config.modules, &{&1.name, &1})
+    assert base.module == Create2
+    assert base.params[:device] == "/dev/ttyUSB0"
+  end
+
+  test "the streamed packets are known and fit a frame" do
+    assert is_integer(Protocol.stream_length(Create2.packets()))
+  end
+end
