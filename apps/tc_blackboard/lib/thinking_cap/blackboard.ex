@@ -90,8 +90,9 @@ defmodule ThinkingCap.Blackboard do
 
   **Subscribers.** Delivery never blocks the writer. Each subscription has
   a bound, `max_queue` (default 1000): while the subscriber's mailbox
-  holds that many messages (checked every `max_queue/64` tuples, so the
-  bound holds to within 1/64; exactly below 128), tuples for it are dropped
+  holds that many messages (checked every `max_queue/64` tuples, and at
+  every tuple while it is full, so the bound holds to within 1/64 for each
+  writer writing at that moment; exactly below 128), tuples for it are dropped
   and counted
   (`on_overflow: :drop`, the default; see `dropped/1`) or it is
   unsubscribed and sent `{:blackboard_overflow, ref}` (`on_overflow:

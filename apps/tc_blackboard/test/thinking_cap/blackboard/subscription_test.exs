@@ -70,6 +70,22 @@ defmodule ThinkingCap.Blackboard.SubscriptionTest do
       assert Enum.map(kept, fn {:blackboard, _, {:flood, _, n}} -> n end) == Enum.to_list(1..10)
     end
 
+    test ":drop holds the bound with a large max_queue and writers racing", %{id: id} do
+      {slow, ref} = stalled_subscriber({:flood, id, :_}, max_queue: 1_000)
+
+      1..4
+      |> Enum.map(fn w ->
+        Task.async(fn -> for n <- 1..20_000, do: :ok = Blackboard.out({:flood, id, {w, n}}) end)
+      end)
+      |> Enum.each(&Task.await(&1, 60_000))
+
+      # read every 1000/64 = 15 tuples, and at every one while full: at
+      # most 15 more per racing writer
+      assert {:message_queue_len, queued} = Process.info(slow, :message_queue_len)
+      assert queued >= 1_000 and queued <= 1_000 + 4 * 15
+      assert Blackboard.dropped(ref) == 80_000 - queued
+    end
+
     test ":disconnect unsubscribes the subscriber and tells it", %{id: id} do
       {slow, ref} = stalled_subscriber({:flood, id, :_}, max_queue: 5, on_overflow: :disconnect)
       for n <- 1..50, do: :ok = Blackboard.out({:flood, id, n})

@@ -17,7 +17,8 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     ref = make_ref()
     :ets.insert(Tables.sub_refs(), {ref, template.index, pid, 0, template.source})
 
-    sent = :atomics.new(1, signed: false)
+    # [sends, overflowing]: see send_bounded/6
+    sent = :atomics.new(2, signed: false)
     row = {template.index, ref, pid, template.matcher, max_queue, on_overflow, sent}
     :ets.insert(Tables.subs(), row)
 
@@ -129,16 +130,20 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   # Reading another process's queue length after sending to it costs about
   # a microsecond (the reader absorbs the signals in flight), so the queue
-  # is read every max_queue/64 sends: the bound holds to within 1/64 of
-  # max_queue, exactly below 128.
+  # is read every max_queue/64 sends, and at every send once a read found
+  # it full, until a read finds room again. The bound holds to within 1/64
+  # of max_queue per writer sending at that moment, exactly below 128.
   defp send_bounded(ref, pid, max_queue, policy, sent, tuple) do
-    if rem(:atomics.add_get(sent, 1, 1), max(div(max_queue, 64), 1)) == 0 do
+    if :atomics.get(sent, 2) == 1 or
+         rem(:atomics.add_get(sent, 1, 1), max(div(max_queue, 64), 1)) == 0 do
       case Process.info(pid, :message_queue_len) do
         {:message_queue_len, queued} when queued < max_queue ->
+          :atomics.put(sent, 2, 0)
           send(pid, {:blackboard, ref, tuple})
 
         {:message_queue_len, _queued} ->
-          overflow(policy, ref, pid, sent)
+          :atomics.put(sent, 2, 1)
+          overflow(policy, ref, pid)
 
         nil ->
           :ok
@@ -148,16 +153,14 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     end
   end
 
-  # a dropped tuple was not sent: check the queue again on the next one
-  defp overflow(:drop, ref, _pid, sent) do
-    :atomics.sub(sent, 1, 1)
+  defp overflow(:drop, ref, _pid) do
     :ets.update_counter(Tables.sub_refs(), ref, {4, 1})
   rescue
     # unsubscribed meanwhile
     ArgumentError -> :ok
   end
 
-  defp overflow(:disconnect, ref, pid, _sent) do
+  defp overflow(:disconnect, ref, pid) do
     if unsubscribe(ref), do: send(pid, {:blackboard_overflow, ref})
   end
 end
