@@ -7,8 +7,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
   releases and fallbacks never wait for the BEAM. But a fresh command has
   to be computed by the BEAM, whose threads otherwise compete with every
   process on the machine. So at start the runtime puts the BEAM's normal
-  scheduler threads and its I/O poller (through which the worker's frames
-  arrive) at **`SCHED_FIFO` priority 1**:
+  scheduler threads at **`SCHED_FIFO` priority 1** and its I/O poller
+  (through which the worker's frames arrive) at 2:
 
     * they preempt ordinary (`SCHED_OTHER`) processes, so OS-level load
       cannot delay a control cycle;
@@ -21,6 +21,13 @@ defmodule ThinkingCap.Runtime.Scheduling do
     * schedulers should not busy-wait at real-time priority: run the VM with
       `+sbwt none +sbwtdcpu none +sbwtdio none` (`bin/run` does; the runtime
       logs a warning when busy-waiting is on);
+    * the I/O poller, through which port data arrives, runs one priority
+      above the schedulers (2): threads of one `SCHED_FIFO` priority never
+      preempt each other, and at the schedulers' own priority the poller
+      waited for a scheduler to run out of work: measured, a port's round
+      trip took up to 420 ms while two Erlang processes kept both
+      schedulers busy, and the control cycle missed most deadlines in a
+      tuple flood;
     * so does `erl_child_setup`, the BEAM's helper process that reports
       how port programs exit: when the timing worker dies, the robot is
       stopped as soon as the BEAM hears of it, and under load a helper at
@@ -49,18 +56,24 @@ defmodule ThinkingCap.Runtime.Scheduling do
         }
 
   @doc """
-  Puts the BEAM's scheduler and poller threads, and its `erl_child_setup`
-  helper, at `SCHED_FIFO` `priority`.
+  Puts the BEAM's scheduler threads at `SCHED_FIFO` `priority`, and its
+  I/O poller thread and `erl_child_setup` helper one above: threads of
+  one `SCHED_FIFO` priority never preempt each other, so a poller at the
+  schedulers' priority waits, on a machine with as many cores as
+  schedulers, until a scheduler runs out of work; port data (the timing
+  worker's releases) then waits with it, for hundreds of milliseconds
+  under load.
   """
-  @spec realtime(1..99) :: {:ok, [String.t()]} | {:error, String.t()}
+  @spec realtime(1..98) :: {:ok, [String.t()]} | {:error, String.t()}
   def realtime(priority \\ 1) do
     each_thread(fn tid ->
-      System.cmd("chrt", ["-f", "-p", "#{priority}", tid], stderr_to_stdout: true)
+      prio = if String.ends_with?(comm(tid), "_poller"), do: priority + 1, else: priority
+      System.cmd("chrt", ["-f", "-p", "#{prio}", tid], stderr_to_stdout: true)
     end)
     |> tap(fn
       {:ok, _} ->
         for pid <- child_setup(),
-            do: System.cmd("chrt", ["-f", "-p", "#{priority}", pid], stderr_to_stdout: true)
+            do: System.cmd("chrt", ["-f", "-p", "#{priority + 1}", pid], stderr_to_stdout: true)
 
       _ ->
         :ok
@@ -124,7 +137,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
         case realtime(1) do
           {:ok, tids} ->
             Logger.info(
-              "BEAM scheduler and poller threads at SCHED_FIFO 1 (#{length(tids)} threads)"
+              "BEAM scheduler threads at SCHED_FIFO 1, poller at 2 (#{length(tids)} threads)"
             )
 
             unless busy_wait_off?() do

@@ -1,0 +1,137 @@
+defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
+  # Floods: of blackboard tuples towards a subscriber that never reads, and
+  # of dashboard WebSocket messages. Memory stays bounded and the robot's
+  # control cycle (10 ms period, 3 ms deadline) keeps its deadline.
+  use ExUnit.Case, async: false
+
+  import ThinkingCap.FaultSuite.Case
+
+  alias ThinkingCap.{Blackboard, Runtime}
+  alias ThinkingCap.Dashboard.Test.WSClient
+  alias ThinkingCap.FaultSuite.Tally
+
+  @moduletag :faults
+  @moduletag :tmp_dir
+
+  @token "fault-suite-token-0123456789"
+
+  setup %{tmp_dir: dir} do
+    {robot, names} = start_robot(dir)
+    autonomy(robot)
+    observer = observe(names.base)
+    await_event(observer, -1.0e18, &(&1.kind == :fresh and &1.command != :stop))
+    %{robot: robot, base: names.base, observer: observer}
+  end
+
+  defp base_figures(base), do: Map.take(Runtime.timing()[base], [:cycles, :fallbacks])
+
+  defp assert_kept_deadline(base, before) do
+    now = base_figures(base)
+    cycles = now.cycles - before.cycles
+    fallbacks = now.fallbacks - before.fallbacks
+    assert cycles >= 50, "the base ran #{cycles} cycles"
+    assert fallbacks <= cycles * 0.01, "#{fallbacks} fallbacks in #{cycles} cycles"
+  end
+
+  test "a tuple flood at a subscriber that never reads: bounded mailbox and memory, cycle on time",
+       ctx do
+    parent = self()
+
+    sleeper =
+      spawn_link(fn ->
+        {:ok, _ref} = Blackboard.subscribe({:flood, ctx.robot, :_}, max_queue: 1_000)
+        send(parent, :subscribed)
+        Process.sleep(:infinity)
+      end)
+
+    assert_receive :subscribed
+    before = base_figures(ctx.base)
+    memory = :erlang.memory(:total)
+    t0 = now_ms()
+
+    Tally.injected()
+
+    # 200,000 latest-value tuples over 500 keys, from two writers
+    writers =
+      for w <- 1..2 do
+        Task.async(fn ->
+          for i <- 1..100_000 do
+            Blackboard.out({:flood, ctx.robot, %{w: w, i: i}},
+              key: {:flood, ctx.robot, rem(i, 250), w}
+            )
+          end
+        end)
+      end
+
+    Enum.each(writers, &Task.await(&1, 120_000))
+
+    {:message_queue_len, queued} = Process.info(sleeper, :message_queue_len)
+    growth_mb = (:erlang.memory(:total) - memory) / 1_048_576
+
+    # the space holds the latest value of each key; the sleeper's mailbox
+    # stopped at its bound (to within 1/64), the rest dropped and counted
+    assert length(Blackboard.rd_all({:flood, ctx.robot, :_})) == 500
+    assert queued <= 1_000 + 16
+    assert growth_mb < 100, "memory grew #{Float.round(growth_mb, 1)} MB"
+
+    # the cycle over a second from the flood's start
+    Process.sleep(max(round(t0 + 1_000 - now_ms()), 0))
+    assert_kept_deadline(ctx.base, before)
+
+    uncommanded = uncommanded_ms(events(ctx.observer), t0)
+    Tally.uncommanded(uncommanded)
+    assert uncommanded <= 13
+    Tally.survived()
+  end
+
+  test "a dashboard message flood: the flooder is cut off, others are served, cycle on time",
+       ctx do
+    {:ok, info} = ThinkingCap.Dashboard.start(port: 0, rosbridge_port: nil, token: @token)
+    on_exit(fn -> ThinkingCap.Dashboard.stop() end)
+
+    connect = fn ->
+      {:ok, client} = WSClient.connect("127.0.0.1", info.port, "/ws?token=#{@token}")
+      {:ok, _welcome, client} = WSClient.recv_json_until(client, &(&1["op"] == "welcome"))
+      client
+    end
+
+    flooder = connect.()
+    other = connect.()
+    before = base_figures(ctx.base)
+    memory = :erlang.memory(:total)
+    t0 = now_ms()
+
+    Tally.injected()
+    frame = :jiffy.encode(%{op: "ping", id: 1})
+    for _ <- 1..10_000, do: WSClient.send_text(flooder, frame)
+
+    assert closed_with(flooder) in [1008, :closed]
+
+    # another browser is still served
+    :ok = WSClient.send_text(other, :jiffy.encode(%{op: "ping", id: 2}))
+    assert {:ok, %{"op" => "pong"}, other} = WSClient.recv_json_until(other, &(&1["id"] == 2))
+    WSClient.close(other)
+
+    growth_mb = (:erlang.memory(:total) - memory) / 1_048_576
+    assert growth_mb < 100, "memory grew #{Float.round(growth_mb, 1)} MB"
+
+    # the cycle over a second from the flood's start
+    Process.sleep(max(round(t0 + 1_000 - now_ms()), 0))
+    assert_kept_deadline(ctx.base, before)
+
+    uncommanded = uncommanded_ms(events(ctx.observer), t0)
+    Tally.uncommanded(uncommanded)
+    assert uncommanded <= 13
+    Tally.survived()
+  end
+
+  # reads until the server closes the socket; its close code
+  defp closed_with(client) do
+    case WSClient.recv(client, 10_000) do
+      {{:close, code}, _} -> code
+      {{:error, :closed}, _} -> :closed
+      {{:error, reason}, _} -> reason
+      {_frame, client} -> closed_with(client)
+    end
+  end
+end
