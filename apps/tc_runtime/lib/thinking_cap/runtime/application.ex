@@ -46,6 +46,18 @@ defmodule ThinkingCap.Runtime.Application do
     )
   end
 
+  # The BEAM's threads go back to normal scheduling before the VM halts:
+  # while it shuts down, a scheduler at SCHED_FIFO spins waiting on
+  # threads at normal priority, which it then keeps off the CPU (seen on
+  # peer nodes: a stop that never ended, a core at 100 %).
+  @impl true
+  def prep_stop(state) do
+    if Application.get_env(:tc_runtime, :beam_priority, :realtime) != nil,
+      do: ThinkingCap.Runtime.Scheduling.nice(0)
+
+    state
+  end
+
   defp deploy_after_boot(adf) do
     wait_for_boot()
 
