@@ -21,7 +21,7 @@ defmodule ThinkingCap.Build.C do
         do: run_cc(name, app_dir, sources, target, opts),
         else: {:noop, []}
 
-    if opts[:nif] && elem(result, 0) != :error, do: link_priv()
+    if elem(result, 0) != :error, do: link_priv()
     result
   end
 
