@@ -99,7 +99,7 @@ defmodule ThinkingCap.CycleTest do
     ThinkingCap.Testing.Cluster.wait_until(fn -> not File.exists?("/proc/#{os_pid}") end, 5000)
     frames = parse_frames(File.read!(out))
     assert [<<?H, _::binary>> | _] = frames
-    assert <<?P, 7::16, _cycle::32, 1, _response::64, ^stop::binary>> = List.last(frames)
+    assert <<?P, 7::16, _cycle::32, 1, 0, _response::64, ^stop::binary>> = List.last(frames)
   end
 
   test "bad frames are refused with an error and the worker keeps running", %{name: name} do
