@@ -43,8 +43,9 @@
  *   worker -> BEAM
  *     'H' u8 sched_fifo_granted, u8 mlockall_granted, text...               hello
  *     'L' u16 id, u32 cycle, u64 scheduled_ns, u64 released_ns              release
- *     'P' u16 id, u32 cycle, u8 kind (0 fresh, 1 fallback, 2 late),
- *         u8 wired (1: the command's bytes went on the wire, whole),
+ *     'P' u16 id, u32 cycle, u8 kind (0 fresh, 1 fallback, 2 late: the
+ *         cycle is the late result's), u8 wired (1: the command's bytes
+ *         went on the wire, whole),
  *         u64 response_ns, command...                                      applied
  *     'V' u16 id, u8 status, text...  wire: 0 the attach failed (text: path
  *         and strerror), 1 attached (the reply to 'W'), 2 reopened by itself
@@ -148,11 +149,11 @@ static void send_error(const char *text) {
     send_frame(buf, (uint32_t)n + 1);
 }
 
-static void send_applied(const activity *a, uint8_t kind, int wired, uint64_t response, const uint8_t *cmd, uint32_t len) {
+static void send_applied(const activity *a, uint32_t cycle, uint8_t kind, int wired, uint64_t response, const uint8_t *cmd, uint32_t len) {
     uint8_t buf[MAX_FRAME];
     buf[0] = 'P';
     put16(buf + 1, a->id);
-    put32(buf + 3, a->cycle);
+    put32(buf + 3, cycle);
     buf[7] = kind;
     buf[8] = (uint8_t)(wired != 0);
     put64(buf + 9, response);
@@ -236,7 +237,7 @@ static int wire_write(activity *a, const uint8_t *bytes, uint32_t len) {
 /* The fallback of an activity, on its wire first, then reported. */
 static void apply_fallback(activity *a, uint64_t response) {
     int wired = a->wire.attached ? wire_write(a, a->wire.fallback, a->wire.fallback_len) : 0;
-    send_applied(a, FALLBACK, wired, response, a->fallback, a->fallback_len);
+    send_applied(a, a->cycle, FALLBACK, wired, response, a->fallback, a->fallback_len);
 }
 
 static activity *find(uint16_t id) {
@@ -315,10 +316,11 @@ static void result(activity *a, uint32_t cycle, const uint8_t *wire, uint32_t wi
     if (a->awaiting && cycle == a->cycle) {
         a->awaiting = 0;
         int wired = wire ? wire_write(a, wire, wire_len) : 0;
-        send_applied(a, FRESH, wired, response, cmd, len);
+        send_applied(a, cycle, FRESH, wired, response, cmd, len);
     } else {
-        /* too late: the fallback was applied; the BEAM counts it */
-        send_applied(a, LATE, 0, response, cmd, 0);
+        /* too late: the fallback was applied; the BEAM counts it (the
+         * result's own cycle: the activity may be cycles further on) */
+        send_applied(a, cycle, LATE, 0, response, cmd, 0);
     }
 }
 
