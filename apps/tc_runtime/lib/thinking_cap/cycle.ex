@@ -109,8 +109,8 @@ defmodule ThinkingCap.Cycle do
   @doc """
   Like `result/2`, with the bytes to put on the activity's wire
   (`attach_wire/3`) when the worker applies the command. Bytes over
-  #{@max_wire} are refused with an error logged, and nothing is sent: the
-  fallback is applied at the deadline.
+  #{@max_wire}, or not iodata, are refused with an error logged, and nothing
+  is sent: the fallback is applied at the deadline.
   """
   @spec result(release(), term(), iodata()) :: :ok
   def result(%{id: id, cycle: cycle}, command, wire_bytes) do
@@ -127,6 +127,14 @@ defmodule ThinkingCap.Cycle do
 
         :ok
     end
+  rescue
+    ArgumentError ->
+      Logger.error(
+        "cycle #{cycle} of activity #{id}: the wire bytes are not iodata " <>
+          "(#{inspect(wire_bytes, limit: 5)}): result not sent, the fallback will be applied"
+      )
+
+      :ok
   end
 
   defp to_worker(frame) do

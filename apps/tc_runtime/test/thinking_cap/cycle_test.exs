@@ -194,6 +194,14 @@ defmodule ThinkingCap.CycleTest do
 
       # without a wire the activity runs as before
       assert %{kind: :fresh, wired: false} = fresh(name, :go, "go\n")
+
+      # wire bytes that are not bytes: nothing sent, the fallback applies
+      assert ExUnit.CaptureLog.capture_log(fn ->
+               r = newest(name, release(name))
+               assert :ok = Cycle.result(r, :go, [:not_bytes])
+               assert %{kind: :fallback} = applied_until(name, &(&1.cycle == r.cycle))
+             end) =~ "not iodata"
+
       assert %{wire: nil, wire_errors: 0} = Cycle.timing()[name]
     end
 

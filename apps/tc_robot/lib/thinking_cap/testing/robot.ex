@@ -17,8 +17,8 @@ defmodule ThinkingCap.Testing.Robot do
 
   Param `wire: path` hands the command path to the timing worker (see
   `ThinkingCap.Robot`): the test robot opens no line itself; the worker
-  writes each applied command to `path` as `"\#{inspect(command)}\n"`
-  (`:stop` as `"stop\n"`) and `"stop\n"` whenever it applies the
+  writes each applied command to `path` as `"\#{inspect(command)}\\n"`
+  (`:stop` as `"stop\\n"`) and `"stop\\n"` whenever it applies the
   fallback, so a test reads the line (a pty made with
   `ThinkingCap.Robot.UART.open_pty/2`). Commands the worker put on the
   line do not reach `drive/2`: they are not published as `:driven`.
