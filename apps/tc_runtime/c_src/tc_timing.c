@@ -17,20 +17,44 @@
  * under one lock. When stdin closes (the BEAM is gone) the worker applies
  * every activity's fallback and exits.
  *
+ * Wires: an activity may own a device's command path (a serial line, a
+ * pty, a FIFO). The worker opens the path write-only and non-blocking (it
+ * never touches the line's termios: whoever opened the line set them),
+ * writes a fresh result's wire bytes the moment it applies the result,
+ * and writes the activity's wire fallback bytes whenever it applies the
+ * fallback (deadline missed, activity removed, stdin closed) before it
+ * reports: a missed deadline or a dead BEAM puts the stop frame on the
+ * line in that same cycle. Writes never block the timing thread: what the
+ * line does not take at once is dropped and reported (at most once a
+ * second per activity). A line that fails (EIO, ENXIO: unplugged, the pty
+ * master gone) is closed, reported once, and reopened on a later write,
+ * at most every 100 ms, so a replugged device works again by itself.
+ *
  * PROTOCOL (integers big-endian)
  *   BEAM -> worker
  *     'A' u16 id, u64 period_ns, u64 deadline_ns, u8 priority, fallback...  add
  *     'R' u16 id                                      remove (applies its fallback)
  *     'C' u16 id, u32 cycle, command...                                    result
+ *     'D' u16 id, u32 cycle, u16 wire_len, wire bytes, command...
+ *                                         result with the bytes for its wire
+ *     'W' u16 id, u16 fallback_len, fallback bytes, path...
+ *                              attach a wire (open path; replaces an old one)
+ *     'X' u16 id                                        detach the wire (close)
  *   worker -> BEAM
  *     'H' u8 sched_fifo_granted, u8 mlockall_granted, text...               hello
  *     'L' u16 id, u32 cycle, u64 scheduled_ns, u64 released_ns              release
- *     'P' u16 id, u32 cycle, u8 kind (0 fresh, 1 fallback, 2 late),
+ *     'P' u16 id, u32 cycle, u8 kind (0 fresh, 1 fallback, 2 late: the
+ *         cycle is the late result's), u8 wired (1: the command's bytes
+ *         went on the wire, whole),
  *         u64 response_ns, command...                                      applied
+ *     'V' u16 id, u8 status, text...  wire: 0 the attach failed (text: path
+ *         and strerror), 1 attached (the reply to 'W'), 2 reopened by itself
  *     'E' text...                                                          error
+ *         (a wire's errors: "wire <id> <path>: ...", with counts)
  */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <fcntl.h>
 #include <pthread.h>
 #include <sched.h>
 #include <signal.h>
@@ -44,8 +68,12 @@
 
 #define MAX_ACTIVITIES 64
 #define MAX_COMMAND 4096
-#define MAX_FRAME (MAX_COMMAND + 64)
+#define MAX_WIRE 4096
+#define MAX_PATH 1024
+#define MAX_FRAME (MAX_COMMAND + MAX_WIRE + 64)
 #define NS 1000000000ULL
+#define REOPEN_EVERY (NS / 10)
+#define REPORT_EVERY NS
 
 enum { FRESH = 0, FALLBACK = 1, LATE = 2 };
 
@@ -61,6 +89,17 @@ typedef struct {
     uint64_t released_at; /* actual time of the last release */
     uint64_t due;         /* absolute deadline of the last release */
     int awaiting;         /* released, no result and no fallback yet */
+    /* the wire: the device this activity's commands are written to */
+    struct wire {
+        int attached;
+        int fd;               /* -1 while the line is down */
+        char path[MAX_PATH];
+        uint8_t fallback[MAX_WIRE];
+        uint32_t fallback_len;
+        uint64_t opened_at;   /* last open attempt, for the reopen rate */
+        uint64_t reported_at; /* last short-write report, for its rate */
+        uint32_t short_writes, dropped; /* not reported yet */
+    } wire;
 } activity;
 
 static activity acts[MAX_ACTIVITIES];
@@ -110,15 +149,95 @@ static void send_error(const char *text) {
     send_frame(buf, (uint32_t)n + 1);
 }
 
-static void send_applied(const activity *a, uint8_t kind, uint64_t response, const uint8_t *cmd, uint32_t len) {
+static void send_applied(const activity *a, uint32_t cycle, uint8_t kind, int wired, uint64_t response, const uint8_t *cmd, uint32_t len) {
     uint8_t buf[MAX_FRAME];
     buf[0] = 'P';
     put16(buf + 1, a->id);
-    put32(buf + 3, a->cycle);
+    put32(buf + 3, cycle);
     buf[7] = kind;
-    put64(buf + 8, response);
-    memcpy(buf + 16, cmd, len);
-    send_frame(buf, 16 + len);
+    buf[8] = (uint8_t)(wired != 0);
+    put64(buf + 9, response);
+    memcpy(buf + 17, cmd, len);
+    send_frame(buf, 17 + len);
+}
+
+static void send_wire_status(uint16_t id, uint8_t status, const char *text) {
+    uint8_t buf[MAX_PATH + 256];
+    size_t n = strlen(text);
+    if (n > sizeof buf - 4) n = sizeof buf - 4;
+    buf[0] = 'V';
+    put16(buf + 1, id);
+    buf[3] = status;
+    memcpy(buf + 4, text, n);
+    send_frame(buf, (uint32_t)n + 4);
+}
+
+/* Opens a wire's path for writing: never blocking, never becoming the
+ * controlling terminal, and leaving the line's settings alone. */
+static int open_wire(const char *path) {
+    int fd;
+    do fd = open(path, O_WRONLY | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    while (fd < 0 && errno == EINTR);
+    return fd;
+}
+
+static void close_wire(activity *a) {
+    if (a->wire.attached && a->wire.fd >= 0) close(a->wire.fd);
+    a->wire.fd = -1;
+    a->wire.attached = 0;
+}
+
+/* Puts bytes on an activity's wire, never blocking; called under `lock`.
+ * Returns whether all of them were written (1), or 0 (no wire, the line
+ * is down, or it did not take them all: the rest is dropped). */
+static int wire_write(activity *a, const uint8_t *bytes, uint32_t len) {
+    struct wire *w = &a->wire;
+    char text[MAX_PATH + 160];
+    if (!w->attached) return 0;
+    uint64_t now = now_ns();
+    if (w->fd < 0) {
+        /* the line went away: try it again now and then (a replugged
+         * device, a symlink pointed at a new tty) */
+        if (now - w->opened_at < REOPEN_EVERY) return 0;
+        w->opened_at = now;
+        w->fd = open_wire(w->path);
+        if (w->fd < 0) return 0;
+        snprintf(text, sizeof text, "reopened %s", w->path);
+        send_wire_status(a->id, 2, text);
+    }
+    if (len == 0) return 1;
+    ssize_t n;
+    do n = write(w->fd, bytes, len);
+    while (n < 0 && errno == EINTR);
+    if (n == (ssize_t)len) return 1;
+    if (n >= 0 || errno == EAGAIN || errno == EWOULDBLOCK) {
+        /* the line is full: drop the rest, never wait for it */
+        w->short_writes++;
+        w->dropped += len - (uint32_t)(n > 0 ? n : 0);
+        if (now - w->reported_at >= REPORT_EVERY) {
+            snprintf(text, sizeof text,
+                     "wire %u %s: the line did not take %u bytes of %u writes (dropped)",
+                     a->id, w->path, w->dropped, w->short_writes);
+            send_error(text);
+            w->reported_at = now;
+            w->short_writes = w->dropped = 0;
+        }
+        return 0;
+    }
+    /* EIO, ENXIO, EPIPE, EBADF...: the line is gone */
+    snprintf(text, sizeof text, "wire %u %s: write: %s; closed, reopening every 100 ms",
+             a->id, w->path, strerror(errno));
+    send_error(text);
+    close(w->fd);
+    w->fd = -1;
+    w->opened_at = now;
+    return 0;
+}
+
+/* The fallback of an activity, on its wire first, then reported. */
+static void apply_fallback(activity *a, uint64_t response) {
+    int wired = a->wire.attached ? wire_write(a, a->wire.fallback, a->wire.fallback_len) : 0;
+    send_applied(a, a->cycle, FALLBACK, wired, response, a->fallback, a->fallback_len);
 }
 
 static activity *find(uint16_t id) {
@@ -152,7 +271,7 @@ static void *timing_loop(void *arg) {
             activity *a = &acts[i];
             if (a->used && a->awaiting && a->due <= now) {
                 a->awaiting = 0;
-                send_applied(a, FALLBACK, now - a->released_at, a->fallback, a->fallback_len);
+                apply_fallback(a, now - a->released_at);
             }
         }
         /* then releases, highest priority first */
@@ -191,8 +310,69 @@ static void on_wake(int sig) { (void)sig; }
 /* Interrupts the timing thread's sleep so it plans with the new table. */
 static void wake_timing(void) { pthread_kill(timing_thread, SIGUSR1); }
 
+/* A fresh result (with the bytes for its wire, if any), or a late one. */
+static void result(activity *a, uint32_t cycle, const uint8_t *wire, uint32_t wire_len, const uint8_t *cmd, uint32_t len) {
+    uint64_t response = now_ns() - a->released_at;
+    if (a->awaiting && cycle == a->cycle) {
+        a->awaiting = 0;
+        int wired = wire ? wire_write(a, wire, wire_len) : 0;
+        send_applied(a, cycle, FRESH, wired, response, cmd, len);
+    } else {
+        /* too late: the fallback was applied; the BEAM counts it (the
+         * result's own cycle: the activity may be cycles further on) */
+        send_applied(a, cycle, LATE, 0, response, cmd, 0);
+    }
+}
+
+/* 'W': opens the path outside the lock (an open may take a while; the
+ * timing thread must not wait for it), then attaches it. */
+static void attach_wire(const uint8_t *p, uint32_t len) {
+    char path[MAX_PATH], text[MAX_PATH + 160];
+    if (len < 5) { send_error("bad wire frame"); return; }
+    uint16_t id = get16(p + 1);
+    uint32_t fallback_len = get16(p + 3);
+    if (fallback_len > MAX_WIRE || 5 + fallback_len > len) { send_wire_status(id, 0, "bad wire frame: fallback longer than the frame"); return; }
+    uint32_t path_len = len - 5 - fallback_len;
+    if (path_len == 0 || path_len >= MAX_PATH || memchr(p + 5 + fallback_len, 0, path_len)) {
+        send_wire_status(id, 0, "bad wire frame: the path is empty, too long or holds a NUL byte");
+        return;
+    }
+    memcpy(path, p + 5 + fallback_len, path_len);
+    path[path_len] = 0;
+
+    int fd = open_wire(path);
+    if (fd < 0) {
+        snprintf(text, sizeof text, "open %s: %s", path, strerror(errno));
+        send_wire_status(id, 0, text);
+        return;
+    }
+    pthread_mutex_lock(&lock);
+    activity *a = find(id);
+    if (!a) {
+        pthread_mutex_unlock(&lock);
+        close(fd);
+        snprintf(text, sizeof text, "%s: no activity %u to attach it to", path, id);
+        send_wire_status(id, 0, text);
+        return;
+    }
+    close_wire(a);
+    struct wire *w = &a->wire;
+    w->attached = 1;
+    w->fd = fd;
+    memcpy(w->path, path, path_len + 1);
+    memcpy(w->fallback, p + 5, fallback_len);
+    w->fallback_len = fallback_len;
+    w->opened_at = now_ns();
+    w->reported_at = 0;
+    w->short_writes = w->dropped = 0;
+    snprintf(text, sizeof text, "attached %s", path);
+    send_wire_status(id, 1, text);
+    pthread_mutex_unlock(&lock);
+}
+
 static void handle_frame(const uint8_t *p, uint32_t len) {
     if (len < 1) { send_error("empty frame"); return; }
+    if (p[0] == 'W') { attach_wire(p, len); return; }
     pthread_mutex_lock(&lock);
     switch (p[0]) {
     case 'A': {
@@ -201,44 +381,58 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
         activity *a = find(id);
         for (int i = 0; !a && i < MAX_ACTIVITIES; i++) if (!acts[i].used) a = &acts[i];
         if (!a) { send_error("too many activities"); break; }
+        uint64_t period = get64(p + 3), deadline = get64(p + 11);
+        if (period == 0 || deadline == 0) { send_error("period and deadline must be positive"); break; }
+        /* an activity added again keeps its wire */
+        struct wire w;
+        if (a->used) w = a->wire; else { memset(&w, 0, sizeof w); w.fd = -1; }
         memset(a, 0, sizeof *a);
         a->used = 1;
         a->id = id;
-        a->period = get64(p + 3);
-        a->deadline = get64(p + 11);
+        a->period = period;
+        a->deadline = deadline;
         a->priority = p[19];
         a->fallback_len = len - 20;
         memcpy(a->fallback, p + 20, a->fallback_len);
-        if (a->period == 0 || a->deadline == 0) { a->used = 0; send_error("period and deadline must be positive"); break; }
+        a->wire = w;
         a->next_release = now_ns() + a->period;
         wake_timing();
         break;
     }
     case 'R': {
         /* a removed activity (its module stopped or crashed) will send no
-         * fresh command again: its fallback is the last word */
+         * fresh command again: its fallback is the last word, on its wire
+         * too, and then the wire is closed */
         activity *a = len >= 3 ? find(get16(p + 1)) : NULL;
         if (a) {
             a->awaiting = 0;
-            send_applied(a, FALLBACK, 0, a->fallback, a->fallback_len);
+            apply_fallback(a, 0);
+            close_wire(a);
             a->used = 0;
         }
         wake_timing();
         break;
     }
+    case 'X': {
+        activity *a = len >= 3 ? find(get16(p + 1)) : NULL;
+        if (len < 3) send_error("bad detach frame");
+        else if (a) close_wire(a);
+        break;
+    }
     case 'C': {
         if (len < 7 || len - 7 > MAX_COMMAND) { send_error("bad result frame"); break; }
         activity *a = find(get16(p + 1));
-        uint32_t cycle = get32(p + 3);
-        if (!a) break;
-        uint64_t response = now_ns() - a->released_at;
-        if (a->awaiting && cycle == a->cycle) {
-            a->awaiting = 0;
-            send_applied(a, FRESH, response, p + 7, len - 7);
-        } else {
-            /* too late: the fallback was applied; the BEAM counts it */
-            send_applied(a, LATE, response, p + 7, 0);
+        if (a) result(a, get32(p + 3), NULL, 0, p + 7, len - 7);
+        break;
+    }
+    case 'D': {
+        uint32_t wire_len = len >= 9 ? get16(p + 7) : 0;
+        if (len < 9 || wire_len > MAX_WIRE || 9 + wire_len > len || len - 9 - wire_len > MAX_COMMAND) {
+            send_error("bad wire result frame");
+            break;
         }
+        activity *a = find(get16(p + 1));
+        if (a) result(a, get32(p + 3), p + 9, wire_len, p + 9 + wire_len, len - 9 - wire_len);
         break;
     }
     default:
@@ -311,8 +505,11 @@ int main(void) {
     /* The BEAM is gone (or the stream broke): nobody will send fresh
      * commands, so every activity's fallback is the last word. */
     pthread_mutex_lock(&lock);
-    for (int i = 0; i < MAX_ACTIVITIES; i++)
-        if (acts[i].used) send_applied(&acts[i], FALLBACK, 0, acts[i].fallback, acts[i].fallback_len);
+    for (int i = 0; i < MAX_ACTIVITIES; i++) {
+        if (!acts[i].used) continue;
+        apply_fallback(&acts[i], 0);
+        close_wire(&acts[i]);
+    }
     pthread_mutex_unlock(&lock);
     fprintf(stderr, "tc_timing: input closed, fallbacks applied, exiting\n");
     return 0;

@@ -52,6 +52,21 @@ defmodule ThinkingCap.Robot do
     * At start the robot's capabilities (`capabilities/1`) are published as
       `{:robot, robot, capabilities}`.
 
+  ## The timing worker on the wire
+
+  A driver of a serial robot may let the C timing worker own the line's
+  command path, so that a missed deadline, a crashed module or a dead
+  BEAM puts the stop frame on the wire in that same cycle, from the
+  worker. `wire/1` (called once after `open/2`) names the device (the
+  line the driver opened with `ThinkingCap.Robot.UART`, whose settings
+  the worker leaves alone) and the fallback bytes (the stop frame);
+  `wire_command/2` encodes each cycle's arbitrated command. An applied
+  command with `wired: true` is on the line already: the base records
+  and announces it but does not call `drive/2`. With `wired: false` (the
+  worker was restarted, the line was down or full, no wire attached) it
+  calls `drive/2` as without a wire: a driver with a wire must still be
+  able to write its own frames, a stop frame first of all.
+
   Commands (`t:command/0`) are body velocities `{:velocity, v, omega}` (m/s,
   rad/s), differential wheel speeds `{:wheels, left, right}` (rad/s), a
   steered drive `{:steer, speed, angle}` (m/s, rad), or `:stop`. A driver
@@ -88,7 +103,17 @@ defmodule ThinkingCap.Robot do
   @doc "Disconnects; the robot must be left stopped."
   @callback close(reason :: term(), state :: term()) :: term()
 
-  @optional_callbacks poll: 1
+  @doc """
+  Called once after `open/2`: `{device, fallback}` hands the robot's
+  command path to the timing worker (it opens `device` and writes
+  `fallback` whenever it applies the fallback), `nil` keeps it here.
+  """
+  @callback wire(state :: term()) :: {device :: Path.t(), fallback :: iodata()} | nil
+
+  @doc "The bytes on the wire for an arbitrated command (every cycle, with a wire)."
+  @callback wire_command(command(), state :: term()) :: iodata()
+
+  @optional_callbacks poll: 1, wire: 1, wire_command: 2
 
   @doc "The capabilities of a described robot: drive, limits and sensors."
   @spec capabilities(Description.t()) :: map()

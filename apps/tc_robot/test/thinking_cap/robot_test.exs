@@ -2,7 +2,9 @@ defmodule ThinkingCap.RobotTest do
   # Hosts robot drivers in this node's runtime: not beside other tests.
   use ExUnit.Case, async: false
 
-  alias ThinkingCap.{Blackboard, Config, Runtime}
+  alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
+  alias ThinkingCap.Robot.UART
+  alias ThinkingCap.Testing.Cluster
   alias ThinkingCap.Testing.Robot, as: TestRobot
 
   @moduletag :tmp_dir
@@ -17,6 +19,13 @@ defmodule ThinkingCap.RobotTest do
   """
 
   defp start(dir, params, robot \\ nil) do
+    {robot, base, adf} = write_adf(dir, params, robot)
+    on_exit(fn -> Runtime.stop(base) end)
+    {:ok, _} = Runtime.start(Config.read!(adf))
+    {robot, base}
+  end
+
+  defp write_adf(dir, params, robot) do
     robot = robot || :"t#{System.unique_integer([:positive])}"
     base = :"base_#{robot}"
     File.write!(Path.join(dir, "r.rdf"), @rdf)
@@ -32,10 +41,7 @@ defmodule ThinkingCap.RobotTest do
     ]
     """)
 
-    adf = Config.read!(Path.join(dir, "#{robot}.adf"))
-    on_exit(fn -> Runtime.stop(base) end)
-    {:ok, _} = Runtime.start(adf)
-    {robot, base}
+    {robot, base, Path.join(dir, "#{robot}.adf")}
   end
 
   defp drive(robot, command),
@@ -220,5 +226,104 @@ defmodule ThinkingCap.RobotTest do
              Blackboard.rdp({:driven, robot, :_})
 
     assert m > n
+  end
+
+  describe "the timing worker owns the line (wire:)" do
+    @velocity "{:velocity, 0.2, 0.0}"
+
+    test "the arbitrated command is on the line every cycle; drive/2 is not called", %{
+      tmp_dir: dir
+    } do
+      {path, _uart} = line()
+      {robot, _base} = start(dir, command_timeout: 5.0, wire: path)
+      drive(robot, {:velocity, 0.2, 0.0})
+
+      lines = lines(read_line(path, &(Enum.count(&1, fn l -> l == @velocity end) >= 5)))
+      # before the first command the robot idles: stopped
+      assert lines |> Enum.uniq() |> Enum.all?(&(&1 in ["stop", @velocity]))
+      assert %{command: {:velocity, 0.2, 0.0}} = control(robot, :autonomy)
+      refute match?({:ok, {:driven, _, %{command: {:velocity, _, _}}}}, driven_now(robot))
+    end
+
+    test "the E-stop puts the stop frame on the line", %{tmp_dir: dir} do
+      {path, _uart} = line()
+      {robot, _base} = start(dir, command_timeout: 5.0, wire: path)
+      drive(robot, {:velocity, 0.2, 0.0})
+      seen = read_line(path, &(@velocity in &1))
+
+      estop(robot, true)
+      assert "stop" in after_velocity(path, seen)
+      control(robot, :estop)
+    end
+
+    test "the base module killed: the worker puts the fallback on the line", %{tmp_dir: dir} do
+      {path, _uart} = line()
+      {robot, base} = start(dir, command_timeout: 5.0, wire: path)
+      :ok = Cycle.subscribe(base)
+      drive(robot, {:velocity, 0.2, 0.0})
+      seen = read_line(path, &(@velocity in &1))
+
+      Process.exit(Runtime.whereis(base), :kill)
+      # the activity removed: its fallback, written by the worker
+      assert %{kind: :fallback, cycle: 0, wired: true} =
+               ThinkingCap.Testing.Cycle.applied_until(base, &(&1.cycle == 0))
+
+      assert ["stop" | _] = after_velocity(path, seen)
+    end
+
+    test "the node hosting the robot killed: the worker still puts the stop frame on the line",
+         %{tmp_dir: dir} do
+      {path, _uart} = line()
+      [node] = Cluster.start(1, apps: [:tc_robot])
+      on_exit(fn -> Cluster.stop(node) end)
+      {robot, _base, adf} = write_adf(dir, [command_timeout: 60.0, wire: path], nil)
+
+      assert {:ok, _} =
+               Cluster.call(node, Runtime, :start, [Cluster.call(node, Config, :read!, [adf])])
+
+      :ok =
+        Cluster.call(node, Blackboard, :out, [
+          {:drive, robot, %{command: {:velocity, 0.2, 0.0}}},
+          [key: {:drive, robot}]
+        ])
+
+      seen = read_line(path, &(@velocity in &1))
+      Cluster.kill(node)
+      assert ["stop" | _] = after_velocity(path, seen)
+    end
+  end
+
+  defp driven_now(robot), do: Blackboard.rdp({:driven, robot, :_})
+
+  # a pseudo-terminal: its master here, its slave's path for the robot
+  defp line do
+    uart = start_supervised!(UART)
+    {:ok, path} = UART.open_pty(uart)
+    {path, uart}
+  end
+
+  # what the robot put on the line (all of it) once fun says enough of its lines
+  defp read_line(path, fun, acc \\ "") do
+    if fun.(lines(acc)) do
+      acc
+    else
+      receive do
+        {:tc_uart, ^path, data} when is_binary(data) -> read_line(path, fun, acc <> data)
+      after
+        5000 -> flunk("the line got only #{inspect(acc)}")
+      end
+    end
+  end
+
+  defp lines(bytes), do: bytes |> String.split("\n") |> Enum.drop(-1)
+
+  # the lines after what was read already and the velocity lines still coming
+  defp after_velocity(path, acc) do
+    n = length(lines(acc))
+
+    read_line(path, &(&1 |> Enum.drop(n) |> Enum.any?(fn l -> l != @velocity end)), acc)
+    |> lines()
+    |> Enum.drop(n)
+    |> Enum.drop_while(&(&1 == @velocity))
   end
 end

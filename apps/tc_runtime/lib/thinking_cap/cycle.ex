@@ -17,7 +17,8 @@ defmodule ThinkingCap.Cycle do
   Every applied command, fresh or fallback, reaches the owner and every
   process that called `subscribe/1` as
 
-      {:tc_cycle, :applied, name, %{cycle: n, kind: :fresh | :fallback | :late, command: term, response_us: float}}
+      {:tc_cycle, :applied, name, %{cycle: n, kind: :fresh | :fallback | :late, command: term,
+                                    wired: boolean, response_us: float}}
 
   (`:late` reports a result that came after its fallback; it is not
   applied). A removed activity's fallback is applied at once (its module
@@ -26,6 +27,26 @@ defmodule ThinkingCap.Cycle do
   If the worker dies, this process starts a new one, adds every activity
   again, and tells subscribers that each activity's fallback is applied:
   the robot stays stopped until a fresh command.
+
+  ## Wires
+
+  An activity may hand its device's command path to the worker:
+  `attach_wire/3` makes the worker open a device (a serial line, a pty, a
+  FIFO: opaque bytes, this layer knows no protocol) write-only, without
+  touching its line settings. The owner then answers a release with
+  `result/3`, the command and the bytes to put on the line; the worker
+  writes them when it applies the result, and writes the wire's
+  **fallback bytes** whenever it applies the fallback: a missed deadline,
+  the activity removed (its module crashed), the BEAM gone. A missed
+  deadline thus puts the stop frame on the line in that same cycle, from
+  the worker, whatever the BEAM does. `wired: true` in an applied event
+  says the command's bytes went on the line whole; `false` (no wire, the
+  line down or full, the worker restarted) means whoever drives the
+  device must write them itself. The worker never blocks on a line: bytes
+  it does not take at once are dropped and reported; a line that went
+  away is reopened every 100 ms on later writes. Wires are attached again
+  when the worker is restarted. `timing/0` gives each activity's `wire`
+  (its device or `nil`) and `wire_errors`.
 
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as
@@ -49,8 +70,13 @@ defmodule ThinkingCap.Cycle do
           cycle: non_neg_integer(),
           kind: :fresh | :fallback | :late,
           command: term(),
+          wired: boolean(),
           response_us: float()
         }
+
+  # the worker's limits on a wire's bytes and a device path
+  @max_wire 4096
+  @max_path 1023
 
   @kinds %{0 => :fresh, 1 => :fallback, 2 => :late}
 
@@ -77,9 +103,41 @@ defmodule ThinkingCap.Cycle do
   to call when the worker is down: the fallback is applied then anyway.
   """
   @spec result(release(), term()) :: :ok
-  def result(%{id: id, cycle: cycle}, command) do
-    frame = <<?C, id::16, cycle::32, :erlang.term_to_binary(command)::binary>>
+  def result(%{id: id, cycle: cycle}, command),
+    do: to_worker(<<?C, id::16, cycle::32, :erlang.term_to_binary(command)::binary>>)
 
+  @doc """
+  Like `result/2`, with the bytes to put on the activity's wire
+  (`attach_wire/3`) when the worker applies the command. Bytes over
+  #{@max_wire}, or not iodata, are refused with an error logged, and nothing
+  is sent: the fallback is applied at the deadline.
+  """
+  @spec result(release(), term(), iodata()) :: :ok
+  def result(%{id: id, cycle: cycle}, command, wire_bytes) do
+    case IO.iodata_to_binary(wire_bytes) do
+      wire when byte_size(wire) <= @max_wire ->
+        command = :erlang.term_to_binary(command)
+        to_worker(<<?D, id::16, cycle::32, byte_size(wire)::16, wire::binary, command::binary>>)
+
+      wire ->
+        Logger.error(
+          "cycle #{cycle} of activity #{id}: #{byte_size(wire)} wire bytes, over #{@max_wire}: " <>
+            "result not sent, the fallback will be applied"
+        )
+
+        :ok
+    end
+  rescue
+    ArgumentError ->
+      Logger.error(
+        "cycle #{cycle} of activity #{id}: the wire bytes are not iodata " <>
+          "(#{inspect(wire_bytes, limit: 5)}): result not sent, the fallback will be applied"
+      )
+
+      :ok
+  end
+
+  defp to_worker(frame) do
     case :persistent_term.get({__MODULE__, :port}, nil) do
       nil -> :ok
       port -> Port.command(port, frame)
@@ -89,6 +147,21 @@ defmodule ThinkingCap.Cycle do
   rescue
     ArgumentError -> :ok
   end
+
+  @doc """
+  Hands activity `name`'s command path to the worker: it opens `device`
+  (write-only, non-blocking, its line settings left alone) and keeps
+  `fallback` bytes (at most #{@max_wire}) to write whenever it applies the
+  activity's fallback. Replaces a wire attached before. Waits for the
+  worker's answer: `{:error, message}` names the device and what failed.
+  """
+  @spec attach_wire(name(), Path.t(), iodata()) :: :ok | {:error, String.t()}
+  def attach_wire(name, device, fallback),
+    do: GenServer.call(__MODULE__, {:attach_wire, name, device, fallback}, 15_000)
+
+  @doc "Takes activity `name`'s wire from the worker (it closes the device)."
+  @spec detach_wire(name()) :: :ok
+  def detach_wire(name), do: GenServer.call(__MODULE__, {:detach_wire, name})
 
   @doc "Records how long the module took to compute the result of `release` (ns)."
   @spec record_cpu(release(), non_neg_integer()) :: :ok
@@ -140,7 +213,9 @@ defmodule ThinkingCap.Cycle do
       ids: %{},
       next_id: 1,
       restarts: 0,
-      watchers: %{}
+      watchers: %{},
+      # wire attachments waiting for the worker's answer, by activity id
+      attaching: %{}
     }
 
     {:ok, open(state)}
@@ -162,6 +237,9 @@ defmodule ThinkingCap.Cycle do
     owner = Keyword.fetch!(opts, :owner)
     Process.monitor(owner)
 
+    # added again: the worker keeps its wire, and so does this side
+    old = Map.get(state.activities, id, %{})
+
     activity = %{
       id: id,
       name: name,
@@ -170,6 +248,8 @@ defmodule ThinkingCap.Cycle do
       priority: priority,
       fallback: fallback,
       owner: owner,
+      wire: Map.get(old, :wire),
+      wire_errors: Map.get(old, :wire_errors, 0),
       stats: Stats.new(round(period * 1.0e9))
     }
 
@@ -178,6 +258,30 @@ defmodule ThinkingCap.Cycle do
   end
 
   def handle_call({:remove, name}, _from, state), do: {:reply, :ok, remove_activity(state, name)}
+
+  def handle_call({:attach_wire, name, device, fallback}, from, state) do
+    with {:ok, id} <- activity_id(state, name),
+         {:ok, device} <- check_device(device),
+         {:ok, fallback} <- check_fallback(fallback, device) do
+      wire = %{device: device, fallback: fallback}
+      send_wire(state.port, id, wire)
+      attaching = Map.update(state.attaching, id, [{from, wire}], &(&1 ++ [{from, wire}]))
+      {:noreply, %{state | attaching: attaching}}
+    else
+      {:error, message} -> {:reply, {:error, message}, state}
+    end
+  end
+
+  def handle_call({:detach_wire, name}, _from, state) do
+    case activity_id(state, name) do
+      {:ok, id} ->
+        if state.port, do: Port.command(state.port, <<?X, id::16>>)
+        {:reply, :ok, put_in(state.activities[id].wire, nil)}
+
+      {:error, _} ->
+        {:reply, :ok, state}
+    end
+  end
 
   def handle_call({:subscribe, name, pid}, _from, state) do
     Process.monitor(pid)
@@ -189,7 +293,7 @@ defmodule ThinkingCap.Cycle do
     do: {:reply, Map.put(state.status, :restarts, state.restarts), state}
 
   def handle_call(:timing, _from, state) do
-    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, Stats.summary(a.stats)} end), state}
+    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, summary(a)} end), state}
   end
 
   def handle_call(:os_pid, _from, state) do
@@ -252,7 +356,7 @@ defmodule ThinkingCap.Cycle do
 
   def handle_info(:publish, state) do
     for {_id, a} <- state.activities,
-        do: Blackboard.out({:timing, a.name, Stats.summary(a.stats)}, key: {:timing, a.name})
+        do: Blackboard.out({:timing, a.name, summary(a)}, key: {:timing, a.name})
 
     {:noreply, state}
   end
@@ -286,12 +390,21 @@ defmodule ThinkingCap.Cycle do
     end
   end
 
-  defp handle_frame(<<?P, id::16, cycle::32, kind, response::64, command::binary>>, state) do
+  defp handle_frame(<<?P, id::16, cycle::32, kind, wired, response::64, command::binary>>, state)
+       when is_map_key(@kinds, kind) do
     case state.activities do
       %{^id => a} ->
         kind = Map.fetch!(@kinds, kind)
         command = if command == "", do: nil, else: :erlang.binary_to_term(command)
-        event = %{cycle: cycle, kind: kind, command: command, response_us: response / 1000}
+
+        event = %{
+          cycle: cycle,
+          kind: kind,
+          command: command,
+          wired: wired == 1,
+          response_us: response / 1000
+        }
+
         tell(state, a, event)
         put_in(state.activities[id].stats, Stats.applied(a.stats, kind, response))
 
@@ -304,6 +417,46 @@ defmodule ThinkingCap.Cycle do
     status = %{sched_fifo: fifo == 1, mlockall: mlock == 1, message: text}
     Logger.info("timing worker: #{text}")
     %{state | status: status}
+  end
+
+  defp handle_frame(<<?V, id::16, status, text::binary>>, state) do
+    name = with %{name: name} <- state.activities[id], do: name
+
+    case Map.get(state.attaching, id, []) do
+      [{from, wire} | rest] when status in [0, 1] ->
+        state = %{state | attaching: Map.put(state.attaching, id, rest)}
+
+        cond do
+          status == 0 ->
+            GenServer.reply(from, {:error, text})
+            state
+
+          name == nil ->
+            GenServer.reply(from, {:error, "#{wire.device}: the activity was removed"})
+            state
+
+          true ->
+            GenServer.reply(from, :ok)
+            put_in(state.activities[id].wire, wire)
+        end
+
+      _ ->
+        wire_report(state, id, name, status, text)
+    end
+  end
+
+  # a wire's error: "wire <id> <path>: ..."
+  defp handle_frame(<<?E, "wire ", rest::binary>>, state) do
+    with [id, _] <- String.split(rest, " ", parts: 2),
+         {id, ""} <- Integer.parse(id),
+         %{^id => a} <- state.activities do
+      Logger.error("activity #{inspect(a.name)}: wire #{rest}")
+      put_in(state.activities[id].wire_errors, a.wire_errors + 1)
+    else
+      _ ->
+        Logger.error("timing worker: wire #{rest}")
+        state
+    end
   end
 
   defp handle_frame(<<?E, text::binary>>, state) do
@@ -342,14 +495,94 @@ defmodule ThinkingCap.Cycle do
     # the dead worker applies nothing: every activity's fallback holds from
     # now (its owner drives it), before a new worker is even spawned
     for {_id, a} <- state.activities,
-        do: tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
+        do:
+          tell(state, a, %{
+            cycle: 0,
+            kind: :fallback,
+            command: a.fallback,
+            wired: false,
+            response_us: 0.0
+          })
 
     state = open(%{state | port: nil, restarts: state.restarts + 1})
 
-    # every activity again; until its next fresh result, its fallback holds
-    for {_id, a} <- state.activities, do: send_add(state.port, a)
+    # every activity again, with its wire; until its next fresh result, its
+    # fallback holds (told above, before the new worker was spawned)
+    for {id, a} <- state.activities do
+      send_add(state.port, a)
+      if a.wire, do: send_wire(state.port, id, a.wire)
+    end
+
+    # attachments the dead worker did not answer: asked of the new one
+    for {id, pending} <- state.attaching,
+        {_from, wire} <- pending,
+        do: send_wire(state.port, id, wire)
 
     state
+  end
+
+  # a wire's answer nobody waits for: re-attached after a restart, reopened
+  defp wire_report(state, id, name, status, text) do
+    case state.activities do
+      %{^id => %{wire: wire}} when wire != nil and status == 0 ->
+        Logger.error(
+          "activity #{inspect(name)}: its wire could not be attached again: #{text}; " <>
+            "its commands are not on the line until it is attached"
+        )
+
+        put_in(state.activities[id].wire, nil)
+
+      %{^id => _} ->
+        Logger.info("activity #{inspect(name)}: wire #{text}")
+        state
+
+      _ ->
+        state
+    end
+  end
+
+  defp summary(a) do
+    a.stats
+    |> Stats.summary()
+    |> Map.merge(%{wire: a.wire && a.wire.device, wire_errors: a.wire_errors})
+  end
+
+  defp send_wire(port, id, %{device: device, fallback: fallback}) do
+    Port.command(port, <<?W, id::16, byte_size(fallback)::16, fallback::binary, device::binary>>)
+  end
+
+  defp activity_id(state, name) do
+    case state.ids do
+      %{^name => id} when is_map_key(state.activities, id) -> {:ok, id}
+      _ -> {:error, "no activity #{inspect(name)} to attach a wire to"}
+    end
+  end
+
+  defp check_device(device) do
+    device = if is_list(device), do: List.to_string(device), else: device
+
+    cond do
+      not is_binary(device) or device == "" ->
+        {:error, "the wire's device must be a path, got #{inspect(device)}"}
+
+      byte_size(device) > @max_path or String.contains?(device, <<0>>) ->
+        {:error, "#{inspect(device)}: not a device path (too long, or a NUL byte in it)"}
+
+      true ->
+        {:ok, device}
+    end
+  rescue
+    _ in [ArgumentError, UnicodeConversionError] ->
+      {:error, "the wire's device must be a path, got #{inspect(device)}"}
+  end
+
+  defp check_fallback(fallback, device) do
+    case IO.iodata_to_binary(fallback) do
+      bytes when byte_size(bytes) <= @max_wire -> {:ok, bytes}
+      bytes -> {:error, "#{device}: #{byte_size(bytes)} fallback bytes, over #{@max_wire}"}
+    end
+  rescue
+    ArgumentError -> {:error, "#{device}: the fallback must be iodata, got #{inspect(fallback)}"}
   end
 
   # an applied command goes to the activity's owner and its watchers
@@ -377,7 +610,16 @@ defmodule ThinkingCap.Cycle do
       %{^name => id} when is_map_key(state.activities, id) ->
         a = state.activities[id]
         if state.port, do: Port.command(state.port, <<?R, id::16>>)
-        tell(state, a, %{cycle: 0, kind: :fallback, command: a.fallback, response_us: 0.0})
+
+        # what the worker does: the fallback bytes on the wire, if any
+        tell(state, a, %{
+          cycle: 0,
+          kind: :fallback,
+          command: a.fallback,
+          wired: state.port != nil and a.wire != nil,
+          response_us: 0.0
+        })
+
         %{state | activities: Map.delete(state.activities, id)}
 
       _ ->

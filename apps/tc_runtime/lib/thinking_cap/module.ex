@@ -34,15 +34,30 @@ defmodule ThinkingCap.Module do
 
     * `{:out, tuple}` / `{:out, {tuple, opts}}` - write to the blackboard;
     * `{:command, term}` - the result of the current cycle (periodic only);
+    * `{:wire, iodata}` - with `{:command, term}` in `handle_cycle/2`: the
+      bytes the timing worker puts on the module's wire when it applies
+      the command;
+    * `{:attach_wire, device, fallback_iodata}` - hands the device's
+      command path to the timing worker (periodic only, typically from
+      `init/2`: it runs once the activity is added). The worker opens
+      `device` write-only (its line settings are left to whoever opened
+      it), writes each applied result's `:wire` bytes, and writes
+      `fallback_iodata` whenever it applies the fallback: a missed
+      deadline, the module crashed or stopped, the BEAM gone. A device
+      that cannot be opened is logged, naming it, and the module runs on
+      without a wire;
+    * `{:detach_wire}` - takes the command path back from the worker;
     * `{:subscribe, template}` - subscribe to more tuples.
 
   Every command the timing worker applies for a periodic module, its own
   fresh result or the fallback that replaced a late one, reaches
   `handle_applied/2` (`%{cycle: n, kind: :fresh | :fallback | :late,
-  command: term, response_us: float}`; a `:late` result was not applied).
-  A module that drives hardware acts on these, never on its own results:
-  then a stalled module leaves the robot on its fallback, not on a stale
-  command.
+  command: term, wired: boolean, response_us: float}`; a `:late` result
+  was not applied; `wired: true` says the worker put the command's bytes
+  on the module's wire, whole, and `false` that the module must drive
+  the device itself). A module that drives hardware acts on these, never
+  on its own results: then a stalled module leaves the robot on its
+  fallback, not on a stale command.
 
   `init/2` gets the ADF's `params` and a context map (`:name`, `:robot`,
   `:node`, `:activity`, and the ADF's `:rdf` and `:wdf` paths, `nil` when
@@ -56,6 +71,9 @@ defmodule ThinkingCap.Module do
           {:out, tuple()}
           | {:out, {tuple(), keyword()}}
           | {:command, term()}
+          | {:wire, iodata()}
+          | {:attach_wire, Path.t(), iodata()}
+          | {:detach_wire}
           | {:subscribe, tuple()}
   @type actions :: [action()]
   @type context :: %{

@@ -15,6 +15,18 @@ defmodule ThinkingCap.Test.Modules do
     def handle_cycle(release, state), do: {[command: {:vel, state.speed, release.cycle}], state}
   end
 
+  defmodule Wired do
+    @moduledoc false
+    # hands its device's command path to the timing worker
+    use ThinkingCap.Module
+    @impl true
+    def init(params, _ctx), do: {[{:attach_wire, params[:device], "stop\n"}], nil}
+
+    @impl true
+    def handle_cycle(release, state),
+      do: {[command: {:n, release.cycle}, wire: ["n ", "#{release.cycle}", ?\n]], state}
+  end
+
   defmodule CruiseV2 do
     @moduledoc false
     use ThinkingCap.Module

@@ -99,7 +99,7 @@ defmodule ThinkingCap.CycleTest do
     ThinkingCap.Testing.Cluster.wait_until(fn -> not File.exists?("/proc/#{os_pid}") end, 5000)
     frames = parse_frames(File.read!(out))
     assert [<<?H, _::binary>> | _] = frames
-    assert <<?P, 7::16, _cycle::32, 1, _response::64, ^stop::binary>> = List.last(frames)
+    assert <<?P, 7::16, _cycle::32, 1, 0, _response::64, ^stop::binary>> = List.last(frames)
   end
 
   test "bad frames are refused with an error and the worker keeps running", %{name: name} do
@@ -116,6 +116,256 @@ defmodule ThinkingCap.CycleTest do
     :ok = Cycle.add(name, period: 0.2)
     Cycle.result(release(name), :still_fine)
     assert %{kind: :fresh, command: :still_fine} = applied(name)
+  end
+
+  describe "a wire (a FIFO read by cat stands for the serial line)" do
+    test "fresh results' bytes go on the wire in order", %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      :ok = Cycle.add(name, period: 0.05, deadline: 0.04)
+      :ok = attach(name, fifo)
+
+      for i <- 1..5 do
+        assert %{kind: :fresh, wired: true, command: {:n, ^i}} = fresh(name, {:n, i}, "go #{i}\n")
+      end
+
+      wire = wire_until(reader, &String.contains?(&1, "go 5\n"))
+      # fallbacks applied while a result was late may come between; the fresh ones in order
+      assert wire |> String.split("\n", trim: true) |> Enum.reject(&(&1 == "stop")) ==
+               for(i <- 1..5, do: "go #{i}")
+    end
+
+    test "a missed deadline puts the fallback bytes on the wire in that cycle, the late bytes never",
+         %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      :ok = Cycle.add(name, period: 0.05, deadline: 0.01)
+      :ok = attach(name, fifo)
+      r = release_after(name, fresh_release(name, :go, "go\n"))
+
+      # not answered: its fallback, on the wire, then the late result
+      assert %{kind: :fallback, wired: true, command: :stop} =
+               applied_until(name, &(&1.cycle == r.cycle))
+
+      Cycle.result(r, :late, "late\n")
+      assert %{kind: :late, wired: false} = applied_until(name, &(&1.kind == :late))
+      :ok = Cycle.remove(name)
+
+      wire = wire_until(reader, &String.contains?(&1, "go\nstop\n"))
+      [_, after_go] = String.split(wire, "go\n")
+      assert String.starts_with?(after_go, "stop\n")
+      refute wire_until(reader, &(&1 =~ ~r/late|go\nstop\n(stop\n)+$/), wire, 300) =~ "late"
+    end
+
+    test "removing the activity puts its fallback bytes on the wire", %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      # a long period: no deadline passes before the removal
+      :ok = Cycle.add(name, period: 1.0, deadline: 0.9)
+      :ok = attach(name, fifo, "STOP!")
+      fresh_release(name, :go, "go;")
+      wire = wire_until(reader, &String.ends_with?(&1, "go;"))
+      assert wire =~ ~r/^(STOP!)*go;$/
+
+      :ok = Cycle.remove(name)
+      # the removal's own report says the fallback went on the wire
+      assert %{kind: :fallback, cycle: 0, wired: true} = applied_until(name, &(&1.cycle == 0))
+
+      assert wire_until(reader, &String.ends_with?(&1, "go;STOP!"), wire) =~
+               ~r/^(STOP!)*go;STOP!$/
+    end
+
+    test "a bad device or fallback is refused with an error naming it", %{
+      name: name,
+      tmp_dir: dir
+    } do
+      :ok = Cycle.add(name, period: 0.05)
+      missing = Path.join(dir, "no/such/tty")
+      assert {:error, message} = Cycle.attach_wire(name, missing, "stop")
+      assert message =~ missing and message =~ "No such file or directory"
+
+      assert {:error, message} = Cycle.attach_wire(name, dir, "stop")
+      assert message =~ dir and message =~ "Is a directory"
+
+      assert {:error, message} = Cycle.attach_wire(:no_such_activity, missing, "stop")
+      assert message =~ ":no_such_activity"
+      assert {:error, message} = Cycle.attach_wire(name, "", "stop")
+      assert message =~ "path"
+      assert {:error, message} = Cycle.attach_wire(name, "/dev/null", [:not_bytes])
+      assert message =~ "/dev/null" and message =~ "iodata"
+      assert {:error, _} = Cycle.attach_wire(name, "/dev/null", :binary.copy("x", 5000))
+
+      # without a wire the activity runs as before
+      assert %{kind: :fresh, wired: false} = fresh(name, :go, "go\n")
+
+      # wire bytes that are not bytes: nothing sent, the fallback applies
+      assert ExUnit.CaptureLog.capture_log(fn ->
+               r = newest(name, release(name))
+               assert :ok = Cycle.result(r, :go, [:not_bytes])
+               assert %{kind: :fallback} = applied_until(name, &(&1.cycle == r.cycle))
+             end) =~ "not iodata"
+
+      assert %{wire: nil, wire_errors: 0} = Cycle.timing()[name]
+    end
+
+    test "a killed worker is restarted with the wire attached again", %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      :ok = Cycle.add(name, period: 0.05)
+      :ok = attach(name, fifo)
+      fresh(name, :before, "before\n")
+      wire_until(reader, &String.contains?(&1, "before\n"))
+
+      {_, 0} = System.cmd("kill", ["-9", "#{Cycle.worker_os_pid()}"])
+      # the restart's own report: the new worker wrote nothing yet
+      assert %{kind: :fallback, wired: false} = applied_until(name, &(&1.cycle == 0))
+
+      assert %{kind: :fresh, wired: true} = fresh(name, :after, "after\n")
+      assert wire_until(reader, &String.contains?(&1, "after\n")) =~ ~r/^(stop\n)*after\n/
+      assert Cycle.timing()[name].wire == fifo
+    end
+
+    test "a line that went away is reported and reopened by the worker", %{
+      name: name,
+      tmp_dir: dir
+    } do
+      {fifo, reader} = fifo(dir)
+      :ok = Cycle.add(name, period: 0.02)
+      :ok = attach(name, fifo)
+      # nobody answers: the fallback bytes every cycle
+      wire_until(reader, &String.contains?(&1, "stop\n"))
+
+      ExUnit.CaptureLog.capture_log(fn ->
+        # the reader gone: writes fail (EPIPE), the worker closes the line
+        {:os_pid, os_pid} = Port.info(reader, :os_pid)
+        {_, 0} = System.cmd("kill", ["-9", "#{os_pid}"])
+
+        ThinkingCap.Testing.Cluster.wait_until(
+          fn -> Cycle.timing()[name].wire_errors >= 1 end,
+          5000
+        )
+
+        # a new reader: the worker opens the line again by itself
+        reader = cat(fifo)
+        assert wire_until(reader, &String.contains?(&1, "stop\n")) =~ "stop\n"
+      end)
+    end
+
+    test "when the BEAM side closes, the worker writes the fallback bytes on the wire", %{
+      tmp_dir: dir
+    } do
+      {fifo, reader} = fifo(dir)
+      out = Path.join(dir, "out.bin")
+      worker = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")
+
+      port =
+        Port.open({:spawn_executable, "/bin/sh"}, [
+          :binary,
+          {:packet, 4},
+          :eof,
+          args: ["-c", ~s(exec "$0" > "$1"), worker, out]
+        ])
+
+      {:os_pid, os_pid} = Port.info(port, :os_pid)
+      stop = :erlang.term_to_binary(:stop)
+      Port.command(port, <<?A, 7::16, 1_000_000_000::64, 500_000_000::64, 50, stop::binary>>)
+      Port.command(port, <<?W, 7::16, 5::16, "halt\n", fifo::binary>>)
+      Process.sleep(100)
+      Port.close(port)
+
+      assert wire_until(reader, &(&1 == "halt\n")) == "halt\n"
+      ThinkingCap.Testing.Cluster.wait_until(fn -> not File.exists?("/proc/#{os_pid}") end, 5000)
+      frames = parse_frames(File.read!(out))
+      assert <<?V, 7::16, 1, "attached ", _::binary>> = Enum.at(frames, 1)
+      assert <<?P, 7::16, _cycle::32, 1, 1, _response::64, ^stop::binary>> = List.last(frames)
+    end
+
+    test "bad wire frames are refused and the worker keeps running", %{name: name} do
+      port = :persistent_term.get({Cycle, :port})
+
+      ExUnit.CaptureLog.capture_log(fn ->
+        Port.command(port, <<?W, 1>>)
+        Port.command(port, <<?W, 0, 1, 200::16, "short">>)
+        Port.command(port, <<?W, 0, 1, 0::16, "/dev/", 0, "null">>)
+        Port.command(port, <<?D, 0, 1, 0, 0, 0, 1, 9000::16>>)
+        Port.command(port, <<?X>>)
+        Process.sleep(50)
+      end)
+
+      :ok = Cycle.add(name, period: 0.2)
+      assert %{kind: :fresh, command: :still_fine} = fresh(name, :still_fine, "x")
+    end
+  end
+
+  ## Wire helpers
+
+  # a FIFO in dir and a reader of it
+  defp fifo(dir) do
+    path = Path.join(dir, "line")
+    {_, 0} = System.cmd("mkfifo", [path])
+    {path, cat(path)}
+  end
+
+  # cat opens the FIFO read-write: never an end of file when a writer closes
+  defp cat(path) do
+    port =
+      Port.open({:spawn_executable, "/bin/sh"}, [
+        :binary,
+        :stream,
+        args: ["-c", ~s(exec cat 0<>"$0" 2>/dev/null), path]
+      ])
+
+    {:os_pid, os_pid} = Port.info(port, :os_pid)
+    on_exit(fn -> System.cmd("kill", ["-9", "#{os_pid}"], stderr_to_stdout: true) end)
+    port
+  end
+
+  # until cat has the FIFO open, opening it for writing fails (ENXIO)
+  defp attach(name, fifo, fallback \\ "stop\n") do
+    ThinkingCap.Testing.Cluster.wait_until(
+      fn -> Cycle.attach_wire(name, fifo, fallback) == :ok end,
+      5000
+    )
+  end
+
+  # answers releases until one is applied fresh
+  defp fresh(name, command, bytes), do: name |> fresh_result(command, bytes) |> elem(1)
+  defp fresh_release(name, command, bytes), do: name |> fresh_result(command, bytes) |> elem(0)
+
+  defp fresh_result(name, command, bytes) do
+    r = newest(name, release(name))
+    Cycle.result(r, command, bytes)
+
+    # the result's own report: fresh, or late (a late one says its cycle)
+    case applied_until(name, &(&1.cycle == r.cycle and &1.kind != :fallback)) do
+      %{kind: :fresh} = event -> {r, event}
+      %{kind: :late} -> fresh_result(name, command, bytes)
+    end
+  end
+
+  # releases queued up behind a slow test are stale: the newest one
+  defp newest(name, r) do
+    receive do
+      {:tc_cycle, :release, ^name, newer} -> newest(name, newer)
+    after
+      0 -> r
+    end
+  end
+
+  # the release after r
+  defp release_after(name, r) do
+    case release(name) do
+      %{cycle: c} = next when c > r.cycle -> next
+      _ -> release_after(name, r)
+    end
+  end
+
+  defp wire_until(reader, fun, acc \\ "", timeout \\ 5000) do
+    if fun.(acc) do
+      acc
+    else
+      receive do
+        {^reader, {:data, data}} -> wire_until(reader, fun, acc <> data, timeout)
+      after
+        timeout -> if timeout < 1000, do: acc, else: flunk("the wire got only #{inspect(acc)}")
+      end
+    end
   end
 
   defp parse_frames(<<len::32, frame::binary-size(len), rest::binary>>),

@@ -224,6 +224,34 @@ defmodule ThinkingCap.RuntimeTest do
     assert Runtime.whereis(n.(:plain)) == nil
   end
 
+  test "a module's wire: its :wire bytes go to the worker; a device that cannot be opened is logged and the module runs on",
+       %{tmp_dir: dir} do
+    missing = Path.join(dir, "no/such/tty")
+    module = "module: ThinkingCap.Test.Modules.Wired, activity: :periodic, period: 0.02"
+
+    {adf, _robot, n} =
+      adf(dir,
+        good: "[#{module}, params: [device: \"/dev/null\"]]",
+        bad: "[#{module}, params: [device: #{inspect(missing)}]]"
+      )
+
+    :ok = Cycle.subscribe(n.(:good))
+    :ok = Cycle.subscribe(n.(:bad))
+
+    log =
+      ExUnit.CaptureLog.capture_log(fn ->
+        assert {:ok, _} = Runtime.start(adf)
+
+        assert %{command: {:n, _}, wired: true} = applied_until(n.(:good), &(&1.kind == :fresh))
+
+        assert %{command: {:n, _}, wired: false} = applied_until(n.(:bad), &(&1.kind == :fresh))
+      end)
+
+    assert log =~ inspect(n.(:bad)) and log =~ missing and log =~ "No such file or directory"
+    assert %{wire: "/dev/null"} = Cycle.timing()[n.(:good)]
+    assert %{wire: nil} = Cycle.timing()[n.(:bad)]
+  end
+
   test "modules run on the nodes the ADF names", %{tmp_dir: dir} do
     [a, b] = nodes = Cluster.start(2, apps: [:tc_runtime])
     on_exit(fn -> Cluster.stop(nodes) end)

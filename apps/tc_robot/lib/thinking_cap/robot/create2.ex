@@ -15,7 +15,13 @@ defmodule ThinkingCap.Robot.Create2 do
     * `mode` - `:safe` (default: a cliff or wheel drop stops the motors
       and the robot reverts to Passive) or `:full` (no safety features);
     * `reconnect_every` - seconds between attempts to reopen a lost
-      line, default 0.5.
+      line, default 0.5;
+    * `wire` - who writes the motion commands on the line: `:worker` (the
+      default) hands the command path to the timing worker, which writes
+      each cycle's Drive Direct and, in the very cycle a result is late,
+      the base module dies or the BEAM goes, Drive Direct 0 0
+      (`ThinkingCap.Robot`'s `wire/1`); `:driver` writes them from
+      `drive/2`.
 
   The robot's RDF must describe a differential drive: its `wheel_radius`
   and `wheel_separation` turn commands into wheel speeds and encoder
@@ -28,7 +34,7 @@ defmodule ThinkingCap.Robot.Create2 do
   (bumps and wheel drops, distance, angle, voltage, current, charge,
   capacity, OI mode, left and right encoder counts): a frame every 15 ms,
   cut and checked by `ThinkingCap.Robot.Create2.Framing`. Motion commands
-  become Drive Direct (`wire_command/2`). `close/2` pauses the stream,
+  become Drive Direct (`encode_command/2`). `close/2` pauses the stream,
   stops the wheels and sends Stop.
 
   ## Readings
@@ -91,8 +97,9 @@ defmodule ThinkingCap.Robot.Create2 do
   Drive Direct 0 0. Anything else, or a drive that is not differential,
   is `{:error, reason}`.
   """
-  @spec wire_command(ThinkingCap.Robot.command(), Description.t()) :: binary() | {:error, term()}
-  def wire_command(command, %Description{kinematics: %Kinematics.Differential{} = k}) do
+  @spec encode_command(ThinkingCap.Robot.command(), Description.t()) ::
+          binary() | {:error, term()}
+  def encode_command(command, %Description{kinematics: %Kinematics.Differential{} = k}) do
     case command do
       :stop ->
         Protocol.drive_direct(0, 0)
@@ -109,7 +116,7 @@ defmodule ThinkingCap.Robot.Create2 do
     end
   end
 
-  def wire_command(_command, %Description{}), do: {:error, :not_differential}
+  def encode_command(_command, %Description{}), do: {:error, :not_differential}
 
   defp wheels(l, r, k) do
     left = l * k.wheel_radius * 1000
@@ -134,6 +141,7 @@ defmodule ThinkingCap.Robot.Create2 do
         device: device,
         speed: Keyword.get(params, :speed, 115_200),
         mode: mode,
+        wire: Keyword.get(params, :wire, :worker),
         reconnect_ms: round(Keyword.get(params, :reconnect_every, 0.5) * 1000),
         names: sensor_names(description),
         uart: nil,
@@ -186,11 +194,33 @@ defmodule ThinkingCap.Robot.Create2 do
     %{odometry: named.(:odometry, :odometry), bumper: named.(:bumper, :bumper)}
   end
 
+  # The timing worker owns the command path (param `wire: :worker`, the
+  # default): it writes each cycle's Drive Direct itself, and Drive Direct
+  # 0 0 in the very cycle a result is late, the base module dies or the
+  # BEAM goes. `wire: :driver` leaves the writing to drive/2.
+  @impl true
+  def wire(%{wire: :worker} = state), do: {state.device, Protocol.drive_direct(0, 0)}
+  def wire(_state), do: nil
+
+  @impl true
+  def wire_command(command, state) do
+    case encode_command(command, state.description) do
+      {:error, _reason} ->
+        Protocol.drive_direct(0, 0)
+
+      bytes ->
+        # back from Passive (a wheel drop in Safe mode) with a new command
+        if state.oi_mode == :passive and command != :stop and not state.wheel_drop,
+          do: [Protocol.mode(state.mode), bytes],
+          else: bytes
+    end
+  end
+
   @impl true
   def drive(command, %{connected: false} = state), do: {:ok, %{state | command: command}}
 
   def drive(command, state) do
-    case wire_command(command, state.description) do
+    case encode_command(command, state.description) do
       {:error, reason} ->
         {:error, reason, state}
 
@@ -222,7 +252,7 @@ defmodule ThinkingCap.Robot.Create2 do
     case connect(state) do
       {:ok, state} ->
         Logger.info("#{inspect(state.robot)}: Create 2 back on #{state.device}")
-        write(state, wire_command(state.command, state.description))
+        write(state, encode_command(state.command, state.description))
         link(state, true)
 
       {:error, _reason, state} ->

@@ -14,6 +14,14 @@ defmodule ThinkingCap.Testing.Robot do
   published like a real robot's. Param `refuse: [command kinds]` makes it
   answer `{:error, :refused}` to those kinds (`:velocity`, `:wheels`, ...)
   to test what happens when hardware refuses a command.
+
+  Param `wire: path` hands the command path to the timing worker (see
+  `ThinkingCap.Robot`): the test robot opens no line itself; the worker
+  writes each applied command to `path` as `"\#{inspect(command)}\\n"`
+  (`:stop` as `"stop\\n"`) and `"stop\\n"` whenever it applies the
+  fallback, so a test reads the line (a pty made with
+  `ThinkingCap.Robot.UART.open_pty/2`). Commands the worker put on the
+  line do not reach `drive/2`: they are not published as `:driven`.
   """
   use ThinkingCap.Robot
 
@@ -33,9 +41,18 @@ defmodule ThinkingCap.Testing.Robot do
        robot: context.robot,
        description: description,
        refuse: Keyword.get(context.params, :refuse, []),
+       wire: Keyword.get(context.params, :wire),
        count: 0
      }}
   end
+
+  @impl true
+  def wire(%{wire: nil}), do: nil
+  def wire(%{wire: path}), do: {path, "stop\n"}
+
+  @impl true
+  def wire_command(:stop, _state), do: "stop\n"
+  def wire_command(command, _state), do: "#{inspect(command)}\n"
 
   @impl true
   def drive(command, state) do

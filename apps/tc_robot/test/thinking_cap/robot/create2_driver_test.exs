@@ -13,35 +13,35 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
 
   defp wheels(<<145, right::16-signed, left::16-signed>>), do: {left, right}
 
-  describe "wire_command/2" do
+  describe "encode_command/2" do
     test "velocities through the RDF's kinematics, in mm/s a wheel", %{description: d} do
-      assert Create2.wire_command({:velocity, 0.2, 0.0}, d) == Protocol.drive_direct(200, 200)
-      assert wheels(Create2.wire_command({:velocity, -0.1, 0.0}, d)) == {-100, -100}
+      assert Create2.encode_command({:velocity, 0.2, 0.0}, d) == Protocol.drive_direct(200, 200)
+      assert wheels(Create2.encode_command({:velocity, -0.1, 0.0}, d)) == {-100, -100}
       # turning in place: omega * b / 2 = 117.5 mm/s
-      assert wheels(Create2.wire_command({:velocity, 0.0, 1.0}, d)) == {-118, 118}
+      assert wheels(Create2.encode_command({:velocity, 0.0, 1.0}, d)) == {-118, 118}
       # an arc to the left: the right wheel faster
-      {l, r} = wheels(Create2.wire_command({:velocity, 0.2, 0.5}, d))
+      {l, r} = wheels(Create2.encode_command({:velocity, 0.2, 0.5}, d))
       assert_in_delta l, 200 - 58.75, 1
       assert_in_delta r, 200 + 58.75, 1
     end
 
     test "wheel speeds in rad/s times the wheel radius", %{description: d} do
       # 5 rad/s * 36 mm = 180 mm/s
-      assert wheels(Create2.wire_command({:wheels, 5.0, -2.5}, d)) == {180, -90}
+      assert wheels(Create2.encode_command({:wheels, 5.0, -2.5}, d)) == {180, -90}
     end
 
     test "too fast: both wheels scaled down together, the curvature kept", %{description: d} do
-      {l, r} = wheels(Create2.wire_command({:velocity, 0.5, 2.0}, d))
+      {l, r} = wheels(Create2.encode_command({:velocity, 0.5, 2.0}, d))
       assert r == 500
       # unscaled: 265 and 735 mm/s
       assert_in_delta l / r, 265 / 735, 0.01
-      assert wheels(Create2.wire_command({:wheels, 100.0, 100.0}, d)) == {500, 500}
+      assert wheels(Create2.encode_command({:wheels, 100.0, 100.0}, d)) == {500, 500}
     end
 
     test ":stop is Drive Direct 0 0; other commands and drives are refused", %{description: d} do
-      assert Create2.wire_command(:stop, d) == <<145, 0, 0, 0, 0>>
-      assert {:error, _} = Create2.wire_command({:steer, 0.2, 0.1}, d)
-      assert {:error, _} = Create2.wire_command(:fly, d)
+      assert Create2.encode_command(:stop, d) == <<145, 0, 0, 0, 0>>
+      assert {:error, _} = Create2.encode_command({:steer, 0.2, 0.1}, d)
+      assert {:error, _} = Create2.encode_command(:fly, d)
 
       car = %{
         d
@@ -49,7 +49,7 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
             ThinkingCap.Robot.Kinematics.new(type: :tricycle, wheelbase: 0.5, max_steering: 1.0)
       }
 
-      assert {:error, :not_differential} = Create2.wire_command(:stop, car)
+      assert {:error, :not_differential} = Create2.encode_command(:stop, car)
     end
   end
 

@@ -77,8 +77,9 @@ defmodule ThinkingCap.Runtime.Host do
     {actions, mstate} =
       normalize(state.module.handle_cycle(release, state.mstate), state.module, :handle_cycle)
 
-    {command, actions} = take_command(actions)
-    Cycle.result(release, command)
+    {command, actions} = take_last(actions, :command)
+    {wire, actions} = take_last(actions, :wire)
+    if wire, do: Cycle.result(release, command, wire), else: Cycle.result(release, command)
 
     Cycle.record_cpu(
       release,
@@ -188,11 +189,32 @@ defmodule ThinkingCap.Runtime.Host do
           "#{inspect(module)}.#{callback} must return {actions, state} (or {:ok, state} from init), got: #{inspect(other, limit: 10)}"
   end
 
-  defp take_command(actions) do
-    case Enum.split_with(actions, &match?({:command, _}, &1)) do
+  # the last {key, value} action of handle_cycle (nil without one), and the others
+  defp take_last(actions, key) do
+    case Enum.split_with(actions, &match?({^key, _}, &1)) do
       {[], rest} -> {nil, rest}
-      {commands, rest} -> {commands |> List.last() |> elem(1), rest}
+      {taken, rest} -> {taken |> List.last() |> elem(1), rest}
     end
+  end
+
+  # the module keeps running without a wire when its device cannot be opened
+  defp attach_wire(%{spec: %{activity: :periodic, name: name}}, device, fallback) do
+    case Cycle.attach_wire(name, device, fallback) do
+      :ok ->
+        :ok
+
+      {:error, message} ->
+        Logger.error(
+          "#{inspect(name)}: the timing worker cannot own the command path of " <>
+            "#{inspect(device)}: #{message}; the module's commands are not on that line"
+        )
+    end
+  end
+
+  defp attach_wire(state, device, _fallback) do
+    Logger.error(
+      "#{inspect(state.spec.name)}: an :attach_wire action (#{inspect(device)}) needs a periodic activity"
+    )
   end
 
   defp run([], state), do: state
@@ -208,10 +230,16 @@ defmodule ThinkingCap.Runtime.Host do
       {:subscribe, template} ->
         {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
 
-      {:command, _} ->
+      {kind, _} when kind in [:command, :wire] ->
         Logger.warning(
-          "#{inspect(state.spec.name)}: a :command action only counts in handle_cycle/2"
+          "#{inspect(state.spec.name)}: a #{inspect(kind)} action only counts in handle_cycle/2"
         )
+
+      {:attach_wire, device, fallback} ->
+        attach_wire(state, device, fallback)
+
+      {:detach_wire} ->
+        if state.spec.activity == :periodic, do: :ok = Cycle.detach_wire(state.spec.name)
 
       other ->
         raise ArgumentError,

@@ -23,7 +23,9 @@ defmodule ThinkingCap.Testing.Lockstep do
   written (`:out` actions) is kept as the latest of its `key:` (or of its
   tag and robot), delivered to the subscribers of matching templates, and
   remembered in `outs/1` until `clear_outs/1`. The `:command` of a cycle is
-  handed back to the module as applied (`handle_applied/2`, `:fresh`).
+  handed back to the module as applied (`handle_applied/2`, `:fresh`,
+  `wired: false`: there is no timing worker to own a wire, so
+  `:attach_wire` actions do nothing and the module drives its device).
   """
 
   alias ThinkingCap.Blackboard.Template
@@ -106,7 +108,7 @@ defmodule ThinkingCap.Testing.Lockstep do
 
       {:command, command} ->
         %{module: m, state: s} = lock.modules[name]
-        applied = %{cycle: n, kind: :fresh, command: command, response_us: 0.0}
+        applied = %{cycle: n, kind: :fresh, command: command, wired: false, response_us: 0.0}
         {actions, s} = normalize(m.handle_applied(applied, s))
         lock |> put_state(name, s) |> run(name, actions)
     end
@@ -148,7 +150,14 @@ defmodule ThinkingCap.Testing.Lockstep do
         {:subscribe, template} ->
           %{lock | subs: lock.subs ++ [{name, Template.compile(template)}]}
 
-        {:command, _} ->
+        # no timing worker here: a wire is not attached, its bytes go nowhere
+        {kind, _} when kind in [:command, :wire] ->
+          lock
+
+        {:attach_wire, _device, _fallback} ->
+          lock
+
+        {:detach_wire} ->
           lock
       end
 

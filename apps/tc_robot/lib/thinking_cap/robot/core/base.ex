@@ -24,6 +24,8 @@ defmodule ThinkingCap.Robot.Core.Base do
 
     case driver.open(description, context) do
       {:ok, dstate} ->
+        wire = wire(driver, dstate)
+
         state = %{
           driver: driver,
           dstate: dstate,
@@ -38,22 +40,49 @@ defmodule ThinkingCap.Robot.Core.Base do
           estop: estop_latched?(context.robot),
           mode: :idle,
           applied: nil,
-          published: nil
+          published: nil,
+          # the timing worker owns the command path: wire_command/2 every cycle
+          wire: wire != nil
         }
 
         capabilities =
           {{:robot, context.robot, Robot.capabilities(description)},
            [key: {:robot, context.robot}]}
 
+        attach = if wire, do: [{:attach_wire, elem(wire, 0), elem(wire, 1)}], else: []
+
         {[
            out: capabilities,
            subscribe: {:drive, context.robot, :_},
            subscribe: {:teleop, context.robot, :_},
            subscribe: {:estop, context.robot, :_}
-         ], state}
+         ] ++ attach, state}
 
       {:error, reason} ->
         raise ArgumentError, "#{inspect(driver)} could not open the robot: #{inspect(reason)}"
+    end
+  end
+
+  # the driver's wire/1, once, after open/2
+  defp wire(driver, dstate) do
+    if function_exported?(driver, :wire, 1) do
+      case driver.wire(dstate) do
+        nil ->
+          nil
+
+        {device, fallback} ->
+          unless function_exported?(driver, :wire_command, 2) do
+            raise ArgumentError,
+                  "#{inspect(driver)}: wire/1 names a device but there is no wire_command/2"
+          end
+
+          {device, fallback}
+
+        other ->
+          raise ArgumentError,
+                "#{inspect(driver)}.wire/1 must return {device, fallback_iodata} or nil, " <>
+                  "got #{inspect(other, limit: 5)}"
+      end
     end
   end
 
@@ -65,7 +94,9 @@ defmodule ThinkingCap.Robot.Core.Base do
 
     {mode, command} = arbitrate(state, System.monotonic_time())
 
-    {[{:command, command} | publish(readings, state.robot)],
+    wire = if state.wire, do: [wire: state.driver.wire_command(command, dstate)], else: []
+
+    {[{:command, command} | wire] ++ publish(readings, state.robot),
      %{state | dstate: dstate, mode: mode}}
   end
 
@@ -130,6 +161,10 @@ defmodule ThinkingCap.Robot.Core.Base do
   # fresh or fallback, this is what the robot does now; a late result was
   # replaced by its fallback already
   def handle_applied(%{kind: :late}, state), do: {[], state}
+
+  # the timing worker put it on the line already: not driven again
+  def handle_applied(%{command: command, wired: true}, state),
+    do: announce(%{state | applied: command || :stop})
 
   def handle_applied(%{command: command}, state) do
     command = command || :stop
