@@ -251,6 +251,27 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
     assert Runtime.whereis(base) == pid
   end
 
+  test "the timing worker owns the line: a killed base module's robot gets Drive Direct 0 0 at once",
+       %{emu: emu} = ctx do
+    {robot, base} = start_create2(ctx)
+    drive(robot, {:velocity, 0.2, 0.0})
+    eventually(fn -> assert %{left: 200, right: 200} = Emulator.state(emu) end)
+
+    # every cycle's Drive Direct goes on the line, written by the worker
+    before = length(Emulator.commands(emu))
+    Process.sleep(100)
+    assert length(Emulator.commands(emu)) - before >= 5
+
+    killed_at = System.monotonic_time()
+    Process.exit(Runtime.whereis(base), :kill)
+
+    # the first command after the kill is the stop the worker wrote
+    eventually(fn ->
+      assert [%{command: {:drive_direct, 0, 0}} | _] =
+               Enum.filter(Emulator.commands(emu), &(&1.at > killed_at))
+    end)
+  end
+
   test "the same ADF with the test robot runs without hardware", %{dir: dir} do
     {robot, _base} = start(dir, ThinkingCap.Testing.Robot, command_timeout: 30.0)
 
