@@ -95,6 +95,16 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
   end
 
   @doc false
+  # a client may speak before the socket process has read its own "open"
+  # message: open first, so the handler has set up what the text needs
+  def handle_message({:text, _text} = message, %{open: false} = state) do
+    case handle_info(:"$tc_socket_open", state) do
+      {:reply, frames, state} -> merge(frames, handle_message(message, state))
+      {:noreply, state} -> handle_message(message, state)
+      closed -> closed
+    end
+  end
+
   def handle_message({:text, text}, state) do
     case RateBudget.admit(state.budget, now()) do
       {:ok, budget} ->
@@ -124,7 +134,13 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
 
   def handle_message(_other, state), do: {:noreply, state}
 
+  defp merge(frames, {:reply, more, state}), do: {:reply, frames ++ more, state}
+  defp merge(frames, {:noreply, state}), do: {:reply, frames, state}
+  defp merge(_frames, closed), do: closed
+
   @doc false
+  def handle_info(:"$tc_socket_open", %{open: true} = state), do: {:noreply, state}
+
   def handle_info(:"$tc_socket_open", state) do
     state = %{state | open: true}
 
