@@ -29,6 +29,11 @@ defmodule ThinkingCap.Runtime.SchedulingTest do
     end
   end
 
+  test "programs the BEAM starts (port programs, peer nodes) do not inherit real-time priority" do
+    {out, 0} = System.cmd("sh", ["-c", "chrt -p $$"])
+    assert out =~ "SCHED_OTHER", out
+  end
+
   test "nice and realtime switch the policy both ways" do
     if @root do
       assert {:ok, _} = Scheduling.nice(-10)

@@ -31,7 +31,12 @@ defmodule ThinkingCap.Runtime.Scheduling do
     * so does `erl_child_setup`, the BEAM's helper process that reports
       how port programs exit: when the timing worker dies, the robot is
       stopped as soon as the BEAM hears of it, and under load a helper at
-      normal priority made that take 10-60 ms instead of a few;
+      normal priority made that take 10-60 ms instead of a few. It is
+      set with `SCHED_RESET_ON_FORK`: the programs it starts (the timing
+      worker, serial ports, peer nodes, browsers) begin at normal
+      priority. Without it a peer node ran entirely at `SCHED_FIFO`,
+      internal threads included, and after a node of its cluster was
+      killed its schedulers spun on both cores, starving the machine;
     * dirty schedulers (long NIFs, file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
@@ -73,7 +78,10 @@ defmodule ThinkingCap.Runtime.Scheduling do
     |> tap(fn
       {:ok, _} ->
         for pid <- child_setup(),
-            do: System.cmd("chrt", ["-f", "-p", "#{priority + 1}", pid], stderr_to_stdout: true)
+            do:
+              System.cmd("chrt", ["-f", "-R", "-p", "#{priority + 1}", pid],
+                stderr_to_stdout: true
+              )
 
       _ ->
         :ok

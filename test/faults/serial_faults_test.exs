@@ -1,0 +1,65 @@
+defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
+  # A real robot's view: a Create 2 (the emulator, on a pty) driven by a
+  # peer node whose timing worker owns the serial command path. The node
+  # dies as a power loss or a crash would; the wheels must stop.
+  use ExUnit.Case, async: false
+
+  alias ThinkingCap.{Blackboard, Runtime}
+  alias ThinkingCap.FaultSuite.Tally
+  alias ThinkingCap.Testing.{Cluster, Create2Emulator}
+
+  @moduletag :faults
+  @moduletag :tmp_dir
+
+  @rdf Path.expand("../../priv/examples/create2.rdf", __DIR__)
+
+  test "the node driving a Create 2 dies: its timing worker puts the stop on the wire at once",
+       %{tmp_dir: dir} do
+    link = Path.join(dir, "create2")
+    emu = start_supervised!({Create2Emulator, link: link})
+
+    robot = :"s#{System.unique_integer([:positive])}"
+    adf = Path.join(dir, "#{robot}.adf")
+
+    File.write!(adf, """
+    [
+      robot: :#{robot},
+      rdf: #{inspect(@rdf)},
+      modules: [
+        base: [module: ThinkingCap.Robot.Create2, activity: :periodic, period: 0.01,
+               deadline: 0.003, fallback: :stop,
+               params: [device: #{inspect(link)}, command_timeout: 30.0]]
+      ]
+    ]
+    """)
+
+    [node] = Cluster.start(1, apps: [:tc_robot])
+    on_exit(fn -> Cluster.stop(node) end)
+    assert {:ok, _} = Cluster.call(node, Runtime, :start, [adf])
+
+    command = {:drive, robot, %{command: {:velocity, 0.2, 0.0}}}
+    :ok = Cluster.call(node, Blackboard, :out, [command, [key: {:drive, robot}]])
+    Cluster.wait_until(fn -> match?(%{left: 200, right: 200}, Create2Emulator.state(emu)) end)
+    Process.sleep(200)
+
+    killed_at = System.monotonic_time()
+    Tally.injected()
+    Cluster.kill(node)
+
+    Cluster.wait_until(fn -> match?(%{left: 0, right: 0}, Create2Emulator.state(emu)) end)
+
+    # on the wire: the last moving command before the stop, and the stop
+    commands = Create2Emulator.commands(emu)
+    {moving, rest} = Enum.split_while(commands, &(&1.command != {:drive_direct, 0, 0}))
+    [stop | _] = rest
+    last_moving = List.last(moving)
+    assert last_moving.command == {:drive_direct, 200, 200}
+    assert stop.at >= killed_at or last_moving.at >= killed_at
+
+    uncommanded = System.convert_time_unit(stop.at - last_moving.at, :native, :microsecond) / 1000
+    Tally.uncommanded(uncommanded)
+    # a period, and the moment the worker takes to see its BEAM gone
+    assert uncommanded <= 13
+    Tally.survived()
+  end
+end
