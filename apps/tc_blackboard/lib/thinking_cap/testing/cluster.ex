@@ -74,10 +74,15 @@ defmodule ThinkingCap.Testing.Cluster do
     level = opts |> Keyword.get(:log_level, :warning) |> Atom.to_charlist()
 
     # no busy-waiting: the runtime may run schedulers at real-time priority
+    # peers leave their schedulers at normal priority (the runtime
+    # would put them at SCHED_FIFO): on a 2-core machine a peer's
+    # scheduler was seen spinning at real-time priority after another
+    # node of its cluster was killed, starving the whole machine
     args =
       [~c"-setcookie", Atom.to_charlist(cookie), ~c"-kernel", ~c"dist_auto_connect", ~c"once"] ++
         [~c"+sbwt", ~c"none", ~c"+sbwtdcpu", ~c"none", ~c"+sbwtdio", ~c"none"] ++
-        [~c"-logger", ~c"level", level, ~c"-pa" | :code.get_path()]
+        [~c"-logger", ~c"level", level] ++
+        [~c"-tc_runtime", ~c"beam_priority", ~c"nil", ~c"-pa" | :code.get_path()]
 
     spec = %{name: name, host: ~c"127.0.0.1", longnames: true, args: args}
     # Without a :connection the peer is controlled over distribution.

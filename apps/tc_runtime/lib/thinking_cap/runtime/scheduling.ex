@@ -28,15 +28,6 @@ defmodule ThinkingCap.Runtime.Scheduling do
       trip took up to 420 ms while two Erlang processes kept both
       schedulers busy, and the control cycle missed most deadlines in a
       tuple flood;
-    * so does `erl_child_setup`, the BEAM's helper process that reports
-      how port programs exit: when the timing worker dies, the robot is
-      stopped as soon as the BEAM hears of it, and under load a helper at
-      normal priority made that take 10-60 ms instead of a few. It is
-      set with `SCHED_RESET_ON_FORK`: the programs it starts (the timing
-      worker, serial ports, peer nodes, browsers) begin at normal
-      priority. Without it a peer node ran entirely at `SCHED_FIFO`,
-      internal threads included, and after a node of its cluster was
-      killed its schedulers spun on both cores, starving the machine;
     * dirty schedulers (long NIFs, file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
@@ -62,7 +53,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
 
   @doc """
   Puts the BEAM's scheduler threads at `SCHED_FIFO` `priority`, and its
-  I/O poller thread and `erl_child_setup` helper one above: threads of
+  I/O poller thread one above: threads of
   one `SCHED_FIFO` priority never preempt each other, so a poller at the
   schedulers' priority waits, on a machine with as many cores as
   schedulers, until a scheduler runs out of work; port data (the timing
@@ -75,28 +66,6 @@ defmodule ThinkingCap.Runtime.Scheduling do
       prio = if String.ends_with?(comm(tid), "_poller"), do: priority + 1, else: priority
       System.cmd("chrt", ["-f", "-p", "#{prio}", tid], stderr_to_stdout: true)
     end)
-    |> tap(fn
-      {:ok, _} ->
-        for pid <- child_setup(),
-            do:
-              System.cmd("chrt", ["-f", "-R", "-p", "#{priority + 1}", pid],
-                stderr_to_stdout: true
-              )
-
-      _ ->
-        :ok
-    end)
-  end
-
-  # the BEAM's erl_child_setup process (a child of the VM's OS process)
-  defp child_setup do
-    me = System.pid()
-
-    for dir <- Path.wildcard("/proc/[0-9]*"),
-        {:ok, stat} <- [File.read(Path.join(dir, "stat"))],
-        [_, "erl_child_setup", rest] <- [Regex.run(~r/^\d+ \((.*)\) (.*)$/s, stat)],
-        [_state, ^me | _] <- [String.split(rest, " ")],
-        do: Path.basename(dir)
   end
 
   @doc "Sets the nice value of the BEAM's scheduler and poller threads (back to `SCHED_OTHER`)."
