@@ -31,6 +31,7 @@ defmodule ThinkingCap.Robot.MixProject do
       elixir: "~> 1.14",
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
+      elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       compilers: [:tc_uart | Mix.compilers()],
       deps: [{:tc_runtime, in_umbrella: true}]
     ]

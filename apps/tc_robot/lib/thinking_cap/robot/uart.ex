@@ -212,38 +212,13 @@ defmodule ThinkingCap.Robot.UART do
   def handle_call({:open, _path, _opts}, _from, %{line: line} = state) when line != nil,
     do: {:reply, {:error, :ealready}, state}
 
-  def handle_call({:open, path, opts}, {pid, _} = from, state) do
-    with {:ok, config} <- Options.validate(opts, Options.defaults(), state.speeds),
-         {:ok, framing} <- init_framing(config.framing) do
-      command(state, <<?O, Options.encode(config)::binary, path::binary>>, from, {
-        :open,
-        path,
-        config,
-        framing,
-        pid
-      })
-    else
-      error -> {:reply, error, state}
-    end
-  end
+  def handle_call({:open, path, opts}, from, state),
+    do: open_line(state, <<?O>>, path, opts, from)
 
   def handle_call({:open_pty, _opts}, _from, %{line: line} = state) when line != nil,
     do: {:reply, {:error, :ealready}, state}
 
-  def handle_call({:open_pty, opts}, {pid, _} = from, state) do
-    with {:ok, config} <- Options.validate(opts, Options.defaults(), state.speeds),
-         {:ok, framing} <- init_framing(config.framing) do
-      command(state, <<?P, Options.encode(config)::binary>>, from, {
-        :open,
-        nil,
-        config,
-        framing,
-        pid
-      })
-    else
-      error -> {:reply, error, state}
-    end
-  end
+  def handle_call({:open_pty, opts}, from, state), do: open_line(state, <<?P>>, nil, opts, from)
 
   def handle_call(request, _from, %{line: nil} = state)
       when request in [:settings, :drain] or
@@ -525,6 +500,22 @@ defmodule ThinkingCap.Robot.UART do
   end
 
   ## Helpers
+
+  # an open (a device path) or open_pty (a new pty pair: path nil) command
+  defp open_line(state, op, path, opts, {pid, _} = from) do
+    with {:ok, config} <- Options.validate(opts, Options.defaults(), state.speeds),
+         {:ok, framing} <- init_framing(config.framing) do
+      command(state, op <> Options.encode(config) <> (path || ""), from, {
+        :open,
+        path,
+        config,
+        framing,
+        pid
+      })
+    else
+      error -> {:reply, error, state}
+    end
+  end
 
   defp init_framing({module, args}) do
     case module.init(args) do

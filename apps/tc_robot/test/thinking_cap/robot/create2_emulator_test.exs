@@ -2,6 +2,8 @@ defmodule ThinkingCap.Robot.Create2EmulatorTest do
   # ptys and timers: not beside other tests
   use ExUnit.Case, async: false
 
+  import ThinkingCap.Robot.Test.Eventually
+
   alias ThinkingCap.Robot.UART
   alias ThinkingCap.Robot.Create2.{Framing, Protocol}
   alias ThinkingCap.Testing.Create2Emulator, as: Emulator
@@ -21,20 +23,6 @@ defmodule ThinkingCap.Robot.Create2EmulatorTest do
     opts = [speed: 115_200, active: true]
     opts = if framing, do: Keyword.put(opts, :framing, framing), else: opts
     assert :ok = UART.open(uart, link, opts)
-  end
-
-  defp eventually(fun, timeout \\ 5000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
-    retry(fun, deadline)
-  end
-
-  defp retry(fun, deadline) do
-    fun.()
-  rescue
-    e in [ExUnit.AssertionError, MatchError] ->
-      if System.monotonic_time(:millisecond) > deadline, do: reraise(e, __STACKTRACE__)
-      Process.sleep(20)
-      retry(fun, deadline)
   end
 
   # the next valid stream frame's packets

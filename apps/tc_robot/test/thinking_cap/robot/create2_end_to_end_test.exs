@@ -4,6 +4,8 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
   # other tests.
   use ExUnit.Case, async: false
 
+  import ThinkingCap.Robot.Test.Eventually
+
   alias ThinkingCap.{Blackboard, Config, Runtime}
   alias ThinkingCap.Testing.Create2Emulator, as: Emulator
 
@@ -62,20 +64,6 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
       {:ok, {^tag, ^robot, payload}} -> payload
       _ -> nil
     end
-  end
-
-  defp eventually(fun, timeout \\ 5000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
-    retry(fun, deadline)
-  end
-
-  defp retry(fun, deadline) do
-    fun.()
-  rescue
-    e in [ExUnit.AssertionError, MatchError] ->
-      if System.monotonic_time(:millisecond) > deadline, do: reraise(e, __STACKTRACE__)
-      Process.sleep(20)
-      retry(fun, deadline)
   end
 
   # stops the robot, then the odometry on the blackboard must be where the
