@@ -119,6 +119,20 @@ defmodule ThinkingCap.Blackboard.Template do
   end
 
   @doc """
+  The matcher left to run on a tuple found under the template's index: the
+  index already holds the arity and the elements it names (a hash lookup
+  compares keys exactly), so those positions are not compared again.
+  """
+  @spec residual_matcher(compiled()) :: matcher()
+  def residual_matcher(%__MODULE__{index: {:stream, _, _, _}, matcher: {:positions, n, bound}}),
+    do: {:positions, n, Enum.reject(bound, fn {pos, _} -> pos <= 2 end)}
+
+  def residual_matcher(%__MODULE__{index: {:tag, _, _}, matcher: {:positions, n, bound}}),
+    do: {:positions, n, Enum.reject(bound, fn {pos, _} -> pos == 1 end)}
+
+  def residual_matcher(%__MODULE__{matcher: matcher}), do: matcher
+
+  @doc """
   The indexes under which templates that bind a tuple's first elements are
   found: its stream `{:stream, arity, first, second}` and its tag
   `{:tag, arity, first}` (as far as its arity allows). Templates indexed

@@ -11,6 +11,24 @@ defmodule ThinkingCap.Blackboard.SubscriptionTest do
     refute_received {:blackboard, ^ref, _}
   end
 
+  test "positions past the indexed ones still select", %{id: id} do
+    {:ok, stream} = Blackboard.subscribe({:pose, id, :_, :fine})
+    {:ok, tag} = Blackboard.subscribe({:pose, :_, 2, :_})
+    {:ok, exact} = Blackboard.subscribe({:pose, id, 1.0, :fine})
+
+    Blackboard.out({:pose, id, 1, :coarse})
+    Blackboard.out({:pose, id, 1, :fine})
+    Blackboard.out({:pose, id, 2, :fine})
+
+    assert_receive {:blackboard, ^stream, {:pose, ^id, 1, :fine}}
+    assert_receive {:blackboard, ^stream, {:pose, ^id, 2, :fine}}
+    assert_receive {:blackboard, ^tag, {:pose, ^id, 2, :fine}}
+    refute_received {:blackboard, ^stream, {:pose, ^id, 1, :coarse}}
+    refute_received {:blackboard, ^tag, {:pose, ^id, 1, _}}
+    # positions compare exactly: 1 is not 1.0
+    refute_received {:blackboard, ^exact, _}
+  end
+
   test "tuples written before subscribing are not delivered", %{id: id} do
     Blackboard.out({:early, id})
     {:ok, ref} = Blackboard.subscribe({:early, id})

@@ -19,7 +19,11 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
     # [sends, overflowing]: see send_bounded/6
     sent = :atomics.new(2, signed: false)
-    row = {template.index, ref, pid, template.matcher, max_queue, on_overflow, sent}
+
+    row =
+      {template.index, ref, pid, Template.residual_matcher(template), max_queue, on_overflow,
+       sent}
+
     :ets.insert(Tables.subs(), row)
 
     count(template.index, 1)
