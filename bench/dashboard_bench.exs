@@ -1,6 +1,6 @@
 defmodule ThinkingCap.Bench.Dashboard do
   @moduledoc """
-  `mix tc.bench dashboard [--seconds S] [--presses N] [--robots R] [--browsers B]`:
+  `mix tc.bench dashboard [--seconds S] [--presses N] [--robots R] [--browsers B] [--profile]`:
   the web dashboard in real browsers (Debian's chromium through npm
   playwright-core, `apps/tc_dashboard/test/support/js/driver.mjs`), on
   loopback, with R simulated robots (default 10) in the office world, each
@@ -21,7 +21,12 @@ defmodule ThinkingCap.Bench.Dashboard do
     * **Frames per second**: B pages (default 10), each its own browser
       context in one chromium, each watching all R robots; the telemetry
       frames each page received over S seconds (default 10), per page, as
-      the page counts them (`window.tc.frames`). The server sends at most 25.
+      the page counts them (`window.tc.frames`). The server sends at most 25,
+      and holds back while a page has 5 frames unacknowledged, so these are
+      frames the pages kept up with; the age of each page's latest frame
+      shows how far behind the robots the pages are. `--profile` prints
+      where one page's time goes (the renderer's trace events and the
+      JavaScript functions, through the Chrome DevTools Protocol).
     * **CPU**: the BEAM's own CPU time (utime + stime of the VM, from
       /proc) over S seconds in three states: the robots without the
       dashboard (baseline), with the dashboard and no browser, and with
@@ -48,7 +53,13 @@ defmodule ThinkingCap.Bench.Dashboard do
   def run(args) do
     {opts, _, _} =
       OptionParser.parse(args,
-        strict: [seconds: :float, presses: :integer, robots: :integer, browsers: :integer]
+        strict: [
+          seconds: :float,
+          presses: :integer,
+          robots: :integer,
+          browsers: :integer,
+          profile: :boolean
+        ]
       )
 
     seconds = opts[:seconds] || 10.0
@@ -131,6 +142,11 @@ defmodule ThinkingCap.Bench.Dashboard do
       end
 
     fps = for {{f0, t0}, {f1, t1}} <- Enum.zip(before, after_), do: (f1 - f0) / ((t1 - t0) / 1000)
+
+    {:ok, frame_bytes} =
+      Browser.eval(browser, "JSON.stringify(tc.lastTelemetry).length", page: "p1")
+
+    if opts[:profile], do: profile_page(browser, "p1")
 
     IO.puts("  cpu, dashboard, #{n_browsers} browsers:  #{pct(loaded, 1)} of one core")
 
@@ -349,6 +365,17 @@ defmodule ThinkingCap.Bench.Dashboard do
 
   defp mean([]), do: 0.0
   defp mean(xs), do: Enum.sum(xs) / length(xs)
+
+  defp profile_page(browser, page) do
+    {:ok, trace} =
+      Browser.command(browser, %{cmd: "trace", page: page, ms: 3000, top: 15}, 20_000)
+
+    {:ok, js} = Browser.command(browser, %{cmd: "profile", page: page, ms: 3000, top: 15}, 20_000)
+    IO.puts("  #{page}, trace events over 3 s (ms, every renderer thread):")
+    for [name, ms] <- trace, do: IO.puts("    #{String.pad_trailing(name, 60)} #{ms}")
+    IO.puts("  #{page}, JavaScript self time over 3 s (ms of #{js["total_ms"]} sampled):")
+    for [name, ms] <- js["by"], do: IO.puts("    #{String.pad_trailing(name, 60)} #{ms}")
+  end
 
   defp fmt(x, digits \\ 2)
   defp fmt(nil, _), do: "-"

@@ -32,7 +32,7 @@ export class MapView {
    */
   constructor(canvas, store, { onGoal, onSelect, onCursor } = {}) {
     this.canvas = canvas;
-    this.ctx = canvas.getContext('2d');
+    this.ctx = canvas.getContext('2d', { alpha: false });
     this.store = store;
     this.onGoal = onGoal;
     this.onSelect = onSelect;
@@ -46,7 +46,7 @@ export class MapView {
     this.follow = false;
     this.goalMode = true;
     this.layers = Object.fromEntries(Object.keys(LAYERS).map((k) => [k, true]));
-    this.dirty = true;
+    this.dirty = false;
     this.renders = 0;
     this.renderFps = 0;
     this._renderTimes = [];
@@ -67,15 +67,17 @@ export class MapView {
     });
     store.on('telemetry', () => this.invalidate());
     store.on('select', () => this.invalidate());
-    const loop = () => {
-      if (this.dirty) this.draw();
-      requestAnimationFrame(loop);
-    };
-    requestAnimationFrame(loop);
   }
 
+  // Asks for one draw in the next animation frame. No frame is requested
+  // while nothing changed: an idle page costs the browser nothing.
   invalidate() {
+    if (this.dirty) return;
     this.dirty = true;
+    requestAnimationFrame(() => {
+      this.dirty = false;
+      this.draw();
+    });
   }
 
   // ---- view ----------------------------------------------------------------

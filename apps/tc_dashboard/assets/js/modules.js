@@ -42,17 +42,31 @@ export class ModulesPanel {
     this._renderModules();
     this._renderBehaviours();
     this._renderPlan();
+    // telemetry marks what changed; it is drawn once, in the next animation frame
+    this.stale = new Set();
     store.on('telemetry', (keys) => {
       const sel = store.selected;
-      if (keys.includes('modules/all')) this._renderModules();
-      if (keys.includes(`activation/${sel}`)) this._renderBehaviours();
-      if (keys.includes(`plan/${sel}`)) this._renderPlan();
+      if (keys.includes('modules/all')) this._later('modules');
+      if (keys.includes(`activation/${sel}`)) this._later('behaviours');
+      if (keys.includes(`plan/${sel}`)) this._later('plan');
     });
     store.on('select', () => {
       this._renderBehaviours();
       this._renderPlan();
     });
     store.on('status', () => this._renderModules());
+  }
+
+  _later(part) {
+    if (this.stale.size === 0) {
+      requestAnimationFrame(() => {
+        if (this.stale.has('modules')) this._renderModules();
+        if (this.stale.has('behaviours')) this._renderBehaviours();
+        if (this.stale.has('plan')) this._renderPlan();
+        this.stale.clear();
+      });
+    }
+    this.stale.add(part);
   }
 
   _renderModules() {

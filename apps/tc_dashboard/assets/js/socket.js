@@ -95,6 +95,9 @@ export class Connection {
         break;
       case 'telemetry':
         this.store.telemetry(msg);
+        // the server holds further frames while five are unacknowledged, so
+        // a busy page is sent fewer, fresher frames rather than a backlog
+        if (Number.isInteger(msg.seq)) this.send({ op: 'ack', seq: msg.seq });
         break;
       case 'pong': {
         const p = this.pending.get(msg.id);

@@ -21,6 +21,26 @@ export class TimingPanel {
     this.root = root;
     this.store = store;
     this.activities = new Map();
+    this.dirty = new Set();
+    this.frame = null;
+    // canvas sizes as laid out, kept by a ResizeObserver: reading
+    // clientWidth while drawing would force a layout per canvas
+    this.resizes = new ResizeObserver((entries) => {
+      for (const e of entries) {
+        sizes.set(e.target, { w: e.contentRect.width, h: e.contentRect.height });
+        const a = this.activities.get(e.target.closest('article')?.dataset.activity);
+        if (a && this.visible) this._schedule(a);
+      }
+    });
+    // an activity scrolled out of view is drawn when it comes back
+    this.views = new IntersectionObserver((entries) => {
+      for (const e of entries) {
+        const a = this.activities.get(e.target.dataset.activity);
+        if (!a) continue;
+        a.inView = e.isIntersecting;
+        if (a.inView && this.visible) this._schedule(a);
+      }
+    });
     this.histKind = 'response_us';
     this.visible = true;
     this.empty = el('p.empty', null, 'No periodic activity has reported its timing yet (the worker publishes once a second).');
@@ -39,6 +59,7 @@ export class TimingPanel {
       for (const k of keys) if (k.startsWith('timing/')) this._update(k.slice(7), store.get(k));
     });
     store.on('welcome', () => {
+      for (const a of this.activities.values()) this._forget(a);
       this.activities.clear();
       this.list.replaceChildren();
       this.empty.hidden = false;
@@ -48,7 +69,7 @@ export class TimingPanel {
   _update(name, summary) {
     if (!summary) {
       const a = this.activities.get(name);
-      if (a) a.node.remove();
+      if (a) this._forget(a);
       this.activities.delete(name);
       this.empty.hidden = this.activities.size > 0;
       return;
@@ -77,11 +98,26 @@ export class TimingPanel {
     point.misses = prev ? misses - missesBefore : 0;
     a.history.push(point);
     if (a.history.length > HISTORY) a.history.shift();
-    if (this.visible) this._render(a);
+    if (this.visible) this._schedule(a);
+  }
+
+  // Activities report at different moments: their panels are redrawn
+  // together in the next animation frame, so that the page lays out once
+  // per frame however many reports a telemetry frame brings.
+  _schedule(a) {
+    this.dirty.add(a);
+    if (!this.frame) {
+      this.frame = requestAnimationFrame(() => {
+        this.frame = null;
+        const dirty = [...this.dirty];
+        this.dirty.clear();
+        for (const d of dirty) if (this.activities.get(d.name) === d && d.inView) this._render(d);
+      });
+    }
   }
 
   _create(name) {
-    const a = { name, summary: null, history: [], lastMiss: null };
+    const a = { name, summary: null, history: [], lastMiss: null, inView: false };
     a.title = el('h3', null, name);
     a.badges = el('div.badges');
     a.table = el('table.figures');
@@ -89,12 +125,22 @@ export class TimingPanel {
     a.hist = el('canvas.hist', { width: 300, height: 70 });
     a.node = el('article.activity', { dataset: { activity: name } },
       el('header', null, a.title, a.badges), a.table, a.plot, a.hist);
+    this.views.observe(a.node);
+    this.resizes.observe(a.plot);
+    this.resizes.observe(a.hist);
     return a;
+  }
+
+  _forget(a) {
+    a.node.remove();
+    this.views.unobserve(a.node);
+    this.resizes.unobserve(a.plot);
+    this.resizes.unobserve(a.hist);
   }
 
   setVisible(v) {
     this.visible = v;
-    if (v) for (const a of this.activities.values()) this._render(a);
+    if (v) for (const a of this.activities.values()) this._schedule(a);
   }
 
   _render(a) {
@@ -120,10 +166,14 @@ export class TimingPanel {
   }
 }
 
+// laid-out sizes of the panel's canvases (see TimingPanel's ResizeObserver)
+const sizes = new WeakMap();
+
 function prepare(canvas) {
   const dpr = window.devicePixelRatio || 1;
-  const w = canvas.clientWidth || canvas.width;
-  const h = canvas.clientHeight || canvas.height;
+  const size = sizes.get(canvas);
+  const w = (size && size.w) || canvas.width / dpr;
+  const h = (size && size.h) || canvas.height / dpr;
   if (canvas.width !== Math.round(w * dpr) || canvas.height !== Math.round(h * dpr)) {
     canvas.width = Math.round(w * dpr);
     canvas.height = Math.round(h * dpr);

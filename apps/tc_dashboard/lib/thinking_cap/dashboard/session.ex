@@ -6,11 +6,14 @@ defmodule ThinkingCap.Dashboard.Session do
   After a `welcome` (its rights, the robots, the world), it sends
   `telemetry` frames of what changed since the browser's last frame, at most
   `telemetry_hz` a second: the next frame is scheduled only once the last
-  one was written to the socket, so a slow browser gets fewer frames, each
-  with the latest values, and one that stops reading is dropped by the
-  socket's send timeout. Commands from the page become blackboard writes
-  through `ThinkingCap.Dashboard.Control`; controlling ones need the access
-  token. Every bad message gets an `error` reply and changes nothing.
+  one was written to the socket, and one that stops reading is dropped by
+  the socket's send timeout. A client that acknowledges frames (`ack`, as
+  the page does) has at most five of them unacknowledged: a slow browser
+  then gets fewer frames, each with the latest values, instead of a queue
+  in the socket's buffers that shows it the robots seconds late (five
+  frames are 200 ms at 25 a second, about what a busy browser takes to
+  answer). Commands from the page become blackboard writes through
+  `ThinkingCap.Dashboard.Control`; controlling ones need the access token. Every bad message gets an `error` reply and changes nothing.
   """
   @behaviour ThinkingCap.Dashboard.Core.Socket
 
@@ -20,6 +23,8 @@ defmodule ThinkingCap.Dashboard.Session do
 
   @tail_rate 20
   @max_tails 8
+  # telemetry frames a client that acknowledges may have unacknowledged
+  @ack_window 5
 
   @impl true
   def init(conn) do
@@ -31,6 +36,10 @@ defmodule ThinkingCap.Dashboard.Session do
        by: "page #{format_ip(peer_ip)}:#{peer_port}",
        interval: max(div(1000, conn.config.telemetry_hz), 1),
        version: 0,
+       # telemetry frames sent, and the last one acknowledged (nil until the
+       # client acknowledges one: then the window applies)
+       seq: 0,
+       acked: nil,
        tails: %{}
      }}
   end
@@ -54,24 +63,7 @@ defmodule ThinkingCap.Dashboard.Session do
 
   def handle_info(:tick, state) do
     Process.send_after(self(), :tick, state.interval)
-
-    case Telemetry.changes_since(state.version) do
-      {_version, []} ->
-        {:noreply, state}
-
-      {version, items} ->
-        frame = [
-          ~s({"op":"telemetry","t":),
-          Integer.to_string(System.os_time(:millisecond)),
-          ~s(,"items":{),
-          items
-          |> Enum.map(fn {key, json} -> [JSON.encode!(key), ?:, json] end)
-          |> Enum.intersperse(?,),
-          "}}"
-        ]
-
-        {:reply, [frame], %{state | version: version}}
-    end
+    if window_open?(state), do: telemetry_frame(state), else: {:noreply, state}
   end
 
   def handle_info({:blackboard, ref, tuple}, state) do
@@ -109,6 +101,33 @@ defmodule ThinkingCap.Dashboard.Session do
     end
   end
 
+  defp window_open?(%{acked: nil}), do: true
+  defp window_open?(state), do: state.seq - state.acked < @ack_window
+
+  defp telemetry_frame(state) do
+    case Telemetry.changes_since(state.version) do
+      {_version, []} ->
+        {:noreply, state}
+
+      {version, items} ->
+        seq = state.seq + 1
+
+        frame = [
+          ~s({"op":"telemetry","seq":),
+          Integer.to_string(seq),
+          ~s(,"t":),
+          Integer.to_string(System.os_time(:millisecond)),
+          ~s(,"items":{),
+          items
+          |> Enum.map(fn {key, json} -> [JSON.encode!(key), ?:, json] end)
+          |> Enum.intersperse(?,),
+          "}}"
+        ]
+
+        {:reply, [frame], %{state | version: version, seq: seq}}
+    end
+  end
+
   @impl true
   def error_frame(message), do: error(nil, message)
 
@@ -118,6 +137,15 @@ defmodule ThinkingCap.Dashboard.Session do
   ## the ops
 
   defp handle("ping", m, state), do: {:ok, encode(%{op: :pong, id: m["id"]}), state}
+
+  defp handle("ack", %{"seq" => seq}, state) when is_integer(seq) and seq > 0 do
+    if seq <= state.seq,
+      do: {:ok, [], %{state | acked: max(seq, state.acked || 0)}},
+      else: {:error, "ack of telemetry frame #{seq}, but #{state.seq} were sent"}
+  end
+
+  defp handle("ack", _m, _state),
+    do: {:error, "ack needs \"seq\": the positive integer of a telemetry frame"}
 
   defp handle("teleop", m, state) do
     with :ok <- may_control(m, state),

@@ -13,6 +13,10 @@
 //   {"cmd":"mousedown","x":X,"y":Y} / "mousemove" (x, y, steps) / "mouseup"   drag
 //   {"cmd":"screenshot","path":F}            a PNG of the page
 //   {"cmd":"console"}                        console messages and page errors so far
+//   {"cmd":"profile","ms":MS,"top":N}        the page's JavaScript CPU profile over MS:
+//                                            {total_ms, by: [[function@file:line, self_ms]...]}
+//                                            ("(idle)", "(program)": the renderer's own
+//                                            work, "(garbage collector)" included)
 //   {"cmd":"close","page":P}                 close one page
 //   {"cmd":"quit"}                           close the browser and exit
 //
@@ -99,6 +103,10 @@ async function run(c) {
       return c.path;
     case 'console':
       return logs.get(c.page || 'main') || [];
+    case 'profile':
+      return await profile(page(c.page), c.ms || 3000, c.top || 15);
+    case 'trace':
+      return await trace(page(c.page), c.ms || 3000, c.top || 20);
     case 'close': {
       const p = pages.get(c.page || 'main');
       if (p) await p.context().close();
@@ -113,6 +121,51 @@ async function run(c) {
     default:
       throw new Error(`unknown command ${c.cmd}`);
   }
+}
+
+// Self time per function from a CDP CPU profile (samples x their time deltas).
+async function profile(p, ms, top) {
+  const cdp = await p.context().newCDPSession(p);
+  await cdp.send('Profiler.enable');
+  await cdp.send('Profiler.start');
+  await new Promise((r) => setTimeout(r, ms));
+  const { profile: prof } = await cdp.send('Profiler.stop');
+  await cdp.detach();
+  const nodes = new Map(prof.nodes.map((n) => [n.id, n]));
+  const self = new Map();
+  let total = 0;
+  prof.samples.forEach((id, i) => {
+    const dt = (prof.timeDeltas[i] || 0) / 1000;
+    const f = nodes.get(id).callFrame;
+    const file = f.url ? f.url.split('/').pop() : '';
+    const name = file ? `${f.functionName || '(anonymous)'}@${file}:${f.lineNumber + 1}` : f.functionName;
+    self.set(name, (self.get(name) || 0) + dt);
+    total += dt;
+  });
+  const by = [...self.entries()].sort((a, b) => b[1] - a[1]).slice(0, top).map(([n, t]) => [n, Math.round(t * 10) / 10]);
+  return { total_ms: Math.round(total), by };
+}
+
+// Time per trace event name (devtools timeline) over MS, all threads.
+async function trace(p, ms, top) {
+  const cdp = await p.context().newCDPSession(p);
+  const events = [];
+  cdp.on('Tracing.dataCollected', (d) => events.push(...d.value));
+  const done = new Promise((r) => cdp.once('Tracing.tracingComplete', r));
+  await cdp.send('Tracing.start', { categories: 'devtools.timeline,disabled-by-default-devtools.timeline,v8', transferMode: 'ReportEvents' });
+  await new Promise((r) => setTimeout(r, ms));
+  await cdp.send('Tracing.end');
+  await done;
+  await cdp.detach();
+  const threads = new Map();
+  for (const e of events) if (e.ph === 'M' && e.name === 'thread_name') threads.set(`${e.pid}:${e.tid}`, e.args.name);
+  const by = new Map();
+  for (const e of events) {
+    if (e.ph !== 'X' || !e.dur) continue;
+    const k = `${threads.get(`${e.pid}:${e.tid}`) || e.tid} ${e.name}`;
+    by.set(k, (by.get(k) || 0) + e.dur / 1000);
+  }
+  return [...by.entries()].sort((a, b) => b[1] - a[1]).slice(0, top).map(([n, t]) => [n, Math.round(t)]);
 }
 
 async function main() {

@@ -208,6 +208,49 @@ defmodule ThinkingCap.Dashboard.SessionTest do
     WSClient.close(client)
   end
 
+  test "a client that acknowledges frames has at most five unacknowledged", ctx do
+    writer = spawn_link(fn -> write_poses(ctx.robot, 0) end)
+    {_welcome, client} = connect!(ctx.dashboard)
+
+    # acknowledge every frame up to the fourth, then stop
+    {last_acked, client} = ack_frames(client, 4)
+    {seqs, client} = frames_for(client, 600, [])
+    # the five the window allows, then nothing
+    assert Enum.sort(seqs) == Enum.to_list((last_acked + 1)..(last_acked + 5))
+
+    # acknowledging opens the window again
+    :ok = WSClient.send_text(client, :jiffy.encode(%{op: "ack", seq: Enum.max(seqs)}))
+    {:ok, frame, client} = WSClient.recv_json_until(client, &(&1["op"] == "telemetry"))
+    assert frame["seq"] == Enum.max(seqs) + 1
+
+    # an acknowledgement of a frame never sent is refused
+    {reply, client} = request(client, %{op: "ack", seq: 10_000})
+    assert reply["op"] == "error" and reply["message"] =~ "10000"
+    {reply, _client} = request(client, %{op: "ack"})
+    assert reply["op"] == "error" and reply["message"] =~ "seq"
+    Process.unlink(writer)
+    Process.exit(writer, :kill)
+  end
+
+  defp write_poses(robot, n) do
+    Blackboard.out({:pose, robot, %{pose: {n / 100, 0.0, 0.0}, stamp: n}}, key: {:pose, robot})
+    Process.sleep(5)
+    write_poses(robot, n + 1)
+  end
+
+  defp ack_frames(client, until) do
+    {:ok, frame, client} = WSClient.recv_json_until(client, &(&1["op"] == "telemetry"))
+    :ok = WSClient.send_text(client, :jiffy.encode(%{op: "ack", seq: frame["seq"]}))
+    if frame["seq"] >= until, do: {frame["seq"], client}, else: ack_frames(client, until)
+  end
+
+  defp frames_for(client, ms, seqs) do
+    case WSClient.recv_json_until(client, &(&1["op"] == "telemetry"), ms) do
+      {:ok, frame, client} -> frames_for(client, ms, [frame["seq"] | seqs])
+      {:error, _, client} -> {seqs, client}
+    end
+  end
+
   test "streams whose id is not a name are shown too, under a printed key", ctx do
     id = {:cart, make_ref()}
     Blackboard.out({:pose, id, %{pose: {0.0, 0.0, 0.0}}}, key: {:pose, id})
