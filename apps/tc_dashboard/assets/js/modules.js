@@ -149,6 +149,7 @@ export class ModulesPanel {
       ['closed doors', Array.isArray(p.closed_doors) && p.closed_doors.length ? p.closed_doors.join(', ') : '–'],
       ['replans', show(p.replans)],
       ['reached', Array.isArray(p.reached) ? p.reached.join(', ') || '–' : show(p.reached)],
+      ['given up', Array.isArray(p.given_up) ? p.given_up.map(show).join(', ') || '–' : show(p.given_up)],
     ];
     setChildren(this.plan, rows.flatMap(([k, v]) => [el('dt', null, k), el('dd', null, v)]));
   }

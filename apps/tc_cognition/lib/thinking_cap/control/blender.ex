@@ -53,8 +53,9 @@ defmodule ThinkingCap.Control.Blender do
       absent from
       `behaviours` are dropped;
     * `stop_states` - plan states in which the robot stands still, default
-      `[:idle, :done, :blocked, :waiting]` (`ThinkingCap.Planner.Monitor`:
-      no task, task done, waiting to retry a blocked route, no pose yet);
+      `[:idle, :done, :failed, :blocked, :waiting]` (`ThinkingCap.Planner.Monitor`:
+      no task, task done, task failed, waiting to retry a blocked route, no pose
+      yet);
     * `max_speed`, `max_turn_rate` (defaults 0.5 m/s, 1.5 rad/s), `radius`
       (0.2 m) - used only without an RDF: with one (`context.rdf`), the
       limits come from its kinematics and the radius from its footprint.
@@ -77,7 +78,7 @@ defmodule ThinkingCap.Control.Blender do
   }
 
   @stop {:velocity, 0.0, 0.0}
-  @stop_states [:idle, :done, :blocked, :waiting]
+  @stop_states [:idle, :done, :failed, :blocked, :waiting]
 
   @impl true
   def init(params, context) do

@@ -20,7 +20,8 @@ defmodule ThinkingCap.Planner.Monitor do
   **Monitoring**, every cycle: a waypoint within `tolerance` is reached
   and the next one taken; a robot that makes no progress for
   `stuck_after` seconds gets a new plan, and after `max_replans` the
-  waypoint is given up; a door on the route seen shut in the LPS
+  waypoint is given up (a task that gave up any of its waypoints ends
+  `:failed`, not `:done`); a door on the route seen shut in the LPS
   (`{:lps, robot, _}`) is marked closed,
   and the route is replanned around it, or the task waits (state
   `:blocked`) and tries again after `retry_after` seconds. A door counts
@@ -28,8 +29,10 @@ defmodule ThinkingCap.Planner.Monitor do
   across the middle of its opening while the robot is within 3 m.
 
   **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:, path:,
-  door:, closed_doors:, replans:, reached:}}` (latest value): `state` is
-  `:waiting` (no pose yet), `:moving`, `:blocked`, `:done` or `:idle`;
+  door:, closed_doors:, replans:, reached:, given_up:}}` (latest value):
+  `state` is `:waiting` (no pose yet), `:moving`, `:blocked`, `:done` (every
+  waypoint reached), `:failed` (the task ended with waypoints given up) or
+  `:idle`;
   `path` the rest of the metric path (world points); `door` the next door
   to cross (`%{name:, centre:, width:, heading:}`, heading across the
   opening in the direction of travel). Doors seen shut are also published as
@@ -74,6 +77,7 @@ defmodule ThinkingCap.Planner.Monitor do
       plan: nil,
       status: :idle,
       reached: [],
+      given_up: [],
       replans: 0,
       progress: nil,
       blocked_at: nil
@@ -119,16 +123,26 @@ defmodule ThinkingCap.Planner.Monitor do
         other -> raise ArgumentError, "unknown task #{inspect(other)}"
       end
 
-    %{state | task: task, queue: queue, target: nil, plan: nil, reached: [], replans: 0}
+    %{
+      state
+      | task: task,
+        queue: queue,
+        target: nil,
+        plan: nil,
+        reached: [],
+        given_up: [],
+        replans: 0
+    }
     |> Map.put(:status, if(queue == [], do: :idle, else: :waiting))
   end
 
   ## Monitoring
 
   defp step(%{pose: nil} = state), do: {[], state}
-  defp step(%{status: status} = state) when status in [:idle, :done], do: {[], state}
+  defp step(%{status: status} = state) when status in [:idle, :done, :failed], do: {[], state}
 
-  defp step(%{target: nil, queue: []} = state), do: {[], %{state | status: :done}}
+  defp step(%{target: nil, queue: [], given_up: []} = state), do: {[], %{state | status: :done}}
+  defp step(%{target: nil, queue: []} = state), do: {[], %{state | status: :failed}}
 
   defp step(%{target: nil} = state) do
     [next | rest] = state.queue
@@ -151,6 +165,7 @@ defmodule ThinkingCap.Planner.Monitor do
     {x, y, _} = state.pose
     {tx, ty} = target_point(state, state.target)
     distance = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
+    {to_go, state} = to_go(state, distance)
 
     cond do
       distance <= state.params[:tolerance] ->
@@ -163,18 +178,69 @@ defmodule ThinkingCap.Planner.Monitor do
         seen = {{:door, door.name, %{open: false, stamp: state.time}}, [key: {:door, door.name}]}
         {[out: seen], plan(state)}
 
-      stuck?(state, distance) ->
+      stuck?(state, to_go) ->
         if state.replans >= state.params[:max_replans] do
           Logger.info("#{inspect(state.robot)}: giving up #{inspect(state.target)}")
-          step(%{state | target: nil, plan: nil})
+          step(%{state | given_up: [state.target | state.given_up], target: nil, plan: nil})
         else
           {[], plan(%{state | replans: state.replans + 1})}
         end
 
       true ->
-        {[], %{state | progress: progress(state.progress, distance, state.time)}}
+        {[], %{state | progress: progress(state.progress, to_go, state.time)}}
     end
   end
+
+  # Progress is measured along the plan, not as the straight distance to
+  # the target: a route that first leads away from the target (round the
+  # end of a rack) is progress too. The robot's place on its path is its
+  # projection, searched from the last one and at most @lookahead metres
+  # on, so that a path passing near again later is not taken for progress.
+  @lookahead 3.0
+
+  defp to_go(%{plan: %{path: [_, _ | _] = path, s: s0} = plan, pose: {x, y, _}} = state, _d) do
+    {s, off} = project(path, {x, y}, s0, s0 + @lookahead)
+    {plan.length - s + off, %{state | plan: %{plan | s: s}}}
+  end
+
+  defp to_go(state, distance), do: {distance, state}
+
+  # {arc length of the projection of point on path within [lo, hi], distance to it}
+  defp project(path, point, lo, hi) do
+    path
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.reduce({0.0, {lo, :infinity}}, fn [a, b], {start, best} ->
+      len = dist(a, b)
+
+      best =
+        if start <= hi and start + len >= lo do
+          t =
+            if len > 0,
+              do: clamp(dot(sub(point, a), sub(b, a)) / (len * len), 0.0, 1.0),
+              else: 0.0
+
+          s = max(start + t * len, lo)
+          off = dist(point, lerp(a, b, (s - start) / max(len, 1.0e-9)))
+          if off < elem(best, 1), do: {s, off}, else: best
+        else
+          best
+        end
+
+      {start + len, best}
+    end)
+    |> elem(1)
+  end
+
+  defp path_length(path),
+    do:
+      path
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.reduce(0.0, fn [a, b], l -> l + dist(a, b) end)
+
+  defp dist({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+  defp sub({ax, ay}, {bx, by}), do: {ax - bx, ay - by}
+  defp dot({ax, ay}, {bx, by}), do: ax * bx + ay * by
+  defp clamp(v, lo, hi), do: v |> max(lo) |> min(hi)
 
   # the best distance to the target so far, and when it was reached
   defp progress({best, _since}, distance, time) when distance < best - 0.2, do: {distance, time}
@@ -192,14 +258,11 @@ defmodule ThinkingCap.Planner.Monitor do
     goal = target_point(state, state.target)
     {x, y, _} = state.pose
 
-    state = %{
-      state
-      | progress: {:math.sqrt((elem(goal, 0) - x) ** 2 + (elem(goal, 1) - y) ** 2), state.time}
-    }
-
     with {:ok, route} <- route(state, {x, y}, goal),
          {:ok, path} <- metric_path(state, {x, y}, goal) do
-      %{state | plan: %{route: route, path: path}, status: :moving}
+      length = path_length(path)
+      plan = %{route: route, path: path, length: length, s: 0.0}
+      %{state | plan: plan, status: :moving, progress: {length, state.time}}
     else
       {:error, reason} ->
         Logger.info(
@@ -355,7 +418,8 @@ defmodule ThinkingCap.Planner.Monitor do
       door: door_to_cross(state),
       closed_doors: MapSet.to_list(state.closed),
       replans: state.replans,
-      reached: Enum.reverse(state.reached)
+      reached: Enum.reverse(state.reached),
+      given_up: Enum.reverse(state.given_up)
     }
 
     {:out, {{:plan, state.robot, plan}, [key: {:plan, state.robot}]}}

@@ -137,5 +137,67 @@ defmodule ThinkingCap.Planner.MonitorTest do
     # 50 s without moving: three replans (every 12 s), then desk_a given up
     assert plan.waypoint == :dock
     assert plan.reached == []
+    assert plan.given_up == [:desk_a]
+    assert plan.state == :moving
+  end
+
+  @tag :tmp_dir
+  test "a route that first leads away from the target is progress, not a robot stuck", %{
+    tmp_dir: dir
+  } do
+    # in the room, the hall's point straight south behind the wall: the way
+    # round through a door first takes the robot further from it
+    state = start(tmp_wdf(dir, @two_doors), {:go_to, {6.0, 1.0}})
+    state = pose(state, {6.0, 4.2, 0.0})
+    {plan, _, state} = cycle(state, 0.0)
+    path = plan.path
+    length = path_length(path)
+    assert length > 6.5
+
+    # at 0.1 m/s along the path: the straight distance grows for ~30 s
+    {plan, state} =
+      Enum.reduce_while(1..400, {plan, state}, fn i, {_plan, state} ->
+        state = pose(state, point_along(path, min(i * 0.05, length)))
+        {plan, _, state} = cycle(state, i * 0.5)
+        if plan.state == :moving, do: {:cont, {plan, state}}, else: {:halt, {plan, state}}
+      end)
+
+    assert plan.state == :done
+    assert plan.given_up == []
+    assert plan.replans == 0
+    _ = state
+  end
+
+  defp path_length(path),
+    do: path |> Enum.zip(tl(path)) |> Enum.map(fn {a, b} -> dist(a, b) end) |> Enum.sum()
+
+  defp point_along([{x, y}], _s), do: {x, y, 0.0}
+
+  defp point_along([a, b | rest], s) do
+    l = dist(a, b)
+
+    if s <= l do
+      {ax, ay} = a
+      {bx, by} = b
+      t = if l > 0, do: s / l, else: 0.0
+      {ax + (bx - ax) * t, ay + (by - ay) * t, 0.0}
+    else
+      point_along([b | rest], s - l)
+    end
+  end
+
+  defp dist({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+
+  test "a task that gave up a waypoint ends failed, not done" do
+    state = start(@office, {:go_to, :desk_a})
+    state = pose(state, {5.0, 1.0, 0.0})
+    {_plan, _, state} = cycle(state, 0.0)
+
+    {plan, _, _state} =
+      Enum.reduce(1..100, {nil, nil, state}, fn i, {_, _, state} -> cycle(state, i * 0.5) end)
+
+    assert plan.state == :failed
+    assert plan.given_up == [:desk_a]
+    assert plan.reached == []
   end
 end
