@@ -7,8 +7,8 @@ defmodule ThinkingCap.Bench.Nav do
   localization with beacons, blended fuzzy behaviours, planner/monitor) in
   lockstep with the simulator (`ThinkingCap.Sim.LockstepController`), as
   fast as possible, in nav2's `turtlebot3_world` and `warehouse` maps with
-  beacons placed in free space, from N (default 50) random reachable start
-  and goal pairs each.
+  beacons placed at random in free space (one per 25 m², at least 16),
+  from N (default 50) random reachable start and goal pairs each.
 
   Start and goal pairs are reachable on the grid the planner uses (inflated
   by the robot's radius and the planner's margin). A run succeeds when the
@@ -75,7 +75,7 @@ defmodule ThinkingCap.Bench.Nav do
     yaml = Path.join(@shared, "#{world}.yaml")
     {:ok, map} = ThinkingCap.Config.RosMap.load(yaml)
     rng = :rand.seed_s(:exsss, {7, 7, 7})
-    beacons = beacons(map, 16, rng)
+    beacons = beacons(map, beacon_count(map), rng)
 
     data = [
       name: world,
@@ -86,6 +86,20 @@ defmodule ThinkingCap.Bench.Nav do
     path = Path.join(dir, "#{world}.wdf")
     File.write!(path, inspect(data, limit: :infinity))
     path
+  end
+
+  # one beacon per 25 m² of free space (at least 16), as an installation
+  # would place them for two or more in sight almost everywhere: 16 in
+  # turtlebot3_world (20 m²), 51 in the warehouse (1,280 m²)
+  defp beacon_count(map) do
+    free =
+      for c <- 0..(map.width - 1),
+          r <- 0..(map.height - 1),
+          ThinkingCap.Config.RosMap.cell(map, c, r) == 0,
+          reduce: 0,
+          do: (n -> n + 1)
+
+    max(16, round(free * map.resolution * map.resolution / 25))
   end
 
   defp beacons(map, n, rng) do
@@ -129,7 +143,12 @@ defmodule ThinkingCap.Bench.Nav do
       IO.puts(
         "  #{world} #{i}: #{if r.success, do: "ok  ", else: "FAIL"} #{fmt(r.time)} s, " <>
           "driven #{fmt(r.driven)} m / optimal #{fmt(optimal)} m, blocked #{r.blocked}" <>
-          if(r.success, do: "", else: " (plan #{r.state}, at goal: #{r.at_goal})")
+          if(r.success,
+            do: "",
+            else:
+              " (plan #{r.state}, #{fmt(r.gap)} m from the goal, " <>
+                "localization off by #{if r.pose_error, do: fmt(r.pose_error), else: "-"} m)"
+          )
       )
 
       r
@@ -189,6 +208,7 @@ defmodule ThinkingCap.Bench.Nav do
     status = Sim.status(sim)
     {:ok, cstate} = Sim.controller_state(sim, :nav)
     plan = Lockstep.latest(cstate.lock, {:plan, :nav, :_})
+    estimate = Lockstep.latest(cstate.lock, {:pose, :nav, :_})
     GenServer.stop(sim)
     {gx, gy} = goal
     gap = :math.sqrt((elem(last, 0) - gx) ** 2 + (elem(last, 1) - gy) ** 2)
@@ -200,6 +220,8 @@ defmodule ThinkingCap.Bench.Nav do
       success: done,
       state: state,
       at_goal: at_goal,
+      gap: gap,
+      pose_error: pose_error(estimate, last),
       time: time,
       # the planner stops within its tolerance of the goal: the rest of the
       # way counts as driven, so that stopping short does not look shorter
@@ -208,6 +230,14 @@ defmodule ThinkingCap.Bench.Nav do
       blocked: status.blocked
     }
   end
+
+  # how far the localizer's estimate is from the true position
+  defp pose_error({:pose, _, %{pose: {ex, ey, _}} = p}, {x, y}) do
+    if Process.get(:trace), do: IO.inspect(p[:covariance], label: "covariance at the end")
+    :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
+  end
+
+  defp pose_error(_estimate, _true), do: nil
 
   # runs 0.1 s at a time (summing the true pose's steps), looking at the
   # plan every half second, until it is done or failed or time is up
