@@ -6,9 +6,16 @@ defmodule ThinkingCap.Dashboard.Core.JSON do
   # binaries that are not UTF-8 → base64 strings, pids and refs → their
   # printed form); decode/1 never raises.
 
-  @doc "Encodes any term as JSON (iodata)."
-  @spec encode!(term()) :: iodata()
-  def encode!(term), do: :jiffy.encode(to_ejson(term), [:use_nil])
+  @doc """
+  Encodes any term as JSON (iodata). `decimals: n` rounds floats of 0.001
+  and above to n decimals (small ones, such as variances, are kept whole):
+  a laser scan's ranges in millimetres rather than 17 digits each.
+  """
+  @spec encode!(term(), keyword()) :: iodata()
+  def encode!(term, opts \\ []) do
+    scale = if d = opts[:decimals], do: :math.pow(10, d)
+    :jiffy.encode(to_ejson(term, scale), [:use_nil])
+  end
 
   @doc "Decodes a JSON text: objects become maps with binary keys."
   @spec decode(binary()) :: {:ok, term()} | {:error, String.t()}
@@ -25,33 +32,38 @@ defmodule ThinkingCap.Dashboard.Core.JSON do
 
   def decode(_other), do: {:error, "not a text"}
 
-  @doc "The JSON-ready form of a term (jiffy's EJSON with maps)."
-  @spec to_ejson(term()) :: term()
-  def to_ejson(nil), do: nil
-  def to_ejson(true), do: true
-  def to_ejson(false), do: false
-  def to_ejson(term) when is_atom(term), do: Atom.to_string(term)
-  def to_ejson(term) when is_integer(term), do: term
-  def to_ejson(term) when is_float(term), do: term
+  @doc "The JSON-ready form of a term (jiffy's EJSON with maps); `scale` rounds floats."
+  @spec to_ejson(term(), float() | nil) :: term()
+  def to_ejson(term, scale \\ nil)
+  def to_ejson(nil, _scale), do: nil
+  def to_ejson(true, _scale), do: true
+  def to_ejson(false, _scale), do: false
+  def to_ejson(term, _scale) when is_atom(term), do: Atom.to_string(term)
+  def to_ejson(term, _scale) when is_integer(term), do: term
 
-  def to_ejson(term) when is_binary(term) do
+  def to_ejson(term, scale) when is_float(term) and is_float(scale) and abs(term) >= 1.0e-3,
+    do: round(term * scale) / scale
+
+  def to_ejson(term, _scale) when is_float(term), do: term
+
+  def to_ejson(term, _scale) when is_binary(term) do
     if String.valid?(term), do: term, else: Base.encode64(term)
   end
 
-  def to_ejson(term) when is_list(term), do: list(term)
-  def to_ejson(term) when is_tuple(term), do: term |> Tuple.to_list() |> list()
+  def to_ejson(term, scale) when is_list(term), do: list(term, scale)
+  def to_ejson(term, scale) when is_tuple(term), do: term |> Tuple.to_list() |> list(scale)
 
-  def to_ejson(%_{} = struct), do: struct |> Map.from_struct() |> to_ejson()
+  def to_ejson(%_{} = struct, scale), do: struct |> Map.from_struct() |> to_ejson(scale)
 
-  def to_ejson(term) when is_map(term),
-    do: Map.new(term, fn {k, v} -> {key(k), to_ejson(v)} end)
+  def to_ejson(term, scale) when is_map(term),
+    do: Map.new(term, fn {k, v} -> {key(k), to_ejson(v, scale)} end)
 
-  def to_ejson(term), do: inspect(term)
+  def to_ejson(term, _scale), do: inspect(term)
 
-  defp list([]), do: []
-  defp list([h | t]) when is_list(t), do: [to_ejson(h) | list(t)]
+  defp list([], _scale), do: []
+  defp list([h | t], scale) when is_list(t), do: [to_ejson(h, scale) | list(t, scale)]
   # an improper list
-  defp list([h | t]), do: [to_ejson(h), to_ejson(t)]
+  defp list([h | t], scale), do: [to_ejson(h, scale), to_ejson(t, scale)]
 
   defp key(k) when is_binary(k), do: k
   defp key(k) when is_atom(k), do: Atom.to_string(k)
