@@ -19,6 +19,8 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
   @root Path.expand("../..", __DIR__)
   @example Path.join(@root, "priv/examples/office_two_nodes.adf")
   @brain_modules [:perception, :localization, :control, :planner]
+  # the waypoint the example's localizer starts at
+  @dock {1.0, 1.0}
 
   test "a two-node release pair: the brain killed, the robot stopped, then carrying on",
        %{tmp_dir: dir} do
@@ -50,8 +52,10 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
 
     await("the robot under autonomy", 60_000, fn -> match?(%{mode: :autonomy}, control(base)) end)
     recorder = record_control(base)
-    before = sim_position(base)
-    await("the robot moving", 30_000, fn -> distance(sim_position(base), before) > 0.2 end)
+    # well away from the dock, where the ADF starts the localizer
+    await("the robot 2 m from the dock", 90_000, fn ->
+      distance(sim_position(base), @dock) > 2.0
+    end)
 
     Tally.injected()
     brain_pid = os_pid(brain)
@@ -63,11 +67,19 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
       Enum.all?(@brain_modules, &(hosts[&1] == base))
     end)
 
+    # the localizer resumed from its handoff: its first estimate is where
+    # the robot is, not back at the dock (the brain's last estimate went
+    # with the brain)
+    await("an estimate from the base's localizer", 30_000, fn -> estimate_position(base) end)
+    assert distance(estimate_position(base), sim_position(base)) < 0.5
+
     # then carrying on under the base's copy of the controller
+    failed_over_at = System.os_time(:millisecond)
+
     await(
       "the controller back",
       60_000,
-      fn -> Enum.any?(after_kill(base, recorder, killed_at), &driving?/1) end,
+      fn -> Enum.any?(after_kill(base, recorder, failed_over_at), &driving?/1) end,
       fn -> inspect(after_kill(base, recorder, killed_at), pretty: true) end
     )
 
@@ -174,6 +186,13 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
       call(node, ThinkingCap.Blackboard, :rdp, [{:sim_pose, :r1, :_}])
 
     {x, y}
+  end
+
+  defp estimate_position(node) do
+    case call(node, ThinkingCap.Blackboard, :rdp, [{:pose, :r1, :_}]) do
+      {:ok, {:pose, :r1, %{pose: {x, y, _}}}} -> {x, y}
+      :none -> nil
+    end
   end
 
   defp distance({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)

@@ -60,8 +60,18 @@ defmodule ThinkingCap.Module do
   fallback, not on a stale command.
 
   `init/2` gets the ADF's `params` and a context map (`:name`, `:robot`,
-  `:node`, `:activity`, and the ADF's `:rdf` and `:wdf` paths, `nil` when
-  not given) and returns `{:ok, state}` or `{actions, state}`.
+  `:node`, `:activity`, the ADF's `:rdf` and `:wdf` paths, `nil` when
+  not given, and `:handoff`, below) and returns `{:ok, state}` or
+  `{actions, state}`.
+
+  **Handoff.** A module deployed with standby nodes may implement
+  `handoff/1`: every `handoff_every` seconds (ADF, default 1) the framework
+  calls it and sends what it returns to the deployments of the other
+  nodes of the module's `[node | standby]`. When the module is started on
+  one of them (a failover, a move, a failback), `init/2` finds the latest
+  handoff that node received in `context.handoff` (`nil` if none), and
+  can carry on from it: a localizer from its last estimate, a planner
+  from the waypoint it was heading for, rather than from their start.
   When a module is replaced while running (`ThinkingCap.Runtime.swap/2`),
   the new module's `handle_swap/3` (old module, old state, context) gives
   its first state; without it, `init/2` does.
@@ -82,7 +92,8 @@ defmodule ThinkingCap.Module do
           node: node(),
           activity: :periodic | :event | :background,
           rdf: Path.t() | nil,
-          wdf: Path.t() | nil
+          wdf: Path.t() | nil,
+          handoff: term()
         }
   @type release :: ThinkingCap.Cycle.release()
 
@@ -94,8 +105,9 @@ defmodule ThinkingCap.Module do
   @callback handle_applied(ThinkingCap.Cycle.applied(), state :: term()) :: {actions(), term()}
   @callback handle_swap(old_module :: module(), old_state :: term(), context()) :: {:ok, term()}
   @callback terminate(reason :: term(), state :: term()) :: term()
+  @callback handoff(state :: term()) :: term()
 
-  @optional_callbacks handle_swap: 3
+  @optional_callbacks handle_swap: 3, handoff: 1
 
   defmacro __using__(_opts) do
     quote do

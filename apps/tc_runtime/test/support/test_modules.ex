@@ -81,6 +81,27 @@ defmodule ThinkingCap.Test.Modules do
     def handle_tuple({:ping, robot, n}, state), do: {[out: {:pong, robot, n}], state}
   end
 
+  defmodule Counter do
+    @moduledoc false
+    # counts its cycles, carrying the count over a failover by handoff/1
+    use ThinkingCap.Module
+    @impl true
+    def init(_params, ctx) do
+      from = if ctx.handoff, do: ctx.handoff.n
+      {:ok, %{robot: ctx.robot, n: from || 0, resumed_from: from}}
+    end
+
+    @impl true
+    def handle_cycle(_release, state) do
+      state = %{state | n: state.n + 1}
+      count = %{n: state.n, resumed_from: state.resumed_from, node: node()}
+      {[out: {{:count, state.robot, count}, [key: {:count, state.robot}]}], state}
+    end
+
+    @impl true
+    def handoff(state), do: %{n: state.n}
+  end
+
   defmodule Idle do
     @moduledoc false
     use ThinkingCap.Module

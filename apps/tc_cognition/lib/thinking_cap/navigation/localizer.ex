@@ -60,6 +60,10 @@ defmodule ThinkingCap.Navigation.Localizer do
 
   The beacon map is the WDF's `beacons` (`context.wdf`); without a WDF the
   filter only integrates odometry.
+
+  Deployed with standbys, it hands its filter over (`handoff/1`): a
+  localizer started on a standby after a failover resumes from the last
+  estimate and the motion since, not from `initial`.
   """
 
   use ThinkingCap.Module
@@ -118,8 +122,24 @@ defmodule ThinkingCap.Navigation.Localizer do
       last_published: nil
     }
 
-    {[subscribe: {odometry, robot, :_}, subscribe: {beacon_tag, robot, :_}], state}
+    {[subscribe: {odometry, robot, :_}, subscribe: {beacon_tag, robot, :_}],
+     resume(state, Map.get(context, :handoff))}
   end
+
+  # After a failover: the estimate and the odometry reading it was taken
+  # at, so the first odometry here predicts over the motion since then.
+  defp resume(state, %{ekf: %EKF{} = ekf, last_odometry: odom}),
+    do: %{state | ekf: ekf, last_odometry: odom}
+
+  defp resume(state, _handoff), do: state
+
+  @doc """
+  What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the
+  filter and the odometry reading it is up to date with.
+  """
+  @impl true
+  @spec handoff(map()) :: map()
+  def handoff(state), do: %{ekf: state.ekf, last_odometry: state.last_odometry}
 
   @doc "Predicts on odometry, corrects on beacon detections, publishes the pose."
   @impl true

@@ -83,7 +83,11 @@ defmodule ThinkingCap.Planner.Monitor do
       blocked_at: nil
     }
 
-    state = state |> rebuild_grid() |> set_task(Keyword.get(params, :task, :idle))
+    state =
+      state
+      |> rebuild_grid()
+      |> set_task(Keyword.get(params, :task, :idle))
+      |> resume(Map.get(context, :handoff))
 
     {[
        subscribe: {:pose, context.robot, :_},
@@ -91,6 +95,24 @@ defmodule ThinkingCap.Planner.Monitor do
        subscribe: {:task, context.robot, :_}
      ], state}
   end
+
+  @doc """
+  What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the
+  task, where it stands in it (the waypoint it is heading for and those
+  left) and what it reached and gave up. The plan itself is made afresh.
+  """
+  @impl true
+  @spec handoff(map()) :: map()
+  def handoff(state),
+    do: Map.take(state, [:task, :queue, :target, :reached, :given_up, :closed])
+
+  # after a failover: on with the task where it stood
+  defp resume(state, %{task: _, queue: _, target: _, reached: _, given_up: _} = handoff) do
+    status = if handoff.target == nil and handoff.queue == [], do: state.status, else: :waiting
+    state |> Map.merge(Map.put(handoff, :status, status)) |> rebuild_grid()
+  end
+
+  defp resume(state, _handoff), do: state
 
   @impl true
   def handle_tuple({:pose, robot, %{pose: pose}}, %{robot: robot} = state),
@@ -140,6 +162,10 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp step(%{pose: nil} = state), do: {[], state}
   defp step(%{status: status} = state) when status in [:idle, :done, :failed], do: {[], state}
+
+  # resumed from a handoff with a waypoint under way: plan to it from here
+  defp step(%{status: :waiting, target: target, plan: nil} = state) when target != nil,
+    do: {[], plan(state)}
 
   defp step(%{target: nil, queue: [], given_up: []} = state), do: {[], %{state | status: :done}}
   defp step(%{target: nil, queue: []} = state), do: {[], %{state | status: :failed}}

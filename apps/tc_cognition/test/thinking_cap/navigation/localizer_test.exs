@@ -92,6 +92,26 @@ defmodule ThinkingCap.Navigation.LocalizerTest do
     assert {[], ^state} = Localizer.handle_tuple({:odom, :r2, %{pose: {9.0, 9.0, 0.0}}}, state)
   end
 
+  test "after a failover it resumes from the handoff and the motion since", %{context: ctx} do
+    {_, state} = Localizer.init([initial: :start], ctx)
+    {_, state} = Localizer.handle_tuple(odom({-1.0, 0.0, 0.0}, 0.0), state)
+    {_, state} = Localizer.handle_tuple(odom({-0.5, 0.0, 0.0}, 0.5), state)
+    handoff = Localizer.handoff(state)
+
+    # a new instance elsewhere (initial :start again) gets the handoff; the
+    # robot has moved another half metre meanwhile
+    {_, resumed} = Localizer.init([initial: :start], Map.put(ctx, :handoff, handoff))
+    {actions, _} = Localizer.handle_tuple(odom({0.0, 0.0, 0.0}, 1.0), resumed)
+    [{{:pose, :r1, %{pose: {x, y, _}}}, _}] = outs(actions)
+    assert_in_delta x, 2.0, 1.0e-6
+    assert_in_delta y, 4.0, 1.0e-6
+
+    # without one, from the initial pose
+    {_, fresh} = Localizer.init([initial: :start], Map.put(ctx, :handoff, nil))
+    {actions, _} = Localizer.handle_tuple(odom({0.0, 0.0, 0.0}, 1.0), fresh)
+    assert [{{:pose, :r1, %{pose: {2.0, 3.0, _}}}, _}] = outs(actions)
+  end
+
   test "beacon detections pull a wrong estimate to the truth", %{context: ctx} do
     truth = {2.3, 2.8, 1.4}
     {_, state} = Localizer.init([initial: :start, initial_sigma: {0.5, 0.3}], ctx)

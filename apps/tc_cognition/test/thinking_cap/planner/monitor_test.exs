@@ -188,6 +188,33 @@ defmodule ThinkingCap.Planner.MonitorTest do
 
   defp dist({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
 
+  test "after a failover it goes on with its task where it stood" do
+    state = start(@office, {:visit, [:dock, :lab_bench, :desk_a]})
+    state = pose(state, {1.0, 1.0, 0.0})
+    # the dock reached, on the way to the lab bench
+    {_plan, _, state} = cycle(state, 0.0)
+    {plan, _, state} = cycle(state, 0.5)
+    assert plan.waypoint == :lab_bench
+    handoff = Monitor.handoff(state)
+
+    context = %{name: :planner, robot: :r, node: node(), activity: :periodic, rdf: nil}
+
+    {_actions, resumed} =
+      Monitor.init(
+        [task: {:visit, [:dock, :lab_bench, :desk_a]}],
+        Map.merge(context, %{wdf: @office, handoff: handoff})
+      )
+
+    {plan, _, resumed} = cycle(resumed, 1.0)
+    assert plan.state == :waiting
+    resumed = pose(resumed, {2.0, 1.5, 0.0})
+    {plan, _, _} = cycle(resumed, 1.5)
+    assert plan.state == :moving
+    assert plan.waypoint == :lab_bench
+    assert plan.reached == [:dock]
+    assert List.last(plan.path) == {3.5, 7.0}
+  end
+
   test "a task that gave up a waypoint ends failed, not done" do
     state = start(@office, {:go_to, :desk_a})
     state = pose(state, {5.0, 1.0, 0.0})

@@ -30,6 +30,11 @@ defmodule ThinkingCap.Config.ADF do
        default: :manual,
        doc:
          "after a failover: `:manual` stays on the standby until moved (`ThinkingCap.Runtime.Deployment.move/2`); `:auto` goes back to the first live node of `[node | standby]`"},
+    handoff_every:
+      {:pos_number,
+       default: 1.0,
+       doc:
+         "seconds between the handoffs (`c:ThinkingCap.Module.handoff/1`) sent to the other nodes of `[node | standby]`"},
     activity:
       {{:one_of, [:periodic, :event, :background]}, required: true, doc: "how it is released"},
     period: {:pos_number, doc: "seconds between releases (periodic only; required there)"},
@@ -122,6 +127,7 @@ defmodule ThinkingCap.Config.ADF do
           node: atom(),
           standby: [atom()],
           failback: :manual | :auto,
+          handoff_every: float(),
           activity: :periodic | :event | :background,
           period: float() | nil,
           deadline: float() | nil,

@@ -34,7 +34,13 @@ defmodule ThinkingCap.Runtime.Deployment do
       `move/2` sends it elsewhere: moving a control module back is an
       operator's decision, made when the robot is in a safe state.
       `failback: :auto` moves it back to the first live node of its list
-      as soon as that node is up again (its fallback holds in the gap).
+      as soon as that node is up again (its fallback holds in the gap);
+    * **hands state over**: a module that implements
+      `c:ThinkingCap.Module.handoff/1` sends its handoff every
+      `handoff_every` seconds to the deployments of the other nodes of its
+      `[node | standby]`; each keeps the latest, and a module started there
+      gets it in `context.handoff`. The state a standby resumes from is at
+      most `handoff_every` seconds old (plus the link's delay).
 
   ## Consistency of placement
 
@@ -118,7 +124,9 @@ defmodule ThinkingCap.Runtime.Deployment do
         by_node: Map.new(adf.nodes, fn {logical, node} -> {node, logical} end),
         settled: map_size(adf.nodes) == 0,
         announced: false,
-        reported: nil
+        reported: nil,
+        # the latest handoff of each module, from the node running it
+        handoffs: %{}
       }
 
       send(self(), :tick)
@@ -139,6 +147,8 @@ defmodule ThinkingCap.Runtime.Deployment do
     {:reply, do_move(state, name, target), state}
   end
 
+  def handle_call({:handoff, name}, _from, state), do: {:reply, state.handoffs[name], state}
+
   @impl true
   def handle_info(:tick, state) do
     connect_missing(state)
@@ -154,6 +164,9 @@ defmodule ThinkingCap.Runtime.Deployment do
   def handle_info({_ref, change, {:deployment, _robot}, _pids}, state)
       when change in [:join, :leave],
       do: {:noreply, reconcile(state)}
+
+  def handle_info({:tc_handoff, robot, name, handoff}, %{adf: %{robot: robot}} = state),
+    do: {:noreply, %{state | handoffs: Map.put(state.handoffs, name, handoff)}}
 
   def handle_info(_other, state), do: {:noreply, state}
 
@@ -246,7 +259,7 @@ defmodule ThinkingCap.Runtime.Deployment do
   end
 
   defp start_here(state, spec) do
-    spec = Map.merge(spec, %{robot: state.adf.robot, rdf: state.adf.rdf, wdf: state.adf.wdf})
+    spec = local_spec(state.adf, spec, state.handoffs[spec.name])
 
     case Runtime.start_here(spec) do
       {:ok, _pid} ->
@@ -280,12 +293,25 @@ defmodule ThinkingCap.Runtime.Deployment do
   @doc false
   # Runs on a move's target node.
   def start_moved(adf, spec) do
-    spec = Map.merge(spec, %{robot: adf.robot, rdf: adf.rdf, wdf: adf.wdf})
+    spec = local_spec(adf, spec, GenServer.call(__MODULE__, {:handoff, spec.name}))
 
     case Runtime.start_here(spec) do
       {:ok, _pid} -> :ok
       {:error, reason} -> {:error, reason}
     end
+  end
+
+  # What a module started on this node gets beyond its ADF entry: the
+  # robot's descriptions, the handoff this node holds for it, and the
+  # nodes it hands off to (the rest of its [node | standby]).
+  defp local_spec(adf, spec, handoff) do
+    Map.merge(spec, %{
+      robot: adf.robot,
+      rdf: adf.rdf,
+      wdf: adf.wdf,
+      handoff: handoff,
+      handoff_to: Enum.uniq(chain_of(adf, spec)) -- [node()]
+    })
   end
 
   defp find_spec(state, name) do
@@ -328,10 +354,12 @@ defmodule ThinkingCap.Runtime.Deployment do
 
   ## Cluster
 
-  defp chain(state, spec) do
-    case map_size(state.adf.nodes) do
+  defp chain(state, spec), do: chain_of(state.adf, spec)
+
+  defp chain_of(adf, spec) do
+    case map_size(adf.nodes) do
       0 -> [node()]
-      _ -> Enum.map([spec.node | spec.standby], &Map.fetch!(state.adf.nodes, &1))
+      _ -> Enum.map([spec.node | spec.standby], &Map.fetch!(adf.nodes, &1))
     end
   end
 

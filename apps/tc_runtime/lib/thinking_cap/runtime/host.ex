@@ -30,7 +30,8 @@ defmodule ThinkingCap.Runtime.Host do
       node: node(),
       activity: spec.activity,
       rdf: Map.get(spec, :rdf),
-      wdf: Map.get(spec, :wdf)
+      wdf: Map.get(spec, :wdf),
+      handoff: Map.get(spec, :handoff)
     }
 
     {actions, module_state} =
@@ -65,8 +66,13 @@ defmodule ThinkingCap.Runtime.Host do
         :ok
     end
 
+    if handing_off?(spec), do: send(self(), :tc_handoff)
     {:ok, run(actions, state)}
   end
+
+  # Deployment gives `handoff_to`: the other nodes of [node | standby]
+  defp handing_off?(spec),
+    do: Map.get(spec, :handoff_to, []) != [] and function_exported?(spec.module, :handoff, 1)
 
   @impl true
   def handle_info({:tc_cycle, :release, name, release}, %{spec: %{name: name}} = state) do
@@ -112,6 +118,23 @@ defmodule ThinkingCap.Runtime.Host do
   end
 
   def handle_info({:tc_run_actions, actions}, state), do: {:noreply, run(actions, state)}
+
+  # never blocking on a busy or dead link (:noconnect): a handoff lost is
+  # replaced by the next one
+  def handle_info(:tc_handoff, %{spec: spec} = state) do
+    Process.send_after(self(), :tc_handoff, round(Map.get(spec, :handoff_every, 1.0) * 1000))
+
+    try do
+      handoff = {:tc_handoff, spec.robot, spec.name, state.module.handoff(state.mstate)}
+
+      for node <- spec.handoff_to,
+          do: Process.send({ThinkingCap.Runtime.Deployment, node}, handoff, [:noconnect])
+    rescue
+      e -> Logger.error("#{inspect(spec.name)}: handoff/1 failed: #{Exception.message(e)}")
+    end
+
+    {:noreply, state}
+  end
 
   def handle_info({:EXIT, _pid, reason}, state) when reason in [:normal, :shutdown],
     do: {:noreply, state}

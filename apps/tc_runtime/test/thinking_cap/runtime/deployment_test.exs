@@ -135,6 +135,41 @@ defmodule ThinkingCap.Runtime.DeploymentTest do
     assert Cluster.call(a, Runtime, :local_whereis, [:auto]) == nil
   end
 
+  test "a module that hands off resumes on its standby from its last handoff",
+       %{tmp_dir: dir} do
+    names = [Cluster.random_name(), Cluster.random_name()]
+
+    {path, robot} =
+      write_adf(dir, names,
+        counter:
+          "[module: ThinkingCap.Test.Modules.Counter, activity: :periodic, period: 0.02, " <>
+            "node: :nav, standby: [:main], handoff_every: 0.1]"
+      )
+
+    [a, b] = start_nodes(names)
+    deploy(a, path)
+    deploy(b, path)
+    await_host(a, :counter, b.node)
+
+    count = fn node ->
+      case Cluster.call(node, Blackboard, :rdp, [{:count, robot, :_}]) do
+        {:ok, {:count, _, count}} -> count
+        :none -> nil
+      end
+    end
+
+    Cluster.wait_until(fn -> match?(%{n: n} when n >= 40, count.(a)) end, 15_000)
+    counted = count.(a).n
+    Cluster.kill(b)
+
+    await_host(a, :counter, a.node)
+    Cluster.wait_until(fn -> match?(%{node: node} when node == a.node, count.(a)) end, 15_000)
+
+    # on from the count handed off at most 0.1 s (5 cycles) before the kill
+    assert %{resumed_from: from} = count.(a)
+    assert is_integer(from) and from >= counted - 5
+  end
+
   test "a partition runs a copy on each side; once healed the preferred copy stays",
        %{tmp_dir: dir} do
     names = [Cluster.random_name(), Cluster.random_name()]
