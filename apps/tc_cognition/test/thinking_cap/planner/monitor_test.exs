@@ -24,8 +24,17 @@ defmodule ThinkingCap.Planner.MonitorTest do
   ]
   """
 
-  defp start(wdf, task) do
-    context = %{name: :planner, robot: :r, node: node(), activity: :periodic, rdf: nil, wdf: wdf}
+  defp start(wdf, task, handoff \\ nil) do
+    context = %{
+      name: :planner,
+      robot: :r,
+      node: node(),
+      activity: :periodic,
+      rdf: nil,
+      wdf: wdf,
+      handoff: handoff
+    }
+
     {actions, state} = Monitor.init([task: task], context)
     assert {:subscribe, {:pose, :r, :_}} in actions
     state
@@ -197,14 +206,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert plan.waypoint == :lab_bench
     handoff = Monitor.handoff(state)
 
-    context = %{name: :planner, robot: :r, node: node(), activity: :periodic, rdf: nil}
-
-    {_actions, resumed} =
-      Monitor.init(
-        [task: {:visit, [:dock, :lab_bench, :desk_a]}],
-        Map.merge(context, %{wdf: @office, handoff: handoff})
-      )
-
+    resumed = start(@office, {:visit, [:dock, :lab_bench, :desk_a]}, handoff)
     {plan, _, resumed} = cycle(resumed, 1.0)
     assert plan.state == :waiting
     resumed = pose(resumed, {2.0, 1.5, 0.0})
