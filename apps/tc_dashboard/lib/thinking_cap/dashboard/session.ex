@@ -13,7 +13,8 @@ defmodule ThinkingCap.Dashboard.Session do
   in the socket's buffers that shows it the robots seconds late (five
   frames are 200 ms at 25 a second, about what a busy browser takes to
   answer). Commands from the page become blackboard writes through
-  `ThinkingCap.Dashboard.Control`; controlling ones need the access token. Every bad message gets an `error` reply and changes nothing.
+  `ThinkingCap.Dashboard.Control`; controlling ones need the access token.
+  Every bad message gets an `error` reply and changes nothing.
   """
   @behaviour ThinkingCap.Dashboard.Core.Socket
 
