@@ -31,7 +31,8 @@ defmodule ThinkingCap.Navigation.Localizer do
 
   ## Parameters
 
-    * `odometry` - the odometry sensor's tag (default `:odom`);
+    * `odometry` - the odometry sensor's tag (default: the name of the
+      RDF's sensor of type `:odometry`, else `:odom`);
     * `beacons` - the beacon sensor's tag (default `:beacons`);
     * `initial` - the start pose `{x, y, θ}` or `{x, y}`, or the name of a
       waypoint of the WDF (default `{0, 0, 0}`; a waypoint without a
@@ -69,6 +70,7 @@ defmodule ThinkingCap.Navigation.Localizer do
   use ThinkingCap.Module
 
   alias ThinkingCap.Navigation.EKF
+  alias ThinkingCap.Robot.Description
 
   @doc """
   Reads the WDF (beacons, waypoints) and the RDF (noise defaults) of the
@@ -82,10 +84,10 @@ defmodule ThinkingCap.Navigation.Localizer do
   def init(params, context) do
     params = Map.new(params || [])
     robot = context.robot
-    odometry = Map.get(params, :odometry, :odom)
-    beacon_tag = Map.get(params, :beacons, :beacons)
     wdf = read_wdf(Map.get(context, :wdf))
     rdf = read_rdf(Map.get(context, :rdf))
+    odometry = Map.get(params, :odometry, Description.sensor_name(rdf, :odometry, :odom))
+    beacon_tag = Map.get(params, :beacons, :beacons)
 
     {x, y, th} = initial_pose(Map.get(params, :initial, {0.0, 0.0, 0.0}), wdf)
     {s_xy, s_th} = Map.get(params, :initial_sigma, {0.1, 0.05})
@@ -239,7 +241,7 @@ defmodule ThinkingCap.Navigation.Localizer do
   defp read_rdf(nil), do: nil
 
   defp read_rdf(path) do
-    case ThinkingCap.Robot.Description.load(path) do
+    case Description.load(path) do
       {:ok, description} -> description
       {:error, message} -> raise ArgumentError, "localizer: " <> message
     end

@@ -9,7 +9,8 @@ defmodule ThinkingCap.Perception.Fuser do
       perception: [module: ThinkingCap.Perception.Fuser, activity: :event]
 
   It subscribes itself to the robot's range sensors, its odometry
-  (`odometry:` param, default `:odom`) and its estimated pose
+  (`odometry:` param, default: the RDF's sensor of type `:odometry`, else
+  `:odom`) and its estimated pose
   (`{:pose, robot, _}`, which brings in the WDF's walls and doors near
   the robot). Params: `odometry`, `period`, and those of
   `ThinkingCap.Perception.Fusion.new/2` (`resolution`, `window`, `memory`,
@@ -23,9 +24,12 @@ defmodule ThinkingCap.Perception.Fuser do
   @impl true
   def init(params, context) do
     params = if is_map(params), do: Map.to_list(params), else: params || []
-    sensors = range_sensors(context)
+    description = description(context)
+    sensors = range_sensors(description)
     {walls, doors} = a_priori(context)
-    odometry = Keyword.get(params, :odometry, :odom)
+
+    odometry =
+      Keyword.get(params, :odometry, Description.sensor_name(description, :odometry, :odom))
 
     fusion =
       Fusion.new(
@@ -68,20 +72,21 @@ defmodule ThinkingCap.Perception.Fuser do
 
   def handle_tuple(_tuple, state), do: {[], state}
 
-  defp range_sensors(%{rdf: rdf}) when is_binary(rdf) do
+  defp description(%{rdf: rdf}) when is_binary(rdf) do
     case Description.load(rdf) do
-      {:ok, d} ->
-        for %{type: type} = s <- d.sensors, type in [:laser, :sonar], into: %{} do
-          {s.name, Map.take(s, [:type, :pose, :ring_radius, :count, :range, :fov])}
-        end
-
-      {:error, message} ->
-        raise ArgumentError, "perception needs the robot's sensors: #{message}"
+      {:ok, d} -> d
+      {:error, message} -> raise ArgumentError, "perception needs the robot's sensors: #{message}"
     end
   end
 
-  defp range_sensors(context),
+  defp description(context),
     do: raise(ArgumentError, "#{inspect(context.name)}: perception needs the ADF's rdf:")
+
+  defp range_sensors(description) do
+    for %{type: type} = s <- description.sensors, type in [:laser, :sonar], into: %{} do
+      {s.name, Map.take(s, [:type, :pose, :ring_radius, :count, :range, :fov])}
+    end
+  end
 
   # the WDF's walls (and obstacle outlines) and doors, world frame
   defp a_priori(%{wdf: wdf}) when is_binary(wdf) do

@@ -63,6 +63,14 @@ defmodule ThinkingCap.Navigation.LocalizerTest do
     assert state.ekf.pose == {4.0, 4.0, 0.0}
   end
 
+  test "listens to the odometry sensor its robot's RDF names", %{context: ctx} do
+    create2 = Path.expand("../../../../../priv/examples/create2.rdf", __DIR__)
+    {actions, _} = Localizer.init([initial: :start], %{ctx | rdf: create2})
+    assert {:subscribe, {:odometry, :r1, :_}} in actions
+    {actions, _} = Localizer.init([initial: :start], %{ctx | rdf: @rdf})
+    assert {:subscribe, {:odom, :r1, :_}} in actions
+  end
+
   test "odometry moves the pose from the initial one, publishing at most every 0.1 s",
        %{context: ctx} do
     {_, state} = Localizer.init([initial: :start], ctx)

@@ -54,6 +54,21 @@ defmodule ThinkingCap.Robot.Description do
   end
 
   @doc """
+  The name of the robot's first sensor of `type` (`:odometry`, `:laser`,
+  ...): the tag its readings are published under. `default` when it has
+  none, or without a description.
+  """
+  @spec sensor_name(t() | nil, atom(), atom()) :: atom()
+  def sensor_name(nil, _type, default), do: default
+
+  def sensor_name(%__MODULE__{sensors: sensors}, type, default) do
+    case Enum.find(sensors, &(&1.type == type)) do
+      nil -> default
+      sensor -> sensor.name
+    end
+  end
+
+  @doc """
   Resolves a validated RDF: loads its URDF (if any), fills the wheel
   geometry and the sensors' `link:` poses from it, builds the kinematics
   model. Errors name the RDF file and, for URDF problems, the URDF file.
