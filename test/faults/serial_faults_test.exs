@@ -49,7 +49,12 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     Cluster.wait_until(fn -> match?(%{left: 0, right: 0}, Create2Emulator.state(emu)) end)
 
     # on the wire: the last moving command before the stop, and the stop
-    commands = Create2Emulator.commands(emu)
+    # (after the stop frames the base sends until the drive command comes)
+    commands =
+      emu
+      |> Create2Emulator.commands()
+      |> Enum.drop_while(&(&1.command != {:drive_direct, 200, 200}))
+
     {moving, rest} = Enum.split_while(commands, &(&1.command != {:drive_direct, 0, 0}))
     [stop | _] = rest
     last_moving = List.last(moving)
