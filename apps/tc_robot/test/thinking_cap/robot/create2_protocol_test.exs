@@ -193,18 +193,7 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
             end
 
           bytes = IO.iodata_to_binary(for {_, b} <- pieces, do: b)
-          chunks = chunk(bytes)
-          {:ok, st} = Framing.init(@ids)
-
-          {out, st} =
-            Enum.flat_map_reduce(chunks, st, fn c, st ->
-              {_, fs, st} = Framing.remove_framing(c, st)
-              {fs, st}
-            end)
-
-          # as the driver does: a partial that is a whole frame is one
-          {:ok, partial, _} = Framing.frame_timeout(st)
-          out = out ++ Enum.map(partial, &partial_frame/1)
+          out = run(chunk(bytes))
 
           delivered = Enum.filter(out, &is_binary/1)
           # everything delivered is a valid frame
@@ -282,6 +271,8 @@ defmodule ThinkingCap.Robot.Create2ProtocolTest do
     [c | chunk(rest)]
   end
 
+  # the framing over the chunks, then, as the driver does, a partial that
+  # is a whole frame is one
   defp run(chunks) do
     {:ok, st} = Framing.init(@ids)
 
