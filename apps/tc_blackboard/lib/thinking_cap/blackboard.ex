@@ -101,7 +101,15 @@ defmodule ThinkingCap.Blackboard do
   Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
   """
 
-  alias ThinkingCap.Blackboard.Core.{EvalSupervisor, Server, Store, Subscriptions, Waiters}
+  alias ThinkingCap.Blackboard.Core.{
+    EvalSupervisor,
+    Server,
+    Store,
+    Subscriptions,
+    Tables,
+    Waiters
+  }
+
   alias ThinkingCap.Blackboard.Template
   require Logger
 
@@ -125,12 +133,13 @@ defmodule ThinkingCap.Blackboard do
   def out(tuple, opts) when is_tuple(tuple) and is_list(opts) do
     {ukey, ttl} = out_options(opts)
     record = Store.new_record(tuple, ukey, ttl)
+    counters = Tables.counters()
     Store.insert(record)
     # subscribers first: nothing but the insert stands before their send,
     # and they are queued to run before the replicator
-    Subscriptions.deliver(tuple)
+    Subscriptions.deliver(tuple, counters)
     if Waiters.any?(), do: Server.notify({:arrived, tuple})
-    Server.replicate(record)
+    Server.replicate(record, counters)
   end
 
   def out(tuple, opts) when is_tuple(tuple) do

@@ -35,6 +35,34 @@ defmodule ThinkingCap.Blackboard.SubscriptionTest do
     refute_received {:blackboard, ^ref, _}
   end
 
+  test "tag-only subscriptions of two tags sharing a counter bucket each get only their own" do
+    alias ThinkingCap.Blackboard.Core.Tables
+    # two unique tags whose tag-only subscriptions count in the same bucket
+    base = System.unique_integer([:positive])
+    a = :"bucket_#{base}_a"
+    bucket = Tables.tag_bucket(3, a)
+
+    b =
+      1..100_000
+      |> Stream.map(&:"bucket_#{base}_#{&1}")
+      |> Enum.find(&(Tables.tag_bucket(3, &1) == bucket))
+
+    assert Tables.tag_bucket(3, b) == bucket
+
+    {:ok, on_a} = Blackboard.subscribe({a, :_, :_})
+    Blackboard.out({b, 1, 1})
+    Blackboard.out({a, 1, 2})
+    assert_receive {:blackboard, ^on_a, {^a, 1, 2}}
+    refute_received {:blackboard, ^on_a, {^b, _, _}}
+
+    {:ok, on_b} = Blackboard.subscribe({b, :_, :_})
+    :ok = Blackboard.unsubscribe(on_a)
+    Blackboard.out({a, 1, 3})
+    Blackboard.out({b, 1, 4})
+    assert_receive {:blackboard, ^on_b, {^b, 1, 4}}
+    refute_received {:blackboard, _, {^a, 1, 3}}
+  end
+
   test "wildcard-first and match-spec subscriptions are delivered too", %{id: id} do
     {:ok, any} = Blackboard.subscribe({:_, id, :_})
     {:ok, spec} = Blackboard.subscribe({:spec, [{{:temp, id, :"$1"}, [{:>, :"$1", 50}], [true]}]})

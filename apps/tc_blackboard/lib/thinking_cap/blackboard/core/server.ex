@@ -57,9 +57,9 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   @doc false
   # Passes a local write on to every other node (called by the writer).
-  @spec replicate(Store.record()) :: :ok
-  def replicate(record) do
-    if :atomics.get(Tables.counters(), @peer_count) > 0 do
+  @spec replicate(Store.record(), :atomics.atomics_ref()) :: :ok
+  def replicate(record, counters \\ Tables.counters()) do
+    if :atomics.get(counters, @peer_count) > 0 do
       case peers() do
         [] -> :ok
         peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)

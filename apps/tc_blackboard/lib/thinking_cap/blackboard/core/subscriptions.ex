@@ -89,37 +89,48 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   @any_counter Tables.counter(:any_subs)
   @spec_counter Tables.counter(:spec_subs)
-  @tag_counter Tables.counter(:tag_subs)
 
   defp count({:stream, _, _, _}, _delta), do: :ok
-  defp count({:tag, _, _}, delta), do: :atomics.add(Tables.counters(), @tag_counter, delta)
+
+  defp count({:tag, n, first}, delta),
+    do: :atomics.add(Tables.counters(), Tables.tag_bucket(n, first), delta)
+
   defp count({:any, _}, delta), do: :atomics.add(Tables.counters(), @any_counter, delta)
   defp count(:spec, delta), do: :atomics.add(Tables.counters(), @spec_counter, delta)
 
   @doc false
-  @spec deliver(tuple()) :: :ok
-  def deliver(tuple) do
+  # Sends `tuple` to the local subscribers it matches. `counters` is
+  # `Tables.counters/0`, which the writer has already fetched.
+  @spec deliver(tuple(), :atomics.atomics_ref()) :: :ok
+  def deliver(tuple, counters \\ Tables.counters())
+
+  def deliver(tuple, counters) when tuple_size(tuple) >= 2 do
+    n = tuple_size(tuple)
+    first = elem(tuple, 0)
     subs = Tables.subs()
-    counters = Tables.counters()
+    deliver_all(:ets.lookup(subs, {:stream, n, first, elem(tuple, 1)}), tuple)
 
-    case Template.bound_indexes(tuple) do
-      [stream, tag] ->
-        deliver_all(:ets.lookup(subs, stream), tuple)
+    if :atomics.get(counters, Tables.tag_bucket(n, first)) > 0,
+      do: deliver_all(:ets.lookup(subs, {:tag, n, first}), tuple)
 
-        if :atomics.get(counters, @tag_counter) > 0,
-          do: deliver_all(:ets.lookup(subs, tag), tuple)
+    deliver_wide(tuple, counters)
+  end
 
-      [tag] ->
-        deliver_all(:ets.lookup(subs, tag), tuple)
+  def deliver({first} = tuple, counters) do
+    deliver_all(:ets.lookup(Tables.subs(), {:tag, 1, first}), tuple)
+    deliver_wide(tuple, counters)
+  end
 
-      [] ->
-        :ok
-    end
+  def deliver({} = tuple, counters), do: deliver_wide(tuple, counters)
 
+  # subscriptions that may match any tuple
+  defp deliver_wide(tuple, counters) do
     if :atomics.get(counters, @any_counter) > 0,
-      do: deliver_all(:ets.lookup(subs, {:any, tuple_size(tuple)}), tuple)
+      do: deliver_all(:ets.lookup(Tables.subs(), {:any, tuple_size(tuple)}), tuple)
 
-    if :atomics.get(counters, @spec_counter) > 0, do: deliver_all(:ets.lookup(subs, :spec), tuple)
+    if :atomics.get(counters, @spec_counter) > 0,
+      do: deliver_all(:ets.lookup(Tables.subs(), :spec), tuple)
+
     :ok
   end
 

@@ -36,19 +36,29 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @doc false
   def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
 
-  @counters [any_subs: 1, spec_subs: 2, peers: 3, tag_subs: 4]
+  @counters [any_subs: 1, spec_subs: 2, peers: 3]
+  @tag_buckets 1024
+  @tag_base length(@counters)
 
   @doc false
   # Counters the write path reads instead of probing tables: subscriptions
-  # indexed by tag only ({:tag, n, first}), by arity only ({:any, n}) and by
-  # match specification (:spec), so delivery skips those lookups when there
-  # are none, and the number of peer servers. One atomics array per table
+  # indexed by arity only ({:any, n}) and by match specification (:spec), so
+  # delivery skips those lookups when there are none; the number of peer
+  # servers; and, in #{@tag_buckets} buckets by `tag_bucket/2`, subscriptions
+  # indexed by tag only ({:tag, n, first}), so that a write looks for them
+  # only when its tag's bucket holds some (a bucket shared by two tags costs
+  # a needless lookup, never a missed delivery). One atomics array per table
   # set, found through persistent_term (written once per start of this
-  # process). `counter/1` names its slots.
+  # process). `counter/1` names the fixed slots.
   def counters, do: :persistent_term.get({__MODULE__, :counters})
 
   @doc false
   def counter(name), do: Keyword.fetch!(@counters, name)
+
+  @doc false
+  # The counter slot of tag-only subscriptions to tuples of arity `n` whose
+  # first element is `first`.
+  def tag_bucket(n, first), do: @tag_base + 1 + :erlang.phash2({n, first}, @tag_buckets)
 
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
 
@@ -69,7 +79,12 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     :ets.new(@tombs, [:set | plain])
     :ets.new(@meta, [:set, {:read_concurrency, true} | plain])
     :ets.insert(@meta, [{:boot, {System.system_time(), :erlang.unique_integer()}}, {:peers, []}])
-    :persistent_term.put({__MODULE__, :counters}, :atomics.new(length(@counters), signed: true))
+
+    :persistent_term.put(
+      {__MODULE__, :counters},
+      :atomics.new(@tag_base + @tag_buckets, signed: true)
+    )
+
     {:ok, nil}
   end
 end
