@@ -138,7 +138,7 @@ defmodule ThinkingCap.Blackboard do
     # subscribers first: nothing but the insert stands before their send,
     # and they are queued to run before the replicator
     Subscriptions.deliver(tuple, counters)
-    if Waiters.any?(), do: Server.notify({:arrived, tuple})
+    if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
     Server.replicate(record, counters)
   end
 

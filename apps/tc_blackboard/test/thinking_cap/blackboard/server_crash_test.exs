@@ -29,6 +29,37 @@ defmodule ThinkingCap.Blackboard.ServerCrashTest do
     assert_receive {:blackboard, ^sub, {:news, ^id, :while_down}}
   end
 
+  test "writers look for waiters while any process may be blocked, and only then", %{id: id} do
+    alias ThinkingCap.Blackboard.Core.Waiters
+    parent = self()
+    # (no other test runs beside this module's)
+    Cluster.wait_until(fn -> Blackboard.waiters() == [] end)
+    refute Waiters.any?()
+
+    # woken by a write
+    spawn(fn -> send(parent, {:read, Blackboard.rd({:wc, id, :a})}) end)
+    Cluster.wait_until(fn -> Waiters.any?() end)
+    Blackboard.out({:wc, id, :a})
+    assert_receive {:read, {:ok, _}}
+    Cluster.wait_until(fn -> not Waiters.any?() end)
+
+    # timed out
+    assert {:error, :timeout} = Blackboard.take({:wc, id, :b}, 20)
+    refute Waiters.any?()
+
+    # killed while blocked
+    taker = spawn(fn -> Blackboard.take({:wc, id, :c}) end)
+    Cluster.wait_until(fn -> Waiters.any?() end)
+    Process.exit(taker, :kill)
+    Cluster.wait_until(fn -> not Waiters.any?() end)
+
+    # and a write after all that wakes a new waiter
+    spawn(fn -> send(parent, {:took, Blackboard.take({:wc, id, :d})}) end)
+    Cluster.wait_until(fn -> Waiters.any?() end)
+    Blackboard.out({:wc, id, :d})
+    assert_receive {:took, {:ok, {:wc, ^id, :d}}}
+  end
+
   test "subscribers are monitored again by the restarted server", %{id: id} do
     parent = self()
 

@@ -36,7 +36,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @doc false
   def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
 
-  @counters [any_subs: 1, spec_subs: 2, peers: 3]
+  @counters [any_subs: 1, spec_subs: 2, peers: 3, waiters: 4]
   @tag_buckets 1024
   @tag_base length(@counters)
 
@@ -44,7 +44,8 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   # Counters the write path reads instead of probing tables: subscriptions
   # indexed by arity only ({:any, n}) and by match specification (:spec), so
   # delivery skips those lookups when there are none; the number of peer
-  # servers; and, in #{@tag_buckets} buckets by `tag_bucket/2`, subscriptions
+  # servers; an upper bound on the number of blocked waiters (see
+  # `Waiters.any?/1`); and, in #{@tag_buckets} buckets by `tag_bucket/2`, subscriptions
   # indexed by tag only ({:tag, n, first}), so that a write looks for them
   # only when its tag's bucket holds some (a bucket shared by two tags costs
   # a needless lookup, never a missed delivery). One atomics array per table

@@ -15,6 +15,8 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   @type kind :: :rd | :take
 
+  @count Tables.counter(:waiters)
+
   @doc false
   # Runs `attempt` until it yields a tuple or `timeout` ms pass.
   @spec await(kind(), Template.compiled(), timeout(), (() -> {:ok, tuple()} | :none)) ::
@@ -30,6 +32,9 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
       :none ->
         ref = make_ref()
         wkey = {template.index, :erlang.unique_integer([:monotonic, :positive])}
+        # counted before the row exists and uncounted after it is gone: the
+        # count is never below the rows (see any?/1)
+        :atomics.add(Tables.counters(), @count, 1)
         :ets.insert(Tables.waiters(), {wkey, self(), ref, kind, template, false})
         Server.notify({:kick, wkey})
 
@@ -45,14 +50,14 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   defp wait(wkey, ref, deadline, attempt) do
     receive do
       {:tc_bb_wake, ^ref, tuple} when tuple != nil ->
-        :ets.delete(Tables.waiters(), wkey)
+        forget(wkey)
         flush(ref)
         {:ok, tuple}
 
       {:tc_bb_wake, ^ref, nil} ->
         case attempt.() do
           {:ok, tuple} ->
-            :ets.delete(Tables.waiters(), wkey)
+            forget(wkey)
             flush(ref)
             {:ok, tuple}
 
@@ -70,9 +75,17 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
           _ -> :ok
         end
 
+        :atomics.sub(Tables.counters(), @count, 1)
+
         flush(ref)
         {:error, :timeout}
     end
+  end
+
+  # only the waiter itself removes its row while it lives
+  defp forget(wkey) do
+    :ets.delete(Tables.waiters(), wkey)
+    :atomics.sub(Tables.counters(), @count, 1)
   end
 
   defp remaining(:infinity), do: :infinity
@@ -89,9 +102,14 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   ## Server side
 
   @doc false
-  @spec any?() :: boolean()
-  # (ets:info(T, :size) sums per-scheduler counters: :ets.first/1 is cheaper)
-  def any?, do: :ets.first(Tables.waiters()) != :"$end_of_table"
+  # Whether any process may be blocked. The count spares writers the table
+  # probe when nobody waits; it may stay above the rows when a waiter is
+  # killed between the two, which only costs the probe. (ets:info(T, :size)
+  # sums per-scheduler counters: :ets.first/1 is cheaper.)
+  @spec any?(:atomics.atomics_ref()) :: boolean()
+  def any?(counters \\ Tables.counters()) do
+    :atomics.get(counters, @count) > 0 and :ets.first(Tables.waiters()) != :"$end_of_table"
+  end
 
   @doc false
   # On the arrival of `tuple`: hand it to every matching rd waiter and wake
@@ -178,7 +196,8 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   @spec drop_pid(pid()) :: boolean()
   def drop_pid(pid) do
     woken = :ets.select(Tables.waiters(), [{{:_, pid, :_, :_, :_, :"$1"}, [], [:"$1"]}])
-    :ets.select_delete(Tables.waiters(), [{{:_, pid, :_, :_, :_, :_}, [], [true]}])
+    gone = :ets.select_delete(Tables.waiters(), [{{:_, pid, :_, :_, :_, :_}, [], [true]}])
+    :atomics.sub(Tables.counters(), @count, gone)
     Enum.any?(woken)
   end
 
