@@ -43,9 +43,16 @@ defmodule ThinkingCap.Runtime do
   @doc false
   def scope, do: @scope
 
+  @typedoc """
+  A running module: its ADF name, or `{robot, name}` where two robots of
+  the cluster run modules of the same name (a bare name then finds either).
+  """
+  @type module_ref :: atom() | {robot :: atom(), name :: atom()}
+
   @typedoc "A module as the runtime reports it."
   @type module_info :: %{
           name: atom(),
+          robot: atom(),
           module: module(),
           node: node(),
           pid: pid(),
@@ -144,7 +151,7 @@ defmodule ThinkingCap.Runtime do
   Stops a module, wherever it runs. When it returns, the module's node no
   longer finds it; other nodes stop finding it as soon as `:pg` tells them.
   """
-  @spec stop(atom()) :: :ok | {:error, :not_running}
+  @spec stop(module_ref()) :: :ok | {:error, :not_running}
   def stop(name) do
     case whereis(name) do
       nil ->
@@ -164,7 +171,7 @@ defmodule ThinkingCap.Runtime do
   it again with the ADF's parameters. The periodic activity's fallback holds
   meanwhile.
   """
-  @spec restart(atom()) :: :ok | {:error, :not_running}
+  @spec restart(module_ref()) :: :ok | {:error, :not_running}
   def restart(name) do
     case whereis(name) do
       nil ->
@@ -184,7 +191,7 @@ defmodule ThinkingCap.Runtime do
   module takes over the same process, periodic slot and subscriptions
   between two messages, so no release is missed.
   """
-  @spec swap(atom(), module()) :: :ok | {:error, :not_running | term()}
+  @spec swap(module_ref(), module()) :: :ok | {:error, :not_running | term()}
   def swap(name, new_module) do
     case whereis(name) do
       nil ->
@@ -200,31 +207,37 @@ defmodule ThinkingCap.Runtime do
   def check_module_here(module), do: check_module(module)
 
   @doc "The process of a running module (on any node), or nil."
-  @spec whereis(atom()) :: pid() | nil
-  def whereis(name) do
-    case :pg.get_members(@scope, {:module, name}) do
+  @spec whereis(module_ref()) :: pid() | nil
+  def whereis(ref) do
+    case :pg.get_members(@scope, group(ref)) do
       [pid | _] -> pid
       [] -> nil
     end
   end
 
-  @doc "Every process hosting module `name`, on any node (more than one only across a partition)."
-  @spec whereis_all(atom()) :: [pid()]
-  def whereis_all(name), do: :pg.get_members(@scope, {:module, name})
+  @doc """
+  Every process hosting module `ref`, on any node: more than one across a
+  partition, or for a bare name that two robots use.
+  """
+  @spec whereis_all(module_ref()) :: [pid()]
+  def whereis_all(ref), do: :pg.get_members(@scope, group(ref))
 
-  @doc "The process of module `name` on this node, or nil."
-  @spec local_whereis(atom()) :: pid() | nil
-  def local_whereis(name) do
-    case :pg.get_local_members(@scope, {:module, name}) do
+  @doc "The process of module `ref` on this node, or nil."
+  @spec local_whereis(module_ref()) :: pid() | nil
+  def local_whereis(ref) do
+    case :pg.get_local_members(@scope, group(ref)) do
       [pid | _] -> pid
       [] -> nil
     end
   end
+
+  defp group({robot, name}) when is_atom(robot) and is_atom(name), do: {:module, robot, name}
+  defp group(name) when is_atom(name), do: {:module, name}
 
   @doc "The modules running on this node: `[{name, pid}]`."
   @spec local_modules() :: [{atom(), pid()}]
   def local_modules do
-    for {:module, name} = group <- :pg.which_groups(@scope),
+    for {:module, name} = group when is_atom(name) <- :pg.which_groups(@scope),
         pid <- :pg.get_local_members(@scope, group),
         do: {name, pid}
   end
@@ -262,7 +275,10 @@ defmodule ThinkingCap.Runtime do
   def which_modules do
     @scope
     |> :pg.which_groups()
-    |> Enum.flat_map(fn {:module, _name} = group -> :pg.get_members(@scope, group) end)
+    |> Enum.flat_map(fn
+      {:module, name} = group when is_atom(name) -> :pg.get_members(@scope, group)
+      _robot_and_name -> []
+    end)
     |> Enum.flat_map(fn pid ->
       try do
         [info(pid)]

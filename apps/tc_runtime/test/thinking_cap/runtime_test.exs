@@ -20,6 +20,51 @@ defmodule ThinkingCap.RuntimeTest do
     {adf, robot, fn name -> :"#{name}_#{robot}" end}
   end
 
+  test "two robots' modules of the same name are told apart by {robot, name}", %{tmp_dir: dir} do
+    name = :"echo_#{System.unique_integer([:positive])}"
+
+    spec =
+      "[module: ThinkingCap.Test.Modules.Echo, activity: :event, subscribe: [{:ping, :_, :_}]]"
+
+    [{adf1, r1}, {adf2, r2}] =
+      for _ <- 1..2 do
+        robot = :"r#{System.unique_integer([:positive])}"
+        path = Path.join(dir, "#{robot}.adf")
+        File.write!(path, "[robot: :#{robot}, modules: [#{name}: #{spec}]]")
+        {Config.read!(path), robot}
+      end
+
+    on_exit(fn -> for r <- [r1, r2], do: Runtime.stop({r, name}) end)
+    assert {:ok, [%{robot: ^r1, pid: p1}]} = Runtime.start(adf1)
+    assert {:ok, [%{robot: ^r2, pid: p2}]} = Runtime.start(adf2)
+    assert p1 != p2
+
+    assert Runtime.whereis({r1, name}) == p1
+    assert Runtime.whereis({r2, name}) == p2
+    assert Runtime.local_whereis({r2, name}) == p2
+    assert Runtime.whereis({:no_such_robot, name}) == nil
+    # a bare name finds either
+    assert Runtime.whereis(name) in [p1, p2]
+    assert Enum.sort(Runtime.whereis_all(name)) == Enum.sort([p1, p2])
+
+    assert [%{robot: ^r1, pid: ^p1}, %{robot: ^r2, pid: ^p2}] =
+             Runtime.which_modules()
+             |> Enum.filter(&(&1.name == name))
+             |> Enum.sort_by(&(&1.robot == r2))
+
+    # restarting one robot's leaves the other's running
+    ref = Process.monitor(p1)
+    assert :ok = Runtime.restart({r1, name})
+    assert_receive {:DOWN, ^ref, :process, ^p1, _}
+    Cluster.wait_until(fn -> Runtime.whereis({r1, name}) not in [nil, p1] end)
+    assert Runtime.whereis({r2, name}) == p2
+
+    assert :ok = Runtime.stop({r2, name})
+    refute Process.alive?(p2)
+    assert Runtime.whereis({r2, name}) == nil
+    assert is_pid(Runtime.whereis({r1, name}))
+  end
+
   test "an ADF's modules start, report where they run, and each activity kind runs", %{
     tmp_dir: dir
   } do

@@ -101,18 +101,32 @@ defmodule ThinkingCap.Dashboard.Control do
     Blackboard.out({:task, robot, %{task: {:go_to, waypoint}}}, key: {:task, robot})
   end
 
-  @doc "Restarts a running module by its ADF name (a string from a client, or an atom)."
-  @spec restart(String.t() | atom()) :: :ok | {:error, String.t()}
-  def restart(name) do
-    case Enum.find(ThinkingCap.Runtime.which_modules(), &(to_string(&1.name) == to_string(name))) do
-      nil ->
-        {:error, "no module #{inspect(name)} is running"}
+  @doc """
+  Restarts a running module by its ADF name (a string from a client, or an
+  atom), of `robot` when given. Without a robot, a name that two robots'
+  modules share is refused, naming them.
+  """
+  @spec restart(String.t() | atom(), String.t() | atom() | nil) :: :ok | {:error, String.t()}
+  def restart(name, robot \\ nil) do
+    running =
+      ThinkingCap.Runtime.which_modules()
+      |> Enum.filter(&(to_string(&1.name) == to_string(name)))
+      |> Enum.filter(&(robot == nil or to_string(&1.robot) == to_string(robot)))
+      |> Enum.uniq_by(& &1.robot)
 
-      %{name: name} ->
-        case ThinkingCap.Runtime.restart(name) do
+    case running do
+      [] ->
+        {:error, "no module #{inspect(name)} is running#{if robot, do: " for robot #{robot}"}"}
+
+      [%{name: name, robot: robot}] ->
+        case ThinkingCap.Runtime.restart({robot, name}) do
           :ok -> :ok
           {:error, :not_running} -> {:error, "module #{name} stopped meanwhile"}
         end
+
+      several ->
+        {:error,
+         "module #{name} runs for robots #{Enum.map_join(several, ", ", & &1.robot)}: name the robot"}
     end
   end
 

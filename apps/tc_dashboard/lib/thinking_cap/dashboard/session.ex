@@ -190,7 +190,8 @@ defmodule ThinkingCap.Dashboard.Session do
   defp handle("restart", m, state) do
     with :ok <- may_control(m, state),
          {:ok, name} <- string(m, "module"),
-         :ok <- wrap(m, Control.restart(name)) do
+         {:ok, robot} <- if(Map.has_key?(m, "robot"), do: string(m, "robot"), else: {:ok, nil}),
+         :ok <- wrap(m, Control.restart(name, robot)) do
       {:ok, ok(m), state}
     end
   end

@@ -117,6 +117,7 @@ defmodule ThinkingCap.Dashboard.SessionTest do
       ~s({"op": "query", "template": [{"a": 1}]}),
       ~s({"op": "tail", "template": ["pose", "_", "_"]}),
       ~s({"op": "restart", "module": "no_such_module_q9z"}),
+      ~s({"op": "restart", "module": "no_such_module_q9z", "robot": {"a": 1}}),
       String.duplicate("[", 5000)
     ]
 

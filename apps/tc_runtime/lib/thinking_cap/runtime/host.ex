@@ -22,7 +22,7 @@ defmodule ThinkingCap.Runtime.Host do
   def init(spec) do
     Process.flag(:trap_exit, true)
     Process.flag(:priority, priority(spec.activity))
-    :ok = :pg.join(ThinkingCap.Runtime.scope(), {:module, spec.name}, self())
+    Enum.each(groups(spec), &(:ok = :pg.join(ThinkingCap.Runtime.scope(), &1, self())))
 
     context = %{
       name: spec.name,
@@ -150,6 +150,7 @@ defmodule ThinkingCap.Runtime.Host do
   def handle_call(:info, _from, state) do
     info = %{
       name: state.spec.name,
+      robot: state.spec.robot,
       module: state.module,
       node: node(),
       pid: self(),
@@ -186,11 +187,15 @@ defmodule ThinkingCap.Runtime.Host do
   def terminate(reason, state) do
     # leave at once: when stop/1 returns the module is gone from whereis/1
     # on this node (pg would otherwise drop it when it sees the exit)
-    :pg.leave(ThinkingCap.Runtime.scope(), {:module, state.spec.name}, self())
+    Enum.each(groups(state.spec), &:pg.leave(ThinkingCap.Runtime.scope(), &1, self()))
     state.module.terminate(reason, state.mstate)
   end
 
   ## Helpers
+
+  # found by name, and by robot and name (two robots of one cluster may
+  # both run a module of the same name)
+  defp groups(spec), do: [{:module, spec.name}, {:module, spec.robot, spec.name}]
 
   defp priority(:periodic), do: :high
   defp priority(:event), do: :normal
