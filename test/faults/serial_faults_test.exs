@@ -48,17 +48,18 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
 
     Cluster.wait_until(fn -> match?(%{left: 0, right: 0}, Create2Emulator.state(emu)) end)
 
-    # on the wire: the last moving command before the stop, and the stop
-    # (after the stop frames the base sends until the drive command comes)
-    commands =
-      emu
-      |> Create2Emulator.commands()
-      |> Enum.drop_while(&(&1.command != {:drive_direct, 200, 200}))
+    # on the wire: the last moving command and the stop after it (a missed
+    # deadline before the kill puts a fallback stop between moving commands)
+    commands = Create2Emulator.commands(emu)
+    moving? = &(&1.command == {:drive_direct, 200, 200})
 
-    {moving, rest} = Enum.split_while(commands, &(&1.command != {:drive_direct, 0, 0}))
-    [stop | _] = rest
-    last_moving = List.last(moving)
-    assert last_moving.command == {:drive_direct, 200, 200}
+    {after_last_moving, [last_moving | _]} =
+      commands |> Enum.reverse() |> Enum.split_while(&(not moving?.(&1)))
+
+    stop =
+      after_last_moving |> Enum.reverse() |> Enum.find(&(&1.command == {:drive_direct, 0, 0}))
+
+    assert stop != nil
     assert stop.at >= killed_at or last_moving.at >= killed_at
 
     uncommanded = System.convert_time_unit(stop.at - last_moving.at, :native, :microsecond) / 1000
