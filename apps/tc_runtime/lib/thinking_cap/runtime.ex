@@ -243,9 +243,9 @@ defmodule ThinkingCap.Runtime do
   end
 
   @doc false
-  # Stops module `name` if it runs on this node.
-  def stop_here(name) do
-    case local_whereis(name) do
+  # Stops module `ref` if it runs on this node.
+  def stop_here(ref) do
+    case local_whereis(ref) do
       nil -> :ok
       pid -> DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid)
     end

@@ -208,16 +208,17 @@ defmodule ThinkingCap.Runtime.Deployment do
   defp place(state, spec, up) do
     chain = chain(state, spec)
     host = Enum.find(chain, &(&1 in up))
-    here = Runtime.local_whereis(spec.name)
-    elsewhere = for pid <- Runtime.whereis_all(spec.name), node(pid) in up, do: node(pid)
+    ref = ref(state, spec)
+    here = Runtime.local_whereis(ref)
+    elsewhere = for pid <- Runtime.whereis_all(ref), node(pid) in up, do: node(pid)
 
     cond do
       host == node() and here == nil and (elsewhere == [] or spec.failback == :auto) ->
-        locked(spec, fn -> host_here(state, spec, up) end)
+        locked(ref, fn -> host_here(state, spec, up) end)
 
       here != nil and node() in chain and
           Enum.any?(Enum.take_while(chain, &(&1 != node())), &(&1 in elsewhere)) ->
-        locked(spec, fn -> give_way(spec, chain, up) end)
+        locked(ref, fn -> give_way(ref, chain, up) end)
 
       true ->
         :ok
@@ -227,13 +228,15 @@ defmodule ThinkingCap.Runtime.Deployment do
   # This node is the module's host: start it unless it runs elsewhere and
   # may stay there (failback :manual), or take it over (failback :auto).
   defp host_here(state, spec, up) do
-    case running_on(spec.name, up) do
+    ref = ref(state, spec)
+
+    case running_on(ref, up) do
       [] ->
         start_here(state, spec)
 
       running ->
         if node() not in running and spec.failback == :auto do
-          Enum.each(running, &stop_on(&1, spec.name))
+          Enum.each(running, &stop_on(&1, ref))
           start_here(state, spec)
         end
     end
@@ -243,16 +246,16 @@ defmodule ThinkingCap.Runtime.Deployment do
 
   # A copy here while a node before this one in the chain also runs it: the
   # partition healed, the better placed copy stays.
-  defp give_way(spec, chain, up) do
-    running = running_on(spec.name, up)
+  defp give_way({_robot, name} = ref, chain, up) do
+    running = running_on(ref, up)
     better = Enum.take_while(chain, &(&1 != node()))
 
     if node() in running and Enum.any?(running, &(&1 in better)) do
       Logger.warning(
-        "deployment: #{spec.name} also runs on #{inspect(Enum.find(running, &(&1 in better)))}; stopping the copy here"
+        "deployment: #{name} also runs on #{inspect(Enum.find(running, &(&1 in better)))}; stopping the copy here"
       )
 
-      stop_on(node(), spec.name)
+      stop_on(node(), ref)
     end
 
     :ok
@@ -273,13 +276,15 @@ defmodule ThinkingCap.Runtime.Deployment do
   defp do_move(state, name, target) do
     with {:ok, spec} <- find_spec(state, name),
          {:ok, node} <- target_node(state, target) do
-      locked(spec, fn ->
+      ref = ref(state, spec)
+
+      locked(ref, fn ->
         up = up_nodes(state)
 
         if node in up do
-          Enum.each(running_on(name, up) -- [node], &stop_on(&1, name))
+          Enum.each(running_on(ref, up) -- [node], &stop_on(&1, ref))
 
-          case running_on(name, [node]) do
+          case running_on(ref, [node]) do
             [] -> :erpc.call(node, __MODULE__, :start_moved, [state.adf, spec], 15_000)
             _ -> :ok
           end
@@ -332,9 +337,13 @@ defmodule ThinkingCap.Runtime.Deployment do
 
   # The nodes (running it or not) where the module is hosted right now,
   # asked of each node's own supervisor.
-  defp running_on(name, up) do
+  # this robot's module, by {robot, name}: another robot of the cluster may
+  # run a module of the same name
+  defp ref(state, spec), do: {state.adf.robot, spec.name}
+
+  defp running_on(ref, up) do
     up
-    |> :erpc.multicall(Runtime, :local_whereis, [name], 5_000)
+    |> :erpc.multicall(Runtime, :local_whereis, [ref], 5_000)
     |> Enum.zip(up)
     |> Enum.flat_map(fn
       {{:ok, pid}, node} when is_pid(pid) -> [node]
@@ -342,14 +351,14 @@ defmodule ThinkingCap.Runtime.Deployment do
     end)
   end
 
-  defp stop_on(node, name) do
-    :erpc.call(node, Runtime, :stop_here, [name], 15_000)
+  defp stop_on(node, ref) do
+    :erpc.call(node, Runtime, :stop_here, [ref], 15_000)
   catch
     :error, _ -> :ok
   end
 
-  defp locked(spec, fun) do
-    :global.trans({{__MODULE__, spec.name}, self()}, fun, [node() | Node.list()], 5)
+  defp locked(ref, fun) do
+    :global.trans({{__MODULE__, ref}, self()}, fun, [node() | Node.list()], 5)
   end
 
   ## Cluster

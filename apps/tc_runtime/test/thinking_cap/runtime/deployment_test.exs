@@ -216,4 +216,40 @@ defmodule ThinkingCap.Runtime.DeploymentTest do
     assert {:error, message} = Runtime.deploy(Path.join(dir, "missing.adf"))
     assert message =~ "missing.adf"
   end
+
+  test "two robots of one cluster each run their own module of a shared name", %{tmp_dir: dir} do
+    [name_a, name_b] = [Cluster.random_name(), Cluster.random_name()]
+
+    adf = fn node_name ->
+      robot = :"r#{System.unique_integer([:positive])}"
+      path = Path.join(dir, "#{robot}.adf")
+
+      File.write!(path, """
+      [robot: :#{robot}, nodes: [main: :"#{Cluster.node_name(node_name)}"],
+       cluster: [connect_every: 0.2, settle: 0.5],
+       modules: [shared: #{@echo}, node: :main]]]
+      """)
+
+      {path, robot}
+    end
+
+    {path_a, robot_a} = adf.(name_a)
+    {path_b, robot_b} = adf.(name_b)
+    [a, b] = start_nodes([name_a, name_b])
+    Cluster.connect(a, b)
+    deploy(a, path_a)
+    deploy(b, path_b)
+
+    await_host(a, :shared, a.node)
+    await_host(b, :shared, b.node)
+    pid_a = Cluster.call(a, Runtime, :whereis, [{robot_a, :shared}])
+    pid_b = Cluster.call(a, Runtime, :whereis, [{robot_b, :shared}])
+    assert node(pid_a) == a.node and node(pid_b) == b.node
+
+    # and they stay so: neither deployment takes the other's for its own
+    Process.sleep(1_000)
+    assert Cluster.call(b, Runtime, :whereis, [{robot_a, :shared}]) == pid_a
+    assert Cluster.call(b, Runtime, :whereis, [{robot_b, :shared}]) == pid_b
+    assert length(Cluster.call(a, Runtime, :whereis_all, [:shared])) == 2
+  end
 end
