@@ -8,11 +8,25 @@ defmodule Mix.Tasks.Tc.Bench do
 
   A benchmark file defines `ThinkingCap.Bench.<Name>` with `run(args)`.
   Benchmarks start what they compare against themselves.
+
+  Benchmarks measure the VM a robot runs: when this one was started
+  without the release's scheduler flags (`+sbwt none +sbwtdcpu none
+  +sbwtdio none`, rel/vm.args.eex: the runtime may run the schedulers at
+  real-time priority, where they must not busy-wait), the task runs itself
+  again in a VM that has them.
   """
   use Mix.Task
 
+  @vm_flags "+sbwt none +sbwtdcpu none +sbwtdio none"
+
   @impl true
   def run([name | args]) do
+    if busy_wait_off?(), do: run_here(name, args), else: run_with_vm_flags([name | args])
+  end
+
+  def run([]), do: Mix.raise("usage: mix tc.bench NAME")
+
+  defp run_here(name, args) do
     file = Path.join([root(), "bench", "#{name}_bench.exs"])
 
     unless File.exists?(file) do
@@ -33,7 +47,27 @@ defmodule Mix.Tasks.Tc.Bench do
     module.run(args)
   end
 
-  def run([]), do: Mix.raise("usage: mix tc.bench NAME")
+  defp busy_wait_off? do
+    case File.read("/proc/#{System.pid()}/cmdline") do
+      {:ok, cmdline} -> cmdline =~ <<"-sbwt", 0, "none">>
+      # not Linux: no real-time scheduling to protect
+      {:error, _} -> true
+    end
+  end
+
+  defp run_with_vm_flags(argv) do
+    Mix.shell().info("tc.bench: running in a VM with #{@vm_flags}")
+    options = String.trim("#{System.get_env("ELIXIR_ERL_OPTIONS")} #{@vm_flags}")
+
+    {_, status} =
+      System.cmd("mix", ["tc.bench" | argv],
+        env: [{"ELIXIR_ERL_OPTIONS", options}],
+        into: IO.stream(:stdio, :line),
+        stderr_to_stdout: true
+      )
+
+    if status != 0, do: exit({:shutdown, status})
+  end
 
   # the umbrella root when run from there or from an app
   defp root do
