@@ -359,7 +359,9 @@ defmodule ThinkingCap.Bench.Timing do
         nil
 
       exe ->
-        args = ["-m", "-p80", "-i10000", "-D", "#{seconds + 1}s", "-q", "-h", "20000"]
+        # -S: a thread on each CPU (the worker may run on either, and a CPU
+        # of a virtual machine can stall alone)
+        args = ["-m", "-S", "-p80", "-i10000", "-D", "#{seconds + 1}s", "-q", "-h", "20000"]
         Port.open({:spawn_executable, exe}, [:binary, :exit_status, args: args])
     end
   end
@@ -369,27 +371,17 @@ defmodule ThinkingCap.Bench.Timing do
   defp finish_cyclictest(port) do
     output = read_port(port, "")
 
+    # one count column per thread (CPU), summed
     histogram =
       for line <- String.split(output, "\n"),
-          [_, us, count] <- [Regex.run(~r/^(\d{6})\s+(\d+)$/, line)],
-          count != "000000",
-          do: {String.to_integer(us), String.to_integer(count)}
+          [us | counts] <- [String.split(line)],
+          String.match?(us, ~r/^\d{6}$/),
+          count <- [counts |> Enum.map(&String.to_integer/1) |> Enum.sum()],
+          count > 0,
+          do: {String.to_integer(us), count}
 
-    overflows =
-      case Regex.run(~r/# Histogram Overflows: (\d+)/, output),
-        do:
-          (
-            [_, n] -> String.to_integer(n)
-            _ -> 0
-          )
-
-    max =
-      case Regex.run(~r/# Max Latencies: (\d+)/, output),
-        do:
-          (
-            [_, n] -> String.to_integer(n)
-            _ -> nil
-          )
+    overflows = output |> header_numbers("Histogram Overflows") |> Enum.sum()
+    max = output |> header_numbers("Max Latencies") |> Enum.max(fn -> nil end)
 
     total = Enum.sum(Enum.map(histogram, &elem(&1, 1))) + overflows
     # wake-ups later than the control cycle's 3 ms deadline
@@ -401,6 +393,14 @@ defmodule ThinkingCap.Bench.Timing do
       max: max,
       over_deadline: over_deadline
     }
+  end
+
+  # the numbers of a "# Name: n n ..." line of cyclictest's, one per thread
+  defp header_numbers(output, name) do
+    case Regex.run(~r/^# #{name}:((?: \d+)+)/m, output) do
+      [_, numbers] -> numbers |> String.split() |> Enum.map(&String.to_integer/1)
+      nil -> []
+    end
   end
 
   defp read_port(port, acc) do
