@@ -49,6 +49,7 @@ defmodule ThinkingCap.Bench.Dashboard do
 
   Code.require_file(Path.join(@root, "apps/tc_dashboard/test/support/browser.ex"))
   alias ThinkingCap.Dashboard.Test.Browser
+  alias ThinkingCap.Bench.ProcStat
 
   def run(args) do
     {opts, _, _} =
@@ -74,7 +75,7 @@ defmodule ThinkingCap.Bench.Dashboard do
 
     :ok = Browser.ensure_assets!()
     cores = System.schedulers_online()
-    ticks = clock_ticks()
+    ticks = ProcStat.clock_ticks()
 
     IO.puts(
       "dashboard: #{n_robots} simulated robots (office world, 100 Hz bases), " <>
@@ -157,7 +158,7 @@ defmodule ThinkingCap.Bench.Dashboard do
 
     IO.puts(
       "  age of each page's latest frame at the end: max #{fmt(Enum.max(ages), 0)} ms, " <>
-        "mean #{fmt(mean(ages), 0)} ms"
+        "mean #{fmt(mean(ages), 0)} ms; a telemetry frame is #{frame_bytes} bytes of JSON"
     )
 
     IO.puts("  chromium (#{n_browsers} pages): #{fmt(chromium_cpu * 100, 0)}% of one core")
@@ -351,13 +352,6 @@ defmodule ThinkingCap.Bench.Dashboard do
     case File.read(Path.join(dir, "comm")) do
       {:ok, c} -> c
       _ -> ""
-    end
-  end
-
-  defp clock_ticks do
-    case System.cmd("getconf", ["CLK_TCK"], stderr_to_stdout: true) do
-      {out, 0} -> out |> String.trim() |> String.to_integer()
-      _ -> 100
     end
   end
 

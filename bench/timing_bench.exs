@@ -22,7 +22,7 @@ defmodule ThinkingCap.Bench.Timing do
   """
 
   alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
-  alias ThinkingCap.Bench.Stats
+  alias ThinkingCap.Bench.{ProcStat, Stats}
 
   @collector :tc_timing_bench
 
@@ -242,9 +242,9 @@ defmodule ThinkingCap.Bench.Timing do
     # one second to settle, then measure
     drain(System.monotonic_time(:millisecond) + 1000)
     window = System.monotonic_time(:millisecond) + seconds * 1000
-    steal_before = steal_ms()
+    steal_before = ProcStat.steal_ms()
     result = measure(name, window, %{releases: [], jitter: [], applied: %{}, late: 0}, :window)
-    steal = steal_ms() - steal_before
+    steal = ProcStat.steal_ms() - steal_before
     # the last cycles' commands may land just after the window: match them by cycle
     result = measure(name, System.monotonic_time(:millisecond) + 100, result, :grace)
 
@@ -286,27 +286,6 @@ defmodule ThinkingCap.Bench.Timing do
       steal_ms: steal,
       period_std_pct: Float.round(100 * period.std / 10_000, 2)
     }
-  end
-
-  # CPU time the hypervisor gave to others while this machine's CPUs were
-  # ready to run (the steal column of /proc/stat), in ms; 0 where unknown.
-  # No guest program can be on time while its CPU is taken away, so a stall
-  # that cyclictest shares is told apart from one of the framework's.
-  defp steal_ms do
-    with {:ok, stat} <- File.read("/proc/stat"),
-         ["cpu" | fields] <- stat |> String.split("\n", parts: 2) |> hd() |> String.split(),
-         steal when is_binary(steal) <- Enum.at(fields, 7) do
-      div(String.to_integer(steal) * 1000, clock_ticks())
-    else
-      _ -> 0
-    end
-  end
-
-  defp clock_ticks do
-    case System.cmd("getconf", ["CLK_TCK"], stderr_to_stdout: true) do
-      {ticks, 0} -> ticks |> String.trim() |> String.to_integer()
-      _ -> 100
-    end
   end
 
   # Releases seen in the window, and what was applied for each cycle.
