@@ -89,8 +89,11 @@ defmodule ThinkingCap.Cycle do
   1..99 (releases due together go highest first), `fallback` (the command
   applied on a missed deadline, default `:stop`), `owner` (the process that
   gets the releases, default the caller).
+
+  Adding a name again takes the activity over (a restarted module) unless
+  another live process owns it: that is refused with the owner's pid.
   """
-  @spec add(name(), keyword()) :: :ok
+  @spec add(name(), keyword()) :: :ok | {:error, {:name_taken, pid()}}
   def add(name, opts),
     do: GenServer.call(__MODULE__, {:add, name, Keyword.put_new(opts, :owner, self())})
 
@@ -233,28 +236,15 @@ defmodule ThinkingCap.Cycle do
             "activity #{inspect(name)}: need 0 < deadline <= period and priority 1..99"
     end
 
-    {id, state} = id_for(state, name)
     owner = Keyword.fetch!(opts, :owner)
-    Process.monitor(owner)
 
-    # added again: the worker keeps its wire, and so does this side
-    old = Map.get(state.activities, id, %{})
+    case live_owner(state, name) do
+      other when is_pid(other) and other != owner ->
+        {:reply, {:error, {:name_taken, other}}, state}
 
-    activity = %{
-      id: id,
-      name: name,
-      period_ns: round(period * 1.0e9),
-      deadline_ns: round(deadline * 1.0e9),
-      priority: priority,
-      fallback: fallback,
-      owner: owner,
-      wire: Map.get(old, :wire),
-      wire_errors: Map.get(old, :wire_errors, 0),
-      stats: Stats.new(round(period * 1.0e9))
-    }
-
-    send_add(state.port, activity)
-    {:reply, :ok, put_in(state.activities[id], activity)}
+      _none_or_same ->
+        add_activity(state, name, owner, period, deadline, priority, fallback)
+    end
   end
 
   def handle_call({:remove, name}, _from, state), do: {:reply, :ok, remove_activity(state, name)}
@@ -549,6 +539,42 @@ defmodule ThinkingCap.Cycle do
 
   defp send_wire(port, id, %{device: device, fallback: fallback}) do
     Port.command(port, <<?W, id::16, byte_size(fallback)::16, fallback::binary, device::binary>>)
+  end
+
+  defp add_activity(state, name, owner, period, deadline, priority, fallback) do
+    {id, state} = id_for(state, name)
+    Process.monitor(owner)
+
+    # added again: the worker keeps its wire, and so does this side
+    old = Map.get(state.activities, id, %{})
+
+    activity = %{
+      id: id,
+      name: name,
+      period_ns: round(period * 1.0e9),
+      deadline_ns: round(deadline * 1.0e9),
+      priority: priority,
+      fallback: fallback,
+      owner: owner,
+      wire: Map.get(old, :wire),
+      wire_errors: Map.get(old, :wire_errors, 0),
+      stats: Stats.new(round(period * 1.0e9))
+    }
+
+    send_add(state.port, activity)
+    {:reply, :ok, put_in(state.activities[id], activity)}
+  end
+
+  # the live process that owns activity `name`, if any (a restarted
+  # module's predecessor may be dead before its DOWN arrives here)
+  defp live_owner(state, name) do
+    with %{^name => id} <- state.ids,
+         %{owner: pid} <- state.activities[id],
+         true <- Process.alive?(pid) do
+      pid
+    else
+      _ -> nil
+    end
   end
 
   defp activity_id(state, name) do

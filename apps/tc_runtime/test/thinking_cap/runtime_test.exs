@@ -65,6 +65,33 @@ defmodule ThinkingCap.RuntimeTest do
     assert is_pid(Runtime.whereis({r1, name}))
   end
 
+  test "a second periodic module of a name already cycling on this node is refused, the first keeps its cycle",
+       %{tmp_dir: dir} do
+    name = :"cruise_#{System.unique_integer([:positive])}"
+
+    spec =
+      "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.005, params: [speed: 0.3]]"
+
+    [{adf1, r1}, {adf2, r2}] =
+      for _ <- 1..2 do
+        robot = :"r#{System.unique_integer([:positive])}"
+        path = Path.join(dir, "#{robot}.adf")
+        File.write!(path, "[robot: :#{robot}, modules: [#{name}: #{spec}]]")
+        {Config.read!(path), robot}
+      end
+
+    on_exit(fn -> for r <- [r1, r2], do: Runtime.stop({r, name}) end)
+    assert {:ok, [%{pid: first}]} = Runtime.start(adf1)
+
+    assert {:error, [{^name, {:periodic_name_taken_on_node, ^name, ^first}}]} =
+             Runtime.start(adf2)
+
+    assert Runtime.whereis({r2, name}) == nil
+    :ok = Cycle.subscribe(name)
+    assert %{kind: :fresh, command: {:vel, 0.3, _}} = applied_until(name, &(&1.kind == :fresh))
+    assert Runtime.whereis({r1, name}) == first
+  end
+
   test "an ADF's modules start, report where they run, and each activity kind runs", %{
     tmp_dir: dir
   } do

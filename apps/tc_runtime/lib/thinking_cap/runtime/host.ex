@@ -45,30 +45,42 @@ defmodule ThinkingCap.Runtime.Host do
       started: System.system_time(:millisecond)
     }
 
-    for template <- spec.subscribe,
-        do: {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
+    case activate(spec) do
+      :ok ->
+        for template <- spec.subscribe,
+            do: {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
 
-    case spec.activity do
-      :periodic ->
-        opts = [
-          period: spec.period,
-          deadline: spec.deadline,
-          priority: spec.priority,
-          fallback: spec.fallback
-        ]
+        if handing_off?(spec), do: send(self(), :tc_handoff)
+        {:ok, run(actions, state)}
 
-        :ok = Cycle.add(spec.name, opts)
-
-      :background ->
-        send(self(), :tc_background)
-
-      :event ->
-        :ok
+      {:error, reason} ->
+        # the module's init may have opened what its terminate closes
+        spec.module.terminate(reason, module_state)
+        {:stop, reason}
     end
-
-    if handing_off?(spec), do: send(self(), :tc_handoff)
-    {:ok, run(actions, state)}
   end
+
+  defp activate(%{activity: :periodic} = spec) do
+    opts = [
+      period: spec.period,
+      deadline: spec.deadline,
+      priority: spec.priority,
+      fallback: spec.fallback
+    ]
+
+    case Cycle.add(spec.name, opts) do
+      :ok -> :ok
+      # a periodic activity is known to this node's timing worker by name
+      {:error, {:name_taken, pid}} -> {:error, {:periodic_name_taken_on_node, spec.name, pid}}
+    end
+  end
+
+  defp activate(%{activity: :background}) do
+    send(self(), :tc_background)
+    :ok
+  end
+
+  defp activate(%{activity: :event}), do: :ok
 
   # Deployment gives `handoff_to`: the other nodes of [node | standby]
   defp handing_off?(spec),
