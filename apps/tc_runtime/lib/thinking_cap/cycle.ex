@@ -94,8 +94,20 @@ defmodule ThinkingCap.Cycle do
   another live process owns it: that is refused with the owner's pid.
   """
   @spec add(name(), keyword()) :: :ok | {:error, {:name_taken, pid()}}
-  def add(name, opts),
-    do: GenServer.call(__MODULE__, {:add, name, Keyword.put_new(opts, :owner, self())})
+  def add(name, opts) do
+    # checked here, in the caller: bad options raise there, never in the
+    # server that holds every activity's releases
+    period = seconds!(opts, :period)
+    deadline = Keyword.get(opts, :deadline, period)
+    priority = Keyword.get(opts, :priority, 50)
+
+    unless is_number(deadline) and deadline > 0 and deadline <= period and priority in 1..99 do
+      raise ArgumentError,
+            "activity #{inspect(name)}: need 0 < deadline <= period and priority 1..99"
+    end
+
+    GenServer.call(__MODULE__, {:add, name, Keyword.put_new(opts, :owner, self())})
+  end
 
   @doc "Removes a periodic activity."
   @spec remove(name()) :: :ok
@@ -226,16 +238,10 @@ defmodule ThinkingCap.Cycle do
 
   @impl true
   def handle_call({:add, name, opts}, _from, state) do
-    period = seconds!(opts, :period)
+    period = Keyword.fetch!(opts, :period)
     deadline = Keyword.get(opts, :deadline, period)
     priority = Keyword.get(opts, :priority, 50)
     fallback = Keyword.get(opts, :fallback, :stop)
-
-    unless deadline > 0 and deadline <= period and priority in 1..99 do
-      raise ArgumentError,
-            "activity #{inspect(name)}: need 0 < deadline <= period and priority 1..99"
-    end
-
     owner = Keyword.fetch!(opts, :owner)
 
     case live_owner(state, name) do

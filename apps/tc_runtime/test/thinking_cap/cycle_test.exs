@@ -21,6 +21,44 @@ defmodule ThinkingCap.CycleTest do
     if System.cmd("id", ["-u"]) == {"0\n", 0}, do: assert(status.sched_fifo and status.mlockall)
   end
 
+  test "bad activity options raise in the caller; the server and other activities carry on",
+       %{name: name} do
+    :ok = Cycle.add(name, period: 0.01)
+    server = Process.whereis(Cycle)
+
+    for bad <- [
+          [period: 0],
+          [period: :fast],
+          [period: 0.01, deadline: 0.02],
+          [period: 0.01, priority: 0]
+        ] do
+      assert_raise ArgumentError, fn -> Cycle.add(:"#{name}_bad", bad) end
+    end
+
+    assert Process.whereis(Cycle) == server
+    assert %{cycle: _} = release(name)
+  end
+
+  test "a name another live process cycles is refused; a dead owner's is taken over", %{
+    name: name
+  } do
+    parent = self()
+
+    owner =
+      spawn(fn ->
+        send(parent, {:added, Cycle.add(name, period: 0.05)})
+        Process.sleep(:infinity)
+      end)
+
+    assert_receive {:added, :ok}
+    assert {:error, {:name_taken, ^owner}} = Cycle.add(name, period: 0.05)
+    ref = Process.monitor(owner)
+    Process.exit(owner, :kill)
+    assert_receive {:DOWN, ^ref, :process, ^owner, :killed}
+    assert :ok = Cycle.add(name, period: 0.05)
+    assert %{cycle: _} = release(name)
+  end
+
   test "releases come every period and a result in time is applied fresh", %{name: name} do
     :ok = Cycle.add(name, period: 0.01, deadline: 0.008, priority: 60)
     r1 = release(name)
