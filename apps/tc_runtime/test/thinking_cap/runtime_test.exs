@@ -20,13 +20,9 @@ defmodule ThinkingCap.RuntimeTest do
     {adf, robot, fn name -> :"#{name}_#{robot}" end}
   end
 
-  test "two robots' modules of the same name are told apart by {robot, name}", %{tmp_dir: dir} do
-    name = :"echo_#{System.unique_integer([:positive])}"
-
-    spec =
-      "[module: ThinkingCap.Test.Modules.Echo, activity: :event, subscribe: [{:ping, :_, :_}]]"
-
-    [{adf1, r1}, {adf2, r2}] =
+  # two robots' ADFs, each with one module `name` given by `spec`
+  defp two_robots(dir, name, spec) do
+    robots =
       for _ <- 1..2 do
         robot = :"r#{System.unique_integer([:positive])}"
         path = Path.join(dir, "#{robot}.adf")
@@ -34,7 +30,17 @@ defmodule ThinkingCap.RuntimeTest do
         {Config.read!(path), robot}
       end
 
-    on_exit(fn -> for r <- [r1, r2], do: Runtime.stop({r, name}) end)
+    on_exit(fn -> for {_, r} <- robots, do: Runtime.stop({r, name}) end)
+    robots
+  end
+
+  test "two robots' modules of the same name are told apart by {robot, name}", %{tmp_dir: dir} do
+    name = :"echo_#{System.unique_integer([:positive])}"
+
+    spec =
+      "[module: ThinkingCap.Test.Modules.Echo, activity: :event, subscribe: [{:ping, :_, :_}]]"
+
+    [{adf1, r1}, {adf2, r2}] = two_robots(dir, name, spec)
     assert {:ok, [%{robot: ^r1, pid: p1}]} = Runtime.start(adf1)
     assert {:ok, [%{robot: ^r2, pid: p2}]} = Runtime.start(adf2)
     assert p1 != p2
@@ -72,15 +78,7 @@ defmodule ThinkingCap.RuntimeTest do
     spec =
       "[module: ThinkingCap.Test.Modules.Cruise, activity: :periodic, period: 0.01, deadline: 0.005, params: [speed: 0.3]]"
 
-    [{adf1, r1}, {adf2, r2}] =
-      for _ <- 1..2 do
-        robot = :"r#{System.unique_integer([:positive])}"
-        path = Path.join(dir, "#{robot}.adf")
-        File.write!(path, "[robot: :#{robot}, modules: [#{name}: #{spec}]]")
-        {Config.read!(path), robot}
-      end
-
-    on_exit(fn -> for r <- [r1, r2], do: Runtime.stop({r, name}) end)
+    [{adf1, r1}, {adf2, r2}] = two_robots(dir, name, spec)
     assert {:ok, [%{pid: first}]} = Runtime.start(adf1)
 
     assert {:error, [{^name, {:periodic_name_taken_on_node, ^name, ^first}}]} =
