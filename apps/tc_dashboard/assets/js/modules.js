@@ -77,7 +77,7 @@ export class ModulesPanel {
     setChildren(this.table,
       el('thead', null, el('tr', null, ...['module · node', 'activity', 'status', 'restarts', ''].map((h) => el('th', null, h)))),
       el('tbody', null, mods.map((m) => el('tr', { dataset: { module: String(m.name) } },
-        el('td', { title: `${m.module || ''} on ${m.node || '?'}` }, el('b', null, String(m.name)),
+        el('td', { title: `${m.module || ''} on ${m.node || '?'}${m.robot ? `, robot ${m.robot}` : ''}` }, el('b', null, String(m.name)),
           el('small', null, String(m.module || '').replace(/^Elixir\./, '').replace(/^ThinkingCap\./, '')),
           el('small.node', null, String(m.node || '–'))),
         el('td', null, activityText(m.activity)),
@@ -87,13 +87,13 @@ export class ModulesPanel {
           type: 'button',
           disabled: !canRestart,
           title: canRestart ? `Restart ${m.name}` : 'Needs control (the token)',
-          onclick: () => this._restart(String(m.name)),
+          onclick: () => this._restart(String(m.name), m.robot == null ? null : String(m.robot)),
         }, '↻'))))));
   }
 
-  async _restart(name) {
+  async _restart(name, robot) {
     try {
-      await this.conn.request({ op: 'restart', module: name });
+      await this.conn.request(robot ? { op: 'restart', module: name, robot } : { op: 'restart', module: name });
       this.toast(`Restarted ${name}`);
     } catch (e) {
       this.toast(`Restart of ${name} refused: ${e.message}`, 'error');

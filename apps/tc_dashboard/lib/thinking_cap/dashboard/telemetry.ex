@@ -129,14 +129,15 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
   def handle_info(_message, state), do: {:noreply, state}
 
-  # restarts: a module seen under a new pid was restarted
+  # restarts: a module seen under a new pid was restarted (modules are
+  # told apart by robot and name: two robots may share a module name)
   defp modules(modules, state) do
     restarts =
       Enum.reduce(modules, state.restarts, fn m, acc ->
-        case state.pids[m.name] do
+        case state.pids[module_key(m)] do
           nil -> acc
           pid when pid == m.pid -> acc
-          _other -> Map.update(acc, m.name, 1, &(&1 + 1))
+          _other -> Map.update(acc, module_key(m), 1, &(&1 + 1))
         end
       end)
 
@@ -145,23 +146,26 @@ defmodule ThinkingCap.Dashboard.Telemetry do
         for m <- modules do
           %{
             name: m.name,
+            robot: m[:robot],
             module: inspect(m.module),
             node: m.node,
             activity: m.activity,
             status: :running,
             pid: inspect(m.pid),
             started_at: m[:started_at],
-            restarts: Map.get(restarts, m.name, 0)
+            restarts: Map.get(restarts, module_key(m), 0)
           }
         end
     }
 
-    state = %{state | pids: Map.new(modules, &{&1.name, &1.pid}), restarts: restarts}
+    state = %{state | pids: Map.new(modules, &{module_key(&1), &1.pid}), restarts: restarts}
 
     if payload == state.modules,
       do: state,
       else: %{state | modules: payload, dirty: Map.put(state.dirty, "modules/all", payload)}
   end
+
+  defp module_key(m), do: {m[:robot], m.name}
 
   # to 0.1 mm, 0.1 mrad, 0.1 ms: what a screen can show, in a third of
   # the text a browser must parse

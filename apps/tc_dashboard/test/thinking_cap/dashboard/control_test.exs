@@ -14,7 +14,7 @@ defmodule ThinkingCap.Dashboard.ControlTest do
     def init(_params, _ctx), do: {:ok, nil}
   end
 
-  defp wait_until(fun, tries \\ 200) do
+  defp wait_until(fun, tries \\ 500) do
     cond do
       fun.() -> :ok
       tries == 0 -> flunk("condition not met")
@@ -50,8 +50,30 @@ defmodule ThinkingCap.Dashboard.ControlTest do
 
     assert {:error, "no module" <> _} = Control.restart(to_string(name), "no_such_robot_q7")
 
+    {:ok, _} = ThinkingCap.Dashboard.start(port: 0, rosbridge_port: nil)
+    on_exit(fn -> ThinkingCap.Dashboard.stop() end)
+    wait_until(fn -> length(listed(name)) == 2 end)
+
     assert :ok = Control.restart(to_string(name), to_string(r2))
     wait_until(fn -> Runtime.whereis({r2, name}) not in [nil, p2] end)
     assert Runtime.whereis({r1, name}) == p1
+
+    # the dashboard's module list counts the restart against that robot's
+    wait_until(fn -> Enum.any?(listed(name), &(&1["restarts"] == 1)) end)
+
+    assert %{to_string(r1) => 0, to_string(r2) => 1} ==
+             Map.new(listed(name), &{&1["robot"], &1["restarts"]})
+  end
+
+  # the dashboard's telemetry entries for module `name`
+  defp listed(name) do
+    {_version, items} = ThinkingCap.Dashboard.Telemetry.changes_since(0)
+
+    with {_, json} <- List.keyfind(items, "modules/all", 0),
+         {:ok, %{"modules" => modules}} <- ThinkingCap.Dashboard.Core.JSON.decode(json) do
+      Enum.filter(modules, &(&1["name"] == to_string(name)))
+    else
+      _ -> []
+    end
   end
 end
