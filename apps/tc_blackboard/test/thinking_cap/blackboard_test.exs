@@ -76,6 +76,37 @@ defmodule ThinkingCap.BlackboardTest do
       assert [{:stream, ^id, {_w, 200}}] = Blackboard.rd_all({:stream, id, :_})
     end
 
+    test "writers racing on one key while a taker takes it leave no stray tuple or index entry",
+         %{id: id} do
+      alias ThinkingCap.Blackboard.Core.Tables
+      key = {:race, id}
+      parent = self()
+
+      taker =
+        spawn_link(fn ->
+          taken = Stream.repeatedly(fn -> Blackboard.takep({:race, id, :_}) end)
+          send(parent, {:taken, Enum.count(Stream.take_while(taken, fn _ -> not stop?() end))})
+        end)
+
+      1..8
+      |> Enum.map(fn w ->
+        Task.async(fn -> for i <- 1..2000, do: Blackboard.out({:race, id, {w, i}}, key: key) end)
+      end)
+      |> Enum.each(&Task.await(&1, 30_000))
+
+      send(taker, :stop)
+      assert_receive {:taken, n} when n > 0, 5000
+      assert length(Blackboard.rd_all({:race, id, :_})) <= 1
+
+      # the next write is the one tuple, and the index holds it alone
+      Blackboard.out({:race, id, :last}, key: key)
+      assert [{:race, ^id, :last}] = Blackboard.rd_all({:race, id, :_})
+      assert [{_, record_key, _}] = :ets.lookup(Tables.keys(), :erlang.term_to_binary(key))
+
+      assert [{^record_key, {:race, ^id, :last}, _, _, _}] =
+               :ets.lookup(Tables.tuples(), record_key)
+    end
+
     test "taking a keyed tuple lets the key be written again", %{id: id} do
       Blackboard.out({:k, id, 1}, key: id)
       assert {:ok, _} = Blackboard.takep({:k, id, :_})
@@ -267,5 +298,13 @@ defmodule ThinkingCap.BlackboardTest do
 
   defp wait_for_waiters(id, n) do
     ThinkingCap.Testing.Cluster.wait_until(fn -> length(waiters_for(id)) >= n end)
+  end
+
+  defp stop? do
+    receive do
+      :stop -> true
+    after
+      0 -> false
+    end
   end
 end
