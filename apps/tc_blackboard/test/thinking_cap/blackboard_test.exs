@@ -21,6 +21,53 @@ defmodule ThinkingCap.BlackboardTest do
       assert [] = Blackboard.rd_all({:v, id, :_, :_})
     end
 
+    test "a stream's robot id is matched exactly: 1 is not 1.0, though they sort together",
+         %{id: id} do
+      tag = :"exact_#{System.unique_integer([:positive])}"
+      Blackboard.out({tag, 1.0, :a})
+      Blackboard.out({tag, 1, :b})
+      Blackboard.out({tag, 1.0, :c})
+      Blackboard.out({tag, 2, :d, id})
+
+      assert {:ok, {^tag, 1, :b}} = Blackboard.rdp({tag, 1, :_})
+      assert {:ok, {^tag, 1.0, :a}} = Blackboard.rdp({tag, 1.0, :_})
+      assert {:ok, {^tag, 1.0, :a}} = Blackboard.takep({tag, 1.0, :_})
+      assert {:ok, {^tag, 1.0, :c}} = Blackboard.takep({tag, 1.0, :_})
+      assert :none = Blackboard.takep({tag, 1.0, :_})
+      assert {:ok, {^tag, 1, :b}} = Blackboard.takep({tag, 1, :_})
+      assert :none = Blackboard.rdp({tag, 1, :_})
+      # another arity is another stream
+      assert :none = Blackboard.rdp({tag, 2, :_})
+      assert {:ok, {^tag, 2, :d, ^id}} = Blackboard.rdp({tag, 2, :_, :_})
+    end
+
+    test "takes go on past a stream's first batches of matching tuples taken meanwhile",
+         %{id: id} do
+      for i <- 1..20, do: Blackboard.out({:batch, id, :skip, i})
+      for i <- 1..40, do: Blackboard.out({:batch, id, :take, i})
+      takes = for _ <- 1..40, do: Blackboard.takep({:batch, id, :take, :_})
+      assert takes == for(i <- 1..40, do: {:ok, {:batch, id, :take, i}})
+      assert :none = Blackboard.takep({:batch, id, :take, :_})
+      assert length(Blackboard.rd_all({:batch, id, :skip, :_})) == 20
+    end
+
+    test "concurrent takers of one stream take every tuple exactly once", %{id: id} do
+      for i <- 1..3000, do: Blackboard.out({:jobs, id, i})
+
+      taken =
+        1..8
+        |> Enum.map(fn _ ->
+          Task.async(fn ->
+            Stream.repeatedly(fn -> Blackboard.takep({:jobs, id, :_}) end)
+            |> Enum.take_while(&(&1 != :none))
+            |> Enum.map(fn {:ok, {:jobs, _, i}} -> i end)
+          end)
+        end)
+        |> Enum.flat_map(&Task.await(&1, 30_000))
+
+      assert Enum.sort(taken) == Enum.to_list(1..3000)
+    end
+
     test "tuples of one tag are read and taken oldest first", %{id: id} do
       for n <- 1..5, do: Blackboard.out({:seq, id, n})
       assert {:ok, {:seq, ^id, 1}} = Blackboard.rdp({:seq, id, :_})

@@ -56,6 +56,17 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   end
 
   @doc false
+  # Passes a take of an owned tuple on to the other nodes (called by the
+  # taker, after its ets:take). With no peer published there is nobody to
+  # tell: a peer published later gets a snapshot taken after it, which no
+  # longer holds the tuple.
+  @spec taken(tuple()) :: :ok
+  def taken(key) do
+    if :atomics.get(Tables.counters(), @peer_count) > 0, do: notify({:taken, key})
+    :ok
+  end
+
+  @doc false
   # Passes a local write on to every other node (called by the writer).
   @spec replicate(Store.record(), :atomics.atomics_ref()) :: :ok
   def replicate(record, counters \\ Tables.counters()) do

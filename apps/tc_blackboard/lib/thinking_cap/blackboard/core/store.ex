@@ -146,10 +146,64 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   @doc false
   @spec first_match(Template.compiled()) :: {:ok, tuple()} | :none
+  def first_match(%Template{index: {:stream, _, _, _}} = template),
+    do: stream_find(stream_start(template), template, now())
+
   def first_match(template) do
     case :ets.select(Tables.tuples(), Template.record_match_spec(template, now(), :"$_"), 1) do
       {[{_key, tuple, _, _, _}], _cont} -> {:ok, tuple}
       :"$end_of_table" -> :none
+    end
+  end
+
+  # A template that binds a stream (tag and robot) is served by walking
+  # that stream's range of the ordered table with ets:next: a select would
+  # compile its match specification on every call (1.5 us of a 2 us rdp).
+  # The range holds the keys whose arity and first two elements compare
+  # equal (==) to the template's; each record is still matched exactly.
+  defp stream_start(%Template{index: {:stream, n, first, second}}), do: {n, first, second, 0, nil}
+
+  defp stream_next(key, %Template{index: {:stream, n, first, second}}) do
+    case :ets.next(Tables.tuples(), key) do
+      {^n, f, s, _, _} = next when f == first and s == second -> next
+      _end_of_stream -> nil
+    end
+  end
+
+  defp live_match(key, template, now) do
+    case :ets.lookup(Tables.tuples(), key) do
+      [{^key, tuple, _, expires, _}] when expires > now ->
+        if Template.matches?(template, tuple), do: {:ok, tuple}, else: :none
+
+      _gone_or_expired ->
+        :none
+    end
+  end
+
+  defp stream_find(from, template, now) do
+    case stream_next(from, template) do
+      nil ->
+        :none
+
+      key ->
+        with :none <- live_match(key, template, now), do: stream_find(key, template, now)
+    end
+  end
+
+  # up to `left` keys of live matching records after `from`, oldest first,
+  # and the last key looked at
+  defp stream_keys(from, _template, _now, 0, acc), do: {Enum.reverse(acc), from}
+
+  defp stream_keys(from, template, now, left, acc) do
+    case stream_next(from, template) do
+      nil ->
+        {Enum.reverse(acc), from}
+
+      key ->
+        case live_match(key, template, now) do
+          {:ok, _} -> stream_keys(key, template, now, left - 1, [key | acc])
+          :none -> stream_keys(key, template, now, left, acc)
+        end
     end
   end
 
@@ -175,19 +229,38 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # another node's, taken through its owner so that exactly one taker in the
   # cluster gets it.
   @spec take_first(Template.compiled()) :: {:ok, tuple()} | :none
-  def take_first(template) do
+  def take_first(template), do: take_from(first_batch(template))
+
+  @batch 16
+
+  # The keys of up to @batch live matching records, oldest first, and how
+  # to get the next batch; :done when there are no more.
+  defp first_batch(%Template{index: {:stream, _, _, _}} = template),
+    do: stream_batch(stream_start(template), template, now())
+
+  defp first_batch(template) do
     ms = Template.record_match_spec(template, now(), {:element, 1, :"$_"})
-    take_from(:ets.select(Tables.tuples(), ms, 16))
+    select_batch(:ets.select(Tables.tuples(), ms, @batch))
   end
 
-  defp take_from(:"$end_of_table"), do: :none
+  defp select_batch(:"$end_of_table"), do: :done
+  defp select_batch({keys, cont}), do: {keys, fn -> select_batch(:ets.select(cont)) end}
 
-  defp take_from({keys, cont}) do
+  defp stream_batch(from, template, now) do
+    case stream_keys(from, template, now, @batch, []) do
+      {[], _last} -> :done
+      {keys, last} -> {keys, fn -> stream_batch(last, template, now) end}
+    end
+  end
+
+  defp take_from(:done), do: :none
+
+  defp take_from({keys, next_batch}) do
     {local, remote} = Enum.split_with(keys, &(key_owner(&1) == node()))
 
     case take_any(local ++ remote) do
       {:ok, tuple} -> {:ok, tuple}
-      :none -> take_from(:ets.select(cont))
+      :none -> take_from(next_batch.())
     end
   end
 
@@ -230,7 +303,7 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     case :ets.take(Tables.tuples(), key) do
       [{^key, tuple, key_bin, expires, _stamp}] ->
         forget_key(key_bin, key)
-        ThinkingCap.Blackboard.Core.Server.notify({:taken, key})
+        ThinkingCap.Blackboard.Core.Server.taken(key)
         if expires > now(), do: {:ok, tuple}, else: :gone
 
       [] ->
