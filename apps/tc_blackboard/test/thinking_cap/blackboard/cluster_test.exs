@@ -41,6 +41,25 @@ defmodule ThinkingCap.Blackboard.ClusterTest do
     assert :none = bb(b, :takep, [{:sensor, :_, 1}])
   end
 
+  test "a take prefers this node's oldest match to another node's older one" do
+    [a, b] = start(2)
+    # a's writes advance its sequence far past b's: b's tuple sorts first
+    :ok = call(a, W, :write, [:burn, 1..5000])
+
+    for template <- [{:pref, :r1, :_}, {:pref, :_, :_}] do
+      tag = elem(template, 0)
+      :ok = bb(b, :out, [{tag, :r1, :from_b}])
+      eventually(fn -> bb(a, :rdp, [{tag, :r1, :from_b}]) != :none end)
+      :ok = bb(a, :out, [{tag, :r1, :from_a}])
+      assert [{^tag, :r1, :from_b}, {^tag, :r1, :from_a}] = bb(a, :rd_all, [template])
+
+      assert {:ok, {^tag, :r1, :from_a}} = bb(a, :takep, [template])
+      assert {:ok, {^tag, :r1, :from_b}} = bb(a, :takep, [template])
+      assert :none = bb(a, :takep, [template])
+      eventually(fn -> bb(b, :rdp, [template]) == :none end)
+    end
+  end
+
   test "one writer's tuples reach every node's subscribers in the order written" do
     [a, b, c] = start(3)
     on_b = call(b, W, :collector, [{:ordered, :_, :_}])

@@ -224,32 +224,48 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   ## Taking
 
+  @batch 16
+
   @doc false
   # Linda `inp`: the oldest matching tuple this node owns, else the oldest of
   # another node's, taken through its owner so that exactly one taker in the
   # cluster gets it.
   @spec take_first(Template.compiled()) :: {:ok, tuple()} | :none
-  def take_first(template), do: take_from(first_batch(template))
+  def take_first(template) do
+    # The oldest match alone first: it is this node's more often than not,
+    # and finding 16 costs 3x finding one. Otherwise batches of 16, this
+    # node's taken first, as remote takes cost a round trip.
+    case batch(template, 1) do
+      {[key], _next} ->
+        if key_owner(key) == node(),
+          do: take_from({[key], fn -> batch(template, @batch) end}),
+          else: take_from(batch(template, @batch))
 
-  @batch 16
+      {[], _next} ->
+        take_from(batch(template, @batch))
 
-  # The keys of up to @batch live matching records, oldest first, and how
+      :done ->
+        :none
+    end
+  end
+
+  # The keys of up to `size` live matching records, oldest first, and how
   # to get the next batch; :done when there are no more.
-  defp first_batch(%Template{index: {:stream, _, _, _}} = template),
-    do: stream_batch(stream_start(template), template, now())
+  defp batch(%Template{index: {:stream, _, _, _}} = template, size),
+    do: stream_batch(stream_start(template), template, now(), size)
 
-  defp first_batch(template) do
+  defp batch(template, size) do
     ms = Template.record_match_spec(template, now(), {:element, 1, :"$_"})
-    select_batch(:ets.select(Tables.tuples(), ms, @batch))
+    select_batch(:ets.select(Tables.tuples(), ms, size))
   end
 
   defp select_batch(:"$end_of_table"), do: :done
   defp select_batch({keys, cont}), do: {keys, fn -> select_batch(:ets.select(cont)) end}
 
-  defp stream_batch(from, template, now) do
-    case stream_keys(from, template, now, @batch, []) do
+  defp stream_batch(from, template, now, size) do
+    case stream_keys(from, template, now, size, []) do
       {[], _last} -> :done
-      {keys, last} -> {keys, fn -> stream_batch(last, template, now) end}
+      {keys, last} -> {keys, fn -> stream_batch(last, template, now, @batch) end}
     end
   end
 
