@@ -54,8 +54,10 @@ defmodule ThinkingCap.Runtime.Host do
         {:ok, run(actions, state)}
 
       {:error, reason} ->
-        # the module's init may have opened what its terminate closes
+        # the module's init may have opened what its terminate closes; and
+        # once start returns, no lookup finds this process
         spec.module.terminate(reason, module_state)
+        Enum.each(groups(spec), &:pg.leave(ThinkingCap.Runtime.scope(), &1, self()))
         {:stop, reason}
     end
   end
