@@ -157,8 +157,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   # A template that binds a stream (tag and robot) is served by walking
-  # that stream's range of the ordered table with ets:next: a select would
-  # compile its match specification on every call (1.5 us of a 2 us rdp).
+  # that stream's range of the ordered table with ets:next, where a select
+  # would compile its match specification on every call (measured: a warm
+  # rdp 1.9 us by select, 1.5 us by walking).
   # The range holds the keys whose arity and first two elements compare
   # equal (==) to the template's; each record is still matched exactly.
   defp stream_start(%Template{index: {:stream, n, first, second}}), do: {n, first, second, 0, nil}
