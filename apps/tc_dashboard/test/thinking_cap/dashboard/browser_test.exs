@@ -294,6 +294,27 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
     assert page_errors(b) == []
   end
 
+  test "the modules panel restarts the robot's module and counts the restart", ctx do
+    b = ctx.browser
+    base = :"base_#{ctx.name}"
+    before = Runtime.whereis({ctx.robot, base})
+    open!(b, url(ctx))
+    wait!(b, "tc.connected")
+    eval!(b, "(document.querySelector('button[data-tab=modules]').click(), true)")
+    row = "tr[data-module=#{base}]"
+
+    wait!(
+      b,
+      "!!document.querySelector('#{row} button') && !document.querySelector('#{row} button').disabled"
+    )
+
+    :ok = Browser.click(b, "#{row} button")
+    wait!(b, "document.querySelector('#{row} td.num').textContent === '1'", timeout: 10_000)
+    after_ = Runtime.whereis({ctx.robot, base})
+    assert is_pid(after_) and after_ != before
+    assert page_errors(b) == []
+  end
+
   test "the blackboard inspector queries by template and tails a tag", ctx do
     b = ctx.browser
     open!(b, url(ctx))
