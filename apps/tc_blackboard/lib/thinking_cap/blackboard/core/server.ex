@@ -62,15 +62,15 @@ defmodule ThinkingCap.Blackboard.Core.Server do
   # longer holds the tuple.
   @spec taken(tuple()) :: :ok
   def taken(key) do
-    if :atomics.get(Tables.counters(), @peer_count) > 0, do: notify({:taken, key})
+    if :counters.get(Tables.counters(), @peer_count) > 0, do: notify({:taken, key})
     :ok
   end
 
   @doc false
   # Passes a local write on to every other node (called by the writer).
-  @spec replicate(Store.record(), :atomics.atomics_ref()) :: :ok
+  @spec replicate(Store.record(), :counters.counters_ref()) :: :ok
   def replicate(record, counters \\ Tables.counters()) do
-    if :atomics.get(counters, @peer_count) > 0 do
+    if :counters.get(counters, @peer_count) > 0 do
       case peers() do
         [] -> :ok
         peers -> ThinkingCap.Blackboard.Core.Replicator.replicate(peers, record)
@@ -207,7 +207,7 @@ defmodule ThinkingCap.Blackboard.Core.Server do
 
   defp publish_peers(state) do
     :ets.insert(Tables.meta(), {:peers, MapSet.to_list(state.peers)})
-    :atomics.put(Tables.counters(), @peer_count, MapSet.size(state.peers))
+    :counters.put(Tables.counters(), @peer_count, MapSet.size(state.peers))
   end
 
   # Records new to this node are delivered to subscribers unless they were

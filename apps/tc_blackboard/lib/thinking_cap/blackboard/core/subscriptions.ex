@@ -17,12 +17,9 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     ref = make_ref()
     :ets.insert(Tables.sub_refs(), {ref, template.index, pid, 0, template.source})
 
-    # [sends, overflowing]: see send_bounded/6
-    sent = :atomics.new(2, signed: false)
-
     row =
       {template.index, ref, pid, Template.residual_matcher(template), max_queue, on_overflow,
-       sent}
+       Tables.send_slot(ref)}
 
     :ets.insert(Tables.subs(), row)
 
@@ -93,15 +90,15 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp count({:stream, _, _, _}, _delta), do: :ok
 
   defp count({:tag, n, first}, delta),
-    do: :atomics.add(Tables.counters(), Tables.tag_bucket(n, first), delta)
+    do: :counters.add(Tables.counters(), Tables.tag_bucket(n, first), delta)
 
-  defp count({:any, _}, delta), do: :atomics.add(Tables.counters(), @any_counter, delta)
-  defp count(:spec, delta), do: :atomics.add(Tables.counters(), @spec_counter, delta)
+  defp count({:any, _}, delta), do: :counters.add(Tables.counters(), @any_counter, delta)
+  defp count(:spec, delta), do: :counters.add(Tables.counters(), @spec_counter, delta)
 
   @doc false
   # Sends `tuple` to the local subscribers it matches. `counters` is
   # `Tables.counters/0`, which the writer has already fetched.
-  @spec deliver(tuple(), :atomics.atomics_ref()) :: :ok
+  @spec deliver(tuple(), :counters.counters_ref()) :: :ok
   def deliver(tuple, counters \\ Tables.counters())
 
   def deliver(tuple, counters) when tuple_size(tuple) >= 2 do
@@ -110,7 +107,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     subs = Tables.subs()
     deliver_all(:ets.lookup(subs, {:stream, n, first, elem(tuple, 1)}), tuple)
 
-    if :atomics.get(counters, Tables.tag_bucket(n, first)) > 0,
+    if :counters.get(counters, Tables.tag_bucket(n, first)) > 0,
       do: deliver_all(:ets.lookup(subs, {:tag, n, first}), tuple)
 
     deliver_wide(tuple, counters)
@@ -125,10 +122,10 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   # subscriptions that may match any tuple
   defp deliver_wide(tuple, counters) do
-    if :atomics.get(counters, @any_counter) > 0,
+    if :counters.get(counters, @any_counter) > 0,
       do: deliver_all(:ets.lookup(Tables.subs(), {:any, tuple_size(tuple)}), tuple)
 
-    if :atomics.get(counters, @spec_counter) > 0,
+    if :counters.get(counters, @spec_counter) > 0,
       do: deliver_all(:ets.lookup(Tables.subs(), :spec), tuple)
 
     :ok
@@ -136,9 +133,9 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   defp deliver_all([], _tuple), do: :ok
 
-  defp deliver_all([{_index, ref, pid, matcher, max_queue, policy, sent} | rest], tuple) do
+  defp deliver_all([{_index, ref, pid, matcher, max_queue, policy, slot} | rest], tuple) do
     if Template.matches?(matcher, tuple),
-      do: send_bounded(ref, pid, max_queue, policy, sent, tuple)
+      do: send_bounded(ref, pid, max_queue, policy, slot, tuple)
 
     deliver_all(rest, tuple)
   end
@@ -148,16 +145,25 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   # is read every max_queue/64 sends, and at every send once a read found
   # it full, until a read finds room again. The bound holds to within 1/64
   # of max_queue per writer sending at that moment, exactly below 128.
-  defp send_bounded(ref, pid, max_queue, policy, sent, tuple) do
-    if :atomics.get(sent, 2) == 1 or
-         rem(:atomics.add_get(sent, 1, 1), max(div(max_queue, 64), 1)) == 0 do
+  #
+  # The count and the "found full" flag share one word of
+  # `Tables.send_counts/0` (count * 2 + flag), so that a send costs one
+  # add_get. Two subscriptions whose refs hash to one slot share the word:
+  # each is read early now and then, and a read that finds room for one
+  # clears the flag of the other, whose next read is then up to
+  # max_queue/64 sends away (as for any subscription not yet found full).
+  defp send_bounded(ref, pid, max_queue, policy, slot, tuple) do
+    counts = Tables.send_counts()
+    word = :atomics.add_get(counts, slot, 2)
+
+    if Bitwise.band(word, 1) == 1 or rem(Bitwise.bsr(word, 1), max(div(max_queue, 64), 1)) == 0 do
       case Process.info(pid, :message_queue_len) do
         {:message_queue_len, queued} when queued < max_queue ->
-          :atomics.put(sent, 2, 0)
+          flag_full(counts, slot, 0)
           send(pid, {:blackboard, ref, tuple})
 
         {:message_queue_len, _queued} ->
-          :atomics.put(sent, 2, 1)
+          flag_full(counts, slot, 1)
           overflow(policy, ref, pid)
 
         nil ->
@@ -166,6 +172,14 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     else
       send(pid, {:blackboard, ref, tuple})
     end
+  end
+
+  defp flag_full(counts, slot, flag) do
+    word = :atomics.get(counts, slot)
+
+    if Bitwise.band(word, 1) != flag and
+         :atomics.compare_exchange(counts, slot, word, Bitwise.bxor(word, 1)) != :ok,
+       do: flag_full(counts, slot, flag)
   end
 
   defp overflow(:drop, ref, _pid) do

@@ -34,7 +34,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
         wkey = {template.index, :erlang.unique_integer([:monotonic, :positive])}
         # counted before the row exists and uncounted after it is gone: the
         # count is never below the rows (see any?/1)
-        :atomics.add(Tables.counters(), @count, 1)
+        :counters.add(Tables.counters(), @count, 1)
         :ets.insert(Tables.waiters(), {wkey, self(), ref, kind, template, false})
         Server.notify({:kick, wkey})
 
@@ -75,7 +75,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
           _ -> :ok
         end
 
-        :atomics.sub(Tables.counters(), @count, 1)
+        :counters.sub(Tables.counters(), @count, 1)
 
         flush(ref)
         {:error, :timeout}
@@ -85,7 +85,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   # only the waiter itself removes its row while it lives
   defp forget(wkey) do
     :ets.delete(Tables.waiters(), wkey)
-    :atomics.sub(Tables.counters(), @count, 1)
+    :counters.sub(Tables.counters(), @count, 1)
   end
 
   defp remaining(:infinity), do: :infinity
@@ -106,9 +106,9 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   # probe when nobody waits; it may stay above the rows when a waiter is
   # killed between the two, which only costs the probe. (ets:info(T, :size)
   # sums per-scheduler counters: :ets.first/1 is cheaper.)
-  @spec any?(:atomics.atomics_ref()) :: boolean()
+  @spec any?(:counters.counters_ref()) :: boolean()
   def any?(counters \\ Tables.counters()) do
-    :atomics.get(counters, @count) > 0 and :ets.first(Tables.waiters()) != :"$end_of_table"
+    :counters.get(counters, @count) > 0 and :ets.first(Tables.waiters()) != :"$end_of_table"
   end
 
   @doc false
@@ -197,7 +197,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   def drop_pid(pid) do
     woken = :ets.select(Tables.waiters(), [{{:_, pid, :_, :_, :_, :"$1"}, [], [:"$1"]}])
     gone = :ets.select_delete(Tables.waiters(), [{{:_, pid, :_, :_, :_, :_}, [], [true]}])
-    :atomics.sub(Tables.counters(), @count, gone)
+    :counters.sub(Tables.counters(), @count, gone)
     Enum.any?(woken)
   end
 
