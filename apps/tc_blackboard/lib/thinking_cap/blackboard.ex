@@ -126,6 +126,11 @@ defmodule ThinkingCap.Blackboard do
     * `:key` - latest-value key: replaces the tuple last written with the
       same key (`nil` means no key);
     * `:ttl` - time to live in milliseconds.
+
+  A write that local subscribers match yields the caller's scheduler once
+  (`:erlang.yield/0`) after sending them the tuple, so that those that
+  wait on the same scheduler run before the writer finishes its own
+  bookkeeping; the tuple can be read and taken before they are sent it.
   """
   @spec out(tuple(), [out_option()]) :: :ok
   def out(tuple, opts \\ [])
@@ -134,12 +139,29 @@ defmodule ThinkingCap.Blackboard do
     {ukey, ttl} = out_options(opts)
     record = Store.new_record(tuple, ukey, ttl)
     counters = Tables.counters()
-    Store.insert(record)
-    # subscribers first: nothing but the insert stands before their send,
-    # and they are queued to run before the replicator
-    Subscriptions.deliver(tuple, counters)
-    if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
-    Server.replicate(record, counters)
+    recipients = Subscriptions.recipients(tuple, counters)
+
+    # Blocked waiters are looked for only once the tuple can be found: a
+    # waiter counts itself before it looks, so one of the two sees the other.
+    if recipients == [] do
+      Store.insert(record)
+      if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
+      Server.replicate(record, counters)
+    else
+      # Staged, the tuple can be read and taken: nothing else must stand
+      # before the subscribers' send, and they are queued to run before the
+      # replicator. The writer then yields to the subscribers it woke on its
+      # own scheduler, and settles the write (its place in the stream index,
+      # its latest-value key) after they ran.
+      Store.stage(record)
+      Subscriptions.send_to(recipients, tuple)
+      if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
+      Server.replicate(record, counters)
+      :erlang.yield()
+      Store.settle(record)
+    end
+
+    :ok
   end
 
   def out(tuple, opts) when is_tuple(tuple) do

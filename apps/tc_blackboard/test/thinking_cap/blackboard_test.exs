@@ -125,7 +125,7 @@ defmodule ThinkingCap.BlackboardTest do
 
     test "writers racing on one key while a taker takes it leave no stray tuple or index entry",
          %{id: id} do
-      alias ThinkingCap.Blackboard.Core.Tables
+      alias ThinkingCap.Blackboard.Core.{Store, Tables}
       key = {:race, id}
       parent = self()
 
@@ -150,8 +150,12 @@ defmodule ThinkingCap.BlackboardTest do
       assert [{:race, ^id, :last}] = Blackboard.rd_all({:race, id, :_})
       assert [{_, record_key, _}] = :ets.lookup(Tables.keys(), :erlang.term_to_binary(key))
 
-      assert [{^record_key, {:race, ^id, :last}, _, _, _}] =
-               :ets.lookup(Tables.tuples(), record_key)
+      row_key = Store.row_key(record_key)
+
+      assert [{^row_key, {:race, ^id, :last}, _, _, _}] = :ets.lookup(Tables.tuples(), row_key)
+
+      assert [{^record_key}] =
+               :ets.select(Tables.index(), [{{{3, :race, id, :_, :_}}, [], [:"$_"]}])
     end
 
     test "taking a keyed tuple lets the key be written again", %{id: id} do
@@ -176,7 +180,8 @@ defmodule ThinkingCap.BlackboardTest do
       # the sweeper deletes the record itself, not just hides it
       ThinkingCap.Testing.Cluster.wait_until(fn ->
         :ets.select_count(:tc_bb_tuples, [{{:_, {:ttl, id, :short}, :_, :_, :_}, [], [true]}]) ==
-          0
+          0 and
+          :ets.select_count(:tc_bb_index, [{{{3, :ttl, id, :_, :_}}, [], [true]}]) == 1
       end)
     end
   end
@@ -234,6 +239,55 @@ defmodule ThinkingCap.BlackboardTest do
         Blackboard.out({:fifo, id, k})
         assert_receive {:served, ^k, {:ok, {:fifo, ^id, _}}}, 2000
         refute_received {:served, _, _}
+      end
+    end
+
+    test "a taker whose arrival the server hears of after a tuple's does not go first",
+         %{id: id} do
+      alias ThinkingCap.Blackboard.Core.Server
+      parent = self()
+
+      taker = fn n ->
+        spawn_link(fn -> send(parent, {:served, n, Blackboard.take({:late, id, :_})}) end)
+      end
+
+      for n <- 1..3 do
+        taker.(n)
+        wait_for_waiters(id, n)
+      end
+
+      # the server has seen takers 1..3; it hears of taker 4 only after the
+      # tuple has arrived
+      :sys.get_state(Server)
+      :sys.suspend(Server)
+      taker.(4)
+      wait_for_waiters(id, 4)
+      Blackboard.out({:late, id, 1})
+      :sys.resume(Server)
+
+      assert_receive {:served, 1, {:ok, {:late, ^id, 1}}}, 2000
+
+      for k <- 2..4 do
+        Blackboard.out({:late, id, k})
+        assert_receive {:served, ^k, {:ok, {:late, ^id, _}}}, 2000
+      end
+    end
+
+    test "a taker that blocks while the write it waits for is in flight is woken", %{id: id} do
+      # the taker starts to block as the write starts: on two schedulers
+      # the two overlap, in either order
+      me = self()
+
+      for i <- 1..300 do
+        task =
+          Task.async(fn ->
+            send(me, :taking)
+            Blackboard.take({:in_flight, id, i}, 2_000)
+          end)
+
+        assert_receive :taking
+        Blackboard.out({:in_flight, id, i})
+        assert {:ok, {:in_flight, ^id, ^i}} = Task.await(task)
       end
     end
 

@@ -96,48 +96,57 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp count(:spec, delta), do: :counters.add(Tables.counters(), @spec_counter, delta)
 
   @doc false
-  # Sends `tuple` to the local subscribers it matches. `counters` is
-  # `Tables.counters/0`, which the writer has already fetched.
-  @spec deliver(tuple(), :counters.counters_ref()) :: :ok
-  def deliver(tuple, counters \\ Tables.counters())
+  # Sends `tuple` to the local subscribers it matches.
+  @spec deliver(tuple()) :: :ok
+  def deliver(tuple), do: tuple |> recipients(Tables.counters()) |> send_to(tuple)
 
-  def deliver(tuple, counters) when tuple_size(tuple) >= 2 do
+  @doc false
+  # The local subscriptions `tuple` matches. `counters` is
+  # `Tables.counters/0`, which the writer has already fetched.
+  @spec recipients(tuple(), :counters.counters_ref()) :: [tuple()]
+  def recipients(tuple, counters) when tuple_size(tuple) >= 2 do
     n = tuple_size(tuple)
     first = elem(tuple, 0)
     subs = Tables.subs()
-    deliver_all(:ets.lookup(subs, {:stream, n, first, elem(tuple, 1)}), tuple)
+    found = matching(:ets.lookup(subs, {:stream, n, first, elem(tuple, 1)}), tuple)
 
-    if :counters.get(counters, Tables.tag_bucket(n, first)) > 0,
-      do: deliver_all(:ets.lookup(subs, {:tag, n, first}), tuple)
+    found =
+      if :counters.get(counters, Tables.tag_bucket(n, first)) > 0,
+        do: matching(:ets.lookup(subs, {:tag, n, first}), tuple) ++ found,
+        else: found
 
-    deliver_wide(tuple, counters)
+    wide(tuple, counters, found)
   end
 
-  def deliver({first} = tuple, counters) do
-    deliver_all(:ets.lookup(Tables.subs(), {:tag, 1, first}), tuple)
-    deliver_wide(tuple, counters)
-  end
+  def recipients({first} = tuple, counters),
+    do: wide(tuple, counters, matching(:ets.lookup(Tables.subs(), {:tag, 1, first}), tuple))
 
-  def deliver({} = tuple, counters), do: deliver_wide(tuple, counters)
+  def recipients({} = tuple, counters), do: wide(tuple, counters, [])
 
   # subscriptions that may match any tuple
-  defp deliver_wide(tuple, counters) do
-    if :counters.get(counters, @any_counter) > 0,
-      do: deliver_all(:ets.lookup(Tables.subs(), {:any, tuple_size(tuple)}), tuple)
+  defp wide(tuple, counters, found) do
+    found =
+      if :counters.get(counters, @any_counter) > 0,
+        do: matching(:ets.lookup(Tables.subs(), {:any, tuple_size(tuple)}), tuple) ++ found,
+        else: found
 
     if :counters.get(counters, @spec_counter) > 0,
-      do: deliver_all(:ets.lookup(Tables.subs(), :spec), tuple)
-
-    :ok
+      do: matching(:ets.lookup(Tables.subs(), :spec), tuple) ++ found,
+      else: found
   end
 
-  defp deliver_all([], _tuple), do: :ok
+  defp matching([], _tuple), do: []
+  defp matching([{_, _, _, {:positions, _, []}, _, _, _}] = rows, _tuple), do: rows
+  defp matching(rows, tuple), do: Enum.filter(rows, &Template.matches?(elem(&1, 3), tuple))
 
-  defp deliver_all([{_index, ref, pid, matcher, max_queue, policy, slot} | rest], tuple) do
-    if Template.matches?(matcher, tuple),
-      do: send_bounded(ref, pid, max_queue, policy, slot, tuple)
+  @doc false
+  # Sends `tuple` to `recipients/2`'s subscriptions.
+  @spec send_to([tuple()], tuple()) :: :ok
+  def send_to([], _tuple), do: :ok
 
-    deliver_all(rest, tuple)
+  def send_to([{_index, ref, pid, _matcher, max_queue, policy, slot} | rest], tuple) do
+    send_bounded(ref, pid, max_queue, policy, slot, tuple)
+    send_to(rest, tuple)
   end
 
   # Reading another process's queue length after sending to it costs about

@@ -147,13 +147,14 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   defp wake_for_arrival([_taker | rest], tuple, true), do: wake_for_arrival(rest, tuple, true)
 
   @doc false
-  # A new or re-armed waiter: wake it if a matching tuple is there already
-  # (`find` returns one).
+  # A new or re-armed waiter: if a matching tuple is there already (`find`
+  # returns one), it is served as an arrival: the kick may reach the server
+  # after a tuple that older waiters are waiting for, which then go first.
   @spec kicked(tuple(), (Template.compiled() -> {:ok, tuple()} | :none)) :: pid() | nil
   def kicked(wkey, find) do
     case :ets.lookup(Tables.waiters(), wkey) do
-      [{^wkey, pid, _, _, template, false} = waiter] ->
-        with {:ok, tuple} <- find.(template), do: wake(waiter, tuple)
+      [{^wkey, pid, _, _, template, false}] ->
+        with {:ok, tuple} <- find.(template), do: arrived(tuple)
         pid
 
       _ ->
