@@ -149,55 +149,33 @@ defmodule ThinkingCap.Blackboard.Template do
   def bound_indexes({}), do: []
 
   @doc """
-  A match specification over the store's records `{row_key, tuple, _,
-  expires, _}` that selects live records (not expired at `now`) whose
-  tuple matches.
+  A match specification over the store's records `{key, tuple, _, expires, _}`
+  (key `{arity, first, second, seq, owner}`, and `extra` more fields after
+  them) that selects live records (not expired at `now`) whose tuple
+  matches. The key pattern binds arity and the first two elements when the
+  template does, so an ordered table only walks that range.
   """
-  @spec record_match_spec(compiled(), integer(), term()) :: :ets.match_spec()
-  def record_match_spec(%__MODULE__{} = t, now, body \\ :"$_") do
+  @spec record_match_spec(compiled(), integer(), term(), non_neg_integer()) :: :ets.match_spec()
+  def record_match_spec(%__MODULE__{} = t, now, body \\ :"$_", extra \\ 0) do
     live = {:>, @expires_var, now}
+    rest = List.duplicate(:_, extra)
 
     case t.matcher do
       {:positions, _arity, _bound} ->
-        [{{:_, t.pattern, :_, @expires_var, :_}, [live | t.guards], [body]}]
+        key = {key_arity(t), key_position(t, 1), key_position(t, 2), :_, :_}
+        [{record_head(key, t.pattern, rest), [live | t.guards], [body]}]
 
       {:spec, _} ->
         {:spec, clauses} = t.source
 
         for {head, guards, _body} <- clauses do
-          {{:_, head, :_, @expires_var, :_}, [live | guards], [body]}
+          {record_head(:_, head, rest), [live | guards], [body]}
         end
     end
   end
 
-  @doc """
-  A match specification over the store's index rows `{{arity, first,
-  second, seq, owner}}` that returns the keys a template's matches can be
-  under (a template indexed by stream, tag or arity). It binds the key's
-  leading elements as far as the template's index does, so that an ordered table only walks their range; a value ETS would read
-  as a pattern is compared in a guard instead. The tuples themselves
-  still have to be matched.
-  """
-  @spec index_match_spec(compiled()) :: :ets.match_spec()
-  def index_match_spec(%__MODULE__{index: {:stream, n, first, second}}),
-    do: index_spec([n, first, second])
-
-  def index_match_spec(%__MODULE__{index: {:tag, n, first}}), do: index_spec([n, first])
-  def index_match_spec(%__MODULE__{index: {:any, n}}), do: index_spec([n])
-
-  defp index_spec(bound) do
-    {elems, guards} =
-      bound
-      |> Enum.with_index(1)
-      |> Enum.map_reduce([], fn {value, pos}, guards ->
-        if literal_pattern?(value),
-          do: {value, guards},
-          else: {:"$#{pos}", [{:"=:=", :"$#{pos}", {:const, value}} | guards]}
-      end)
-
-    key = List.to_tuple(elems ++ List.duplicate(:_, 5 - length(elems)))
-    [{{key}, guards, [{:element, 1, :"$_"}]}]
-  end
+  defp record_head(key, pattern, rest),
+    do: List.to_tuple([key, pattern, :_, @expires_var, :_ | rest])
 
   ## Internals
 
@@ -242,6 +220,18 @@ defmodule ThinkingCap.Blackboard.Template do
     do: {:stream, tuple_size(template), elem(template, 0), elem(template, 1)}
 
   defp index_of(template), do: {:tag, tuple_size(template), elem(template, 0)}
+
+  defp key_arity(%__MODULE__{matcher: {:positions, arity, _}}), do: arity
+
+  # The store's key holds the first two elements (tag and robot id by
+  # convention), so binding them here lets an ordered table walk only their
+  # range; a wildcard or a value ETS would read as a pattern stays unbound.
+  defp key_position(%__MODULE__{source: source}, pos) when tuple_size(source) >= pos do
+    value = elem(source, pos - 1)
+    if value !== :_ and literal_pattern?(value), do: value, else: :_
+  end
+
+  defp key_position(%__MODULE__{}, _pos), do: :_
 
   defp positions_match?([], _tuple), do: true
 

@@ -4,31 +4,34 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # wrote them) and replicas of every other node's.
   #
   # A record is {key, tuple, key_bin, expires, stamp}:
-  #   key      {arity, first, second, seq, owner_node}, the tuple's identity
-  #            on every node: seq is strictly increasing on the owner, and
-  #            the first two elements are tag and robot id by convention.
+  #   key      {arity, first, second, seq, owner_node}: the first two
+  #            elements (tag and robot id by convention) index the ordered
+  #            table; seq is strictly increasing on the owner, so the tuples
+  #            of one tag and robot are walked oldest first.
   #   key_bin  the latest-value key (`out(t, key: k)`) as a binary, or nil.
   #   expires  monotonic milliseconds on *this* node, or :infinity.
   #   stamp    {os_time_us, seq, node} for keyed tuples (last-writer-wins).
   #
-  # Three tables hold them:
-  #   tuples  {{owner, seq}, tuple, key_bin, expires, stamp}: the records,
-  #           ordered by owner then seq, so that this node's writes append
-  #           at one end of the tree, on a path that stays in cache. The
-  #           only place a take happens (ets:take of the row).
-  #   index   {key}: every record's identity, ordered by stream and then
-  #           seq, which rd and take walk (a stream, or a tag) oldest first.
-  #   fresh   {key}: this node's writes not yet in the index.
+  # Two tables hold records:
+  #   tuples  every record, ordered by key. Takes happen here only.
+  #   fresh   the same record plus its writer's pid, for a local write that
+  #           wakes local subscribers: from just before they are sent it
+  #           until it is settled, just after the writer yielded to them.
   #
-  # A local write is staged (fresh, then tuples) before its subscribers
-  # are sent it, and settled (index, then out of fresh) after: readers look
-  # in the index and then in fresh, so a write is found from the moment it
-  # is staged. Inserting into the stream-ordered index lands on a cold path
-  # of its tree (about 1 us with the benchmark's 1,000 streams); settling
-  # after the send, once the writer has yielded to the subscribers it woke,
-  # takes that off their latency. An index entry whose record is gone is
-  # skipped by readers and removed by whoever removed the record (or by the
-  # settler, which checks for the record after indexing it).
+  # Inserting into tuples lands on a cold path of its tree (about 1 us with
+  # the benchmark's 1,000 streams), where fresh holds a handful of rows and
+  # stays in cache: staging there keeps the insert off the subscribers'
+  # latency. Settling copies the record into tuples, then deletes its fresh
+  # row, so a record is always in one table or both. Readers look in tuples,
+  # then in fresh, then in tuples again: a write settled while the first
+  # walk was past it, and gone from fresh when fresh was read, was copied
+  # before that. A taker that finds a match in fresh only waits until its
+  # writer has settled it.
+  #
+  # Once a record is in tuples its fresh row is redundant, and a taker
+  # deletes it before taking: a fresh row whose record is not in tuples was
+  # never copied. The sweeper relies on that to settle what a killed writer
+  # left in fresh without bringing back a tuple that was taken.
   #
   # Between nodes a record travels as {key, tuple, key_bin, stamp, ttl_left}.
 
@@ -39,7 +42,6 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @type wire :: {tuple(), tuple(), binary() | nil, tuple() | nil, non_neg_integer() | :infinity}
 
   @remote_take_timeout :infinity
-  @batch 16
 
   def now, do: System.monotonic_time(:millisecond)
 
@@ -70,74 +72,44 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   @doc false
   def seq({key, _, _, _, _}), do: key_seq(key)
 
-  @doc false
-  # The tuples table's key of the record whose identity is `key`.
-  @spec row_key(tuple()) :: {node(), pos_integer()}
-  def row_key({_, _, _, seq, owner}), do: {owner, seq}
-
-  defp identity({owner, seq}, tuple),
-    do: {tuple_size(tuple), element(tuple, 1), element(tuple, 2), seq, owner}
-
-  defp to_row({key, tuple, key_bin, expires, stamp}),
-    do: {row_key(key), tuple, key_bin, expires, stamp}
-
-  defp to_record({row_key, tuple, key_bin, expires, stamp}),
-    do: {identity(row_key, tuple), tuple, key_bin, expires, stamp}
-
-  # an index-key pattern selecting one owner's records
+  # a record-key pattern selecting one owner's records
   defp owner_key(owner), do: {:_, :_, :_, :_, owner}
 
   ## Writing
 
   @doc false
   # A local write's first half, before its subscribers are sent it: from
-  # here on readers find it (through fresh).
-  @spec stage(record()) :: :ok
-  def stage({key, _, _, _, _} = record) do
-    :ets.insert(Tables.fresh(), {key})
-    :ets.insert(Tables.tuples(), to_row(record))
-    :ok
-  end
+  # here on readers find it.
+  @spec stage(record()) :: true
+  def stage({key, tuple, key_bin, expires, stamp}),
+    do: :ets.insert(Tables.fresh(), {key, tuple, key_bin, expires, stamp, self()})
 
   @doc false
-  # A staged write's second half: index it, leave fresh, and for a keyed
-  # one replace the older tuple with the same key. Safe to run twice (the
-  # sweeper settles what a killed writer left staged).
+  # A staged write's second half: copy it into tuples, then drop its fresh
+  # row (for a keyed one, then replace the older tuple with the same key).
   @spec settle(record()) :: :ok | :stale
   def settle({key, _, _, _, _} = record) do
-    index(key)
+    :ets.insert(Tables.tuples(), record)
     :ets.delete(Tables.fresh(), key)
     claim(record)
   end
 
   @doc false
-  # Stores a record in one step: a local write nobody has been told of, a
-  # replica, a record from a snapshot. The index entry goes in first: until
-  # the row follows, readers skip it, and once the row is there a taker
-  # removes both (so no check for a removed row is needed, as in settle/1).
+  # Inserts a record in one step (a write nobody has been told of, a
+  # replica, a record from a snapshot); for a keyed one, replaces the older
+  # tuple with the same key. The new record is inserted before the old one
+  # is removed, so a reader sees one or (for an instant) both, never neither.
   @spec insert(record()) :: :ok | :stale
-  def insert({key, _, _, _, _} = record) do
-    :ets.insert(Tables.index(), {key})
-    :ets.insert(Tables.tuples(), to_row(record))
+  def insert(record) do
+    :ets.insert(Tables.tuples(), record)
     claim(record)
   end
 
-  # Indexes a stored record; if it was removed meanwhile, by a taker that
-  # found it through fresh before the entry existed, removes the entry again.
-  defp index(key) do
-    :ets.insert(Tables.index(), {key})
-    unless member?(key), do: :ets.delete(Tables.index(), key)
-  end
-
-  # For a keyed record, the older tuple with the same key goes (or this
-  # one, if a newer one is there already). The new record is stored before
-  # the old one is removed, so a reader sees one or (for an instant) both,
-  # never neither.
   defp claim({_key, _tuple, nil, _expires, _stamp}), do: :ok
 
   defp claim({key, _tuple, key_bin, _expires, stamp}) do
     losers = claim_key(key_bin, {key, stamp}, [])
-    Enum.each(losers, &remove/1)
+    Enum.each(losers, &:ets.delete(Tables.tuples(), &1))
     if key in losers, do: :stale, else: :ok
   end
 
@@ -147,9 +119,8 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # that finds another's entry installed meanwhile takes and compares that
   # one too. Every entry taken is compared once, so the index ends on the
   # newest record and each writer returns the record keys that lost in its
-  # hands (its own among them when it was stale), which it deletes. A writer
-  # that finds its own record installed (a record settled twice) puts it
-  # back.
+  # hands (its own among them when it was stale), which it deletes. One
+  # that finds its own record installed puts it back.
   # (One take and one insert_new: a compare-and-swap by select_replace
   # costs a match-specification compile, 1.5 us, on every keyed write.)
   defp claim_key(key_bin, {key, stamp} = candidate, losers) do
@@ -165,7 +136,7 @@ defmodule ThinkingCap.Blackboard.Core.Store do
         claim_key(key_bin, candidate, losers)
 
       [{^key_bin, old_key, old_stamp}] ->
-        if newer?(stamp, old_stamp) or not member?(old_key),
+        if newer?(stamp, old_stamp) or not :ets.member(Tables.tuples(), old_key),
           do: claim_key(key_bin, candidate, [old_key | losers]),
           else: claim_key(key_bin, {old_key, old_stamp}, [key | losers])
     end
@@ -184,31 +155,17 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     ])
   end
 
-  # Removes the record `key` and its index entry; its row if it was here.
-  defp remove(key) do
-    case :ets.take(Tables.tuples(), row_key(key)) do
-      [row] ->
-        :ets.delete(Tables.index(), key)
-        row
-
-      [] ->
-        nil
-    end
-  end
-
-  ## Removing
-
   @doc false
   # Removes a record (a replica told of a take, a stale replica); true if
   # it was here.
   @spec delete(tuple()) :: boolean()
   def delete(key) do
-    case remove(key) do
-      {_row_key, _tuple, key_bin, _expires, _stamp} ->
+    case :ets.take(Tables.tuples(), key) do
+      [{^key, _tuple, key_bin, _expires, _stamp}] ->
         forget_key(key_bin, key)
         true
 
-      nil ->
+      [] ->
         false
     end
   end
@@ -230,49 +187,115 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   ## Reading
   #
-  # Every template reads through the index, so that matches come in one
-  # order: by arity, tag and robot id in term order, then oldest first. A
-  # template that binds a stream (tag and robot) walks that stream's range
-  # with ets:next, where a select would compile its match specification on
-  # every call (a warm rdp 1.9 us by select, 1.5 us by walking); one that
-  # binds a tag, or only the arity, selects that range; a match
-  # specification selects every key. Each candidate is then looked up and
-  # matched exactly (1 and 1.0 sort together in the index).
-  #
-  # Reads look in the index, then in fresh, then in the index again: a
-  # write settled while the first walk was past it and before fresh was
-  # read is in the index by then (settling indexes before it leaves fresh).
+  # Every read looks in tuples, then in fresh, then in tuples again (see
+  # above). A template that binds a stream (tag and robot) walks that
+  # stream's range with ets:next, where a select would compile its match
+  # specification on every call (measured: a warm rdp 1.9 us by select,
+  # 1.5 us by walking). The range holds the keys whose arity and first two
+  # elements compare equal (==) to the template's; each record is still
+  # matched exactly.
 
   @doc false
   @spec first_match(Template.compiled()) :: {:ok, tuple()} | :none
   def first_match(template) do
-    case matches(template, 1) do
-      {[{_key, tuple} | _], _next} -> {:ok, tuple}
-      :done -> :none
+    now = now()
+
+    with :none <- find(Tables.tuples(), template, now),
+         :none <- find(Tables.fresh(), template, now),
+         do: find(Tables.tuples(), template, now)
+  end
+
+  defp find(table, %Template{index: {:stream, _, _, _}} = template, now),
+    do: stream_find(table, stream_start(template), template, now)
+
+  defp find(table, template, now) do
+    case :ets.select(table, match_spec(table, template, now, {:element, 2, :"$_"}), 1) do
+      {[tuple], _cont} -> {:ok, tuple}
+      :"$end_of_table" -> :none
     end
   end
 
-  @doc false
-  @spec all_matches(Template.compiled()) :: [tuple()]
-  def all_matches(%Template{index: :spec} = template) do
-    {found, _} = spec_matches(template)
-    Enum.map(found, &elem(&1, 1))
+  defp match_spec(table, template, now, body),
+    do:
+      Template.record_match_spec(template, now, body, if(table == Tables.fresh(), do: 1, else: 0))
+
+  defp stream_start(%Template{index: {:stream, n, first, second}}), do: {n, first, second, 0, nil}
+
+  defp stream_next(table, key, %Template{index: {:stream, n, first, second}}) do
+    case :ets.next(table, key) do
+      {^n, f, s, _, _} = next when f == first and s == second -> next
+      _end_of_stream -> nil
+    end
   end
 
-  def all_matches(template) do
-    # fresh first, then the index: a write found in neither was settled
-    # after the index was read, so after this call began
-    now = now()
+  defp live_match(table, key, template, now) do
+    case :ets.lookup(table, key) do
+      [row] when elem(row, 3) > now ->
+        tuple = elem(row, 1)
+        if Template.matches?(template, tuple), do: {:ok, tuple}, else: :none
 
-    (candidate_keys(Tables.fresh(), template) ++ candidate_keys(Tables.index(), template))
-    |> Enum.sort()
-    |> Enum.dedup()
-    |> Enum.flat_map(fn key ->
-      case live_match(key, template, now) do
-        {:ok, tuple} -> [tuple]
-        :none -> []
-      end
-    end)
+      _gone_or_expired ->
+        :none
+    end
+  end
+
+  defp stream_find(table, from, template, now) do
+    case stream_next(table, from, template) do
+      nil ->
+        :none
+
+      key ->
+        with :none <- live_match(table, key, template, now),
+             do: stream_find(table, key, template, now)
+    end
+  end
+
+  # up to `left` keys of live matching records after `from`, oldest first,
+  # and the last key looked at
+  defp stream_keys(_table, from, _template, _now, 0, acc), do: {Enum.reverse(acc), from}
+
+  defp stream_keys(table, from, template, now, left, acc) do
+    case stream_next(table, from, template) do
+      nil ->
+        {Enum.reverse(acc), from}
+
+      key ->
+        case live_match(table, key, template, now) do
+          {:ok, _} -> stream_keys(table, key, template, now, left - 1, [key | acc])
+          :none -> stream_keys(table, key, template, now, left, acc)
+        end
+    end
+  end
+
+  @key_and_tuple {{{:element, 1, :"$_"}, {:element, 2, :"$_"}}}
+
+  @doc false
+  @spec all_matches(Template.compiled()) :: [tuple()]
+  def all_matches(template) do
+    # fresh first, then tuples: a staged write gone from fresh by then was
+    # copied before
+    now = now()
+    fresh = Tables.fresh()
+
+    staged =
+      if :ets.first(fresh) == :"$end_of_table",
+        do: [],
+        else: :ets.select(fresh, match_spec(fresh, template, now, @key_and_tuple))
+
+    body = if staged == [], do: {:element, 2, :"$_"}, else: @key_and_tuple
+
+    stored = :ets.select(Tables.tuples(), match_spec(Tables.tuples(), template, now, body))
+
+    case staged do
+      [] ->
+        stored
+
+      _ ->
+        (staged ++ stored)
+        |> Enum.sort()
+        |> Enum.dedup_by(&elem(&1, 0))
+        |> Enum.map(&elem(&1, 1))
+    end
   end
 
   @doc false
@@ -281,132 +304,61 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     :ets.select(Tables.tuples(), [{{:_, :"$1", :_, :"$2", :_}, [{:>, :"$2", now()}], [:"$1"]}])
   end
 
-  # Live matches of `template`, oldest first, `size` at first and then a
-  # batch at a time: {[{key, tuple}], next} where next.() gives the next
-  # ones, or :done.
-  defp matches(%Template{index: :spec} = template, _size) do
-    case spec_matches(template) do
-      {[], _} -> :done
-      found -> found
-    end
-  end
-
-  defp matches(template, size) do
-    again = fn -> scan(Tables.index(), template, @batch, fn -> :done end) end
-    fresh = fn -> scan(Tables.fresh(), template, @batch, again) end
-    scan(Tables.index(), template, size, fresh)
-  end
-
-  # A match specification runs over every record in one select (ETS runs
-  # it in C, where walking the index would look each record up), whose
-  # matches are then put in index order.
-  defp spec_matches(template) do
-    ms = Template.record_match_spec(template, now(), {{{:element, 1, :"$_"}, :"$_"}})
-    # the row's key comes first, then the whole row
-    found =
-      for {row_key, {_, tuple, _, _, _}} <- :ets.select(Tables.tuples(), ms),
-          do: {identity(row_key, tuple), tuple}
-
-    {Enum.sort(found), fn -> :done end}
-  end
-
-  defp scan(table, %Template{index: {:stream, n, first, second}} = template, size, then),
-    do: walk(table, {n, first, second, 0, nil}, template, size, then)
-
-  defp scan(table, template, size, then) do
-    if table == Tables.fresh() and :ets.first(table) == :"$end_of_table",
-      do: then.(),
-      else: pick(:ets.select(table, Template.index_match_spec(template), size), template, then)
-  end
-
-  defp walk(table, from, template, size, then) do
-    case walk_keys(table, from, template, now(), size, []) do
-      {[], _last, :end} -> then.()
-      {found, _last, :end} -> {found, then}
-      {found, last, :more} -> {found, fn -> walk(table, last, template, @batch, then) end}
-    end
-  end
-
-  # up to `left` live matches after `from` in the stream's range, oldest
-  # first, the last key looked at, and whether the range goes on
-  defp walk_keys(_table, from, _template, _now, 0, acc), do: {Enum.reverse(acc), from, :more}
-
-  defp walk_keys(table, from, %Template{index: {:stream, n, first, second}} = t, now, left, acc) do
-    case :ets.next(table, from) do
-      {^n, f, s, _, _} = key when f == first and s == second ->
-        case live_match(key, t, now) do
-          {:ok, tuple} -> walk_keys(table, key, t, now, left - 1, [{key, tuple} | acc])
-          :none -> walk_keys(table, key, t, now, left, acc)
-        end
-
-      _end_of_stream ->
-        {Enum.reverse(acc), from, :end}
-    end
-  end
-
-  defp pick(:"$end_of_table", _template, then), do: then.()
-
-  defp pick({keys, cont}, template, then) do
-    now = now()
-    found = for key <- keys, {:ok, tuple} <- [live_match(key, template, now)], do: {key, tuple}
-    next = fn -> pick(:ets.select(cont), template, then) end
-    if found == [], do: next.(), else: {found, next}
-  end
-
-  # every key in `table` (index or fresh) under the template's stream or tag
-  defp candidate_keys(table, %Template{index: {:stream, n, first, second}}),
-    do: stream_keys(table, {n, first, second, 0, nil}, [])
-
-  defp candidate_keys(table, template),
-    do: :ets.select(table, Template.index_match_spec(template))
-
-  defp stream_keys(table, {n, first, second, _, _} = from, acc) do
-    case :ets.next(table, from) do
-      {^n, f, s, _, _} = key when f == first and s == second ->
-        stream_keys(table, key, [key | acc])
-
-      _end_of_stream ->
-        acc
-    end
-  end
-
-  defp live_match(key, template, now) do
-    case :ets.lookup(Tables.tuples(), row_key(key)) do
-      [{_, tuple, _, expires, _}] when expires > now ->
-        if Template.matches?(template, tuple), do: {:ok, tuple}, else: :none
-
-      _gone_or_expired ->
-        :none
-    end
-  end
-
   ## Taking
+
+  @batch 16
 
   @doc false
   # Linda `inp`: the oldest matching tuple this node owns, else the oldest of
   # another node's, taken through its owner so that exactly one taker in the
-  # cluster gets it.
+  # cluster gets it. Matches found in fresh come after those in tuples.
   @spec take_first(Template.compiled()) :: {:ok, tuple()} | :none
   def take_first(template) do
+    with :none <- take_stored(template),
+         :none <- take_from(batch(Tables.fresh(), template, @batch)),
+         do: take_stored(template)
+  end
+
+  defp take_stored(template) do
     # The oldest match alone first: it is this node's more often than not,
     # and finding 16 costs 3x finding one. Otherwise batches of 16, this
     # node's taken first, as remote takes cost a round trip.
-    case matches(template, 1) do
-      {[{key, _tuple}], _next} ->
-        if key_owner(key) == node(),
-          do: take_from({[key], fn -> keys(matches(template, @batch)) end}),
-          else: take_from(keys(matches(template, @batch)))
+    tuples = Tables.tuples()
 
-      {_found, _next} ->
-        take_from(keys(matches(template, @batch)))
+    case batch(tuples, template, 1) do
+      {[key], _next} ->
+        if key_owner(key) == node(),
+          do: take_from({[key], fn -> batch(tuples, template, @batch) end}),
+          else: take_from(batch(tuples, template, @batch))
+
+      {[], _next} ->
+        take_from(batch(tuples, template, @batch))
 
       :done ->
         :none
     end
   end
 
-  defp keys(:done), do: :done
-  defp keys({found, next}), do: {Enum.map(found, &elem(&1, 0)), fn -> keys(next.()) end}
+  # The keys of up to `size` live matching records, oldest first, and how
+  # to get the next batch; :done when there are no more.
+  defp batch(table, %Template{index: {:stream, _, _, _}} = template, size),
+    do: stream_batch(table, stream_start(template), template, now(), size)
+
+  defp batch(table, template, size) do
+    select_batch(
+      :ets.select(table, match_spec(table, template, now(), {:element, 1, :"$_"}), size)
+    )
+  end
+
+  defp select_batch(:"$end_of_table"), do: :done
+  defp select_batch({keys, cont}), do: {keys, fn -> select_batch(:ets.select(cont)) end}
+
+  defp stream_batch(table, from, template, now, size) do
+    case stream_keys(table, from, template, now, size, []) do
+      {[], _last} -> :done
+      {keys, last} -> {keys, fn -> stream_batch(table, last, template, now, @batch) end}
+    end
+  end
 
   defp take_from(:done), do: :none
 
@@ -455,15 +407,26 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # Runs on the owner node. The only place where an owned tuple is taken.
   @spec take_owned(tuple()) :: {:ok, tuple()} | :gone
   def take_owned(key) do
-    case :ets.take(Tables.tuples(), row_key(key)) do
-      [{_row_key, tuple, key_bin, expires, _stamp}] ->
-        :ets.delete(Tables.index(), key)
+    await_settled(key, 0)
+
+    case :ets.take(Tables.tuples(), key) do
+      [{^key, tuple, key_bin, expires, _stamp}] ->
         forget_key(key_bin, key)
         ThinkingCap.Blackboard.Core.Server.taken(key)
         if expires > now(), do: {:ok, tuple}, else: :gone
 
       [] ->
         :gone
+    end
+  end
+
+  # A staged record is taken only once it is settled: until its fresh row
+  # is gone, a take waits (its writer settles it right after the yield that
+  # let the taker run; a killed writer's, the sweeper within a second).
+  defp await_settled(key, waited) do
+    if :ets.member(Tables.fresh(), key) do
+      if waited < 10, do: :erlang.yield(), else: Process.sleep(1)
+      await_settled(key, waited + 1)
     end
   end
 
@@ -485,17 +448,24 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   @doc false
   @spec member?(tuple()) :: boolean()
-  def member?(key), do: :ets.member(Tables.tuples(), row_key(key))
+  def member?(key), do: :ets.member(Tables.tuples(), key) or :ets.member(Tables.fresh(), key)
 
   @doc false
-  # Every live record this node owns, as wire records, oldest first (the
-  # table orders them by owner, then seq).
+  # Every live record this node owns, as wire records, oldest first.
   @spec owned_snapshot() :: [wire()]
   def owned_snapshot do
     now = now()
-    ms = [{{{node(), :_}, :_, :_, :"$1", :_}, [{:>, :"$1", now}], [:"$_"]}]
+    ms = [{{owner_key(node()), :_, :_, :"$1", :_}, [{:>, :"$1", now}], [:"$_"]}]
 
-    for row <- :ets.select(Tables.tuples(), ms), do: row |> to_record() |> to_wire()
+    staged =
+      for {key, tuple, key_bin, expires, stamp, _writer} <- :ets.tab2list(Tables.fresh()),
+          expires > now,
+          do: {key, tuple, key_bin, expires, stamp}
+
+    (:ets.select(Tables.tuples(), ms) ++ staged)
+    |> Enum.uniq_by(&elem(&1, 0))
+    |> Enum.map(&to_wire/1)
+    |> Enum.sort_by(fn {key, _, _, _, _} -> key_seq(key) end)
   end
 
   @doc false
@@ -529,37 +499,35 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   defp owned_keys(owner) do
-    for {row_key, tuple} <-
-          :ets.select(Tables.tuples(), [
-            {{{owner, :_}, :"$1", :_, :_, :_}, [], [{{{:element, 1, :"$_"}, :"$1"}}]}
-          ]),
-        do: identity(row_key, tuple)
+    :ets.select(Tables.tuples(), [
+      {{owner_key(owner), :_, :_, :_, :_}, [], [{:element, 1, :"$_"}]}
+    ])
   end
 
   @doc false
   # Forgets every tuple owned by `owner` (its node went away).
   @spec purge(node()) :: non_neg_integer()
   def purge(owner) do
-    count = :ets.select_delete(Tables.tuples(), [{{{owner, :_}, :_, :_, :_, :_}, [], [true]}])
-    :ets.select_delete(Tables.index(), [{{owner_key(owner)}, [], [true]}])
+    count =
+      :ets.select_delete(Tables.tuples(), [{{owner_key(owner), :_, :_, :_, :_}, [], [true]}])
+
     :ets.select_delete(Tables.keys(), [{{:_, owner_key(owner), :_}, [], [true]}])
     count
   end
 
   @doc false
-  # Deletes expired records and old tombstones, and settles the writes that
-  # were staged at the last sweep already (their writer was killed between
-  # staging and settling); returns how many records expired.
+  # Deletes expired records and old tombstones, and settles what killed
+  # writers left staged; returns how many records expired.
   @spec sweep() :: non_neg_integer()
   def sweep do
     now = now()
     :ets.select_delete(Tables.tombs(), [{{:_, :"$1"}, [{:<, :"$1", now - 60_000}], [true]}])
-    ms = [{{:"$1", :"$2", :"$3", :"$4", :_}, [{:"=<", :"$4", now}], [{{:"$1", :"$2", :"$3"}}]}]
+    ms = [{{:"$1", :_, :"$2", :"$3", :_}, [{:"=<", :"$3", now}], [{{:"$1", :"$2"}}]}]
+
     expired = :ets.select(Tables.tuples(), ms)
 
-    for {row_key, tuple, key_bin} <- expired do
-      key = identity(row_key, tuple)
-      remove(key)
+    for {key, key_bin} <- expired do
+      :ets.delete(Tables.tuples(), key)
       forget_key(key_bin, key)
     end
 
@@ -567,18 +535,25 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     length(expired)
   end
 
+  # A staged write whose writer died before settling it: the sweeper takes
+  # its fresh row and copies the record into tuples unless it is there
+  # already (no take happens while the fresh row exists, so a record
+  # missing from tuples was never copied).
   defp settle_abandoned do
-    staged = for {key} <- :ets.tab2list(Tables.fresh()), do: key
-    seen = MapSet.new(:ets.lookup_element(Tables.meta(), :staged_at_sweep, 2))
-    {abandoned, recent} = Enum.split_with(staged, &MapSet.member?(seen, &1))
+    fresh = Tables.fresh()
+    abandoned = :ets.select(fresh, [{{:"$1", :_, :_, :_, :_, :"$2"}, [], [{{:"$1", :"$2"}}]}])
 
-    for key <- abandoned do
-      case :ets.lookup(Tables.tuples(), row_key(key)) do
-        [row] -> settle(to_record(row))
-        [] -> :ets.delete(Tables.fresh(), key)
+    for {key, writer} <- abandoned, not Process.alive?(writer) do
+      case :ets.take(fresh, key) do
+        [{^key, tuple, key_bin, expires, stamp, _writer}] ->
+          unless :ets.member(Tables.tuples(), key),
+            do: insert({key, tuple, key_bin, expires, stamp})
+
+        [] ->
+          :ok
       end
     end
 
-    :ets.insert(Tables.meta(), {:staged_at_sweep, recent})
+    :ok
   end
 end

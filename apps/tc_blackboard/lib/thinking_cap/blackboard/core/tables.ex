@@ -4,10 +4,10 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   # tables outlive every process that serves them: a crash of the server
   # loses no tuple, subscription or blocked waiter.
   #
-  #   tuples   ordered_set  {{owner_node, seq}, tuple, key_bin | nil, expires, stamp | nil}
-  #   index    ordered_set  {{arity, first, second, seq, owner_node}}
-  #   fresh    ordered_set  {{arity, first, second, seq, owner_node}}
-  #                         (see Store for the three)
+  #   tuples   ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil}
+  #                         key = {arity, first, second, seq, owner_node}
+  #   fresh    ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil, writer_pid}
+  #                         (see Store for the two)
   #   keys     set          {key_bin, {arity, first, second, seq, owner}, stamp}
   #                         latest-value index
   #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow, slot}
@@ -15,14 +15,12 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
-  #                         {:staged_at_sweep, [key]},
   #   (and two arrays in persistent_term: counters/0 and send_counts/0)
   #                         {{:watermark, node}, boot, seq}
 
   use GenServer
 
   @tuples :tc_bb_tuples
-  @index :tc_bb_index
   @fresh :tc_bb_fresh
   @keys :tc_bb_keys
   @subs :tc_bb_subs
@@ -32,7 +30,6 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @meta :tc_bb_meta
 
   def tuples, do: @tuples
-  def index, do: @index
   def fresh, do: @fresh
   def keys, do: @keys
   def subs, do: @subs
@@ -97,11 +94,10 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     # 30 ns, measured here), so they are plain tables.
     concurrent = [:public, :named_table, read_concurrency: true, write_concurrency: true]
     plain = [:public, :named_table]
-    # The three record tables are written by every out, but a write lock
-    # on a plain tree costs less than write_concurrency's tree of trees
-    # (an insert 300 ns against 550 ns, measured here).
+    # The record tables are written by every out, but a write lock on a
+    # plain tree costs less than write_concurrency's tree of trees (an
+    # insert 300 ns against 550 ns, measured here).
     :ets.new(@tuples, [:ordered_set, :public, :named_table, read_concurrency: true])
-    :ets.new(@index, [:ordered_set, :public, :named_table, read_concurrency: true])
     :ets.new(@fresh, [:ordered_set | plain])
     :ets.new(@keys, [:set | concurrent])
     :ets.new(@subs, [:bag | plain])
@@ -112,8 +108,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
 
     :ets.insert(@meta, [
       {:boot, {System.system_time(), :erlang.unique_integer()}},
-      {:peers, []},
-      {:staged_at_sweep, []}
+      {:peers, []}
     ])
 
     :persistent_term.put({__MODULE__, :counters}, :counters.new(@tag_base + @tag_buckets, []))
