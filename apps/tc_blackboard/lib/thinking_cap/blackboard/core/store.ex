@@ -25,13 +25,13 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # row, so a record is always in one table or both. Readers look in tuples,
   # then in fresh, then in tuples again: a write settled while the first
   # walk was past it, and gone from fresh when fresh was read, was copied
-  # before that. A taker that finds a match in fresh only waits until its
-  # writer has settled it.
+  # before that.
   #
-  # Once a record is in tuples its fresh row is redundant, and a taker
-  # deletes it before taking: a fresh row whose record is not in tuples was
-  # never copied. The sweeper relies on that to settle what a killed writer
-  # left in fresh without bringing back a tuple that was taken.
+  # No take happens while a record's fresh row exists: a taker that finds
+  # the record waits until it is settled (its writer settles it right after
+  # yielding to the subscribers it woke, which is when they run). The sweeper relies on that to
+  # settle what a killed writer left in fresh without bringing back a tuple
+  # that was taken.
   #
   # Between nodes a record travels as {key, tuple, key_bin, stamp, ttl_left}.
 
@@ -535,22 +535,22 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     length(expired)
   end
 
-  # A staged write whose writer died before settling it: the sweeper takes
-  # its fresh row and copies the record into tuples unless it is there
-  # already (no take happens while the fresh row exists, so a record
-  # missing from tuples was never copied).
+  # A staged write whose writer died before settling it. A dead writer
+  # copies nothing more, and no take happens while a fresh row exists: so
+  # a record in tuples now was copied (its fresh row only needs to go), and
+  # one missing from tuples was never copied, and is copied here. (Taking
+  # the fresh row first and looking in tuples after would let a taker take
+  # the copy in between, and the record be copied again.)
   defp settle_abandoned do
     fresh = Tables.fresh()
     abandoned = :ets.select(fresh, [{{:"$1", :_, :_, :_, :_, :"$2"}, [], [{{:"$1", :"$2"}}]}])
 
     for {key, writer} <- abandoned, not Process.alive?(writer) do
-      case :ets.take(fresh, key) do
-        [{^key, tuple, key_bin, expires, stamp, _writer}] ->
-          unless :ets.member(Tables.tuples(), key),
-            do: insert({key, tuple, key_bin, expires, stamp})
-
-        [] ->
-          :ok
+      if :ets.member(Tables.tuples(), key) do
+        :ets.delete(fresh, key)
+      else
+        with [{^key, tuple, key_bin, expires, stamp, _writer}] <- :ets.take(fresh, key),
+             do: insert({key, tuple, key_bin, expires, stamp})
       end
     end
 
