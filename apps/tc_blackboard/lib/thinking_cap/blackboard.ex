@@ -114,6 +114,8 @@ defmodule ThinkingCap.Blackboard do
   require Logger
 
   @default_max_queue 1000
+  @waiters_counter Tables.counter(:waiters)
+  @peers_counter Tables.counter(:peers)
 
   @type template :: Template.t()
   @type out_option :: {:key, term()} | {:ttl, pos_integer()}
@@ -139,26 +141,23 @@ defmodule ThinkingCap.Blackboard do
     {ukey, ttl} = out_options(opts)
     record = Store.new_record(tuple, ukey, ttl)
     counters = Tables.counters()
-    recipients = Subscriptions.recipients(tuple, counters)
 
-    # Blocked waiters are looked for only once the tuple can be found: a
-    # waiter counts itself before it looks, so one of the two sees the other.
-    if recipients == [] do
-      Store.insert(record)
-      if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
-      Server.replicate(record, counters)
-    else
-      # Staged, the tuple can be read and taken: nothing else must stand
-      # before the subscribers' send, and they are queued to run before the
-      # replicator. The writer then yields to the subscribers it woke on its
-      # own scheduler, and settles the write (its place in the stream index,
-      # its latest-value key) after they ran.
-      Store.stage(record)
-      Subscriptions.send_to(recipients, tuple)
-      if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
-      Server.replicate(record, counters)
-      :erlang.yield()
-      Store.settle(record)
+    case Subscriptions.recipients(tuple, counters) do
+      [] ->
+        Store.insert(record)
+        tell_others(record, tuple, counters)
+
+      recipients ->
+        # Staged, the tuple can be read and taken: nothing else must stand
+        # before the subscribers' send. The writer then yields to the
+        # subscribers it woke on its own scheduler, and after they ran tells
+        # blocked waiters and the other nodes, and settles the write (into
+        # the tuple table, replacing its latest-value key's older tuple).
+        Store.stage(record)
+        Subscriptions.send_to(recipients, tuple)
+        :erlang.yield()
+        tell_others(record, tuple, counters)
+        Store.settle(record)
     end
 
     :ok
@@ -294,6 +293,18 @@ defmodule ThinkingCap.Blackboard do
   def waiters, do: Waiters.list() |> Enum.sort_by(& &1.seq)
 
   ## Option checking
+
+  # Blocked waiters and the other nodes, each looked for only when counted:
+  # once the tuple can be found, as a waiter counts itself before it looks,
+  # so that one of the two sees the other.
+  defp tell_others(record, tuple, counters) do
+    if :counters.get(counters, @waiters_counter) > 0 and Waiters.any?(counters),
+      do: Server.notify({:arrived, tuple})
+
+    if :counters.get(counters, @peers_counter) > 0, do: Server.replicate(record, counters)
+  end
+
+  defp out_options([]), do: {nil, nil}
 
   defp out_options(opts) do
     Enum.reduce(opts, {nil, nil}, fn
