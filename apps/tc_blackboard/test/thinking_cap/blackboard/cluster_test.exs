@@ -110,6 +110,29 @@ defmodule ThinkingCap.Blackboard.ClusterTest do
     assert Enum.all?(nodes, &(bb(&1, :rd_all, [{:job, :_, :_}]) == []))
   end
 
+  test "take stays exactly-once when every write wakes a subscriber on its node" do
+    # such writes are staged and settled around a yield: takers on the
+    # other nodes take them through the owner while they may be staged
+    nodes = start(3)
+    jobs = 300
+    Enum.each(nodes, &call(&1, W, :collector, [{:woke, :_, :_}]))
+
+    takers =
+      for n <- nodes do
+        Task.async(fn -> call(n, W, :take_all, [{:woke, :_, :_}, 4, 1000], 120_000) end)
+      end
+
+    nodes
+    |> Enum.map(&Task.async(fn -> call(&1, W, :write, [:woke, 1..jobs]) end))
+    |> Enum.each(&Task.await/1)
+
+    taken = Enum.flat_map(takers, &Task.await(&1, 120_000))
+    written = for n <- nodes, i <- 1..jobs, do: {:woke, n.node, i}
+
+    assert Enum.sort(taken) == Enum.sort(written)
+    assert Enum.all?(nodes, &(bb(&1, :rd_all, [{:woke, :_, :_}]) == []))
+  end
+
   test "a killed node takes its tuples with it; the rest survive and takes stay exactly-once" do
     [a, b, c] = start(3)
     call(c, W, :report_sink, [:sink])

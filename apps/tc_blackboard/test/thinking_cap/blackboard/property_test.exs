@@ -138,6 +138,19 @@ defmodule ThinkingCap.Blackboard.PropertyTest do
   ## Properties
 
   test "random operation sequences agree with a list model" do
+    # a subscriber to one tag: writes of :prop_a wake it, so they are staged
+    # and settled around a yield, while writes of :prop_b are stored at once
+    me = self()
+
+    listener =
+      spawn_link(fn ->
+        {:ok, ref} = Blackboard.subscribe({:prop_a, :_, :_, @space}, max_queue: 100_000)
+        send(me, :listening)
+        drain(ref)
+      end)
+
+    assert_receive :listening
+
     property =
       :proper.forall(:proper_statem.commands(__MODULE__), fn commands ->
         clear()
@@ -153,6 +166,16 @@ result: #{inspect(result)}") end,
       end)
 
     assert check(property, 300) == true
+    send(listener, {:count, self()})
+    assert_receive {:heard, n}
+    assert n > 0
+  end
+
+  defp drain(ref, heard \\ 0) do
+    receive do
+      {:blackboard, ^ref, _tuple} -> drain(ref, heard + 1)
+      {:count, from} -> send(from, {:heard, heard})
+    end
   end
 
   test "a compiled template matches exactly the tuples a naive matcher does" do
