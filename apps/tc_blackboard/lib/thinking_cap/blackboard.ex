@@ -27,7 +27,10 @@ defmodule ThinkingCap.Blackboard do
 
   **Local writes are visible at once.** When `out/2` returns, every process
   on the same node can read or take the tuple, and local subscribers have
-  been sent it.
+  been sent it. Subscribers come first: a write that local subscribers
+  match is readable before they are sent it, and the writer then yields
+  its scheduler so that they run before it finishes the write (a take of
+  the tuple in that moment waits for it to finish).
 
   **Other nodes see a write after one message hop.** Each write goes to
   every other node's blackboard server (through this node's replicator, so
