@@ -29,9 +29,8 @@ defmodule ThinkingCap.Blackboard do
   on the same node can read or take the tuple, and local subscribers have
   been sent it. Subscribers come first: a write that local subscribers
   match is readable before they are sent it, and the writer then yields
-  its scheduler (unless other processes are waiting for one) so that they
-  run before it finishes the write (a take of the tuple in that moment
-  waits for it to finish).
+  its scheduler so that they run before it finishes the write (a take of
+  the tuple in that moment waits for it to finish).
 
   **Other nodes see a write after one message hop.** Each write goes to
   every other node's blackboard server (through this node's replicator, so
@@ -134,10 +133,9 @@ defmodule ThinkingCap.Blackboard do
     * `:ttl` - time to live in milliseconds.
 
   A write that local subscribers match yields the caller's scheduler once
-  (`:erlang.yield/0`) after sending them the tuple, when nothing else is
-  waiting for a scheduler, so that those that wait on the same scheduler
-  run before the writer finishes its own bookkeeping; the tuple can be read
-  and taken before they are sent it.
+  (`:erlang.yield/0`) after sending them the tuple, so that those that
+  wait on the same scheduler run before the writer finishes its own
+  bookkeeping; the tuple can be read and taken before they are sent it.
   """
   @spec out(tuple(), [out_option()]) :: :ok
   def out(tuple, opts \\ [])
@@ -158,14 +156,9 @@ defmodule ThinkingCap.Blackboard do
         # subscribers it woke on its own scheduler, and after they ran tells
         # blocked waiters and the other nodes, and settles the write (into
         # the tuple table, replacing its latest-value key's older tuple).
-        # It yields only when nothing but them waits for a scheduler: under
-        # load a yield would queue the writer behind every runnable process.
         Store.stage(record)
         Subscriptions.send_to(recipients, tuple)
-
-        if :erlang.statistics(:total_run_queue_lengths) <= length(recipients),
-          do: :erlang.yield()
-
+        :erlang.yield()
         tell_others(record, tuple, counters)
         Store.settle(record)
     end
