@@ -5,8 +5,9 @@ defmodule ThinkingCap.Bench.Blackboard do
 
     1. local out -> subscriber latency, 1,000 subscriptions over 100 tags
        (10 robot ids each), beside a raw `send` from the writer to the same
-       subscriber process: on a lone node (the summary figures), then again
-       with a peer node connected;
+       subscriber process: on a lone node (the summary figures), with
+       latest-value writes (`key: {tag, robot}`, as robots write poses and
+       scans), then again with a peer node connected;
     2. cross-node out -> subscriber latency beside a raw `send` to the same
        subscriber process on the other node;
     3. Redis PUBLISH -> subscriber latency (local redis-server, eredis);
@@ -37,6 +38,8 @@ defmodule ThinkingCap.Bench.Blackboard do
     # local figures on a lone node first, then again with a peer connected
     # (every write then also goes to the replicator and the other VM)
     local = local_latency()
+    # robot data is written as latest-value streams (key: {tag, robot})
+    keyed = local_latency(keyed: true)
     [peer] = Cluster.start(1, connection: :dist)
     local_with_peer = local_latency()
     cross = cross_latency(peer)
@@ -45,6 +48,8 @@ defmodule ThinkingCap.Bench.Blackboard do
     Stats.print_header("µs")
     Stats.print_row("blackboard local out->subscriber", local.bb)
     Stats.print_row("raw send, local", local.send)
+    Stats.print_row("  same, keyed writes (latest value)", keyed.bb)
+    Stats.print_row("  raw send, same run", keyed.send)
     Stats.print_row("  same, with a peer node connected", local_with_peer.bb)
     Stats.print_row("  raw send, same run", local_with_peer.send)
     Stats.print_row("blackboard cross-node", cross.bb)
@@ -98,8 +103,9 @@ defmodule ThinkingCap.Bench.Blackboard do
 
   ## 1. local latency, with 1,000 subscriptions over 100 tags
 
-  defp local_latency do
+  defp local_latency(opts \\ []) do
     me = self()
+    keyed? = Keyword.get(opts, :keyed, false)
 
     # 100 stream tags x 10 robots, one subscriber process per stream
     # ({tag, robot, :_}): each out is matched against the 10 subscriptions
@@ -115,7 +121,11 @@ defmodule ThinkingCap.Bench.Blackboard do
 
         pair(
           k,
-          fn -> Blackboard.out({tag(t), r, Probe.now_ns()}) end,
+          fn ->
+            if keyed?,
+              do: Blackboard.out({tag(t), r, Probe.now_ns()}, key: {tag(t), r}),
+              else: Blackboard.out({tag(t), r, Probe.now_ns()})
+          end,
           fn -> send(subscribers[stream], {:raw, Probe.now_ns()}) end
         )
       end
