@@ -29,9 +29,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   #
   # No take happens while a record's fresh row exists: a taker that finds
   # the record waits until it is settled (its writer settles it right after
-  # yielding to the subscribers it woke, which is when they run). The sweeper relies on that to
-  # settle what a killed writer left in fresh without bringing back a tuple
-  # that was taken.
+  # yielding to the subscribers it woke, which is when they run). The
+  # sweeper relies on that to settle what a killed writer left in fresh
+  # without bringing back a tuple that was taken.
   #
   # Between nodes a record travels as {key, tuple, key_bin, stamp, ttl_left}.
 
