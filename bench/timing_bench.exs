@@ -22,7 +22,7 @@ defmodule ThinkingCap.Bench.Timing do
   """
 
   alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
-  alias ThinkingCap.Bench.{ProcStat, Stats}
+  alias ThinkingCap.Bench.{Cyclictest, ProcStat, Stats}
 
   @collector :tc_timing_bench
 
@@ -125,7 +125,7 @@ defmodule ThinkingCap.Bench.Timing do
       )
 
       IO.puts(
-        "  #{String.pad_trailing("", 14)} meanwhile: cyclictest woke #{r.cyclictest.over_deadline} times later than the 3 ms deadline; " <>
+        "  #{String.pad_trailing("", 14)} meanwhile: cyclictest woke #{r.cyclictest.over} times later than the 3 ms deadline; " <>
           "the hypervisor took #{r.steal_ms} ms from this machine's CPUs (steal)"
       )
     end
@@ -237,7 +237,9 @@ defmodule ThinkingCap.Bench.Timing do
       )
 
     :ok = Cycle.subscribe(name)
-    cyclictest = start_cyclictest(seconds)
+    # (cyclictest's port messages stay in the mailbox until it is finished)
+    cyclictest = Cyclictest.start(seconds + 1)
+    if cyclictest == nil, do: IO.puts("   cyclictest not found (Debian rt-tests): run bin/setup")
 
     # one second to settle, then measure
     drain(System.monotonic_time(:millisecond) + 1000)
@@ -248,7 +250,7 @@ defmodule ThinkingCap.Bench.Timing do
     # the last cycles' commands may land just after the window: match them by cycle
     result = measure(name, System.monotonic_time(:millisecond) + 100, result, :grace)
 
-    reference = finish_cyclictest(cyclictest)
+    reference = Cyclictest.finish(cyclictest)
 
     Runtime.stop(name)
     drain(System.monotonic_time(:millisecond) + 100)
@@ -307,7 +309,7 @@ defmodule ThinkingCap.Bench.Timing do
       {:tc_cycle, :applied, ^name, %{kind: kind, cycle: cycle}} ->
         measure(name, deadline, %{acc | applied: Map.put_new(acc.applied, cycle, kind)}, phase)
 
-      # (cyclictest's port messages stay in the mailbox for finish_cyclictest)
+      # (cyclictest's port messages stay in the mailbox for Cyclictest.finish/1)
       {:control, _cycle, _at, _jitter} ->
         measure(name, deadline, acc, phase)
     after
@@ -329,78 +331,6 @@ defmodule ThinkingCap.Bench.Timing do
     end
 
     :ok
-  end
-
-  defp start_cyclictest(seconds) do
-    case System.find_executable("cyclictest") do
-      nil ->
-        IO.puts("   cyclictest not found (Debian rt-tests): run bin/setup")
-        nil
-
-      exe ->
-        # -S: a thread on each CPU (the worker may run on either, and a CPU
-        # of a virtual machine can stall alone)
-        args = ["-m", "-S", "-p80", "-i10000", "-D", "#{seconds + 1}s", "-q", "-h", "20000"]
-        Port.open({:spawn_executable, exe}, [:binary, :exit_status, args: args])
-    end
-  end
-
-  defp finish_cyclictest(nil), do: %{p50: nil, p99: nil, max: nil, over_deadline: nil}
-
-  defp finish_cyclictest(port) do
-    output = read_port(port, "")
-
-    # one count column per thread (CPU), summed
-    histogram =
-      for line <- String.split(output, "\n"),
-          [us | counts] <- [String.split(line)],
-          String.match?(us, ~r/^\d{6}$/),
-          count <- [counts |> Enum.map(&String.to_integer/1) |> Enum.sum()],
-          count > 0,
-          do: {String.to_integer(us), count}
-
-    overflows = output |> header_numbers("Histogram Overflows") |> Enum.sum()
-    max = output |> header_numbers("Max Latencies") |> Enum.max(fn -> nil end)
-
-    total = Enum.sum(Enum.map(histogram, &elem(&1, 1))) + overflows
-    # wake-ups later than the control cycle's 3 ms deadline
-    over_deadline = Enum.sum(for({us, n} <- histogram, us >= 3000, do: n)) + overflows
-
-    %{
-      p50: percentile(histogram, total, 50),
-      p99: percentile(histogram, total, 99),
-      max: max,
-      over_deadline: over_deadline
-    }
-  end
-
-  # the numbers of a "# Name: n n ..." line of cyclictest's, one per thread
-  defp header_numbers(output, name) do
-    case Regex.run(~r/^# #{name}:((?: \d+)+)/m, output) do
-      [_, numbers] -> numbers |> String.split() |> Enum.map(&String.to_integer/1)
-      nil -> []
-    end
-  end
-
-  defp read_port(port, acc) do
-    receive do
-      {^port, {:data, data}} -> read_port(port, acc <> data)
-      {^port, {:exit_status, _}} -> acc
-    after
-      120_000 -> acc
-    end
-  end
-
-  defp percentile(histogram, total, p) do
-    target = Float.ceil(total * p / 100)
-
-    Enum.reduce_while(histogram, 0, fn {us, count}, seen ->
-      if seen + count >= target, do: {:halt, {:found, us}}, else: {:cont, seen + count}
-    end)
-    |> case do
-      {:found, us} -> us
-      _ -> nil
-    end
   end
 
   ## helpers

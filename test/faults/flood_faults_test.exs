@@ -27,28 +27,41 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
 
   # after a flood that started at t0: memory within 100 MB of what it was,
   # the base's cycle on time over two seconds from the start (at most 1 %
-  # fallbacks: over one second that was a single miss, which one stall of
-  # this shared machine's CPUs, seen by cyclictest too, could make), the
-  # robot never left on a command for longer than a period and the deadline
-  defp assert_survived(ctx, before, memory, t0) do
+  # fallbacks: over one second that was a single miss), the robot never
+  # left on a command for longer than a period and the deadline. A stall of
+  # this shared machine's CPUs makes every real-time thread late, the
+  # robot's too: cyclictest, run alongside, says how much, and the bounds
+  # allow for it.
+  defp assert_survived(ctx, before, memory, t0, probe) do
     growth_mb = (:erlang.memory(:total) - memory) / 1_048_576
     assert growth_mb < 100, "memory grew #{Float.round(growth_mb, 1)} MB"
 
     Process.sleep(max(round(t0 + 2_000 - now_ms()), 0))
-    assert_kept_deadline(ctx.base, before)
+    # what the machine itself did to every real-time thread meanwhile
+    # (cyclictest): its late wake-ups may each cost a cycle, its worst stall
+    # may hold a command
+    machine = machine_stalls(probe)
+    assert_kept_deadline(ctx.base, before, machine.late)
 
     uncommanded = uncommanded_ms(events(ctx.observer), t0)
     Tally.uncommanded(uncommanded)
-    assert uncommanded <= 13
+
+    assert uncommanded <= 13 + machine.max_ms,
+           "the robot ran #{uncommanded} ms on one command; the bound is 13 ms " <>
+             "plus the machine's own worst stall meanwhile, #{machine.max_ms} ms"
+
     Tally.survived()
   end
 
-  defp assert_kept_deadline(base, before) do
+  defp assert_kept_deadline(base, before, machine_late) do
     now = base_figures(base)
     cycles = now.cycles - before.cycles
     fallbacks = now.fallbacks - before.fallbacks
     assert cycles >= 100, "the base ran #{cycles} cycles"
-    assert fallbacks <= cycles * 0.01, "#{fallbacks} fallbacks in #{cycles} cycles"
+
+    assert fallbacks <= cycles * 0.01 + machine_late,
+           "#{fallbacks} fallbacks in #{cycles} cycles (the machine woke real-time threads " <>
+             "3 ms late #{machine_late} times meanwhile)"
   end
 
   test "a tuple flood at a subscriber that never reads: bounded mailbox and memory, cycle on time",
@@ -65,6 +78,7 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     assert_receive :subscribed
     before = base_figures(ctx.base)
     memory = :erlang.memory(:total)
+    probe = start_stall_probe()
     t0 = now_ms()
 
     Tally.injected()
@@ -89,7 +103,7 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     # stopped at its bound (to within 1/64 per writer), the rest dropped
     assert length(Blackboard.rd_all({:flood, ctx.robot, :_})) == 500
     assert queued <= 1_000 + 2 * 16
-    assert_survived(ctx, before, memory, t0)
+    assert_survived(ctx, before, memory, t0, probe)
   end
 
   test "a dashboard message flood: the flooder is cut off, others are served, cycle on time",
@@ -107,6 +121,7 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     other = connect.()
     before = base_figures(ctx.base)
     memory = :erlang.memory(:total)
+    probe = start_stall_probe()
     t0 = now_ms()
 
     Tally.injected()
@@ -119,7 +134,7 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     :ok = WSClient.send_text(other, :jiffy.encode(%{op: "ping", id: 2}))
     assert {:ok, %{"op" => "pong"}, other} = WSClient.recv_json_until(other, &(&1["id"] == 2))
     WSClient.close(other)
-    assert_survived(ctx, before, memory, t0)
+    assert_survived(ctx, before, memory, t0, probe)
   end
 
   # reads until the server closes the socket; its close code

@@ -4,6 +4,8 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
   # dies as a power loss or a crash would; the wheels must stop.
   use ExUnit.Case, async: false
 
+  import ThinkingCap.FaultSuite.Case, only: [start_stall_probe: 0, machine_stalls: 1]
+
   alias ThinkingCap.{Blackboard, Runtime}
   alias ThinkingCap.FaultSuite.Tally
   alias ThinkingCap.Testing.{Cluster, Create2Emulator}
@@ -42,6 +44,7 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     Cluster.wait_until(fn -> match?(%{left: 200, right: 200}, Create2Emulator.state(emu)) end)
     Process.sleep(200)
 
+    probe = start_stall_probe()
     killed_at = System.monotonic_time()
     Tally.injected()
     Cluster.kill(node)
@@ -64,8 +67,14 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
 
     uncommanded = System.convert_time_unit(stop.at - last_moving.at, :native, :microsecond) / 1000
     Tally.uncommanded(uncommanded)
-    # a period, and the moment the worker takes to see its BEAM gone
-    assert uncommanded <= 13
+    # a period, and the moment the worker takes to see its BEAM gone, plus
+    # what the machine itself did to every real-time thread meanwhile
+    stall = machine_stalls(probe).max_ms
+
+    assert uncommanded <= 13 + stall,
+           "the base ran #{uncommanded} ms on one command; the bound is 13 ms " <>
+             "plus the machine's own worst stall meanwhile, #{stall} ms"
+
     Tally.survived()
   end
 end

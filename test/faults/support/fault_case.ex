@@ -126,4 +126,25 @@ defmodule ThinkingCap.FaultSuite.Case do
   end
 
   def now_ms, do: System.monotonic_time(:microsecond) / 1000
+
+  @doc """
+  Starts the machine's own reference for a fault's window: cyclictest, a
+  thread on each CPU at `SCHED_FIFO` 80 waking every millisecond (at most
+  a minute; `machine_stall_ms/1` stops it).
+  """
+  def start_stall_probe, do: ThinkingCap.Bench.Cyclictest.start(60, 1_000)
+
+  @doc """
+  What the machine did to its real-time threads since
+  `start_stall_probe/0` (a virtual machine stalls its CPUs now and then),
+  the robot's included: `max_ms`, the longest a thread waited past its
+  wake-up, and `late`, how many wake-ups came 3 ms (a deadline) late or
+  more. Zeros without cyclictest.
+  """
+  def machine_stalls(probe) do
+    case ThinkingCap.Bench.Cyclictest.stop(probe) do
+      %{max: nil} -> %{max_ms: 0.0, late: 0}
+      %{max: us, over: late} -> %{max_ms: us / 1000, late: late}
+    end
+  end
 end

@@ -28,9 +28,10 @@ defmodule ThinkingCap.Blackboard do
   **Local writes are visible at once.** When `out/2` returns, every process
   on the same node can read or take the tuple, and local subscribers have
   been sent it. Subscribers come first: a write that local subscribers
-  match is readable before they are sent it, and the writer then yields
-  its scheduler so that they run before it finishes the write (a take of
-  the tuple in that moment waits for it to finish).
+  match is readable before they are sent it, and the writer (unless it
+  runs at high priority, as periodic modules do) then yields its scheduler
+  so that they run before it finishes the write (a take of the tuple in
+  that moment waits for it to finish).
 
   **Other nodes see a write after one message hop.** Each write goes to
   every other node's blackboard server (through this node's replicator, so
@@ -136,6 +137,7 @@ defmodule ThinkingCap.Blackboard do
   (`:erlang.yield/0`) after sending them the tuple, so that those that
   wait on the same scheduler run before the writer finishes its own
   bookkeeping; the tuple can be read and taken before they are sent it.
+  Processes at high or max priority (periodic modules) do not yield.
   """
   @spec out(tuple(), [out_option()]) :: :ok
   def out(tuple, opts \\ [])
@@ -158,7 +160,7 @@ defmodule ThinkingCap.Blackboard do
         # the tuple table, replacing its latest-value key's older tuple).
         Store.stage(record)
         Subscriptions.send_to(recipients, tuple)
-        :erlang.yield()
+        yield_to_subscribers()
         tell_others(record, tuple, counters)
         Store.settle(record)
     end
@@ -296,6 +298,16 @@ defmodule ThinkingCap.Blackboard do
   def waiters, do: Waiters.list() |> Enum.sort_by(& &1.seq)
 
   ## Option checking
+
+  # High-priority processes (periodic modules, the cycle) do not yield: a
+  # yield lets every other high-priority process run first, and their own
+  # deadline counts for more than a subscriber's latency.
+  defp yield_to_subscribers do
+    case :erlang.process_info(self(), :priority) do
+      {:priority, priority} when priority in [:high, :max] -> :ok
+      _normal_or_low -> :erlang.yield()
+    end
+  end
 
   # Blocked waiters and the other nodes, each looked for only when counted:
   # once the tuple can be found, as a waiter counts itself before it looks,
