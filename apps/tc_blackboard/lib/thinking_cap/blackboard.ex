@@ -95,8 +95,9 @@ defmodule ThinkingCap.Blackboard do
   **Subscribers.** Delivery never blocks the writer. Each subscription has
   a bound, `max_queue` (default 1000): while the subscriber's mailbox
   holds that many messages (checked every `max_queue/64` tuples, and at
-  every tuple while it is full, so the bound holds to within 1/64 for each
-  writer writing at that moment; exactly below 128), tuples for it are dropped
+  every tuple while it is full, so the bound holds to within 1/64, and
+  one, for each writer writing at that moment; exactly below 128), tuples
+  for it are dropped
   and counted
   (`on_overflow: :drop`, the default; see `dropped/1`) or it is
   unsubscribed and sent `{:blackboard_overflow, ref}` (`on_overflow:
@@ -159,8 +160,9 @@ defmodule ThinkingCap.Blackboard do
         # blocked waiters and the other nodes, and settles the write (into
         # the tuple table, replacing its latest-value key's older tuple).
         Store.stage(record)
-        Subscriptions.send_to(recipients, tuple)
+        due = Subscriptions.send_to(recipients, tuple)
         yield_to_subscribers()
+        Subscriptions.check_queues(due)
         tell_others(record, tuple, counters)
         Store.settle(record)
     end

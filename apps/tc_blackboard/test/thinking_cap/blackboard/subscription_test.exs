@@ -125,11 +125,24 @@ defmodule ThinkingCap.Blackboard.SubscriptionTest do
       end)
       |> Enum.each(&Task.await(&1, 60_000))
 
-      # read every 1000/64 = 15 tuples, and at every one while full: at
-      # most 15 more per racing writer
+      # read every 1000/64 = 15 tuples (after the send), and before every
+      # one while full: at most 15 more, and one, per racing writer
       assert {:message_queue_len, queued} = Process.info(slow, :message_queue_len)
-      assert queued >= 1_000 and queued <= 1_000 + 4 * 15
+      assert queued >= 1_000 and queued <= 1_000 + 4 * (15 + 1)
       assert Blackboard.dropped(ref) == 80_000 - queued
+    end
+
+    test ":disconnect with a large max_queue cuts off within 1/64 of it", %{id: id} do
+      {slow, ref} = stalled_subscriber({:flood, id, :_}, max_queue: 200, on_overflow: :disconnect)
+
+      for n <- 1..1000, do: :ok = Blackboard.out({:flood, id, n})
+
+      # read every 200/64 = 3 tuples, after the send: cut off at the first
+      # read that finds 200 or more
+      assert {:messages, messages} = Process.info(slow, :messages)
+      assert List.last(messages) == {:blackboard_overflow, ref}
+      assert (length(messages) - 1) in 200..(200 + 3 + 1)
+      refute Enum.any?(Blackboard.subscriptions(), &(&1.ref == ref))
     end
 
     test ":disconnect unsubscribes the subscriber and tells it", %{id: id} do

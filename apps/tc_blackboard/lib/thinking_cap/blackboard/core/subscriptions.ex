@@ -98,7 +98,8 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   @doc false
   # Sends `tuple` to the local subscribers it matches.
   @spec deliver(tuple()) :: :ok
-  def deliver(tuple), do: tuple |> recipients(Tables.counters()) |> send_to(tuple)
+  def deliver(tuple),
+    do: tuple |> recipients(Tables.counters()) |> send_to(tuple) |> check_queues()
 
   @doc false
   # The local subscriptions `tuple` matches. `counters` is
@@ -140,20 +141,28 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp matching(rows, tuple), do: Enum.filter(rows, &Template.matches?(elem(&1, 3), tuple))
 
   @doc false
-  # Sends `tuple` to `recipients/2`'s subscriptions.
-  @spec send_to([tuple()], tuple()) :: :ok
-  def send_to([], _tuple), do: :ok
+  # Sends `tuple` to `recipients/2`'s subscriptions. Returns those whose
+  # queue is due a read, for `check_queues/1` once the writer has yielded
+  # to them.
+  @spec send_to([tuple()], tuple()) :: [tuple()]
+  def send_to(recipients, tuple), do: send_to(recipients, tuple, [])
 
-  def send_to([{_index, ref, pid, _matcher, max_queue, policy, slot} | rest], tuple) do
-    send_bounded(ref, pid, max_queue, policy, slot, tuple)
-    send_to(rest, tuple)
+  defp send_to([], _tuple, due), do: due
+
+  defp send_to([{_index, ref, pid, _matcher, max_queue, policy, slot} = sub | rest], tuple, due) do
+    case send_bounded(ref, pid, max_queue, policy, slot, tuple) do
+      :due -> send_to(rest, tuple, [sub | due])
+      :sent -> send_to(rest, tuple, due)
+    end
   end
 
-  # Reading another process's queue length after sending to it costs about
-  # a microsecond (the reader absorbs the signals in flight), so the queue
-  # is read every max_queue/64 sends, and at every send once a read found
-  # it full, until a read finds room again. The bound holds to within 1/64
-  # of max_queue per writer sending at that moment, exactly below 128.
+  # Reading another process's queue length costs about a microsecond (the
+  # reader absorbs the signals in flight), so the queue is read every
+  # max_queue/64 sends, after the send and after the writer let the
+  # subscribers run; once a read found it full, it is read before every
+  # send, until a read finds room again. The bound holds to within 1/64 of
+  # max_queue (and one) per writer sending at that moment, exactly below
+  # 128, where every send reads first.
   #
   # The count and the "found full" flag share one word of
   # `Tables.send_counts/0` (count * 2 + flag), so that a send costs one
@@ -164,24 +173,53 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp send_bounded(ref, pid, max_queue, policy, slot, tuple) do
     counts = Tables.send_counts()
     word = :atomics.add_get(counts, slot, 2)
+    every = max(div(max_queue, 64), 1)
 
-    if Bitwise.band(word, 1) == 1 or rem(Bitwise.bsr(word, 1), max(div(max_queue, 64), 1)) == 0 do
-      case Process.info(pid, :message_queue_len) do
-        {:message_queue_len, queued} when queued < max_queue ->
-          flag_full(counts, slot, 0)
-          send(pid, {:blackboard, ref, tuple})
+    cond do
+      Bitwise.band(word, 1) == 1 or every == 1 ->
+        if room?(pid, max_queue, counts, slot),
+          do: send(pid, {:blackboard, ref, tuple}),
+          else: overflow(policy, ref, pid)
 
-        {:message_queue_len, _queued} ->
-          flag_full(counts, slot, 1)
-          overflow(policy, ref, pid)
+        :sent
 
-        nil ->
-          :ok
-      end
-    else
-      send(pid, {:blackboard, ref, tuple})
+      rem(Bitwise.bsr(word, 1), every) == 0 ->
+        send(pid, {:blackboard, ref, tuple})
+        :due
+
+      true ->
+        send(pid, {:blackboard, ref, tuple})
+        :sent
     end
   end
+
+  @doc false
+  # Reads the queues `send_to/2` said were due, and marks those found full.
+  @spec check_queues([tuple()]) :: :ok
+  def check_queues([]), do: :ok
+
+  def check_queues([{_index, ref, pid, _matcher, max_queue, policy, slot} | rest]) do
+    unless room?(pid, max_queue, Tables.send_counts(), slot), do: full(policy, ref, pid)
+    check_queues(rest)
+  end
+
+  # a dead subscriber has room: nothing is sent to it anyway
+  defp room?(pid, max_queue, counts, slot) do
+    case Process.info(pid, :message_queue_len) do
+      {:message_queue_len, queued} when queued >= max_queue ->
+        flag_full(counts, slot, 1)
+        false
+
+      _room_or_dead ->
+        flag_full(counts, slot, 0)
+        true
+    end
+  end
+
+  # found full after a send: later sends read first, and drop (counted as
+  # they are) or disconnect
+  defp full(:drop, _ref, _pid), do: :ok
+  defp full(:disconnect, ref, pid), do: overflow(:disconnect, ref, pid)
 
   defp flag_full(counts, slot, flag) do
     word = :atomics.get(counts, slot)
