@@ -91,46 +91,35 @@ defmodule ThinkingCap.Blackboard.ClusterTest do
 
   test "take is exactly-once with concurrent takers on every node" do
     nodes = start(3)
-    jobs = 300
-
-    takers =
-      for n <- nodes do
-        Task.async(fn -> call(n, W, :take_all, [{:job, :_, :_}, 4, 1000], 120_000) end)
-      end
-
-    nodes
-    |> Enum.map(&Task.async(fn -> call(&1, W, :write, [:job, 1..jobs]) end))
-    |> Enum.each(&Task.await/1)
-
-    taken = Enum.flat_map(takers, &Task.await(&1, 120_000))
-    written = for n <- nodes, i <- 1..jobs, do: {:job, n.node, i}
-
-    assert length(taken) == length(written), "taken #{length(taken)} of #{length(written)}"
-    assert Enum.sort(taken) == Enum.sort(written)
-    assert Enum.all?(nodes, &(bb(&1, :rd_all, [{:job, :_, :_}]) == []))
+    assert_taken_once(nodes, :job, 300)
   end
 
   test "take stays exactly-once when every write wakes a subscriber on its node" do
     # such writes are staged and settled around a yield: takers on the
     # other nodes take them through the owner while they may be staged
     nodes = start(3)
-    jobs = 300
     Enum.each(nodes, &call(&1, W, :collector, [{:woke, :_, :_}]))
+    assert_taken_once(nodes, :woke, 300)
+  end
 
+  # every node writes `jobs` tuples tagged `tag` while 4 takers on every
+  # node take them: each is taken once, none is left
+  defp assert_taken_once(nodes, tag, jobs) do
     takers =
       for n <- nodes do
-        Task.async(fn -> call(n, W, :take_all, [{:woke, :_, :_}, 4, 1000], 120_000) end)
+        Task.async(fn -> call(n, W, :take_all, [{tag, :_, :_}, 4, 1000], 120_000) end)
       end
 
     nodes
-    |> Enum.map(&Task.async(fn -> call(&1, W, :write, [:woke, 1..jobs]) end))
+    |> Enum.map(&Task.async(fn -> call(&1, W, :write, [tag, 1..jobs]) end))
     |> Enum.each(&Task.await/1)
 
     taken = Enum.flat_map(takers, &Task.await(&1, 120_000))
-    written = for n <- nodes, i <- 1..jobs, do: {:woke, n.node, i}
+    written = for n <- nodes, i <- 1..jobs, do: {tag, n.node, i}
 
+    assert length(taken) == length(written), "taken #{length(taken)} of #{length(written)}"
     assert Enum.sort(taken) == Enum.sort(written)
-    assert Enum.all?(nodes, &(bb(&1, :rd_all, [{:woke, :_, :_}]) == []))
+    assert Enum.all?(nodes, &(bb(&1, :rd_all, [{tag, :_, :_}]) == []))
   end
 
   test "a killed node takes its tuples with it; the rest survive and takes stay exactly-once" do
