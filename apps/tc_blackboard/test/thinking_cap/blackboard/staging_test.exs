@@ -42,6 +42,22 @@ defmodule ThinkingCap.Blackboard.StagingTest do
     assert staged(id) == []
   end
 
+  test "a high-priority taker waits for a staged tuple and keeps its priority", %{id: id} do
+    record = Store.new_record({:staged, id, :urgent}, nil, nil)
+    Store.stage(record)
+    me = self()
+
+    spawn_link(fn ->
+      Process.flag(:priority, :high)
+      taken = Blackboard.takep({:staged, id, :_})
+      send(me, {:took, taken, Process.info(self(), :priority)})
+    end)
+
+    refute_receive {:took, _, _}, 50
+    Store.settle(record)
+    assert_receive {:took, {:ok, {:staged, ^id, :urgent}}, {:priority, :high}}
+  end
+
   test "a staged keyed write replaces the older tuple when it is settled", %{id: id} do
     Blackboard.out({:staged, id, :old}, key: {:staged, id})
     record = Store.new_record({:staged, id, :new}, {:staged, id}, nil)

@@ -425,8 +425,22 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # let the taker run; a killed writer's, the sweeper within a second).
   defp await_settled(key, waited) do
     if :ets.member(Tables.fresh(), key) do
-      if waited < 10, do: :erlang.yield(), else: Process.sleep(1)
+      if waited < 10, do: yield_to_writer(), else: Process.sleep(1)
       await_settled(key, waited + 1)
+    end
+  end
+
+  # A yield lets only processes of the caller's priority or higher run: a
+  # high-priority taker yields as a normal one, so that a normal writer
+  # waiting to settle gets its turn.
+  defp yield_to_writer do
+    case Process.flag(:priority, :normal) do
+      :normal ->
+        :erlang.yield()
+
+      priority ->
+        :erlang.yield()
+        Process.flag(:priority, priority)
     end
   end
 

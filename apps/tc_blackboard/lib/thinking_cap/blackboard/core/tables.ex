@@ -88,16 +88,18 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @impl true
   def init(:ok) do
     # Keys are written by every keyed out, from many schedulers: that table
-    # takes the concurrency options. Subscriptions and waiters are read by
+    # takes the concurrency options too. Subscriptions and waiters are read by
     # every out but seldom written; there the options cost 3-4x per read
     # (a missing-key lookup 145 ns against 45 ns, ets:first 125 ns against
     # 30 ns, measured here), so they are plain tables.
     concurrent = [:public, :named_table, read_concurrency: true, write_concurrency: true]
     plain = [:public, :named_table]
-    # The record tables are written by every out, but a write lock on a
-    # plain tree costs less than write_concurrency's tree of trees (an
-    # insert 300 ns against 550 ns, measured here).
-    :ets.new(@tuples, [:ordered_set, :public, :named_table, read_concurrency: true])
+    # Tuples are written by every out, from every scheduler: a write lock
+    # on a plain tree is cheaper alone (an insert 300 ns against 550 ns,
+    # measured here) but held against every other writer and reader, and
+    # the example robot missed 3-5x more deadlines with it. Fresh holds a
+    # handful of rows for a few microseconds each.
+    :ets.new(@tuples, [:ordered_set | concurrent])
     :ets.new(@fresh, [:ordered_set | plain])
     :ets.new(@keys, [:set | concurrent])
     :ets.new(@subs, [:bag | plain])
