@@ -97,11 +97,10 @@ defmodule ThinkingCap.Blackboard do
   holds that many messages (checked every `max_queue/64` tuples, and at
   every tuple while it is full, so the bound holds to within 1/64, and
   one, for each writer writing at that moment; exactly below 128), tuples
-  for it are dropped
-  and counted
-  (`on_overflow: :drop`, the default; see `dropped/1`) or it is
-  unsubscribed and sent `{:blackboard_overflow, ref}` (`on_overflow:
-  :disconnect`). The subscriptions of a process that exits are removed.
+  for it are dropped and counted (`on_overflow: :drop`, the default; see
+  `dropped/1`) or it is unsubscribed and sent `{:blackboard_overflow, ref}`
+  (`on_overflow: :disconnect`). The subscriptions of a process that exits
+  are removed.
 
   Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
   """
@@ -119,8 +118,6 @@ defmodule ThinkingCap.Blackboard do
   require Logger
 
   @default_max_queue 1000
-  @waiters_counter Tables.counter(:waiters)
-  @peers_counter Tables.counter(:peers)
 
   @type template :: Template.t()
   @type out_option :: {:key, term()} | {:ttl, pos_integer()}
@@ -177,6 +174,23 @@ defmodule ThinkingCap.Blackboard do
 
   def out(other, _opts) do
     raise ArgumentError, "ThinkingCap.Blackboard.out/2 writes tuples, got: #{inspect(other)}"
+  end
+
+  # High-priority processes (periodic modules, the cycle) do not yield: a
+  # yield lets every other high-priority process run first, and their own
+  # deadline counts for more than a subscriber's latency.
+  defp yield_to_subscribers do
+    case :erlang.process_info(self(), :priority) do
+      {:priority, priority} when priority in [:high, :max] -> :ok
+      _normal_or_low -> :erlang.yield()
+    end
+  end
+
+  # Blocked waiters and the other nodes, once the tuple can be found: a
+  # waiter counts itself before it looks, so one of the two sees the other.
+  defp tell_others(record, tuple, counters) do
+    if Waiters.any?(counters), do: Server.notify({:arrived, tuple})
+    Server.replicate(record, counters)
   end
 
   @doc """
@@ -300,26 +314,6 @@ defmodule ThinkingCap.Blackboard do
   def waiters, do: Waiters.list() |> Enum.sort_by(& &1.seq)
 
   ## Option checking
-
-  # High-priority processes (periodic modules, the cycle) do not yield: a
-  # yield lets every other high-priority process run first, and their own
-  # deadline counts for more than a subscriber's latency.
-  defp yield_to_subscribers do
-    case :erlang.process_info(self(), :priority) do
-      {:priority, priority} when priority in [:high, :max] -> :ok
-      _normal_or_low -> :erlang.yield()
-    end
-  end
-
-  # Blocked waiters and the other nodes, each looked for only when counted:
-  # once the tuple can be found, as a waiter counts itself before it looks,
-  # so that one of the two sees the other.
-  defp tell_others(record, tuple, counters) do
-    if :counters.get(counters, @waiters_counter) > 0 and Waiters.any?(counters),
-      do: Server.notify({:arrived, tuple})
-
-    if :counters.get(counters, @peers_counter) > 0, do: Server.replicate(record, counters)
-  end
 
   defp out_options([]), do: {nil, nil}
 
