@@ -5,7 +5,10 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   # (local outs) or in the node's server (replicated outs) and never blocks:
   # a subscriber whose mailbox holds `max_queue` messages or more is not
   # sent the tuple (policy :drop, counted) or is unsubscribed and told
-  # (policy :disconnect).
+  # (policy :disconnect). A writer finds the recipients (`recipients/2`),
+  # sends (`send_to/2`) and, once it let them run, reads the queues that
+  # were due a read (`check_queues/1`); the server does the three at once
+  # (`deliver/1`).
 
   alias ThinkingCap.Blackboard.Core.{Server, Tables}
   alias ThinkingCap.Blackboard.Template

@@ -15,8 +15,8 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
-  #   (and two arrays in persistent_term: counters/0 and send_counts/0)
   #                         {{:watermark, node}, boot, seq}
+  #   (and two arrays in persistent_term: counters/0 and send_counts/0)
 
   use GenServer
 
