@@ -66,15 +66,6 @@ defmodule ThinkingCap.ConfigTest do
       assert wdf.grid == nil
     end
 
-    test "mix tc.check accepts the examples" do
-      Mix.shell(Mix.Shell.Process)
-      files = for f <- ~w(office.adf office_robot.rdf office.wdf), do: Path.join(@examples, f)
-      Mix.Tasks.Tc.Check.run(files)
-      assert_received {:mix_shell, :info, ["3 description file(s) OK"]}
-    after
-      Mix.shell(Mix.Shell.IO)
-    end
-
     test "an empty world is a world", %{tmp_dir: dir} do
       assert {:ok, %WDF{walls: [], doors: []}} =
                Config.read(write(dir, "empty.wdf", ~s([name: "empty"])))
@@ -351,22 +342,6 @@ defmodule ThinkingCap.ConfigTest do
 
       assert [error] = errors(Path.join(dir, "absent.adf"))
       assert error =~ "absent.adf:0:0: cannot read the file: no such file or directory"
-    end
-
-    test "mix tc.check prints every error and fails", %{tmp_dir: dir} do
-      Mix.shell(Mix.Shell.Process)
-      bad = write(dir, "bad.wdf", "[name: :not_a_string, walls: 3]")
-      good = Path.join(@examples, "office.wdf")
-
-      assert_raise Mix.Error, "2 error(s) in description files", fn ->
-        Mix.Tasks.Tc.Check.run([good, bad])
-      end
-
-      assert_received {:mix_shell, :error, [output]}
-      assert output =~ "bad.wdf:1:8: name: expected a string, got :not_a_string"
-      assert output =~ "bad.wdf:1:30: walls: expected a list, got 3"
-    after
-      Mix.shell(Mix.Shell.IO)
     end
   end
 end
