@@ -145,7 +145,7 @@ defmodule ThinkingCap.Blackboard do
     record = Store.new_record(tuple, ukey, ttl)
     counters = Tables.counters()
 
-    case Subscriptions.recipients(tuple, counters) do
+    case Subscriptions.recipients(tuple) do
       [] ->
         Store.insert(record)
         tell_others(record, tuple, counters)

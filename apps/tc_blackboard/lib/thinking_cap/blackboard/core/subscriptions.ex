@@ -26,7 +26,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
     :ets.insert(Tables.subs(), row)
 
-    count(template.index, 1)
+    Tables.count_subscription(template.index, 1)
     Server.notify({:monitor, pid})
     ref
   end
@@ -39,7 +39,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
           :ets.delete_object(Tables.subs(), sub)
         end
 
-        count(index, -1)
+        Tables.count_subscription(index, -1)
         true
 
       [] ->
@@ -87,56 +87,58 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
     end
   end
 
-  @any_counter Tables.counter(:any_subs)
-  @spec_counter Tables.counter(:spec_subs)
-
-  defp count({:stream, _, _, _}, _delta), do: :ok
-
-  defp count({:tag, n, first}, delta),
-    do: :counters.add(Tables.counters(), Tables.tag_bucket(n, first), delta)
-
-  defp count({:any, _}, delta), do: :counters.add(Tables.counters(), @any_counter, delta)
-  defp count(:spec, delta), do: :counters.add(Tables.counters(), @spec_counter, delta)
-
   @doc false
   # Sends `tuple` to the local subscribers it matches.
   @spec deliver(tuple()) :: :ok
   def deliver(tuple),
-    do: tuple |> recipients(Tables.counters()) |> send_to(tuple) |> check_queues()
+    do: tuple |> recipients() |> send_to(tuple) |> check_queues()
 
   @doc false
-  # The local subscriptions `tuple` matches. `counters` is
-  # `Tables.counters/0`, which the writer has already fetched.
-  @spec recipients(tuple(), :counters.counters_ref()) :: [tuple()]
-  def recipients(tuple, counters) when tuple_size(tuple) >= 2 do
+  # The local subscriptions `tuple` matches: those of its stream, then, as
+  # the index flags say there may be some, those of its tag, of its arity
+  # and with match specifications.
+  @spec recipients(tuple()) :: [tuple()]
+  def recipients(tuple) when tuple_size(tuple) >= 2 do
     n = tuple_size(tuple)
     first = elem(tuple, 0)
     subs = Tables.subs()
     found = matching(:ets.lookup(subs, {:stream, n, first, elem(tuple, 1)}), tuple)
 
     found =
-      if :counters.get(counters, Tables.tag_bucket(n, first)) > 0,
+      if Tables.tag_indexed?(n, first),
         do: matching(:ets.lookup(subs, {:tag, n, first}), tuple) ++ found,
         else: found
 
-    wide(tuple, counters, found)
+    wide(tuple, subs, found)
   end
 
-  def recipients({first} = tuple, counters),
-    do: wide(tuple, counters, matching(:ets.lookup(Tables.subs(), {:tag, 1, first}), tuple))
+  def recipients({first} = tuple) do
+    subs = Tables.subs()
 
-  def recipients({} = tuple, counters), do: wide(tuple, counters, [])
+    found =
+      if Tables.tag_indexed?(1, first),
+        do: matching(:ets.lookup(subs, {:tag, 1, first}), tuple),
+        else: []
+
+    wide(tuple, subs, found)
+  end
+
+  def recipients({} = tuple), do: wide(tuple, Tables.subs(), [])
 
   # subscriptions that may match any tuple
-  defp wide(tuple, counters, found) do
-    found =
-      if :counters.get(counters, @any_counter) > 0,
-        do: matching(:ets.lookup(Tables.subs(), {:any, tuple_size(tuple)}), tuple) ++ found,
-        else: found
+  defp wide(tuple, subs, found) do
+    case Tables.wide_indexed() do
+      {false, false} ->
+        found
 
-    if :counters.get(counters, @spec_counter) > 0,
-      do: matching(:ets.lookup(Tables.subs(), :spec), tuple) ++ found,
-      else: found
+      {any?, spec?} ->
+        found =
+          if any?,
+            do: matching(:ets.lookup(subs, {:any, tuple_size(tuple)}), tuple) ++ found,
+            else: found
+
+        if spec?, do: matching(:ets.lookup(subs, :spec), tuple) ++ found, else: found
+    end
   end
 
   defp matching([], _tuple), do: []

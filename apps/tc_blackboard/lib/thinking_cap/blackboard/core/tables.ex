@@ -1,8 +1,9 @@
 defmodule ThinkingCap.Blackboard.Core.Tables do
   @moduledoc false
-  # Owns the blackboard's ETS tables and does nothing else, so that the
-  # tables outlive every process that serves them: a crash of the server
-  # loses no tuple, subscription or blocked waiter.
+  # Owns the blackboard's ETS tables, and the flags that tell writers which
+  # kinds of subscription exist, and does nothing else, so that the tables
+  # outlive every process that serves them: a crash of the server loses no
+  # tuple, subscription or blocked waiter.
   #
   #   tuples   ordered_set  {key, tuple, key_bin | nil, expires, stamp | nil}
   #                         key = {arity, first, second, seq, owner_node}
@@ -16,48 +17,43 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
   #                         {{:watermark, node}, boot, seq}
-  #   (and two arrays in persistent_term: counters/0 and send_counts/0)
+  #   (and in persistent_term: the tables' ids, two arrays, counters/0 and
+  #   send_counts/0, and the index flags, tag_indexed?/2 and wide_indexed/0)
 
   use GenServer
 
-  @tuples :tc_bb_tuples
-  @fresh :tc_bb_fresh
-  @keys :tc_bb_keys
-  @subs :tc_bb_subs
-  @sub_refs :tc_bb_sub_refs
-  @waiters :tc_bb_waiters
-  @tombs :tc_bb_tombs
-  @meta :tc_bb_meta
+  # Named, so that they can be inspected (`:ets.i/0`), but reached through
+  # their ids: an access by name first looks the name up in the node's name
+  # table, which, cold, costs a write about 0.2 of a raw send's latency
+  # (measured in the benchmark's write path).
+  @names [
+    tuples: :tc_bb_tuples,
+    fresh: :tc_bb_fresh,
+    keys: :tc_bb_keys,
+    subs: :tc_bb_subs,
+    sub_refs: :tc_bb_sub_refs,
+    waiters: :tc_bb_waiters,
+    tombs: :tc_bb_tombs,
+    meta: :tc_bb_meta
+  ]
+  @ids {__MODULE__, :ids}
 
-  def tuples, do: @tuples
-  def fresh, do: @fresh
-  def keys, do: @keys
-  def subs, do: @subs
-  def sub_refs, do: @sub_refs
-  def waiters, do: @waiters
-  def tombs, do: @tombs
-  def meta, do: @meta
-
-  @doc false
-  def boot_id, do: :ets.lookup_element(@meta, :boot, 2)
-
-  @counters [any_subs: 1, spec_subs: 2, peers: 3, waiters: 4]
-  @tag_buckets 1024
-  @tag_base length(@counters)
+  for {{table, _name}, i} <- Enum.with_index(@names) do
+    def unquote(table)(), do: elem(:persistent_term.get(@ids), unquote(i))
+  end
 
   @doc false
-  # Counters the write path reads instead of probing tables: subscriptions
-  # indexed by arity only ({:any, n}) and by match specification (:spec), so
-  # delivery skips those lookups when there are none; the number of peer
-  # servers; an upper bound on the number of blocked waiters (see
-  # `Waiters.any?/1`); and, in #{@tag_buckets} buckets by `tag_bucket/2`, subscriptions
-  # indexed by tag only ({:tag, n, first}), so that a write looks for them
-  # only when its tag's bucket holds some (a bucket shared by two tags costs
-  # a needless lookup, never a missed delivery). One array per table
-  # set, found through persistent_term (written once per start of this
-  # process). `counter/1` names the fixed slots. A :counters array, not an
-  # :atomics one: its get is a BIF where atomics' is a NIF call, 10 ns
-  # against 45 ns (measured here), and a write reads five of them.
+  def boot_id, do: :ets.lookup_element(meta(), :boot, 2)
+
+  @counters [peers: 1, waiters: 2]
+
+  @doc false
+  # Counters the write path reads instead of probing tables: the number of
+  # peer servers and an upper bound on the number of blocked waiters (see
+  # `Waiters.any?/1`). One array per table set, found through
+  # persistent_term (written once per start of this process). `counter/1`
+  # names the slots. A :counters array, not an :atomics one: its get is a
+  # BIF where atomics' is a NIF call.
   def counters, do: :persistent_term.get({__MODULE__, :counters})
 
   @send_slots 65_536
@@ -76,12 +72,68 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   @doc false
   def counter(name), do: Keyword.fetch!(@counters, name)
 
+  ## Index flags
+
+  @tag_buckets 1024
+  @any 1
+  @spec_bit 2
+
   @doc false
-  # The counter slot of tag-only subscriptions to tuples of arity `n` whose
-  # first element is `first`.
+  # Whether writes must look for subscriptions indexed by tag only
+  # ({:tag, n, first}): true while one of the tags in `first`'s bucket of
+  # #{@tag_buckets} has one (a bucket shared by two tags costs a needless
+  # lookup, never a missed delivery). Flags are persistent terms holding
+  # true or false: a get costs a few ns where a :counters get costs 40-60,
+  # and replacing an immediate value starts no global garbage collection.
   # (An atom's hash is stored with it: phash2 of `first` alone costs 20 ns,
   # of `{n, first}` 60 ns.)
-  def tag_bucket(n, first), do: @tag_base + 1 + rem(:erlang.phash2(first) + n, @tag_buckets)
+  def tag_indexed?(n, first),
+    do: :persistent_term.get({__MODULE__, :tag, tag_bucket(n, first)}, false)
+
+  @doc false
+  def tag_bucket(n, first), do: rem(:erlang.phash2(first) + n, @tag_buckets)
+
+  @doc false
+  # Whether writes must look for subscriptions indexed by arity only
+  # ({:any, n}) and by match specification (:spec): `{any?, spec?}`.
+  def wide_indexed do
+    flags = :persistent_term.get({__MODULE__, :wide}, 0)
+    {Bitwise.band(flags, @any) != 0, Bitwise.band(flags, @spec_bit) != 0}
+  end
+
+  @doc false
+  # Counts a subscription added (+1) or removed (-1) under `index`, and
+  # raises or lowers the flag the write path reads. Flags change in this
+  # process alone, so two subscribers never race on one. Called after a
+  # subscription's row is inserted and after it is deleted: a subscription
+  # is flagged from before its `subscribe/2` returns to after it is gone.
+  @spec count_subscription(term(), 1 | -1) :: :ok
+  def count_subscription({:stream, _, _, _}, _delta), do: :ok
+
+  def count_subscription(index, delta) when delta in [1, -1],
+    do: GenServer.call(__MODULE__, {:count, index, delta}, :infinity)
+
+  defp flag_of({:tag, n, first}), do: {:tag, tag_bucket(n, first)}
+  defp flag_of({:any, _n}), do: {:wide, @any}
+  defp flag_of(:spec), do: {:wide, @spec_bit}
+
+  defp set_flag({:tag, bucket}, on?), do: :persistent_term.put({__MODULE__, :tag, bucket}, on?)
+
+  defp set_flag({:wide, bit}, on?) do
+    flags = :persistent_term.get({__MODULE__, :wide}, 0)
+    new = if on?, do: Bitwise.bor(flags, bit), else: Bitwise.band(flags, Bitwise.bnot(bit))
+    :persistent_term.put({__MODULE__, :wide}, new)
+  end
+
+  # flags left by an earlier incarnation of this process (its subscriptions
+  # went with its tables)
+  defp clear_flags do
+    for {{__MODULE__, kind, _} = key, _} <- :persistent_term.get(),
+        kind == :tag,
+        do: :persistent_term.erase(key)
+
+    :persistent_term.erase({__MODULE__, :wide})
+  end
 
   def start_link(_opts), do: GenServer.start_link(__MODULE__, :ok, name: __MODULE__)
 
@@ -99,23 +151,52 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     # measured here) but held against every other writer and reader, and
     # the example robot missed 3-5x more deadlines with it. Fresh holds a
     # handful of rows for a few microseconds each.
-    :ets.new(@tuples, [:ordered_set | concurrent])
-    :ets.new(@fresh, [:ordered_set | plain])
-    :ets.new(@keys, [:set | concurrent])
-    :ets.new(@subs, [:bag | plain])
-    :ets.new(@sub_refs, [:set | plain])
-    :ets.new(@waiters, [:ordered_set | plain])
-    :ets.new(@tombs, [:set | plain])
-    :ets.new(@meta, [:set, {:read_concurrency, true} | plain])
+    options = [
+      tuples: [:ordered_set | concurrent],
+      fresh: [:ordered_set | plain],
+      keys: [:set | concurrent],
+      subs: [:bag | plain],
+      sub_refs: [:set | plain],
+      waiters: [:ordered_set | plain],
+      tombs: [:set | plain],
+      meta: [:set, {:read_concurrency, true} | plain]
+    ]
 
-    :ets.insert(@meta, [
+    ids =
+      for {table, name} <- @names do
+        :ets.new(name, Keyword.fetch!(options, table))
+        :ets.whereis(name)
+      end
+
+    :persistent_term.put(@ids, List.to_tuple(ids))
+    clear_flags()
+
+    :ets.insert(meta(), [
       {:boot, {System.system_time(), :erlang.unique_integer()}},
       {:peers, []}
     ])
 
-    :persistent_term.put({__MODULE__, :counters}, :counters.new(@tag_base + @tag_buckets, []))
+    :persistent_term.put({__MODULE__, :counters}, :counters.new(length(@counters), []))
     :persistent_term.put({__MODULE__, :send_counts}, :atomics.new(@send_slots, signed: false))
 
-    {:ok, nil}
+    {:ok, %{}}
   end
+
+  # Every call is answered and none can fail: this process holds the tables.
+  @impl true
+  def handle_call({:count, index, delta}, _from, counts) do
+    flag = flag_of(index)
+    before = Map.get(counts, flag, 0)
+    now = before + delta
+
+    cond do
+      before == 0 and now > 0 -> set_flag(flag, true)
+      before > 0 and now == 0 -> set_flag(flag, false)
+      true -> :ok
+    end
+
+    {:reply, :ok, if(now == 0, do: Map.delete(counts, flag), else: Map.put(counts, flag, now))}
+  end
+
+  def handle_call(_other, _from, counts), do: {:reply, {:error, :unknown_call}, counts}
 end
