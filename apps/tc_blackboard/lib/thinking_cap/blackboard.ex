@@ -145,23 +145,31 @@ defmodule ThinkingCap.Blackboard do
     record = Store.new_record(tuple, ukey, ttl)
     counters = Tables.counters()
 
-    case Subscriptions.recipients(tuple) do
-      [] ->
-        Store.insert(record)
-        tell_others(record, tuple, counters)
+    recipients = Subscriptions.recipients(tuple)
 
-      recipients ->
-        # Staged, the tuple can be read and taken: nothing else must stand
-        # before the subscribers' send. The writer then yields to the
-        # subscribers it woke on its own scheduler, and after they ran tells
-        # blocked waiters and the other nodes, and settles the write (into
-        # the tuple table, replacing its latest-value key's older tuple).
-        Store.stage(record)
+    if recipients == [] and ukey == nil do
+      Store.insert(record)
+      tell_others(record, tuple, counters)
+    else
+      # Staged, the tuple can be read and taken: nothing else must stand
+      # before the subscribers' send. The writer then yields to the
+      # subscribers it woke on its own scheduler, and after they ran tells
+      # blocked waiters and the other nodes, and settles the write (into
+      # the tuple table, replacing its latest-value key's older tuple). A
+      # keyed write is staged even when nobody is sent it: a writer killed
+      # before its key is claimed leaves its fresh row, and the sweeper
+      # finishes the claim, where a write stored in one step would stay
+      # beside the key's newer tuple.
+      Store.stage(record)
+
+      if recipients != [] do
         due = Subscriptions.send_to(recipients, tuple)
         yield_to_subscribers()
         Subscriptions.check_queues(due)
-        tell_others(record, tuple, counters)
-        Store.settle(record)
+      end
+
+      tell_others(record, tuple, counters)
+      Store.settle(record)
     end
 
     :ok

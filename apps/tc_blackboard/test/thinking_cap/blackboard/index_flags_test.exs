@@ -6,12 +6,6 @@ defmodule ThinkingCap.Blackboard.IndexFlagsTest do
 
   alias ThinkingCap.Blackboard.Core.Tables
 
-  # a unique tag whose bucket holds no tag-only subscription now
-  defp free_tag do
-    Stream.repeatedly(fn -> :"flag_#{System.unique_integer([:positive])}" end)
-    |> Enum.find(&(not Tables.tag_indexed?(3, &1)))
-  end
-
   defp subscriber(template) do
     test = self()
 
@@ -27,12 +21,8 @@ defmodule ThinkingCap.Blackboard.IndexFlagsTest do
   end
 
   test "a tag's flag is up from subscribe until its bucket's last subscription is gone" do
-    a = free_tag()
-    bucket = Tables.tag_bucket(3, a)
-
-    b =
-      Stream.repeatedly(fn -> :"flag_#{System.unique_integer([:positive])}" end)
-      |> Enum.find(&(Tables.tag_bucket(3, &1) == bucket))
+    {a, b} = ThinkingCap.Test.Buckets.two_tags_in_a_free_bucket(:flag)
+    refute Tables.tag_indexed?(3, a)
 
     {:ok, on_a} = Blackboard.subscribe({a, :_, :_})
     assert Tables.tag_indexed?(3, a)

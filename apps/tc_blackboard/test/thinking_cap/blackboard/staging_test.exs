@@ -106,6 +106,42 @@ defmodule ThinkingCap.Blackboard.StagingTest do
     assert {:ok, {:staged, ^id, :alive}} = Blackboard.takep({:staged, id, :alive})
   end
 
+  test "a keyed writer killed after its copy, before its claim, still replaces the older tuple",
+       %{id: id} do
+    me = self()
+    Blackboard.out({:staged, id, :old}, key: {:staged, id})
+
+    writer =
+      spawn(fn ->
+        record = Store.new_record({:staged, id, :new}, {:staged, id}, nil)
+        Store.stage(record)
+        :ets.insert(Tables.tuples(), record)
+        send(me, :copied)
+        Process.sleep(:infinity)
+      end)
+
+    assert_receive :copied
+    Process.exit(writer, :kill)
+
+    # until the sweeper comes, the latest value and its predecessor; after
+    # it, the latest value alone, stored once
+    ThinkingCap.Testing.Cluster.wait_until(fn -> staged(id) == [] end, 5_000)
+    assert [{:staged, ^id, :new}] = Blackboard.rd_all({:staged, id, :_})
+    assert [{:staged, ^id, :new}] = stored(id)
+
+    # and the key is the new tuple's: the next write replaces it
+    Blackboard.out({:staged, id, :newer}, key: {:staged, id})
+    assert [{:staged, ^id, :newer}] = Blackboard.rd_all({:staged, id, :_})
+  end
+
+  test "a keyed write nobody is sent is staged too, and settled before out returns",
+       %{id: id} do
+    :ok = Blackboard.out({:staged, id, :first}, key: {:staged, id})
+    :ok = Blackboard.out({:staged, id, :second}, key: {:staged, id})
+    assert [{:staged, ^id, :second}] = stored(id)
+    assert staged(id) == []
+  end
+
   test "a write that wakes a subscriber is settled before out returns", %{id: id} do
     {:ok, ref} = Blackboard.subscribe({:staged, id, :_})
     :ok = Blackboard.out({:staged, id, :heard})

@@ -35,19 +35,11 @@ defmodule ThinkingCap.Blackboard.SubscriptionTest do
     refute_received {:blackboard, ^ref, _}
   end
 
-  test "tag-only subscriptions of two tags sharing a counter bucket each get only their own" do
+  test "tag-only subscriptions of two tags sharing a flag bucket each get only their own" do
     alias ThinkingCap.Blackboard.Core.Tables
-    # two unique tags whose tag-only subscriptions count in the same bucket
-    base = System.unique_integer([:positive])
-    a = :"bucket_#{base}_a"
-    bucket = Tables.tag_bucket(3, a)
-
-    b =
-      1..100_000
-      |> Stream.map(&:"bucket_#{base}_#{&1}")
-      |> Enum.find(&(Tables.tag_bucket(3, &1) == bucket))
-
-    assert Tables.tag_bucket(3, b) == bucket
+    # two new tags whose tag-only subscriptions share a flag bucket
+    {a, b} = ThinkingCap.Test.Buckets.two_tags_in_a_free_bucket(:bucket)
+    assert Tables.tag_bucket(3, a) == Tables.tag_bucket(3, b)
 
     {:ok, on_a} = Blackboard.subscribe({a, :_, :_})
     Blackboard.out({b, 1, 1})

@@ -21,8 +21,9 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   # Inserting into tuples lands on a cold path of its tree (about 1 us with
   # the benchmark's 1,000 streams), where fresh holds a handful of rows and
   # stays in cache: staging there keeps the insert off the subscribers'
-  # latency. Settling copies the record into tuples, then deletes its fresh
-  # row, so a record is always in one table or both. Readers look in tuples,
+  # latency. Settling copies the record into tuples, claims its latest-value
+  # key, then deletes its fresh row, so a record is always in one table or
+  # both (until a keyed one loses its key). Readers look in tuples,
   # then in fresh, then in tuples again: a write settled while the first
   # walk was past it, and gone from fresh when fresh was read, was copied
   # before that.
@@ -85,13 +86,15 @@ defmodule ThinkingCap.Blackboard.Core.Store do
     do: :ets.insert(Tables.fresh(), {key, tuple, key_bin, expires, stamp, self()})
 
   @doc false
-  # A staged write's second half: copy it into tuples, then drop its fresh
-  # row (for a keyed one, then replace the older tuple with the same key).
+  # A staged write's second half: copy it into tuples, for a keyed one
+  # replace the older tuple with the same key, then drop its fresh row (which
+  # until then tells the sweeper that the write is unfinished).
   @spec settle(record()) :: :ok | :stale
   def settle({key, _, _, _, _} = record) do
     :ets.insert(Tables.tuples(), record)
+    claimed = claim(record)
     :ets.delete(Tables.fresh(), key)
-    claim(record)
+    claimed
   end
 
   @doc false
@@ -551,8 +554,10 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
   # A staged write whose writer died before settling it. A dead writer
   # copies nothing more, and no take happens while a fresh row exists: so
-  # a record in tuples now was copied (its fresh row only needs to go), and
-  # one missing from tuples was never copied, and is copied here. (Taking
+  # a record in tuples now was copied (its key is claimed again, in case
+  # the writer died before it did, and its fresh row goes), and one missing
+  # from tuples was never copied, and is copied here (or lost its key to a
+  # newer write, and loses it again as soon as it is copied). (Taking
   # the fresh row first and looking in tuples after would let a taker take
   # the copy in between, and the record be copied again.)
   defp settle_abandoned do
@@ -561,6 +566,11 @@ defmodule ThinkingCap.Blackboard.Core.Store do
 
     for {key, writer} <- abandoned, not Process.alive?(writer) do
       if :ets.member(Tables.tuples(), key) do
+        # copied; its key may not have been claimed (claiming twice is
+        # harmless: the index keeps the newest either way)
+        with [{^key, tuple, key_bin, expires, stamp, _writer}] <- :ets.lookup(fresh, key),
+             do: claim({key, tuple, key_bin, expires, stamp})
+
         :ets.delete(fresh, key)
       else
         with [{^key, tuple, key_bin, expires, stamp, _writer}] <- :ets.take(fresh, key),
