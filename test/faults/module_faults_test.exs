@@ -66,6 +66,7 @@ defmodule ThinkingCap.FaultSuite.ModuleFaultsTest do
 
   test "a killed timing worker: the robot stops, the worker restarts, control resumes", ctx do
     restarts = Cycle.status().restarts
+    probe = start_stall_probe()
     t0 = now_ms()
 
     Tally.injected()
@@ -83,12 +84,19 @@ defmodule ThinkingCap.FaultSuite.ModuleFaultsTest do
 
     # From the last command applied before the kill to the stop: up to a
     # period, plus the time the OS takes to tell the BEAM that the worker
-    # died (a few ms on a quiet machine, tens under load). Nothing on the
-    # machine can stop the robot faster when the worker itself is gone;
-    # a motor controller's own serial watchdog can.
+    # died (a few ms on a quiet machine, tens under load), plus whatever
+    # this shared machine stalled its CPUs meanwhile (cyclictest's worst
+    # wake-up: runs of 70-110 ms were seen, each time with a CPU-bound
+    # neighbour). Nothing on the machine can stop the robot faster when the
+    # worker itself is gone; a motor controller's own serial watchdog can.
+    machine = machine_stalls(probe)
     uncommanded = uncommanded_ms(events(ctx.observer), t0 - 100)
     Tally.uncommanded(uncommanded)
-    assert uncommanded <= 100
+
+    assert uncommanded <= 100 + machine.max_ms,
+           "the robot ran #{uncommanded} ms on one command; the bound is 100 ms " <>
+             "plus the machine's own worst stall meanwhile, #{machine.max_ms} ms"
+
     Tally.survived()
   end
 
