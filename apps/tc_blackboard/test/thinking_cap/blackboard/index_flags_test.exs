@@ -73,6 +73,8 @@ defmodule ThinkingCap.Blackboard.IndexFlagsTest do
   test "the tables' owner answers a call it does not know without dying" do
     owner = Process.whereis(Tables)
     assert GenServer.call(Tables, :nonsense) == {:error, :unknown_call}
+    assert GenServer.call(Tables, {:count, {:nonsense}, 1}) == {:error, :unknown_index}
+    assert GenServer.call(Tables, {:count, :spec, 5}) == {:error, :unknown_call}
     assert Process.whereis(Tables) == owner
   end
 

@@ -107,7 +107,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   # process alone, so two subscribers never race on one. Called after a
   # subscription's row is inserted and after it is deleted: a subscription
   # is flagged from before its `subscribe/2` returns to after it is gone.
-  @spec count_subscription(term(), 1 | -1) :: :ok
+  @spec count_subscription(term(), 1 | -1) :: :ok | {:error, :unknown_index}
   def count_subscription({:stream, _, _, _}, _delta), do: :ok
 
   def count_subscription(index, delta) when delta in [1, -1],
@@ -116,6 +116,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   defp flag_of({:tag, n, first}), do: {:tag, tag_bucket(n, first)}
   defp flag_of({:any, _n}), do: {:wide, @any}
   defp flag_of(:spec), do: {:wide, @spec_bit}
+  defp flag_of(_unknown), do: nil
 
   defp set_flag({:tag, bucket}, on?), do: :persistent_term.put({__MODULE__, :tag, bucket}, on?)
 
@@ -184,8 +185,16 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
 
   # Every call is answered and none can fail: this process holds the tables.
   @impl true
-  def handle_call({:count, index, delta}, _from, counts) do
-    flag = flag_of(index)
+  def handle_call({:count, index, delta}, _from, counts) when delta in [1, -1] do
+    case flag_of(index) do
+      nil -> {:reply, {:error, :unknown_index}, counts}
+      flag -> {:reply, :ok, count(counts, flag, delta)}
+    end
+  end
+
+  def handle_call(_other, _from, counts), do: {:reply, {:error, :unknown_call}, counts}
+
+  defp count(counts, flag, delta) do
     before = Map.get(counts, flag, 0)
     now = before + delta
 
@@ -195,8 +204,6 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
       true -> :ok
     end
 
-    {:reply, :ok, if(now == 0, do: Map.delete(counts, flag), else: Map.put(counts, flag, now))}
+    if now == 0, do: Map.delete(counts, flag), else: Map.put(counts, flag, now)
   end
-
-  def handle_call(_other, _from, counts), do: {:reply, {:error, :unknown_call}, counts}
 end
