@@ -250,10 +250,12 @@ defmodule ThinkingCap.BlackboardTest do
         spawn_link(fn -> send(parent, {:served, n, Blackboard.take({:late, id, :_})}) end)
       end
 
-      for n <- 1..3 do
-        taker.(n)
-        wait_for_waiters(id, n)
-      end
+      [first | _] =
+        for n <- 1..3 do
+          pid = taker.(n)
+          wait_for_waiters(id, n)
+          pid
+        end
 
       # the server has seen takers 1..3; it hears of taker 4 only after the
       # tuple has arrived
@@ -262,17 +264,52 @@ defmodule ThinkingCap.BlackboardTest do
       taker.(4)
       wait_for_waiters(id, 4)
       Blackboard.out({:late, id, 1})
+
+      # The late taker's kick finds the tuple and wakes the oldest taker;
+      # the arrival after it finds that taker on its way to the only tuple
+      # and wakes nobody to race it: with taker 1 held, nobody is served.
+      :erlang.suspend_process(first)
       :sys.resume(Server)
+      :sys.get_state(Server)
+      refute_receive {:served, _, _}, 100
+      :erlang.resume_process(first)
+      assert_receive {:served, 1, {:ok, {:late, ^id, 1}}}, 2000
 
-      # The kick wakes the oldest taker, the arrival the next one: two
-      # wake-ups for one tuple, which either may win; the late taker gets
-      # no wake-up for it.
-      assert_receive {:served, first, {:ok, {:late, ^id, 1}}}, 2000
-      assert first in [1, 2]
+      for k <- 2..4 do
+        Blackboard.out({:late, id, k})
+        assert_receive {:served, ^k, {:ok, {:late, ^id, _}}}, 2000
+        refute_received {:served, _, _}
+      end
+    end
 
-      for k <- 2..4, do: Blackboard.out({:late, id, k})
-      served = for _ <- 2..4, do: assert_receive({:served, n, {:ok, _}}, 2000) && n
-      assert Enum.sort([first | served]) == [1, 2, 3, 4]
+    test "a woken taker beaten to its tuple by a takep waits again, ahead of later takers",
+         %{id: id} do
+      alias ThinkingCap.Blackboard.Core.Server
+      parent = self()
+
+      takers =
+        for n <- 1..2 do
+          pid =
+            spawn_link(fn -> send(parent, {:served, n, Blackboard.take({:beaten, id, :_})}) end)
+
+          wait_for_waiters(id, n)
+          pid
+        end
+
+      # taker 1 is woken for the tuple but cannot act before a takep takes it
+      :sys.get_state(Server)
+      :erlang.suspend_process(hd(takers))
+      Blackboard.out({:beaten, id, 1})
+      :sys.get_state(Server)
+      assert {:ok, {:beaten, ^id, 1}} = Blackboard.takep({:beaten, id, :_})
+      :erlang.resume_process(hd(takers))
+      refute_receive {:served, _, _}, 100
+
+      # taker 1 waits again, and is still served first
+      Blackboard.out({:beaten, id, 2})
+      assert_receive {:served, 1, {:ok, {:beaten, ^id, 2}}}, 2000
+      Blackboard.out({:beaten, id, 3})
+      assert_receive {:served, 2, {:ok, {:beaten, ^id, 3}}}, 2000
     end
 
     test "a taker that blocks while the write it waits for is in flight is woken", %{id: id} do

@@ -302,6 +302,19 @@ defmodule ThinkingCap.Blackboard.Core.Store do
   end
 
   @doc false
+  # How many settled live tuples match `template`, counting up to `limit`
+  # (a staged one is told of by its own arrival once settled).
+  @spec count_matches(Template.compiled(), pos_integer()) :: non_neg_integer()
+  def count_matches(template, limit) do
+    table = Tables.tuples()
+
+    case :ets.select(table, match_spec(table, template, now(), true), limit) do
+      {found, _continuation} -> length(found)
+      :"$end_of_table" -> 0
+    end
+  end
+
+  @doc false
   @spec all_tuples() :: [tuple()]
   def all_tuples do
     :ets.select(Tables.tuples(), [{{:_, :"$1", :_, :"$2", :_}, [{:>, :"$2", now()}], [:"$1"]}])

@@ -10,7 +10,7 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   # wseq orders waiters by arrival, the woken flag says a wake-up is on its
   # way so later arrivals go to the next waiter.
 
-  alias ThinkingCap.Blackboard.Core.{Server, Tables}
+  alias ThinkingCap.Blackboard.Core.{Server, Store, Tables}
   alias ThinkingCap.Blackboard.Template
 
   @type kind :: :rd | :take
@@ -113,7 +113,9 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
 
   @doc false
   # On the arrival of `tuple`: hand it to every matching rd waiter and wake
-  # the longest-waiting matching take waiter that is not already woken.
+  # the longest-waiting matching take waiter that is not already woken,
+  # unless older takers of its template are already on their way to every
+  # tuple it could take (see `spare_tuple?/1`).
   @spec arrived(tuple()) :: :ok
   def arrived(tuple) do
     groups = Template.bound_indexes(tuple) ++ [{:any, tuple_size(tuple)}, :spec]
@@ -141,10 +143,34 @@ defmodule ThinkingCap.Blackboard.Core.Waiters do
   end
 
   defp wake_for_arrival([{_, _, _, :take, _, _} = waiter | rest], tuple, false) do
-    wake_for_arrival(rest, tuple, wake(waiter, tuple))
+    # a taker that would race older ones for the same tuples is not woken,
+    # nor any after it: the tuple is theirs
+    woken_or_left = not spare_tuple?(waiter) or wake(waiter, tuple)
+    wake_for_arrival(rest, tuple, woken_or_left)
   end
 
   defp wake_for_arrival([_taker | rest], tuple, true), do: wake_for_arrival(rest, tuple, true)
+
+  # Whether a taker woken now would find a tuple that no older taker of its
+  # template, woken before it, is on its way to: none is, or more tuples
+  # match than there are such takers. Blocked takers of one template are
+  # served in arrival order: an arrival (or a kick, served as one) that
+  # comes while an older taker has been woken for the only tuple does not
+  # wake the next taker to race it. If the older taker finds nothing (a
+  # takep got there first), it waits again and its kick looks once more.
+  defp spare_tuple?({{index, wseq}, _pid, _ref, :take, template, _woken}) do
+    # (the same template by its source: a match specification compiled
+    # twice is two references)
+    ahead =
+      Tables.waiters()
+      |> :ets.select([
+        {{{:"$1", :"$2"}, :_, :_, :take, :"$3", true},
+         [{:andalso, {:"=:=", :"$1", {:const, index}}, {:<, :"$2", wseq}}], [:"$3"]}
+      ])
+      |> Enum.count(&(&1.source == template.source))
+
+    ahead == 0 or Store.count_matches(template, ahead + 1) > ahead
+  end
 
   @doc false
   # A new or re-armed waiter: if a matching tuple is there already (`find`
