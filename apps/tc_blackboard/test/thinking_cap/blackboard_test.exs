@@ -1,6 +1,8 @@
 defmodule ThinkingCap.BlackboardTest do
   use ThinkingCap.BlackboardCase, async: true
 
+  alias ThinkingCap.Blackboard.Core.Server
+
   describe "out, rdp, rd_all, takep" do
     test "a written tuple can be read any number of times and taken once", %{id: id} do
       :ok = Blackboard.out({:job, id, %{n: 1}})
@@ -181,6 +183,15 @@ defmodule ThinkingCap.BlackboardTest do
     end
   end
 
+  # Writes {tag, id, k} for each k in turn: taker k is served it, nobody else.
+  defp assert_served_in_order(tag, id, ks) do
+    for k <- ks do
+      Blackboard.out({tag, id, k})
+      assert_receive {:served, ^k, {:ok, {^tag, ^id, _}}}, 2000
+      refute_received {:served, _, _}
+    end
+  end
+
   describe "blocking rd and take" do
     test "a blocked rd wakes on a later out and leaves the tuple", %{id: id} do
       task = Task.async(fn -> Blackboard.rd({:later, id, :_}) end)
@@ -232,18 +243,13 @@ defmodule ThinkingCap.BlackboardTest do
 
       # the server has heard of every taker before the first tuple arrives
       # (a taker it hears of after a tuple: the next test)
-      :sys.get_state(ThinkingCap.Blackboard.Core.Server)
+      :sys.get_state(Server)
 
-      for k <- 1..4 do
-        Blackboard.out({:fifo, id, k})
-        assert_receive {:served, ^k, {:ok, {:fifo, ^id, _}}}, 2000
-        refute_received {:served, _, _}
-      end
+      assert_served_in_order(:fifo, id, 1..4)
     end
 
     test "a taker whose arrival the server hears of after a tuple's does not go first",
          %{id: id} do
-      alias ThinkingCap.Blackboard.Core.Server
       parent = self()
 
       taker = fn n ->
@@ -275,16 +281,11 @@ defmodule ThinkingCap.BlackboardTest do
       :erlang.resume_process(first)
       assert_receive {:served, 1, {:ok, {:late, ^id, 1}}}, 2000
 
-      for k <- 2..4 do
-        Blackboard.out({:late, id, k})
-        assert_receive {:served, ^k, {:ok, {:late, ^id, _}}}, 2000
-        refute_received {:served, _, _}
-      end
+      assert_served_in_order(:late, id, 2..4)
     end
 
     test "a woken taker beaten to its tuple by a takep waits again, ahead of later takers",
          %{id: id} do
-      alias ThinkingCap.Blackboard.Core.Server
       parent = self()
 
       takers =
