@@ -41,27 +41,15 @@ defmodule ThinkingCap.FaultSuite.FloodFaultsTest do
     # (cyclictest): its late wake-ups may each cost a cycle, its worst stall
     # may hold a command
     machine = machine_stalls(probe)
-    assert_kept_deadline(ctx.base, before, machine.late)
+    now = base_figures(ctx.base)
+    cycles = now.cycles - before.cycles
+    assert cycles >= 100, "the base ran #{cycles} cycles"
+    assert_kept_deadline(cycles, now.fallbacks - before.fallbacks, machine)
 
     uncommanded = uncommanded_ms(events(ctx.observer), t0)
     Tally.uncommanded(uncommanded)
-
-    assert uncommanded <= 13 + machine.max_ms,
-           "the robot ran #{uncommanded} ms on one command; the bound is 13 ms " <>
-             "plus the machine's own worst stall meanwhile, #{machine.max_ms} ms"
-
+    assert_uncommanded_within(uncommanded, 13, machine)
     Tally.survived()
-  end
-
-  defp assert_kept_deadline(base, before, machine_late) do
-    now = base_figures(base)
-    cycles = now.cycles - before.cycles
-    fallbacks = now.fallbacks - before.fallbacks
-    assert cycles >= 100, "the base ran #{cycles} cycles"
-
-    assert fallbacks <= cycles * 0.01 + machine_late,
-           "#{fallbacks} fallbacks in #{cycles} cycles (the machine woke real-time threads " <>
-             "3 ms late #{machine_late} times meanwhile)"
   end
 
   test "a tuple flood at a subscriber that never reads: bounded mailbox and memory, cycle on time",

@@ -60,7 +60,7 @@ defmodule ThinkingCap.FaultSuite.ModuleFaultsTest do
 
     assert resumed.at > t0
     assert lost == 0
-    assert_within_bound(uncommanded, probe)
+    assert_uncommanded_within(uncommanded, @bound_ms, machine_stalls(probe))
     Tally.survived()
   end
 
@@ -92,10 +92,7 @@ defmodule ThinkingCap.FaultSuite.ModuleFaultsTest do
     machine = machine_stalls(probe)
     uncommanded = uncommanded_ms(events(ctx.observer), t0 - 100)
     Tally.uncommanded(uncommanded)
-
-    assert uncommanded <= 100 + machine.max_ms,
-           "the robot ran #{uncommanded} ms on one command; the bound is 100 ms " <>
-             "plus the machine's own worst stall meanwhile, #{machine.max_ms} ms"
+    assert_uncommanded_within(uncommanded, 100, machine)
 
     Tally.survived()
   end
@@ -123,25 +120,16 @@ defmodule ThinkingCap.FaultSuite.ModuleFaultsTest do
     # every slow release was covered: its fallback came in its own cycle
     assert uncommanded_ms(events(slow), t0) == 0.0
 
-    # the robot's base beside it kept its deadline
+    # the robot's base beside it kept its deadline, as far as the machine
+    # let it (cyclictest alongside)
+    machine = machine_stalls(probe)
     base_cycles = timing[ctx.base].cycles - before.cycles
-    base_fallbacks = timing[ctx.base].fallbacks - before.fallbacks
     assert base_cycles >= 150
-    assert base_fallbacks <= base_cycles * 0.01
+    assert_kept_deadline(base_cycles, timing[ctx.base].fallbacks - before.fallbacks, machine)
 
     uncommanded = uncommanded_ms(events(ctx.observer), t0)
     Tally.uncommanded(uncommanded)
-    assert_within_bound(uncommanded, probe)
+    assert_uncommanded_within(uncommanded, @bound_ms, machine)
     Tally.survived()
-  end
-
-  # A period and the deadline, plus what the machine itself did to every
-  # real-time thread meanwhile (cyclictest's worst wake-up).
-  defp assert_within_bound(uncommanded, probe) do
-    stall = machine_stalls(probe).max_ms
-
-    assert uncommanded <= @bound_ms + stall,
-           "the robot ran #{uncommanded} ms on one command; the bound is #{@bound_ms} ms " <>
-             "plus the machine's own worst stall meanwhile, #{stall} ms"
   end
 end

@@ -4,7 +4,8 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
   # dies as a power loss or a crash would; the wheels must stop.
   use ExUnit.Case, async: false
 
-  import ThinkingCap.FaultSuite.Case, only: [start_stall_probe: 0, machine_stalls: 1]
+  import ThinkingCap.FaultSuite.Case,
+    only: [start_stall_probe: 0, machine_stalls: 1, assert_uncommanded_within: 3]
 
   alias ThinkingCap.{Blackboard, Runtime}
   alias ThinkingCap.FaultSuite.Tally
@@ -69,11 +70,7 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     Tally.uncommanded(uncommanded)
     # a period, and the moment the worker takes to see its BEAM gone, plus
     # what the machine itself did to every real-time thread meanwhile
-    stall = machine_stalls(probe).max_ms
-
-    assert uncommanded <= 13 + stall,
-           "the base ran #{uncommanded} ms on one command; the bound is 13 ms " <>
-             "plus the machine's own worst stall meanwhile, #{stall} ms"
+    assert_uncommanded_within(uncommanded, 13, machine_stalls(probe))
 
     Tally.survived()
   end

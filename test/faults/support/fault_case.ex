@@ -147,4 +147,31 @@ defmodule ThinkingCap.FaultSuite.Case do
       %{max: us, over: late} -> %{max_ms: us / 1000, late: late}
     end
   end
+
+  @doc """
+  Asserts that the robot never ran on one command for longer than
+  `bound_ms` plus the machine's own worst stall in the window (`machine`
+  from `machine_stalls/1`): a stall of this shared machine's CPUs makes
+  every real-time thread late, the robot's too.
+  """
+  def assert_uncommanded_within(uncommanded, bound_ms, machine) do
+    ExUnit.Assertions.assert(
+      uncommanded <= bound_ms + machine.max_ms,
+      "the robot ran #{uncommanded} ms on one command; the bound is #{bound_ms} ms " <>
+        "plus the machine's own worst stall meanwhile, #{machine.max_ms} ms"
+    )
+  end
+
+  @doc """
+  Asserts that an activity kept its deadline over a window of `cycles`: at
+  most 1 % of them fell back, plus one for each wake-up the machine itself
+  made 3 ms late meanwhile (`machine.late`), each of which may cost a cycle.
+  """
+  def assert_kept_deadline(cycles, fallbacks, machine) do
+    ExUnit.Assertions.assert(
+      fallbacks <= cycles * 0.01 + machine.late,
+      "#{fallbacks} fallbacks in #{cycles} cycles (the machine woke real-time threads " <>
+        "3 ms late #{machine.late} times meanwhile)"
+    )
+  end
 end
