@@ -283,6 +283,13 @@ defmodule ThinkingCap.Blackboard do
 
   Options: `:max_queue` (default #{@default_max_queue}) and `:on_overflow`
   (`:drop`, the default, or `:disconnect`); see the moduledoc.
+
+  Cost to writers: a template that binds the first two elements (a stream,
+  such as `{:scan, :r1, :_}`) is found by the lookup every write makes of
+  its own stream. One that binds only the tag, binds neither, or is a
+  match specification adds a lookup to every write it may match (for a
+  tag, the writes of the tags that share its hash bucket), for as long
+  as it exists.
   """
   @spec subscribe(template(), [subscribe_option()]) :: {:ok, reference()}
   def subscribe(template, opts \\ []) do
