@@ -5,7 +5,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   # (local outs) or in the node's server (replicated outs) and never blocks:
   # a subscriber whose mailbox holds `max_queue` messages or more is not
   # sent the tuple (policy :drop, counted) or is unsubscribed and told
-  # (policy :disconnect). A writer finds the recipients (`recipients/2`),
+  # (policy :disconnect). A writer finds the recipients (`recipients/1`),
   # sends (`send_to/2`) and, once it let them run, reads the queues that
   # were due a read (`check_queues/1`); the server does the three at once
   # (`deliver/1`).
@@ -146,7 +146,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp matching(rows, tuple), do: Enum.filter(rows, &Template.matches?(elem(&1, 3), tuple))
 
   @doc false
-  # Sends `tuple` to `recipients/2`'s subscriptions. Returns those whose
+  # Sends `tuple` to `recipients/1`'s subscriptions. Returns those whose
   # queue is due a read, for `check_queues/1` once the writer has yielded
   # to them.
   @spec send_to([tuple()], tuple()) :: [tuple()]
