@@ -15,6 +15,9 @@ defmodule ThinkingCap.Testing.Create2Emulator do
   an error) and removes the link; `replug/1` makes a new pty and points
   the link at it.
 
+  The emulator and its UART run at high priority, as hardware does not
+  wait for the BEAM: commands are stamped as they arrive.
+
   ## What it implements
 
   Modes Off (until Start), Passive, Safe, Full; Start, Reset, Stop, Safe,
@@ -158,7 +161,11 @@ defmodule ThinkingCap.Testing.Create2Emulator do
   @impl true
   def init(opts) do
     link = Keyword.fetch!(opts, :link)
-    {:ok, uart} = UART.start_link([])
+    # It stands in for hardware, which does not wait for the BEAM: the
+    # emulator and its UART run at high priority, so that a command is
+    # stamped when it arrives, not when the test's own work lets it run.
+    Process.flag(:priority, :high)
+    {:ok, uart} = UART.start_link(spawn_opt: [priority: :high])
 
     state = %{
       uart: uart,
