@@ -18,10 +18,14 @@ defmodule ThinkingCap.Cycle do
   process that called `subscribe/1` as
 
       {:tc_cycle, :applied, name, %{cycle: n, kind: :fresh | :fallback | :late, command: term,
-                                    wired: boolean, response_us: float}}
+                                    wired: boolean, response_us: float, applied_ns: t | nil}}
 
   (`:late` reports a result that came after its fallback; it is not
-  applied). A removed activity's fallback is applied at once (its module
+  applied). `applied_ns` is when the worker applied the command, on its
+  `CLOCK_MONOTONIC` (the clock of `released_ns`): the release's time plus
+  the response, exact where the time the report reaches a process is not.
+  It is nil for late results and for the fallbacks told on a worker's
+  restart. A removed activity's fallback is applied at once (its module
   stopped or crashed: no fresh command will come). If the BEAM dies, the
   worker applies every fallback and exits.
   If the worker dies, this process starts a new one, adds every activity
@@ -71,7 +75,8 @@ defmodule ThinkingCap.Cycle do
           kind: :fresh | :fallback | :late,
           command: term(),
           wired: boolean(),
-          response_us: float()
+          response_us: float(),
+          applied_ns: integer() | nil
         }
 
   # the worker's limits on a wire's bytes and a device path
@@ -379,7 +384,8 @@ defmodule ThinkingCap.Cycle do
            %{id: id, cycle: cycle, scheduled_ns: scheduled, released_ns: released}}
         )
 
-        put_in(state.activities[id].stats, Stats.release(a.stats, scheduled, released))
+        a = %{a | stats: Stats.release(a.stats, scheduled, released), release: {cycle, released}}
+        put_in(state.activities[id], a)
 
       _ ->
         state
@@ -398,7 +404,8 @@ defmodule ThinkingCap.Cycle do
           kind: kind,
           command: command,
           wired: wired == 1,
-          response_us: response / 1000
+          response_us: response / 1000,
+          applied_ns: applied_ns(a.release, cycle, kind, response)
         }
 
         tell(state, a, event)
@@ -465,6 +472,12 @@ defmodule ThinkingCap.Cycle do
     state
   end
 
+  # the worker reports a cycle's release before what it applied in it
+  defp applied_ns({cycle, released}, cycle, kind, response) when kind != :late,
+    do: released + response
+
+  defp applied_ns(_release, _cycle, _kind, _response), do: nil
+
   ## Worker
 
   defp open(state) do
@@ -497,7 +510,8 @@ defmodule ThinkingCap.Cycle do
             kind: :fallback,
             command: a.fallback,
             wired: false,
-            response_us: 0.0
+            response_us: 0.0,
+            applied_ns: nil
           })
 
     state = open(%{state | port: nil, restarts: state.restarts + 1})
@@ -564,7 +578,9 @@ defmodule ThinkingCap.Cycle do
       owner: owner,
       wire: Map.get(old, :wire),
       wire_errors: Map.get(old, :wire_errors, 0),
-      stats: Stats.new(round(period * 1.0e9))
+      stats: Stats.new(round(period * 1.0e9)),
+      # the last release: {cycle, released_ns}
+      release: nil
     }
 
     send_add(state.port, activity)
@@ -649,7 +665,8 @@ defmodule ThinkingCap.Cycle do
           kind: :fallback,
           command: a.fallback,
           wired: state.port != nil and a.wire != nil,
-          response_us: 0.0
+          response_us: 0.0,
+          applied_ns: nil
         })
 
         %{state | activities: Map.delete(state.activities, id)}

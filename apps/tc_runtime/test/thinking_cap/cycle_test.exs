@@ -63,8 +63,10 @@ defmodule ThinkingCap.CycleTest do
     :ok = Cycle.add(name, period: 0.01, deadline: 0.008, priority: 60)
     r1 = release(name)
     :ok = Cycle.result(r1, {:vel, 0.2, 0.0})
-    assert %{cycle: c1, kind: :fresh, command: {:vel, 0.2, 0.0}} = applied(name)
+    assert %{cycle: c1, kind: :fresh, command: {:vel, 0.2, 0.0}} = a1 = applied(name)
     assert c1 == r1.cycle
+    # when, on the worker's clock: its release plus the response
+    assert a1.applied_ns == r1.released_ns + round(a1.response_us * 1000)
     r2 = release(name)
     assert r2.cycle == r1.cycle + 1
     # absolute deadlines: releases are scheduled exactly one period apart
@@ -75,13 +77,17 @@ defmodule ThinkingCap.CycleTest do
        %{name: name} do
     :ok = Cycle.add(name, period: 0.02, deadline: 0.005, fallback: :stop)
     r = release(name)
-    assert %{cycle: cycle, kind: :fallback, command: :stop, response_us: response} = applied(name)
+
+    assert %{cycle: cycle, kind: :fallback, command: :stop, response_us: response} =
+             fallback = applied(name)
+
     assert cycle == r.cycle
+    assert fallback.applied_ns >= r.scheduled_ns + 5_000_000
     # applied at the deadline (measured from the actual release, so less its
     # jitter), not a cycle later
     assert response > 4_000 and response < 15_000
     Cycle.result(r, {:vel, 1.0, 0.0})
-    assert %{kind: :late, command: nil} = applied(name)
+    assert %{kind: :late, command: nil, applied_ns: nil} = applied(name)
   end
 
   test "statistics count cycles, fallbacks and late results", %{name: name} do

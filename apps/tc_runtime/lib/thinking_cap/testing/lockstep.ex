@@ -108,7 +108,16 @@ defmodule ThinkingCap.Testing.Lockstep do
 
       {:command, command} ->
         %{module: m, state: s} = lock.modules[name]
-        applied = %{cycle: n, kind: :fresh, command: command, wired: false, response_us: 0.0}
+
+        applied = %{
+          cycle: n,
+          kind: :fresh,
+          command: command,
+          wired: false,
+          response_us: 0.0,
+          applied_ns: release.released_ns
+        }
+
         {actions, s} = normalize(m.handle_applied(applied, s))
         lock |> put_state(name, s) |> run(name, actions)
     end
