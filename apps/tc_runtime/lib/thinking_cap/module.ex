@@ -53,9 +53,9 @@ defmodule ThinkingCap.Module do
   fresh result or the fallback that replaced a late one, reaches
   `handle_applied/2` (`%{cycle: n, kind: :fresh | :fallback | :late,
   command: term, wired: boolean, response_us: float, applied_ns: t | nil}`,
-  see `ThinkingCap.Cycle`; a `:late` result was not applied; `wired: true` says the worker put the command's bytes
-  on the module's wire, whole, and `false` that the module must drive
-  the device itself). A module that drives hardware acts on these, never
+  see `ThinkingCap.Cycle`; a `:late` result was not applied; `wired: true`
+  says the worker put the command's bytes on the module's wire, whole, and
+  `false` that the module must drive the device itself). A module that drives hardware acts on these, never
   on its own results: then a stalled module leaves the robot on its
   fallback, not on a stale command.
 

@@ -120,8 +120,8 @@ defmodule ThinkingCap.CycleTest do
 
     # the subscribers hear that the fallback holds (the restart's own
     # report, cycle 0, not a deadline missed before the kill), then
-    # releases resume
-    assert %{kind: :fallback, command: :stop} =
+    # releases resume; no worker applied it, so there is no worker time
+    assert %{kind: :fallback, command: :stop, applied_ns: nil} =
              applied_until(name, &(&1.kind == :fallback and &1.cycle == 0))
 
     assert Cycle.status().restarts == restarts + 1

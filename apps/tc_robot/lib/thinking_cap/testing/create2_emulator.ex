@@ -161,9 +161,7 @@ defmodule ThinkingCap.Testing.Create2Emulator do
   @impl true
   def init(opts) do
     link = Keyword.fetch!(opts, :link)
-    # It stands in for hardware, which does not wait for the BEAM: the
-    # emulator and its UART run at high priority, so that a command is
-    # stamped when it arrives, not when the test's own work lets it run.
+    # hardware does not wait for the BEAM (see the moduledoc)
     Process.flag(:priority, :high)
     {:ok, uart} = UART.start_link(spawn_opt: [priority: :high])
 
