@@ -29,7 +29,7 @@ defmodule ThinkingCap.Bench.Nav do
   alias ThinkingCap.Testing.Lockstep
 
   @root Path.expand("..", __DIR__)
-  @shared Path.expand("../../shared/testdata/ros_maps", __DIR__)
+  @maps Path.expand("../priv/maps", __DIR__)
 
   def run(args) do
     {opts, _, _} =
@@ -72,7 +72,7 @@ defmodule ThinkingCap.Bench.Nav do
 
   # the map, plus beacons spread over its free space
   defp write_world(dir, world) do
-    yaml = Path.join(@shared, "#{world}.yaml")
+    yaml = Path.join(@maps, "#{world}.yaml")
     {:ok, map} = ThinkingCap.Config.RosMap.load(yaml)
     rng = :rand.seed_s(:exsss, {7, 7, 7})
     beacons = beacons(map, beacon_count(map), rng)

@@ -37,7 +37,7 @@ defmodule ThinkingCap.Bench.Planners do
 
   alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, MovingAI}
 
-  @data Path.expand("../../shared/testdata/movingai", __DIR__)
+  @data Path.expand("../test/data/movingai", __DIR__)
   @band 2
 
   def run(args) do

@@ -1,7 +1,7 @@
 defmodule ThinkingCap.Bench.Raycast do
   @moduledoc """
   `mix tc.bench raycast`: rays per second of `ThinkingCap.Sim.Raycast.scan/5`
-  in the 30 m × 50 m warehouse map (`../shared/testdata/ros_maps/warehouse.yaml`),
+  in the 30 m × 50 m warehouse map (`priv/maps/warehouse.yaml`),
   with the simulator benchmark's sensor set per robot: a 180-beam laser
   (180°, 8 m, no reflections; one group per beam) and 16 sonars (15° cone,
   5 m, 3 rays each, max_bounces 2, critical angle 0.26 rad, one crosstalk
@@ -27,7 +27,7 @@ defmodule ThinkingCap.Bench.Raycast do
         [] -> 3
       end
 
-    map_path = Path.expand("../shared/testdata/ros_maps/warehouse.yaml", root())
+    map_path = Path.expand("priv/maps/warehouse.yaml", root())
     {:ok, map} = RosMap.load(map_path)
     {t_new, {:ok, world}} = :timer.tc(fn -> Raycast.new(grid: map) end)
 

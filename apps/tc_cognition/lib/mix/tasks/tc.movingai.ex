@@ -4,7 +4,7 @@ defmodule Mix.Tasks.Tc.Movingai do
   Runs `ThinkingCap.Navigation.AStar` on every problem of a Moving AI
   scenario file and checks its costs against the file's optimal lengths.
 
-      mix tc.movingai ../shared/testdata/movingai/arena.map ../shared/testdata/movingai/arena.map.scen
+      mix tc.movingai test/data/movingai/arena.map test/data/movingai/arena.map.scen
       mix tc.movingai --jobs 2 MAP SCEN
 
   Paths are relative to the current directory. It prints figures per band

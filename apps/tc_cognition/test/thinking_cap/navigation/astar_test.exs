@@ -3,7 +3,7 @@ defmodule ThinkingCap.Navigation.AStarTest do
 
   alias ThinkingCap.Navigation.{AStar, Grid, MovingAI}
 
-  @movingai Path.expand("../../../../../../shared/testdata/movingai", __DIR__)
+  @movingai Path.expand("../../../../../test/data/movingai", __DIR__)
 
   # rows given top first, as drawn; "#" blocked
   defp grid(rows, opts \\ []) do

@@ -3,7 +3,7 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
 
   alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, MovingAI}
 
-  @movingai Path.expand("../../../../../../shared/testdata/movingai", __DIR__)
+  @movingai Path.expand("../../../../../test/data/movingai", __DIR__)
 
   defp valid_path?(grid, path) do
     Enum.all?(path, &Grid.passable?(grid, &1)) and

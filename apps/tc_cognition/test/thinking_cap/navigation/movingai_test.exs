@@ -3,7 +3,7 @@ defmodule ThinkingCap.Navigation.MovingAITest do
 
   alias ThinkingCap.Navigation.{Grid, MovingAI}
 
-  @movingai Path.expand("../../../../../../shared/testdata/movingai", __DIR__)
+  @movingai Path.expand("../../../../../test/data/movingai", __DIR__)
 
   describe "maps" do
     test "arena: dimensions and known cells, rows counted from the bottom" do

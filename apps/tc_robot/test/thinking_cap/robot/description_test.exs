@@ -5,7 +5,7 @@ defmodule ThinkingCap.Robot.DescriptionTest do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Robot.Kinematics.{Differential, Tricycle}
 
-  @turtlebot "/work/shared/testdata/turtlebot3_burger.urdf"
+  @turtlebot Path.expand("../../../../../test/data/turtlebot3_burger.urdf", __DIR__)
   @examples Path.expand("../../../../../priv/examples", __DIR__)
 
   @moduletag :tmp_dir
@@ -16,7 +16,7 @@ defmodule ThinkingCap.Robot.DescriptionTest do
     path
   end
 
-  # `target` relative to `dir` (both absolute): "../../work/shared/..."
+  # `target` relative to `dir` (both absolute): "../../test/data/..."
   defp relative(target, dir) do
     {t, d} = {Path.split(target), Path.split(dir)}
     common = Enum.zip(t, d) |> Enum.take_while(fn {a, b} -> a == b end) |> length()

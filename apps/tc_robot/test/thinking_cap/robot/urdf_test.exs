@@ -3,7 +3,7 @@ defmodule ThinkingCap.Robot.URDFTest do
 
   alias ThinkingCap.Robot.{Kinematics, URDF}
 
-  @turtlebot "/work/shared/testdata/turtlebot3_burger.urdf"
+  @turtlebot Path.expand("../../../../../test/data/turtlebot3_burger.urdf", __DIR__)
   @pi :math.pi()
 
   @moduletag :tmp_dir

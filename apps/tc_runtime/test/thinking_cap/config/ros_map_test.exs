@@ -4,7 +4,7 @@ defmodule ThinkingCap.Config.RosMapTest do
   alias ThinkingCap.Config
   alias ThinkingCap.Config.RosMap
 
-  @maps Path.expand("../../../../../../shared/testdata/ros_maps", __DIR__)
+  @maps Path.expand("../../../../../priv/maps", __DIR__)
 
   @moduletag :tmp_dir
 

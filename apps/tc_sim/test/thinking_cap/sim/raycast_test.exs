@@ -4,7 +4,7 @@ defmodule ThinkingCap.Sim.RaycastTest do
   alias ThinkingCap.Config.RosMap
   alias ThinkingCap.Sim.Raycast
 
-  @maps Path.expand("../../../../../../shared/testdata/ros_maps", __DIR__)
+  @maps Path.expand("../../../../../priv/maps", __DIR__)
   @eps 1.0e-9
 
   defp world!(opts) do
