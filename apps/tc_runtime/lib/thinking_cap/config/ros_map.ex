@@ -57,6 +57,65 @@ defmodule ThinkingCap.Config.RosMap do
     v
   end
 
+  @doc """
+  Saves a map as `map_saver` does: the YAML file at `yaml_path` and, beside
+  it, a binary PGM of the same base name. `map` is a `t()` or any map with
+  `width`, `height`, `resolution`, `origin` (`{x, y}` or `{x, y, yaw}`) and
+  `data` (one byte per cell in this module's layout; 1..99 count as
+  occupied from 65 and free up to 19, as map_saver's default thresholds).
+  Cells are written trinary: occupied black (0), free white (254), unknown
+  grey (205); so `load/1` gives back the trinary map exactly.
+  """
+  @spec save(map(), Path.t()) :: :ok | {:error, String.t()}
+  def save(%{width: w, height: h, resolution: res, origin: origin, data: data}, yaml_path)
+      when is_integer(w) and w > 0 and is_integer(h) and h > 0 and byte_size(data) == w * h do
+    {x, y, yaw} =
+      case origin do
+        {x, y} -> {x, y, 0.0}
+        {x, y, yaw} -> {x, y, yaw}
+      end
+
+    pgm = Path.rootname(yaml_path) <> ".pgm"
+
+    rows =
+      for row <- (h - 1)..0//-1 do
+        for <<v::signed-8 <- binary_part(data, row * w, w)>>, into: <<>>, do: <<pixel(v)>>
+      end
+
+    yaml = """
+    image: #{Path.basename(pgm)}
+    mode: trinary
+    resolution: #{float(res)}
+    origin: [#{float(x)}, #{float(y)}, #{float(yaw)}]
+    negate: 0
+    occupied_thresh: 0.65
+    free_thresh: 0.196
+    """
+
+    with :ok <- write(pgm, ["P5\n# ThinkingCap map\n#{w} #{h}\n255\n" | rows]),
+         :ok <- write(yaml_path, yaml) do
+      :ok
+    end
+  end
+
+  def save(_map, yaml_path),
+    do: {:error, "#{yaml_path}: not saved: the map's data does not hold width × height cells"}
+
+  # map_saver's trinary colours and default thresholds
+  defp pixel(v) when v < 0, do: 205
+  defp pixel(v) when v >= 65, do: 0
+  defp pixel(v) when v <= 19, do: 254
+  defp pixel(_v), do: 205
+
+  defp float(v), do: :erlang.float_to_binary(v * 1.0, [:short])
+
+  defp write(path, iodata) do
+    case File.write(path, iodata) do
+      :ok -> :ok
+      {:error, reason} -> {:error, "cannot write #{path}: #{:file.format_error(reason)}"}
+    end
+  end
+
   @doc "The grid as a list of rows, bottom row first (for tests and tools)."
   @spec rows(t()) :: [[integer()]]
   def rows(%__MODULE__{width: w, data: data}) do

@@ -34,6 +34,48 @@ defmodule ThinkingCap.Config.RosMapTest do
     assert RosMap.cell(grid, 6, 1) == 100
   end
 
+  test "a saved map loads back identically", %{tmp_dir: dir} do
+    for name <- ["testmap", "turtlebot3_world"] do
+      {:ok, map} = RosMap.load(Path.join(@maps, name <> ".yaml"))
+      yaml = Path.join(dir, name <> "_copy.yaml")
+      assert :ok = RosMap.save(map, yaml)
+      assert File.exists?(Path.join(dir, name <> "_copy.pgm"))
+      assert {:ok, back} = RosMap.load(yaml)
+
+      assert {back.width, back.height, back.resolution, back.origin, back.data} ==
+               {map.width, map.height, map.resolution, map.origin, map.data}
+    end
+  end
+
+  test "saving writes map_saver's trinary colours and thresholds", %{tmp_dir: dir} do
+    # -1 unknown, 0 free, 19 free, 20 unknown, 64 unknown, 65 occupied, 100 occupied
+    data = <<-1::signed-8, 0, 19, 20, 64, 65, 100, 0>>
+    map = %{width: 4, height: 2, resolution: 0.1, origin: {1.0, 2.0}, data: data}
+    yaml = Path.join(dir, "m.yaml")
+    assert :ok = RosMap.save(map, yaml)
+    # the image's first row is the grid's top row
+    assert File.read!(Path.join(dir, "m.pgm")) =~ ~r/^P5\n(#[^\n]*\n)?4 2\n255\n/
+
+    assert binary_part(
+             File.read!(Path.join(dir, "m.pgm")),
+             byte_size(File.read!(Path.join(dir, "m.pgm"))) - 8,
+             8
+           ) ==
+             <<205, 0, 0, 254, 205, 254, 254, 205>>
+
+    assert {:ok, back} = RosMap.load(yaml)
+    assert RosMap.rows(back) == [[-1, 0, 0, -1], [-1, 100, 100, 0]]
+    assert back.origin == {1.0, 2.0, 0.0}
+  end
+
+  test "saving a map whose data does not fit its size is refused", %{tmp_dir: dir} do
+    yaml = Path.join(dir, "bad.yaml")
+    map = %{width: 3, height: 3, resolution: 0.1, origin: {0, 0}, data: <<0, 0>>}
+    assert {:error, message} = RosMap.save(map, yaml)
+    assert message =~ "bad.yaml"
+    refute File.exists?(yaml)
+  end
+
   test "the nav2 maps load with their size, resolution and origin" do
     for {name, size, resolution, origin} <- [
           {"turtlebot3_world", {384, 384}, 0.05, {-10.0, -10.0, 0.0}},

@@ -1,0 +1,116 @@
+defmodule ThinkingCap.Navigation.OccupancyGrid do
+  @moduledoc """
+  An occupancy map as the robot publishes, saves and loads it: the layout
+  of ROS's `nav_msgs/OccupancyGrid` and of `map_server`. One byte per cell,
+  row-major from the bottom row (cell `{col, row}` is byte
+  `row * width + col`), read as a signed byte: 0..100 the occupancy in
+  percent, −1 unknown. `origin` is the world position of the lower-left
+  corner of cell `{0, 0}`; cells are axis-aligned squares of `resolution`
+  metres, as in `ThinkingCap.Navigation.Grid`.
+
+  The map builder publishes it as the latest-value tuple
+  `{:map, robot, %OccupancyGrid{}}` (key `{:map, robot}`); `version` grows
+  with every publication and `stamp` is the time of the newest reading it
+  holds. `ThinkingCap.Config.RosMap.save/2` writes it as PGM + YAML.
+  """
+
+  alias ThinkingCap.Config.RosMap
+  alias ThinkingCap.Navigation.Grid
+
+  @enforce_keys [:width, :height, :data]
+  defstruct [:width, :height, :data, resolution: 0.05, origin: {0.0, 0.0}, version: 0, stamp: nil]
+
+  @type t :: %__MODULE__{
+          width: pos_integer(),
+          height: pos_integer(),
+          data: binary(),
+          resolution: float(),
+          origin: {float(), float()},
+          version: non_neg_integer(),
+          stamp: number() | nil
+        }
+
+  @doc """
+  A `width` × `height` map, every cell unknown. Options: `resolution`
+  (default 0.05), `origin` (default `{0, 0}`), `fill` (the value of every
+  cell, default −1).
+  """
+  @spec new(pos_integer(), pos_integer(), keyword()) :: t()
+  def new(width, height, opts \\ []) do
+    fill = Keyword.get(opts, :fill, -1)
+
+    %__MODULE__{
+      width: width,
+      height: height,
+      data: :binary.copy(<<fill::signed-8>>, width * height),
+      resolution: Keyword.get(opts, :resolution, 0.05) * 1.0,
+      origin: Keyword.get(opts, :origin, {0.0, 0.0})
+    }
+  end
+
+  @doc """
+  A loaded `map_server` map. Its origin's yaw must be 0: maps here are
+  axis-aligned (an `ArgumentError` says so otherwise).
+  """
+  @spec from_ros_map(RosMap.t()) :: t()
+  def from_ros_map(%RosMap{origin: {x, y, yaw}} = map) do
+    if abs(yaw) > 1.0e-9,
+      do:
+        raise(ArgumentError, "#{map.file}: the map's origin has a yaw of #{yaw} rad (must be 0)")
+
+    %__MODULE__{
+      width: map.width,
+      height: map.height,
+      data: map.data,
+      resolution: map.resolution,
+      origin: {x, y}
+    }
+  end
+
+  @doc "Loads a `map_server` map (YAML + PGM)."
+  @spec load(Path.t()) :: {:ok, t()} | {:error, String.t()}
+  def load(yaml_path) do
+    with {:ok, map} <- RosMap.load(yaml_path) do
+      {:ok, from_ros_map(map)}
+    end
+  rescue
+    e in ArgumentError -> {:error, Exception.message(e)}
+  end
+
+  @doc "Saves the map as `map_server` does (`ThinkingCap.Config.RosMap.save/2`)."
+  @spec save(t(), Path.t()) :: :ok | {:error, String.t()}
+  def save(%__MODULE__{} = map, yaml_path), do: RosMap.save(map, yaml_path)
+
+  @doc "The value of a cell: −1 unknown (also outside the map), 0..100 occupancy."
+  @spec value(t(), Grid.cell()) :: -1..100
+  def value(%__MODULE__{width: w, height: h, data: data}, {c, r})
+      when c >= 0 and r >= 0 and c < w and r < h do
+    <<_::binary-size(r * w + c), v::signed-8, _::binary>> = data
+    v
+  end
+
+  def value(_map, _cell), do: -1
+
+  @doc "The cell holding a world point (it may lie outside the map)."
+  @spec cell_of(t(), {number(), number()}) :: Grid.cell()
+  def cell_of(%__MODULE__{origin: {ox, oy}, resolution: r}, {x, y}),
+    do: {floor((x - ox) / r), floor((y - oy) / r)}
+
+  @doc """
+  A planning grid: cells of occupancy at least `threshold` (default 50)
+  blocked; unknown cells blocked with `unknown: :blocked` (the default) or
+  passable with `unknown: :free`.
+  """
+  @spec to_grid(t(), keyword()) :: Grid.t()
+  def to_grid(%__MODULE__{} = map, opts \\ []) do
+    threshold = Keyword.get(opts, :threshold, 50)
+    unknown = if Keyword.get(opts, :unknown, :blocked) == :blocked, do: 1, else: 0
+    lut = List.to_tuple(for v <- 0..255, do: blocked(v, threshold, unknown))
+    cells = for <<v <- map.data>>, into: <<>>, do: <<elem(lut, v)>>
+    Grid.new(map.width, map.height, cells: cells, resolution: map.resolution, origin: map.origin)
+  end
+
+  defp blocked(v, _threshold, unknown) when v > 127, do: unknown
+  defp blocked(v, threshold, _unknown) when v >= threshold, do: 1
+  defp blocked(_v, _threshold, _unknown), do: 0
+end

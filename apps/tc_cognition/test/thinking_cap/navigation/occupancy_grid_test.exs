@@ -1,0 +1,55 @@
+defmodule ThinkingCap.Navigation.OccupancyGridTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{Grid, OccupancyGrid}
+
+  @maps Path.expand("../../../../../priv/maps", __DIR__)
+
+  @moduletag :tmp_dir
+
+  test "a new map is unknown everywhere, and outside it too" do
+    map = OccupancyGrid.new(3, 2, resolution: 0.1, origin: {1.0, 1.0})
+    assert OccupancyGrid.value(map, {2, 1}) == -1
+    assert OccupancyGrid.value(map, {3, 0}) == -1
+    assert OccupancyGrid.cell_of(map, {1.25, 1.15}) == {2, 1}
+  end
+
+  test "a map_server map loads, converts to a planning grid and saves back", %{tmp_dir: dir} do
+    assert {:ok, map} = OccupancyGrid.load(Path.join(@maps, "turtlebot3_world.yaml"))
+    assert {map.width, map.height, map.origin} == {384, 384, {-10.0, -10.0}}
+    # the map's corner is unknown, a point of its floor free
+    assert OccupancyGrid.value(map, {0, 0}) == -1
+    assert OccupancyGrid.value(map, OccupancyGrid.cell_of(map, {-2.0, -0.5})) == 0
+    grid = OccupancyGrid.to_grid(map)
+    refute Grid.passable?(grid, {0, 0})
+    assert Grid.passable?(grid, OccupancyGrid.cell_of(map, {-2.0, -0.5}))
+    assert Grid.passable?(OccupancyGrid.to_grid(map, unknown: :free), {0, 0})
+
+    path = Path.join(dir, "saved.yaml")
+    assert :ok = OccupancyGrid.save(map, path)
+    assert {:ok, back} = OccupancyGrid.load(path)
+    assert back.data == map.data
+  end
+
+  test "unknown cells are blocked by default and passable on request" do
+    map = %{OccupancyGrid.new(2, 1) | data: <<-1::signed-8, 70>>}
+    assert OccupancyGrid.to_grid(map).cells == <<1, 1>>
+    assert OccupancyGrid.to_grid(map, unknown: :free).cells == <<0, 1>>
+    assert OccupancyGrid.to_grid(map, unknown: :free, threshold: 80).cells == <<0, 0>>
+  end
+
+  test "a map whose origin is rotated is refused with its name", %{tmp_dir: _dir} do
+    assert {:error, message} = OccupancyGrid.load(Path.join(@maps, "testmap.yaml"))
+    assert message =~ "testmap.yaml" and message =~ "yaw"
+  end
+
+  test "a missing or corrupt map file is an error naming it", %{tmp_dir: dir} do
+    assert {:error, message} = OccupancyGrid.load(Path.join(dir, "none.yaml"))
+    assert message =~ "none.yaml"
+    yaml = Path.join(dir, "bad.yaml")
+    File.write!(yaml, "image: bad.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    File.write!(Path.join(dir, "bad.pgm"), "P5\n10 10\n255\n\0\0")
+    assert {:error, message} = OccupancyGrid.load(yaml)
+    assert message =~ "bad.pgm"
+  end
+end
