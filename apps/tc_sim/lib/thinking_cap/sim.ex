@@ -149,6 +149,16 @@ defmodule ThinkingCap.Sim do
   @spec pose(sim(), robot()) :: {:ok, {float(), float(), float()}} | {:error, :no_robot}
   def pose(sim, id), do: GenServer.call(sim, {:get, id, :pose})
 
+  @doc """
+  Moves a robot to `pose` (a point, a pose or a waypoint's name) without
+  its knowing: its odometry carries on from where it was, as when a robot
+  is carried away (a kidnapping). Refused if the robot would overlap
+  something there.
+  """
+  @spec teleport(sim(), robot(), atom() | {number(), number()} | {number(), number(), number()}) ::
+          :ok | {:error, :no_robot | String.t()}
+  def teleport(sim, id, pose), do: GenServer.call(sim, {:teleport, id, pose})
+
   @doc "A robot's odometry pose (where its encoders think it is, from `{0, 0, 0}`)."
   @spec odometry(sim(), robot()) :: {:ok, {float(), float(), float()}} | {:error, :no_robot}
   def odometry(sim, id), do: GenServer.call(sim, {:get, id, :odom})

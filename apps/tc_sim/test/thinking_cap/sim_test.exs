@@ -302,6 +302,30 @@ defmodule ThinkingCap.SimTest do
     end
   end
 
+  describe "kidnapping" do
+    test "a teleported robot is elsewhere while its odometry carries on", %{tmp_dir: dir} do
+      shelf = [name: :shelf, polygon: [{6, 4}, {8, 4}, {8, 6}, {6, 6}]]
+      sim = sim(T.world!(dir, walls: T.box(10, 10), obstacles: [shelf]))
+      robot = T.robot!(dir, sensors: [@laser, [name: :odom, type: :odometry, rate: 100]])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {2, 2, 0}, owner: self())
+      Sim.command(sim, :r, {:velocity, 0.5, 0.0})
+      :ok = Sim.run_for(sim, 1.0)
+      {:ok, odom} = Sim.odometry(sim, :r)
+
+      assert :ok = Sim.teleport(sim, :r, {3, 8, :math.pi()})
+      assert {:ok, {3.0, 8.0, th}} = Sim.pose(sim, :r)
+      assert_in_delta th, :math.pi(), 1.0e-9
+      assert {:ok, ^odom} = Sim.odometry(sim, :r)
+      # the laser now sees the west wall 3 m ahead
+      [scan] = collect(sim, :r, 1, :laser)
+      assert_in_delta Enum.at(scan.ranges, 90), 3.0, 0.02
+
+      assert {:error, message} = Sim.teleport(sim, :r, {7, 5, 0})
+      assert message =~ "overlaps"
+      assert {:error, :no_robot} = Sim.teleport(sim, :nobody, {3, 3, 0})
+    end
+  end
+
   describe "clock" do
     test "pause, single step, reset and determinism for a seed", %{tmp_dir: dir} do
       world = T.world!(dir, walls: T.box(10, 10) ++ [{{3, 3}, {7, 7}}])

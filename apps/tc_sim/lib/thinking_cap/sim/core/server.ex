@@ -100,6 +100,11 @@ defmodule ThinkingCap.Sim.Core.Server do
     end
   end
 
+  defp ok_or({:ok, value}, _reason), do: {:ok, value}
+  defp ok_or(:error, reason), do: {:error, reason}
+
+  defp occupied(pose), do: "ThinkingCap.Sim: #{inspect(pose)} overlaps a wall or a robot"
+
   ## Stepping
 
   # :fast mode steps through its own mailbox (so calls are answered between
@@ -242,6 +247,20 @@ defmodule ThinkingCap.Sim.Core.Server do
 
       _ ->
         {:reply, {:error, :no_robot}, state}
+    end
+  end
+
+  def handle_call({:teleport, id, at}, _from, state) do
+    with {:ok, {index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
+         {:ok, {x, y, _} = pose} <- World.resolve_pose(state.world, at),
+         {_, _, radius} = Map.fetch!(state.bodies, index),
+         true <- World.free?(state.world, {x, y}, radius, index) || {:error, occupied(pose)},
+         :ok <- GenServer.call(shard, {:teleport, id, pose}) do
+      bodies = Map.put(state.bodies, index, {x, y, radius})
+      set_bodies(state.world, bodies, state.next_index)
+      {:reply, :ok, %{state | bodies: bodies}}
+    else
+      {:error, reason} -> {:reply, {:error, reason}, state}
     end
   end
 

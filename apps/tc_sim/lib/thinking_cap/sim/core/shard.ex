@@ -36,6 +36,13 @@ defmodule ThinkingCap.Sim.Core.Shard do
   def handle_call({:remove, id}, _from, state),
     do: {:reply, :ok, %{state | bodies: Map.delete(state.bodies, id)}}
 
+  def handle_call({:teleport, id, pose}, _from, state) do
+    case state.bodies do
+      %{^id => body} -> {:reply, :ok, put_in(state.bodies[id], %{body | pose: pose})}
+      _ -> {:reply, {:error, :no_robot}, state}
+    end
+  end
+
   def handle_call({:attach, id, owner}, _from, state) do
     case state.bodies do
       %{^id => body} ->
