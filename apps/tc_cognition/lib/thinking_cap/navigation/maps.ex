@@ -33,7 +33,7 @@ defmodule ThinkingCap.Navigation.Maps do
   """
 
   alias ThinkingCap.Config.{RosMap, WDF}
-  alias ThinkingCap.Navigation.Grid
+  alias ThinkingCap.Navigation.{Grid, OccupancyGrid}
   alias ThinkingCap.Navigation.Maps.Raster
 
   @eps 1.0e-9
@@ -162,6 +162,38 @@ defmodule ThinkingCap.Navigation.Maps do
     %{grid | cells: IO.iodata_to_binary(rows)}
   end
 
+  @doc """
+  What a world says of the cells of `grid` (a grid from `grid_from_wdf/2`
+  of the same world), as an occupancy grid: its walls, obstacles and
+  closed doors occupied (100), the cells of its imported `map_server` map
+  as the map has them, the rest unknown (−1). The map builder starts from
+  it.
+  """
+  @spec prior(WDF.t(), Grid.t()) :: OccupancyGrid.t()
+  def prior(%WDF{} = wdf, %Grid{width: w, height: h} = grid) do
+    {ox, oy} = grid.origin
+    raw = base_rows(wdf.grid, {ox, oy, grid.resolution, w, h}, fill: 255, lut: :raw)
+
+    data =
+      raw
+      |> Enum.with_index()
+      |> Enum.map(fn {row, r} ->
+        blocked = binary_part(grid.cells, r * w, w)
+
+        Enum.zip_with(:binary.bin_to_list(row), :binary.bin_to_list(blocked), fn v, b ->
+          if b == 1, do: 100, else: v
+        end)
+      end)
+
+    %OccupancyGrid{
+      width: w,
+      height: h,
+      data: IO.iodata_to_binary(data),
+      resolution: grid.resolution,
+      origin: grid.origin
+    }
+  end
+
   @doc "The number of blocked cells of a grid."
   @spec blocked_count(Grid.t()) :: non_neg_integer()
   def blocked_count(%Grid{cells: cells}),
@@ -274,16 +306,28 @@ defmodule ThinkingCap.Navigation.Maps do
     end
   end
 
-  # the occupancy map's cells where the grid has them, the rest passable
-  defp base_rows(nil, {_ox, _oy, _res, w, h}, _opts), do: List.duplicate(Raster.fill(0, w), h)
+  # the occupancy map's cells where the grid has them (blocked or
+  # passable, or as they are with `lut: :raw`), the rest `fill` (passable)
+  defp base_rows(nil, {_ox, _oy, _res, w, h}, opts),
+    do: List.duplicate(Raster.fill(Keyword.get(opts, :fill, 0), w), h)
 
   defp base_rows(%RosMap{} = map, {ox, oy, res, w, h}, opts) do
     {mx, my, _} = map.origin
     col0 = round((mx - ox) / res)
     row0 = round((my - oy) / res)
-    lut = lut(Keyword.get(opts, :unknown, :blocked), Keyword.get(opts, :occupied_threshold, 50))
-    converted = convert(map.data, lut)
-    zero = Raster.fill(0, w)
+
+    converted =
+      case Keyword.get(opts, :lut) do
+        :raw ->
+          map.data
+
+        nil ->
+          lut(Keyword.get(opts, :unknown, :blocked), Keyword.get(opts, :occupied_threshold, 50))
+          |> then(&convert(map.data, &1))
+      end
+
+    fill = Keyword.get(opts, :fill, 0)
+    zero = Raster.fill(fill, w)
 
     for r <- 0..(h - 1) do
       mr = r - row0
@@ -302,7 +346,7 @@ defmodule ThinkingCap.Navigation.Maps do
           left = col0 + first
           middle = binary_part(src, first, last - first)
           right = w - left - byte_size(middle)
-          IO.iodata_to_binary([Raster.fill(0, left), middle, Raster.fill(0, right)])
+          IO.iodata_to_binary([Raster.fill(fill, left), middle, Raster.fill(fill, right)])
         end
       end
     end

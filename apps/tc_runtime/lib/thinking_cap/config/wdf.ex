@@ -111,6 +111,17 @@ defmodule ThinkingCap.Config.WDF do
 
   @named [:obstacles, :rooms, :corridors, :doors, :beacons, :areas, :waypoints]
 
+  @doc """
+  Whether a world says nothing of its geometry: no walls, obstacles, rooms,
+  corridors, doors or occupancy map (beacons, areas and waypoints may be
+  given). A robot in such a world starts from what it senses.
+  """
+  @spec empty?(t()) :: boolean()
+  def empty?(%__MODULE__{} = wdf) do
+    wdf.grid == nil and
+      Enum.all?([wdf.walls, wdf.obstacles, wdf.rooms, wdf.corridors, wdf.doors], &(&1 == []))
+  end
+
   @doc false
   @spec from_data(term(), Path.t(), map()) ::
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}

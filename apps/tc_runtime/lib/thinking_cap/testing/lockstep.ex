@@ -19,7 +19,9 @@ defmodule ThinkingCap.Testing.Lockstep do
 
   A module spec is `{module, params}` or `{module, params, opts}` with
   `period: seconds` (a periodic module; without it only tuples reach the
-  module) and `subscribe: [template]` (as in an ADF). Every tuple
+  module), `subscribe: [template]` (as in an ADF) and `rdf:` / `wdf:`
+  (this module's description files instead of the stack's: a map builder
+  told nothing of a world the simulator knows, say). Every tuple
   written (`:out` actions) is kept as the latest of its `key:` (or of its
   tag and robot), delivered to the subscribers of matching templates, and
   remembered in `outs/1` until `clear_outs/1`. The `:command` of a cycle is
@@ -53,7 +55,12 @@ defmodule ThinkingCap.Testing.Lockstep do
       {module, params, opts} = spec(spec)
       period = opts[:period]
       activity = if period, do: :periodic, else: :event
-      context = Map.merge(lock.context, %{name: name, activity: activity})
+
+      context =
+        lock.context
+        |> Map.merge(%{name: name, activity: activity})
+        |> Map.merge(Map.new(Keyword.take(opts, [:rdf, :wdf])))
+
       {actions, mstate} = normalize(module.init(params, context))
 
       entry = %{module: module, state: mstate, period: period, next: 0.0, cycle: 0}

@@ -16,6 +16,8 @@ defmodule ThinkingCap.Navigation.Maps.Segments do
   """
 
   alias ThinkingCap.Config.WDF
+  alias ThinkingCap.Navigation.OccupancyGrid
+  alias ThinkingCap.Navigation.Core.GridNif
 
   @type point :: {float(), float()}
   @type segment :: {point(), point()}
@@ -69,6 +71,127 @@ defmodule ThinkingCap.Navigation.Maps.Segments do
     |> Enum.filter(fn {{x1, y1}, {x2, y2}} ->
       :math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2) >= min_length
     end)
+  end
+
+  @doc """
+  The walls of an occupancy grid as fuzzy segments `{a, b, degree}`: the
+  obstacle cells (occupancy at least `threshold`, default 50) that touch a
+  known free cell, chained into contours (each cell to an unvisited
+  neighbour: straight on first, then sides, then corners), fitted with `fit/2` (`threshold` 1.5
+  cells, `max_gap` 2.5 cells, `min_points` 5, `min_length` 0.3 m), each
+  with the mean occupancy of the cells near it (within 1.5 cells) as its
+  degree in [0, 1].
+  """
+  @spec from_occupancy(OccupancyGrid.t(), keyword()) :: [{point(), point(), float()}]
+  def from_occupancy(%OccupancyGrid{width: w, height: h} = map, opts \\ []) do
+    threshold = Keyword.get(opts, :threshold, 50)
+    res = map.resolution
+
+    free =
+      for <<v::signed-8 <- map.data>>,
+        into: <<>>,
+        do: <<if(v >= 0 and v < threshold, do: 1, else: 0)>>
+
+    near_free = GridNif.inflate(free, w, h, 1.0)
+
+    border =
+      for {i, _} <- :binary.matches(near_free, <<1>>),
+          value = :binary.at(map.data, i),
+          value < 128 and value >= threshold,
+          into: %{},
+          do: {{rem(i, w), div(i, w)}, value}
+
+    border
+    |> chains()
+    |> Enum.flat_map(&cut_reversals/1)
+    |> Enum.flat_map(fn chain ->
+      points = Enum.map(chain, &centre(map, &1))
+
+      points
+      |> fit(threshold: 1.5 * res, max_gap: 2.5 * res, min_points: 5, min_length: 0.3)
+      |> Enum.map(fn {a, b} -> {a, b, degree(map, chain, border, {a, b})} end)
+    end)
+  end
+
+  defp centre(%OccupancyGrid{origin: {ox, oy}, resolution: r}, {c, w}),
+    do: {ox + (c + 0.5) * r, oy + (w + 0.5) * r}
+
+  defp degree(map, chain, border, segment) do
+    near =
+      for cell <- chain,
+          distance(centre(map, cell), segment) <= 1.5 * map.resolution,
+          do: Map.fetch!(border, cell)
+
+    if near == [], do: 1.0, else: Enum.sum(near) / length(near) / 100
+  end
+
+  @steps [{1, 0}, {0, 1}, {-1, 0}, {0, -1}, {1, 1}, {-1, 1}, {-1, -1}, {1, -1}]
+
+  # the cells chained into contours. A contour starts at a cell with the
+  # fewest neighbours (the end of a wall) and walks one way, straight on
+  # while it can (so a wall meeting another at a T, or the second row of
+  # a wall two cells thick, is a contour of its own), else to a side
+  # neighbour, else a corner one
+  defp chains(cells) do
+    neighbours = fn {c, r} ->
+      Enum.count(@steps, fn {dc, dr} -> Map.has_key?(cells, {c + dc, r + dr}) end)
+    end
+
+    {chains, _} =
+      cells
+      |> Map.keys()
+      |> Enum.sort_by(&{neighbours.(&1), &1})
+      |> Enum.reduce({[], MapSet.new()}, fn cell, {chains, seen} ->
+        if MapSet.member?(seen, cell) do
+          {chains, seen}
+        else
+          {forward, seen} = walk(cell, nil, cells, MapSet.put(seen, cell), [])
+          {[[cell | forward] | chains], seen}
+        end
+      end)
+
+    Enum.reverse(chains)
+  end
+
+  # a contour that turns back on itself (round the end of a wall two
+  # cells thick) is cut where it turns: two cells back and two on point
+  # more than 120° apart
+  defp cut_reversals(chain) when length(chain) < 5, do: [chain]
+
+  defp cut_reversals(chain) do
+    t = List.to_tuple(chain)
+    n = tuple_size(t)
+
+    cuts =
+      for i <- 2..(n - 3),
+          {ax, ay} = sub(elem(t, i), elem(t, i - 2)),
+          {bx, by} = sub(elem(t, i + 2), elem(t, i)),
+          ax * bx + ay * by < -0.5 * :math.sqrt((ax * ax + ay * ay) * (bx * bx + by * by)),
+          do: i
+
+    cuts
+    |> Enum.reduce({[], 0}, fn i, {pieces, from} ->
+      if i - from >= 2, do: {[{from, i} | pieces], i + 1}, else: {pieces, from}
+    end)
+    |> then(fn {pieces, from} -> Enum.reverse([{from, n - 1} | pieces]) end)
+    |> Enum.map(fn {a, b} -> Enum.slice(chain, a..b) end)
+  end
+
+  defp sub({a, b}, {c, d}), do: {a - c, b - d}
+
+  defp walk({c, r}, heading, cells, seen, acc) do
+    steps = if heading, do: [heading | @steps], else: @steps
+
+    next =
+      Enum.find_value(steps, fn {dc, dr} = step ->
+        n = {c + dc, r + dr}
+        if Map.has_key?(cells, n) and not MapSet.member?(seen, n), do: {n, step}
+      end)
+
+    case next do
+      nil -> {Enum.reverse(acc), seen}
+      {n, step} -> walk(n, step, cells, MapSet.put(seen, n), [n | acc])
+    end
   end
 
   @doc "The distance from a point to a segment, m."

@@ -1,0 +1,632 @@
+/*
+ * tc_grid: the grid NIF of ThinkingCap's navigation layer
+ * (ThinkingCap.Navigation.Core.GridNif; see ThinkingCap.Navigation.Mapper
+ * and ThinkingCap.Navigation.CostMap for what uses it).
+ *
+ * Two parts:
+ *
+ *  - A fuzzy grid map as a resource: per cell two degrees in [0, 1], how
+ *    much it is believed empty (E) and occupied (O), kept as 16-bit
+ *    fractions. Rays (angle, range, k_empty, k_occupied) from a sensor
+ *    position are traversed cell by cell (Amanatides & Woo); within one
+ *    call a cell takes the largest contribution of its rays (fuzzy union,
+ *    max), then every touched cell is updated:
+ *        O' = O (1 - le e),  E' = E (1 - lo o)           (fading)
+ *        E'' = E' + e - E' e,    O'' = O' + o - O' o     (algebraic sum)
+ *    so evidence accumulates as readings agree, and what the sensors now
+ *    see empty (an obstacle that left) fades out of the occupied degree.
+ *
+ *  - Pure functions on byte grids (row-major from the bottom row): the
+ *    exact Euclidean distance transform (Felzenszwalb & Huttenlocher),
+ *    inflation, the difference of two grids, connected components and
+ *    region growing (the room segmentation of the topological map).
+ *
+ * Every function checks its arguments and returns badarg, never crashes.
+ * Work proportional to a whole map runs on a dirty CPU scheduler.
+ */
+#include <erl_nif.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_CELLS (64L * 1024 * 1024)
+#define MAX_RAYS 8192
+#define MAX_STEPS 20000
+#define FRAC 65535.0
+
+typedef struct {
+    ErlNifMutex *lock;
+    int w, h;
+    double res, ox, oy;
+    uint16_t *e, *o;   /* degrees */
+    uint16_t *se, *so; /* this call's contributions (zero between calls) */
+    int32_t *touched;
+    long ntouched, cap;
+    int bx0, by0, bx1, by1; /* bounding box of observed cells; bx1 < bx0: none */
+} FMap;
+
+static ErlNifResourceType *FMAP_TYPE;
+static ERL_NIF_TERM ATOM_OK, ATOM_NIL, ATOM_ERROR;
+
+static void fmap_free(ErlNifEnv *env, void *obj)
+{
+    (void)env;
+    FMap *m = (FMap *)obj;
+    free(m->e);
+    free(m->o);
+    free(m->se);
+    free(m->so);
+    free(m->touched);
+    if (m->lock) enif_mutex_destroy(m->lock);
+}
+
+static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
+{
+    (void)priv;
+    (void)info;
+    FMAP_TYPE = enif_open_resource_type(env, NULL, "tc_grid_fmap", fmap_free,
+                                        ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
+    ATOM_OK = enif_make_atom(env, "ok");
+    ATOM_NIL = enif_make_atom(env, "nil");
+    ATOM_ERROR = enif_make_atom(env, "error");
+    return FMAP_TYPE == NULL;
+}
+
+static int upgrade(ErlNifEnv *env, void **priv, void **old, ERL_NIF_TERM info)
+{
+    (void)old;
+    return load(env, priv, info);
+}
+
+static int get_number(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
+{
+    long l;
+    if (enif_get_double(env, t, out)) return isfinite(*out);
+    if (enif_get_long(env, t, &l)) {
+        *out = (double)l;
+        return 1;
+    }
+    return 0;
+}
+
+static void widen(FMap *m, int c, int r)
+{
+    if (m->bx1 < m->bx0) {
+        m->bx0 = m->bx1 = c;
+        m->by0 = m->by1 = r;
+        return;
+    }
+    if (c < m->bx0) m->bx0 = c;
+    if (c > m->bx1) m->bx1 = c;
+    if (r < m->by0) m->by0 = r;
+    if (r > m->by1) m->by1 = r;
+}
+
+/* fmap_new(width, height, resolution, origin_x, origin_y) */
+static ERL_NIF_TERM nif_fmap_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    int w, h;
+    double res, ox, oy;
+    if (!enif_get_int(env, argv[0], &w) || !enif_get_int(env, argv[1], &h) || w <= 0 || h <= 0 ||
+        (long)w * h > MAX_CELLS || !get_number(env, argv[2], &res) || res <= 0 ||
+        !get_number(env, argv[3], &ox) || !get_number(env, argv[4], &oy))
+        return enif_make_badarg(env);
+
+    FMap *m = enif_alloc_resource(FMAP_TYPE, sizeof(FMap));
+    memset(m, 0, sizeof(FMap));
+    size_t n = (size_t)w * h;
+    m->w = w;
+    m->h = h;
+    m->res = res;
+    m->ox = ox;
+    m->oy = oy;
+    m->e = calloc(n, sizeof(uint16_t));
+    m->o = calloc(n, sizeof(uint16_t));
+    m->se = calloc(n, sizeof(uint16_t));
+    m->so = calloc(n, sizeof(uint16_t));
+    m->cap = 4096;
+    m->touched = malloc(m->cap * sizeof(int32_t));
+    m->lock = enif_mutex_create("tc_grid_fmap");
+    m->bx0 = 0;
+    m->bx1 = -1;
+    if (!m->e || !m->o || !m->se || !m->so || !m->touched || !m->lock) {
+        enif_release_resource(m);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    ERL_NIF_TERM t = enif_make_resource(env, m);
+    enif_release_resource(m);
+    return t;
+}
+
+static int touch(FMap *m, long i)
+{
+    if (m->se[i] == 0 && m->so[i] == 0) {
+        if (m->ntouched == m->cap) {
+            long cap = m->cap * 2;
+            int32_t *t = realloc(m->touched, cap * sizeof(int32_t));
+            if (!t) return 0;
+            m->touched = t;
+            m->cap = cap;
+        }
+        m->touched[m->ntouched++] = (int32_t)i;
+    }
+    return 1;
+}
+
+static int contribute(FMap *m, int c, int r, double e, double o)
+{
+    if (c < 0 || r < 0 || c >= m->w || r >= m->h) return 1;
+    long i = (long)r * m->w + c;
+    uint16_t qe = (uint16_t)lround(fmin(fmax(e, 0.0), 1.0) * FRAC);
+    uint16_t qo = (uint16_t)lround(fmin(fmax(o, 0.0), 1.0) * FRAC);
+    if (qe == 0 && qo == 0) return 1;
+    if (!touch(m, i)) return 0;
+    if (qe > m->se[i]) m->se[i] = qe;
+    if (qo > m->so[i]) m->so[i] = qo;
+    return 1;
+}
+
+/* Walks the cells from (x0, y0) to (x1, y1), world metres: every cell
+ * before the last gets e_near fading with distance, the last one e_end /
+ * o_end. */
+static int trace(FMap *m, double x0, double y0, double x1, double y1, double k_e, double k_o,
+                 double fade, double range_max, int hit, double margin)
+{
+    double u0 = (x0 - m->ox) / m->res, v0 = (y0 - m->oy) / m->res;
+    double u1 = (x1 - m->ox) / m->res, v1 = (y1 - m->oy) / m->res;
+    long c = (long)floor(u0), r = (long)floor(v0);
+    long ce = (long)floor(u1), re = (long)floor(v1);
+    double du = u1 - u0, dv = v1 - v0;
+    int sc = du > 0 ? 1 : (du < 0 ? -1 : 0), sr = dv > 0 ? 1 : (dv < 0 ? -1 : 0);
+    double tdc = sc ? fabs(1.0 / du) : INFINITY, tdr = sr ? fabs(1.0 / dv) : INFINITY;
+    double tmc = sc > 0 ? (c + 1 - u0) / du : (sc < 0 ? (u0 - c) / -du : INFINITY);
+    double tmr = sr > 0 ? (r + 1 - v0) / dv : (sr < 0 ? (v0 - r) / -dv : INFINITY);
+    long n = labs(ce - c) + labs(re - r);
+    if (n > MAX_STEPS) n = MAX_STEPS;
+    double ex = x1 - x0, ey = y1 - y0, length = sqrt(ex * ex + ey * ey);
+    /* before an echo, free space ends `margin` short of it */
+    double free_to = hit ? length - margin : length;
+    for (long k = 0; k < n; k++) {
+        double cx = m->ox + (c + 0.5) * m->res - x0, cy = m->oy + (r + 0.5) * m->res - y0;
+        double d = sqrt(cx * cx + cy * cy);
+        double f = fmax(0.0, 1.0 - fade * d / range_max);
+        if (d < free_to && !contribute(m, (int)c, (int)r, k_e * f, 0.0)) return 0;
+        if (tmc < tmr) {
+            c += sc;
+            tmc += tdc;
+        } else {
+            r += sr;
+            tmr += tdr;
+        }
+    }
+    double f = fmax(0.0, 1.0 - fade * length / range_max);
+    return hit ? contribute(m, (int)c, (int)r, 0.0, k_o * f)
+               : contribute(m, (int)c, (int)r, k_e * f, 0.0);
+}
+
+/* fmap_integrate(map, sx, sy, rays, range_max, fade, {le, lo}, margin): rays
+ * packs native doubles {angle, range, k_empty, k_occupied} per ray; a ray
+ * with k_occupied > 0 and a range below range_max ends in an echo
+ * (occupied), otherwise in free space. Returns the number of cells whose
+ * degrees changed. */
+static ERL_NIF_TERM nif_fmap_integrate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    ErlNifBinary rays;
+    double sx, sy, range_max, fade, le, lo, margin;
+    int arity;
+    const ERL_NIF_TERM *lambdas;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !get_number(env, argv[1], &sx) || !get_number(env, argv[2], &sy) ||
+        !enif_inspect_binary(env, argv[3], &rays) || rays.size % (4 * sizeof(double)) != 0 ||
+        rays.size / (4 * sizeof(double)) > MAX_RAYS || !get_number(env, argv[4], &range_max) ||
+        range_max <= 0 || range_max / m->res > MAX_STEPS || !get_number(env, argv[5], &fade) ||
+        !enif_get_tuple(env, argv[6], &arity, &lambdas) || arity != 2 ||
+        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
+        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
+        !get_number(env, argv[7], &margin) || margin < 0)
+        return enif_make_badarg(env);
+
+    size_t n = rays.size / (4 * sizeof(double));
+    const double *ray = (const double *)rays.data;
+    int ok = 1;
+    enif_mutex_lock(m->lock);
+    m->ntouched = 0;
+    for (size_t i = 0; i < n && ok; i++) {
+        double a = ray[4 * i], range = ray[4 * i + 1], k_e = ray[4 * i + 2], k_o = ray[4 * i + 3];
+        if (!isfinite(a) || !isfinite(range) || !isfinite(k_e) || !isfinite(k_o) || range < 0)
+            continue;
+        int hit = k_o > 0 && range < range_max;
+        /* an echo marks the cell just beyond the surface it came from: a
+         * surface on a cell boundary always lands on its own side */
+        double d = hit ? range + 0.3 * m->res : fmin(range, range_max);
+        ok = trace(m, sx, sy, sx + d * cos(a), sy + d * sin(a), k_e, k_o, fade, range_max, hit,
+                   margin);
+    }
+    long changed = 0;
+    for (long k = 0; k < m->ntouched; k++) {
+        long i = m->touched[k];
+        double e = m->se[i] / FRAC, o = m->so[i] / FRAC;
+        double E = m->e[i] / FRAC, O = m->o[i] / FRAC;
+        O *= 1.0 - le * e;
+        E *= 1.0 - lo * o;
+        E = E + e - E * e;
+        O = O + o - O * o;
+        uint16_t qe = (uint16_t)lround(E * FRAC), qo = (uint16_t)lround(O * FRAC);
+        if (qe != m->e[i] || qo != m->o[i]) changed++;
+        m->e[i] = qe;
+        m->o[i] = qo;
+        m->se[i] = m->so[i] = 0;
+        widen(m, (int)(i % m->w), (int)(i / m->w));
+    }
+    m->ntouched = 0;
+    enif_mutex_unlock(m->lock);
+    if (!ok) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    return enif_make_long(env, changed);
+}
+
+/* fmap_occupancy(map, c0, r0, w, h, known): the window's cells as signed
+ * bytes: -1 where neither degree reaches `known`, else
+ * round(100 min(O, 1 - E)). */
+static ERL_NIF_TERM nif_fmap_occupancy(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    int c0, r0, w, h;
+    double known;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !enif_get_int(env, argv[1], &c0) || !enif_get_int(env, argv[2], &r0) ||
+        !enif_get_int(env, argv[3], &w) || !enif_get_int(env, argv[4], &h) || w <= 0 || h <= 0 ||
+        c0 < 0 || r0 < 0 || c0 + w > m->w || r0 + h > m->h || !get_number(env, argv[5], &known))
+        return enif_make_badarg(env);
+    ERL_NIF_TERM out;
+    int8_t *p = (int8_t *)enif_make_new_binary(env, (size_t)w * h, &out);
+    uint16_t qk = (uint16_t)lround(fmin(fmax(known, 0.0), 1.0) * FRAC);
+    enif_mutex_lock(m->lock);
+    for (int r = 0; r < h; r++) {
+        const uint16_t *E = m->e + (long)(r0 + r) * m->w + c0;
+        const uint16_t *O = m->o + (long)(r0 + r) * m->w + c0;
+        for (int c = 0; c < w; c++) {
+            if (E[c] < qk && O[c] < qk) {
+                p[(long)r * w + c] = -1;
+            } else {
+                double occ = fmin(O[c] / FRAC, 1.0 - E[c] / FRAC);
+                p[(long)r * w + c] = (int8_t)lround(100.0 * fmax(occ, 0.0));
+            }
+        }
+    }
+    enif_mutex_unlock(m->lock);
+    return out;
+}
+
+static ERL_NIF_TERM nif_fmap_bbox(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m)) return enif_make_badarg(env);
+    enif_mutex_lock(m->lock);
+    ERL_NIF_TERM t = m->bx1 < m->bx0
+                         ? ATOM_NIL
+                         : enif_make_tuple4(env, enif_make_int(env, m->bx0),
+                                            enif_make_int(env, m->by0), enif_make_int(env, m->bx1),
+                                            enif_make_int(env, m->by1));
+    enif_mutex_unlock(m->lock);
+    return t;
+}
+
+static ERL_NIF_TERM nif_fmap_degrees(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    int c, r;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !enif_get_int(env, argv[1], &c) || !enif_get_int(env, argv[2], &r))
+        return enif_make_badarg(env);
+    if (c < 0 || r < 0 || c >= m->w || r >= m->h)
+        return enif_make_tuple2(env, enif_make_double(env, 0.0), enif_make_double(env, 0.0));
+    enif_mutex_lock(m->lock);
+    long i = (long)r * m->w + c;
+    ERL_NIF_TERM t = enif_make_tuple2(env, enif_make_double(env, m->e[i] / FRAC),
+                                      enif_make_double(env, m->o[i] / FRAC));
+    enif_mutex_unlock(m->lock);
+    return t;
+}
+
+/* fmap_seed(map, occupancy, strength): an a priori map of the same size
+ * (signed bytes): cells of occupancy >= 50 get O = strength, free cells
+ * (0..49) E = strength, unknown cells (-1) nothing. */
+static ERL_NIF_TERM nif_fmap_seed(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    ErlNifBinary occ;
+    double s;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !enif_inspect_binary(env, argv[1], &occ) || occ.size != (size_t)m->w * m->h ||
+        !get_number(env, argv[2], &s) || s < 0 || s > 1)
+        return enif_make_badarg(env);
+    uint16_t q = (uint16_t)lround(s * FRAC);
+    enif_mutex_lock(m->lock);
+    for (long i = 0; i < (long)occ.size; i++) {
+        int8_t v = (int8_t)occ.data[i];
+        if (v < 0) continue;
+        if (v >= 50) {
+            m->o[i] = q;
+            m->e[i] = 0;
+        } else {
+            m->e[i] = q;
+            m->o[i] = 0;
+        }
+        widen(m, (int)(i % m->w), (int)(i / m->w));
+    }
+    enif_mutex_unlock(m->lock);
+    return ATOM_OK;
+}
+
+/* fmap_export(map) -> binary of E then O (native 16-bit); fmap_import(map,
+ * binary) sets them back (a standby resumes from it). */
+static ERL_NIF_TERM nif_fmap_export(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m)) return enif_make_badarg(env);
+    size_t n = (size_t)m->w * m->h;
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, 4 * n, &out);
+    enif_mutex_lock(m->lock);
+    memcpy(p, m->e, 2 * n);
+    memcpy(p + 2 * n, m->o, 2 * n);
+    enif_mutex_unlock(m->lock);
+    return out;
+}
+
+static ERL_NIF_TERM nif_fmap_import(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    ErlNifBinary b;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !enif_inspect_binary(env, argv[1], &b) || b.size != 4 * (size_t)m->w * m->h)
+        return enif_make_badarg(env);
+    size_t n = (size_t)m->w * m->h;
+    enif_mutex_lock(m->lock);
+    memcpy(m->e, b.data, 2 * n);
+    memcpy(m->o, b.data + 2 * n, 2 * n);
+    m->bx0 = 0;
+    m->bx1 = -1;
+    for (size_t i = 0; i < n; i++)
+        if (m->e[i] || m->o[i]) widen(m, (int)(i % m->w), (int)(i / m->w));
+    enif_mutex_unlock(m->lock);
+    return ATOM_OK;
+}
+
+/* ---- pure grid functions ---- */
+
+static int get_grid(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifBinary *b, int *w, int *h)
+{
+    return enif_inspect_binary(env, argv[0], b) && enif_get_int(env, argv[1], w) &&
+           enif_get_int(env, argv[2], h) && *w > 0 && *h > 0 && (long)*w * *h <= MAX_CELLS &&
+           b->size == (size_t)*w * *h;
+}
+
+/* squared distance transform of one line (Felzenszwalb & Huttenlocher):
+ * d[q] = min over p of (q - p)^2 + f[p]; f is 0 at seeds, 1e20 elsewhere */
+static void dt1(const double *f, double *d, int n, int *v, double *z)
+{
+    int k = 0;
+    v[0] = 0;
+    z[0] = -INFINITY;
+    z[1] = INFINITY;
+    for (int q = 1; q < n; q++) {
+        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
+        while (s <= z[k]) {
+            k--;
+            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
+        }
+        k++;
+        v[k] = q;
+        z[k] = s;
+        z[k + 1] = INFINITY;
+    }
+    k = 0;
+    for (int q = 0; q < n; q++) {
+        while (z[k + 1] < q) k++;
+        double dq = q - v[k];
+        d[q] = dq * dq + f[v[k]];
+    }
+}
+
+/* squared distances (cells) from every cell to the nearest cell with a
+ * non-zero byte; INFINITY where there is none */
+static double *edt2(const unsigned char *cells, int w, int h)
+{
+    size_t n = (size_t)w * h;
+    int m = w > h ? w : h;
+    double *g = malloc(n * sizeof(double));
+    double *f = calloc(m, sizeof(double)), *d = calloc(m, sizeof(double));
+    double *z = malloc((m + 1) * sizeof(double));
+    int *v = malloc(m * sizeof(int));
+    if (!g || !f || !d || !z || !v) {
+        free(g);
+        free(f);
+        free(d);
+        free(z);
+        free(v);
+        return NULL;
+    }
+    const double big = 1e20;
+    for (int c = 0; c < w; c++) {
+        for (int r = 0; r < h; r++) f[r] = cells[(size_t)r * w + c] ? 0.0 : big;
+        dt1(f, d, h, v, z);
+        for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r];
+    }
+    for (int r = 0; r < h; r++) {
+        for (int c = 0; c < w; c++) f[c] = g[(size_t)r * w + c];
+        dt1(f, d, w, v, z);
+        for (int c = 0; c < w; c++) g[(size_t)r * w + c] = d[c] >= big / 2 ? INFINITY : d[c];
+    }
+    free(f);
+    free(d);
+    free(z);
+    free(v);
+    return g;
+}
+
+/* edt(cells, w, h) -> native float32 distances in cells (centre to
+ * centre) to the nearest non-zero cell; a very large value if none */
+static ERL_NIF_TERM nif_edt(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    if (!get_grid(env, argv, &b, &w, &h)) return enif_make_badarg(env);
+    double *g = edt2(b.data, w, h);
+    if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    ERL_NIF_TERM out;
+    float *p = (float *)enif_make_new_binary(env, (size_t)w * h * sizeof(float), &out);
+    for (size_t i = 0; i < (size_t)w * h; i++) p[i] = isinf(g[i]) ? 1e30f : (float)sqrt(g[i]);
+    free(g);
+    return out;
+}
+
+/* inflate(cells, w, h, radius_cells) -> cells within radius (centre to
+ * centre) of a non-zero cell set to 1, the others 0 */
+static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    double radius;
+    if (!get_grid(env, argv, &b, &w, &h) || !get_number(env, argv[3], &radius) || radius < 0)
+        return enif_make_badarg(env);
+    double *g = edt2(b.data, w, h);
+    if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    double r2 = radius * radius + 1e-9;
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, (size_t)w * h, &out);
+    for (size_t i = 0; i < (size_t)w * h; i++) p[i] = g[i] <= r2 ? 1 : 0;
+    free(g);
+    return out;
+}
+
+/* diff(a, b, max) -> {count, [index]} the indices where a and b differ
+ * (at most max of them listed) */
+static ERL_NIF_TERM nif_diff(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary a, b;
+    long max;
+    if (!enif_inspect_binary(env, argv[0], &a) || !enif_inspect_binary(env, argv[1], &b) ||
+        a.size != b.size || !enif_get_long(env, argv[2], &max) || max < 0)
+        return enif_make_badarg(env);
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    long count = 0;
+    for (long i = (long)a.size - 1; i >= 0; i--) {
+        if (a.data[i] != b.data[i]) {
+            if (count < max) list = enif_make_list_cell(env, enif_make_long(env, i), list);
+            count++;
+        }
+    }
+    return enif_make_tuple2(env, enif_make_long(env, count), list);
+}
+
+/* label(mask, w, h) -> {n, labels}: 8-connected components of the
+ * non-zero cells, labels 1..n as native int32, 0 elsewhere */
+static ERL_NIF_TERM nif_label(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    if (!get_grid(env, argv, &b, &w, &h)) return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    ERL_NIF_TERM out;
+    int32_t *lab = (int32_t *)enif_make_new_binary(env, n * sizeof(int32_t), &out);
+    memset(lab, 0, n * sizeof(int32_t));
+    int32_t *queue = malloc(n * sizeof(int32_t));
+    if (!queue) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    int32_t next = 0;
+    for (size_t s = 0; s < n; s++) {
+        if (!b.data[s] || lab[s]) continue;
+        next++;
+        size_t head = 0, tail = 0;
+        queue[tail++] = (int32_t)s;
+        lab[s] = next;
+        while (head < tail) {
+            int32_t i = queue[head++];
+            int c = i % w, r = i / w;
+            for (int dr = -1; dr <= 1; dr++)
+                for (int dc = -1; dc <= 1; dc++) {
+                    int cc = c + dc, rr = r + dr;
+                    if ((dc || dr) && cc >= 0 && rr >= 0 && cc < w && rr < h) {
+                        size_t j = (size_t)rr * w + cc;
+                        if (b.data[j] && !lab[j]) {
+                            lab[j] = next;
+                            queue[tail++] = (int32_t)j;
+                        }
+                    }
+                }
+        }
+    }
+    free(queue);
+    return enif_make_tuple2(env, enif_make_int(env, next), out);
+}
+
+/* grow(labels, free, w, h) -> labels grown over the free (non-zero)
+ * unlabelled cells, breadth first from every labelled cell at once
+ * (4-connected): each free cell takes the label of the nearest seed */
+static ERL_NIF_TERM nif_grow(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary lb, fb;
+    int w, h;
+    if (!enif_inspect_binary(env, argv[0], &lb) || !enif_inspect_binary(env, argv[1], &fb) ||
+        !enif_get_int(env, argv[2], &w) || !enif_get_int(env, argv[3], &h) || w <= 0 || h <= 0 ||
+        (long)w * h > MAX_CELLS || fb.size != (size_t)w * h || lb.size != fb.size * 4)
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    ERL_NIF_TERM out;
+    int32_t *lab = (int32_t *)enif_make_new_binary(env, n * sizeof(int32_t), &out);
+    memcpy(lab, lb.data, n * sizeof(int32_t));
+    int32_t *queue = malloc(n * sizeof(int32_t));
+    if (!queue) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    size_t head = 0, tail = 0;
+    for (size_t i = 0; i < n; i++)
+        if (lab[i] > 0) queue[tail++] = (int32_t)i;
+    static const int dc4[4] = {1, -1, 0, 0}, dr4[4] = {0, 0, 1, -1};
+    while (head < tail) {
+        int32_t i = queue[head++];
+        int c = i % w, r = i / w;
+        for (int k = 0; k < 4; k++) {
+            int cc = c + dc4[k], rr = r + dr4[k];
+            if (cc < 0 || rr < 0 || cc >= w || rr >= h) continue;
+            size_t j = (size_t)rr * w + cc;
+            if (fb.data[j] && lab[j] <= 0) {
+                lab[j] = lab[i];
+                queue[tail++] = (int32_t)j;
+            }
+        }
+    }
+    free(queue);
+    return out;
+}
+
+static ErlNifFunc funcs[] = {
+    {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"fmap_integrate", 8, nif_fmap_integrate, 0},
+    {"fmap_occupancy", 6, nif_fmap_occupancy, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"fmap_bbox", 1, nif_fmap_bbox, 0},
+    {"fmap_degrees", 3, nif_fmap_degrees, 0},
+    {"fmap_seed", 3, nif_fmap_seed, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"fmap_export", 1, nif_fmap_export, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"fmap_import", 2, nif_fmap_import, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"edt", 3, nif_edt, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"label", 3, nif_label, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"grow", 4, nif_grow, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+};
+
+ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

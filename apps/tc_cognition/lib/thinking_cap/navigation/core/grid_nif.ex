@@ -1,0 +1,31 @@
+defmodule ThinkingCap.Navigation.Core.GridNif do
+  @moduledoc false
+  # The grid NIF (c_src/tc_grid.c): a fuzzy grid map held as a resource,
+  # and pure functions on byte grids (distance transform, inflation,
+  # difference, connected components, region growing). Callers go through
+  # ThinkingCap.Navigation.Maps.SensedGrid and ThinkingCap.Navigation.CostMap.
+
+  @on_load :load_nif
+
+  defp load_nif do
+    path = :filename.join(:code.priv_dir(:tc_cognition), ~c"lib/tc_grid")
+    :erlang.load_nif(path, 0)
+  end
+
+  def fmap_new(_w, _h, _res, _ox, _oy), do: :erlang.nif_error(:nif_not_loaded)
+
+  def fmap_integrate(_map, _sx, _sy, _rays, _range_max, _fade, _lambda, _margin),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  def fmap_occupancy(_map, _c0, _r0, _w, _h, _known), do: :erlang.nif_error(:nif_not_loaded)
+  def fmap_bbox(_map), do: :erlang.nif_error(:nif_not_loaded)
+  def fmap_degrees(_map, _c, _r), do: :erlang.nif_error(:nif_not_loaded)
+  def fmap_seed(_map, _occupancy, _strength), do: :erlang.nif_error(:nif_not_loaded)
+  def fmap_export(_map), do: :erlang.nif_error(:nif_not_loaded)
+  def fmap_import(_map, _binary), do: :erlang.nif_error(:nif_not_loaded)
+  def edt(_cells, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
+  def inflate(_cells, _w, _h, _radius), do: :erlang.nif_error(:nif_not_loaded)
+  def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
+  def label(_mask, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
+  def grow(_labels, _free, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
+end

@@ -1,0 +1,357 @@
+defmodule ThinkingCap.Navigation.Mapper do
+  @moduledoc """
+  Map building as an ADF module (event-driven): fuses the robot's lasers
+  and sonar rings into a fuzzy grid map (`ThinkingCap.Navigation.Maps.SensedGrid`)
+  at the robot's estimated pose, and publishes what it knows.
+
+      mapper: [module: ThinkingCap.Navigation.Mapper, activity: :event]
+
+  **With a WDF** the map covers the world's grid
+  (`ThinkingCap.Navigation.Maps.grid_from_wdf/2`) and starts from it: the
+  walls, obstacles and closed doors it draws are believed occupied, the
+  free cells of its imported `map_server` map believed empty (degree
+  `prior`), and what the sensors see corrects them (a moved pallet, a shut
+  door, a box nobody drew). **Without one** (no WDF, or one with no walls,
+  obstacles or map) it starts from nothing: a map of `size` metres centred
+  on the start pose.
+
+  It subscribes to the robot's range sensors (every `:laser` and `:sonar`
+  of its RDF), its odometry (the RDF's odometry sensor) and its estimated
+  pose `{:pose, robot, %{pose: _, stamp: _}}`. A reading is placed at the
+  estimate moved on by the odometry between the estimate's stamp and the
+  reading's, so that a scan taken while turning lands where it was taken.
+  Readings before the first estimate wait for none: they are dropped.
+
+  ## Published (latest values)
+
+    * `{:map, robot, %ThinkingCap.Navigation.OccupancyGrid{}}` (key
+      `{:map, robot}`), the observed part of the map, at most every
+      `publish_every` seconds of sensor time and only when it changed;
+      cells are `round(100 · (O ∧ ¬E))`, −1 unknown; `version` counts the
+      publications;
+    * `{:topology, robot, %ThinkingCap.Navigation.Topology{}}` (key
+      `{:topology, robot}`), its rooms, corridors and doors
+      (`ThinkingCap.Navigation.Maps.Rooms`, names kept as the map grows),
+      every `topology_every` seconds;
+    * `{:segments, robot, %{segments: [{{x1, y1}, {x2, y2}, degree}], stamp: t}}`
+      (key `{:segments, robot}`), the walls as fuzzy segments: each
+      fitted to the obstacle cells that border free space, with the mean
+      occupancy of its cells as its degree, with the topology;
+    * `{:map_saved, robot, %{path: p, result: :ok | {:error, reason}}}`
+      after a save.
+
+  ## Saving
+
+  With `save: "path.yaml"` the map is saved in the `map_server` format
+  (`ThinkingCap.Navigation.OccupancyGrid.save/2`) every `save_every`
+  seconds and when the module stops. A `{:save_map, robot, %{path: p}}`
+  tuple saves it at once to `p`.
+
+  ## Parameters
+
+    * `resolution` - cell size, m (default 0.05; with a WDF map, the map's);
+    * `size` - `{width, height}` m of a map started from nothing (default
+      `{60, 60}`);
+    * `initial` - where a map started from nothing is centred: `{x, y}`
+      or `{x, y, θ}` (default `{0, 0}`);
+    * `prior` - the degree given to the WDF's cells (default 0.7);
+    * `publish_every` (default 1.0 s), `topology_every` (default 5.0 s);
+    * `save`, `save_every` (default 30 s);
+    * `fade`, `lambda`, `known`, `laser`, `sonar` - the fuzzy grid's
+      (`ThinkingCap.Navigation.Maps.SensedGrid.new/3`); on a robot with
+      a laser, sonars add only echoes closer than 2 m by default
+      (`sonar: [k_empty: 0.0, k_occupied: 0.2, trust: 2.0]`): their wide
+      cones and specular walls would empty walls the laser sees;
+    * `door_width`, `min_area` - the room segmentation's
+      (`ThinkingCap.Navigation.Maps.Rooms.from_occupancy/2`).
+
+  A robot with no range sensor cannot build a map: `init/2` refuses it
+  with an error naming the RDF.
+  """
+
+  use ThinkingCap.Module
+  require Logger
+
+  alias ThinkingCap.Config.WDF
+  alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid}
+  alias ThinkingCap.Navigation.Maps.{Rooms, SensedGrid, Segments}
+  alias ThinkingCap.Robot.Description
+
+  @defaults [
+    resolution: 0.05,
+    size: {60.0, 60.0},
+    initial: {0.0, 0.0},
+    prior: 0.7,
+    publish_every: 1.0,
+    topology_every: 5.0,
+    save: nil,
+    save_every: 30.0,
+    door_width: 1.2,
+    min_area: 1.5
+  ]
+
+  @grid_opts [:fade, :lambda, :known, :laser, :sonar]
+  # odometry readings kept to place readings between estimates
+  @history 64
+
+  @impl true
+  def init(params, context) do
+    params = Keyword.merge(@defaults, Enum.to_list(params || []))
+    rdf = describe!(context)
+    sensors = range_sensors(rdf)
+
+    if sensors == %{} do
+      raise ArgumentError,
+            "#{inspect(context.name)}: the robot of #{context.rdf} has no laser or sonar: " <>
+              "there is nothing to build a map from"
+    end
+
+    odometry = Description.sensor_name(rdf, :odometry, :odom)
+    params = Keyword.put(params, :sonar, sonar_degrees(sensors, params))
+    grid = new_grid(read_wdf(context), params)
+
+    state = %{
+      robot: context.robot,
+      params: params,
+      sensors: sensors,
+      odometry: odometry,
+      grid: grid,
+      history: :queue.new(),
+      estimate: nil,
+      stamp: nil,
+      changed: false,
+      version: 0,
+      published: nil,
+      topology: nil,
+      topology_at: nil,
+      saved_at: nil,
+      last_map: nil
+    }
+
+    subscriptions =
+      for tag <- [odometry, :pose, :save_map | Map.keys(sensors)],
+          do: {:subscribe, {tag, context.robot, :_}}
+
+    {subscriptions, resume(state, Map.get(context, :handoff))}
+  end
+
+  @doc """
+  What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the
+  last published map, which seeds the standby's grid.
+  """
+  @impl true
+  @spec handoff(map()) :: map()
+  def handoff(state), do: %{map: state.last_map, version: state.version}
+
+  defp resume(state, %{map: %OccupancyGrid{} = map, version: version}) do
+    grid = SensedGrid.seeded(map, state.params[:prior], grid_opts(state.params))
+    %{state | grid: grid, version: version, last_map: map}
+  end
+
+  defp resume(state, _handoff), do: state
+
+  @impl true
+  def handle_tuple({tag, robot, %{pose: pose, stamp: t}}, %{robot: robot, odometry: tag} = state)
+      when is_number(t) do
+    history = :queue.in({t, pose}, state.history)
+    history = if :queue.len(history) > @history, do: :queue.drop(history), else: history
+    {[], %{state | history: history}}
+  end
+
+  def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose} = p}, %{robot: robot} = state) do
+    stamp = Map.get(p, :stamp)
+    {[], %{state | estimate: {pose, odometry_at(state, stamp)}}}
+  end
+
+  def handle_tuple({:save_map, robot, %{path: path}}, %{robot: robot} = state)
+      when is_binary(path),
+      do: save(state, path)
+
+  def handle_tuple({tag, robot, %{ranges: ranges} = reading}, %{robot: robot} = state)
+      when is_map_key(state.sensors, tag) and is_list(ranges) do
+    case pose_at(state, Map.get(reading, :stamp)) do
+      nil ->
+        {[], state}
+
+      pose ->
+        spec = Map.fetch!(state.sensors, tag)
+        add(state.grid, spec, reading, pose)
+        stamp = Map.get(reading, :stamp) || state.stamp
+        due(%{state | changed: true, stamp: stamp})
+    end
+  end
+
+  def handle_tuple(_tuple, state), do: {[], state}
+
+  @impl true
+  def terminate(_reason, %{params: params} = state) do
+    if params[:save], do: save(state, params[:save])
+    :ok
+  end
+
+  ## readings
+
+  defp add(grid, %{type: :laser, pose: sensor}, scan, pose),
+    do: SensedGrid.add_laser(grid, scan, EKF.motion(pose, sensor))
+
+  defp add(grid, %{type: :sonar} = ring, reading, pose),
+    do: SensedGrid.add_sonar(grid, reading, pose, ring)
+
+  # the estimate moved on by the odometry from its stamp to `stamp`
+  defp pose_at(%{estimate: nil}, _stamp), do: nil
+  defp pose_at(%{estimate: {pose, nil}}, _stamp), do: pose
+
+  defp pose_at(%{estimate: {pose, odom}} = state, stamp) do
+    case odometry_at(state, stamp) do
+      nil -> pose
+      now -> EKF.motion(pose, EKF.relative(odom, now))
+    end
+  end
+
+  # the odometry pose at a stamp: the latest reading not after it
+  defp odometry_at(_state, nil), do: nil
+
+  defp odometry_at(state, stamp) do
+    state.history
+    |> :queue.to_list()
+    |> Enum.reduce(nil, fn {t, pose}, best -> if t <= stamp + 1.0e-9, do: pose, else: best end)
+  end
+
+  ## publishing
+
+  defp due(state) do
+    {actions, state} = publish_map(state)
+    {more, state} = publish_topology(state)
+    {more2, state} = save_due(state)
+    {actions ++ more ++ more2, state}
+  end
+
+  defp publish_map(%{changed: false} = state), do: {[], state}
+
+  defp publish_map(state) do
+    if elapsed?(state.published, state.stamp, state.params[:publish_every]) do
+      version = state.version + 1
+      map = SensedGrid.occupancy(state.grid, version: version, stamp: state.stamp)
+      tuple = {:map, state.robot, map}
+
+      {[out: {tuple, [key: {:map, state.robot}]}],
+       %{state | version: version, published: state.stamp, changed: false, last_map: map}}
+    else
+      {[], state}
+    end
+  end
+
+  defp publish_topology(%{last_map: nil} = state), do: {[], state}
+
+  defp publish_topology(state) do
+    if elapsed?(state.topology_at, state.stamp, state.params[:topology_every]) do
+      opts = Keyword.take(state.params, [:door_width, :min_area])
+      topology = state.last_map |> Rooms.from_occupancy(opts) |> Rooms.rename(state.topology)
+      segments = Segments.from_occupancy(state.last_map)
+
+      {[
+         out: {{:topology, state.robot, topology}, [key: {:topology, state.robot}]},
+         out:
+           {{:segments, state.robot, %{segments: segments, stamp: state.stamp}},
+            [key: {:segments, state.robot}]}
+       ], %{state | topology: topology, topology_at: state.stamp}}
+    else
+      {[], state}
+    end
+  end
+
+  defp save_due(%{params: params} = state) do
+    if params[:save] && state.last_map &&
+         elapsed?(state.saved_at, state.stamp, params[:save_every]) do
+      {actions, state} = save(state, params[:save])
+      {actions, %{state | saved_at: state.stamp}}
+    else
+      {[], state}
+    end
+  end
+
+  defp save(state, path) do
+    map = SensedGrid.occupancy(state.grid, version: state.version, stamp: state.stamp)
+    result = OccupancyGrid.save(map, path)
+
+    case result do
+      :ok -> Logger.info("#{inspect(state.robot)}: map saved to #{path}")
+      {:error, reason} -> Logger.warning("#{inspect(state.robot)}: map not saved: #{reason}")
+    end
+
+    tuple = {:map_saved, state.robot, %{path: path, result: result}}
+    {[out: {tuple, [key: {:map_saved, state.robot}]}], state}
+  end
+
+  defp elapsed?(nil, _now, _period), do: true
+  defp elapsed?(_last, nil, _period), do: true
+  defp elapsed?(last, now, period), do: now - last >= period - 1.0e-9
+
+  ## set-up
+
+  defp new_grid(%WDF{} = wdf, params) do
+    if WDF.empty?(wdf), do: blank_grid(params), else: prior_grid(wdf, params)
+  end
+
+  defp new_grid(nil, params), do: blank_grid(params)
+
+  defp blank_grid(params) do
+    {w, h} = params[:size]
+    res = params[:resolution]
+    {x, y} = point(params[:initial])
+    {cols, rows} = {ceil(w / res), ceil(h / res)}
+    origin = {x - cols * res / 2, y - rows * res / 2}
+    SensedGrid.new(cols, rows, [resolution: res, origin: origin] ++ grid_opts(params))
+  end
+
+  defp prior_grid(wdf, params) do
+    opts = if wdf.grid, do: [unknown: :free], else: [resolution: params[:resolution]]
+    grid = Maps.grid_from_wdf(wdf, opts)
+    SensedGrid.seeded(Maps.prior(wdf, grid), params[:prior], grid_opts(params))
+  end
+
+  defp grid_opts(params), do: Keyword.take(params, @grid_opts)
+
+  # Beside a laser, a sonar only adds obstacles close by (what the laser
+  # cannot see: behind the robot, glass, low things): its wide cone and
+  # specular walls make its empty evidence wrong where the laser is right.
+  defp sonar_degrees(sensors, params) do
+    laser? = Enum.any?(sensors, fn {_, s} -> s.type == :laser end)
+    base = if laser?, do: [k_empty: 0.0, k_occupied: 0.2, trust: 2.0], else: []
+    Keyword.merge(base, Enum.to_list(Keyword.get(params, :sonar, [])))
+  end
+
+  defp point({x, y}), do: {x * 1.0, y * 1.0}
+  defp point({x, y, _}), do: {x * 1.0, y * 1.0}
+
+  defp describe!(%{rdf: rdf} = context) when is_binary(rdf) do
+    case Description.load(rdf) do
+      {:ok, d} -> d
+      {:error, message} -> raise ArgumentError, "#{inspect(context.name)}: #{message}"
+    end
+  end
+
+  defp describe!(context),
+    do: raise(ArgumentError, "#{inspect(context.name)}: the map builder needs the ADF's rdf:")
+
+  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
+    case ThinkingCap.Config.read(path) do
+      {:ok, %WDF{} = wdf} ->
+        wdf
+
+      {:ok, _} ->
+        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
+
+      {:error, errors} ->
+        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
+    end
+  end
+
+  defp read_wdf(_context), do: nil
+
+  defp range_sensors(description) do
+    for %{type: type} = s <- description.sensors, type in [:laser, :sonar], into: %{} do
+      {s.name, Map.take(s, [:type, :pose, :ring_radius, :count, :range, :fov])}
+    end
+  end
+end
