@@ -613,6 +613,45 @@ static ERL_NIF_TERM nif_grow(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     return out;
 }
 
+/* blocked(occupancy, threshold, unknown) -> 1 where the signed byte is
+ * >= threshold, `unknown` (0 or 1) where it is -1, else 0 */
+static ERL_NIF_TERM nif_blocked(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int threshold, unknown;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &threshold) ||
+        !enif_get_int(env, argv[2], &unknown) || (unknown != 0 && unknown != 1))
+        return enif_make_badarg(env);
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, b.size, &out);
+    for (size_t i = 0; i < b.size; i++) {
+        int8_t v = (int8_t)b.data[i];
+        p[i] = v < 0 ? (unsigned char)unknown : (v >= threshold ? 1 : 0);
+    }
+    return out;
+}
+
+/* downsample(cells, w, h, k) -> {w', h', cells'}: each k x k block one
+ * cell, non-zero if any of its cells is (the blocks at the right and top
+ * edges may be partial) */
+static ERL_NIF_TERM nif_downsample(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h, k;
+    if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &k) || k < 1 || k > 64)
+        return enif_make_badarg(env);
+    int cw = (w + k - 1) / k, ch = (h + k - 1) / k;
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, (size_t)cw * ch, &out);
+    memset(p, 0, (size_t)cw * ch);
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++)
+            if (b.data[(size_t)r * w + c]) p[(size_t)(r / k) * cw + c / k] = 1;
+    return enif_make_tuple3(env, enif_make_int(env, cw), enif_make_int(env, ch), out);
+}
+
 static ErlNifFunc funcs[] = {
     {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_integrate", 8, nif_fmap_integrate, 0},
@@ -627,6 +666,8 @@ static ErlNifFunc funcs[] = {
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"label", 3, nif_label, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"grow", 4, nif_grow, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"downsample", 4, nif_downsample, ERL_NIF_DIRTY_JOB_CPU_BOUND},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

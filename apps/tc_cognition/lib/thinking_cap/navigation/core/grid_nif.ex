@@ -28,4 +28,6 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
   def label(_mask, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
   def grow(_labels, _free, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
+  def blocked(_occupancy, _threshold, _unknown), do: :erlang.nif_error(:nif_not_loaded)
+  def downsample(_cells, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
 end

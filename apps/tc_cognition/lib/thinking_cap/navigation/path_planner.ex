@@ -1,0 +1,212 @@
+defmodule ThinkingCap.Navigation.PathPlanner do
+  @moduledoc """
+  Plans a robot's path on what it knows of the world, and repairs it as
+  that changes: a cost map from an occupancy grid (`set_map/2`), searched
+  with D* Lite (`ThinkingCap.Navigation.DStarLite`) from the robot's cell
+  to the goal's, repaired in place when the map or the robot's position
+  changes instead of searched again from scratch.
+
+  **The cost map.** Cells of occupancy at least `threshold` (default 50)
+  are obstacles, grown by `radius` (the robot's, plus a margin) so that
+  the robot may be planned as a point; unknown cells are free
+  (optimistic planning: a goal in unexplored space may be planned to, and
+  the path is repaired when the space turns out not to be free). Big
+  maps are planned on coarser cells: `resolution` (default 0.05 m) sets
+  the planning cell, a whole multiple of the map's (a block is an
+  obstacle if any of its cells is).
+
+  **Repairs.** A new map in the same frame changes only the cells whose
+  blocked state differs; they are handed to D* Lite, and the next `plan/3`
+  to the same goal repairs the last search. A new frame (the map grew), a
+  new goal, or more than `max_changes` changed cells start a new search.
+
+  Every `plan/3` records what it did in `last`: `%{kind: :initial |
+  :repair, us: microseconds, expanded: vertices, changed: cells}`; with
+  `compare: true` also `astar_us`, the time A* takes from scratch on the
+  same grid (for benchmarks: it costs that much more).
+  """
+
+  alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, OccupancyGrid}
+  alias ThinkingCap.Navigation.Core.GridNif
+
+  defstruct radius: 0.25,
+            threshold: 50,
+            resolution: 0.05,
+            max_changes: 20_000,
+            compare: false,
+            grid: nil,
+            version: nil,
+            pending: [],
+            search: nil,
+            goal: nil,
+            last: nil
+
+  @type point :: {number(), number()}
+  @type t :: %__MODULE__{
+          radius: float(),
+          threshold: 0..100,
+          resolution: float(),
+          max_changes: pos_integer(),
+          compare: boolean(),
+          grid: Grid.t() | nil,
+          version: term(),
+          pending: [{Grid.cell(), boolean()}] | :reset,
+          search: DStarLite.t() | nil,
+          goal: Grid.cell() | nil,
+          last: map() | nil
+        }
+  @type error ::
+          :no_map
+          | :goal_outside_map
+          | :goal_blocked
+          | :start_outside_map
+          | :start_blocked
+          | :no_path
+
+  @doc "A planner without a map. Options: `radius`, `threshold`, `resolution`, `max_changes`, `compare`."
+  @spec new(keyword()) :: t()
+  def new(opts \\ []) do
+    struct!(
+      __MODULE__,
+      Keyword.take(opts, [:radius, :threshold, :resolution, :max_changes, :compare])
+    )
+  end
+
+  @doc """
+  Takes a map (its `version` tells an update from the same map seen
+  again, which is ignored). Returns the planner with its cost map
+  rebuilt and the changes queued for the next `plan/3`.
+  """
+  @spec set_map(t(), OccupancyGrid.t()) :: t()
+  def set_map(%__MODULE__{version: v} = planner, %OccupancyGrid{version: v} = _map)
+      when v != nil and v != 0,
+      do: planner
+
+  def set_map(%__MODULE__{} = planner, %OccupancyGrid{} = map) do
+    grid = cost_grid(planner, map)
+    %{planner | grid: grid, version: map.version, pending: changes(planner, grid)}
+  end
+
+  @doc """
+  The cost map of an occupancy grid (see the moduledoc): a planning grid
+  whose blocked cells are obstacles grown by the planner's radius.
+  """
+  @spec cost_grid(t(), OccupancyGrid.t()) :: Grid.t()
+  def cost_grid(%__MODULE__{} = planner, %OccupancyGrid{width: w, height: h} = map) do
+    k = max(1, round(planner.resolution / map.resolution))
+    blocked = GridNif.blocked(map.data, planner.threshold, 0)
+    {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.downsample(blocked, w, h, k)
+    res = map.resolution * k
+    cells = GridNif.inflate(coarse, cw, ch, planner.radius / res)
+    Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin)
+  end
+
+  # the cells that changed since the last grid, or :reset for a new frame
+  defp changes(%{grid: nil}, _grid), do: :reset
+  defp changes(%{pending: :reset}, _grid), do: :reset
+
+  defp changes(%{grid: old} = planner, grid) do
+    if {old.width, old.height, old.origin, old.resolution} !=
+         {grid.width, grid.height, grid.origin, grid.resolution} do
+      :reset
+    else
+      case GridNif.diff(old.cells, grid.cells, planner.max_changes) do
+        {n, _} when n > planner.max_changes ->
+          :reset
+
+        {_n, indices} ->
+          w = grid.width
+          fresh = for i <- indices, do: {{rem(i, w), div(i, w)}, :binary.at(grid.cells, i) == 1}
+          planner.pending ++ fresh
+      end
+    end
+  end
+
+  @doc """
+  The path from `from` to `goal` (world points) on the current map:
+  `{:ok, points, planner}`, the centres of the path's cells from the
+  robot's to the goal's, or `{:error, reason, planner}`:
+
+    * `:no_map` - no map yet;
+    * `:start_outside_map`, `:goal_outside_map` - a point off the map;
+    * `:goal_blocked` - the goal lies in an obstacle (or within the
+      robot's radius of one) with no free cell within `radius`;
+    * `:no_path` - no way to the goal on the map as known.
+
+    * `:start_blocked` - the robot is deep in an obstacle as mapped.
+
+  A start within the robot's radius of an obstacle (a robot brushing a
+  wall) plans from the nearest free cell within twice the radius.
+  """
+  @spec plan(t(), point(), point()) :: {:ok, [point()], t()} | {:error, error(), t()}
+  def plan(%__MODULE__{grid: nil} = planner, _from, _goal), do: {:error, :no_map, planner}
+
+  def plan(%__MODULE__{grid: grid} = planner, from, goal) do
+    with {:ok, start} <- cell(grid, from, :start_outside_map, 2 * planner.radius),
+         {:ok, target} <- cell(grid, goal, :goal_outside_map, planner.radius) do
+      search(planner, start, target)
+    else
+      {:error, :blocked, :start_outside_map} -> {:error, :start_blocked, planner}
+      {:error, :blocked, :goal_outside_map} -> {:error, :goal_blocked, planner}
+      {:error, reason} -> {:error, reason, planner}
+    end
+  end
+
+  # the point's cell, or the nearest free cell within `within` metres
+  defp cell(grid, point, outside, within) do
+    cell = Grid.cell_of(grid, point)
+
+    cond do
+      not Grid.inside?(grid, cell) -> {:error, outside}
+      Grid.passable?(grid, cell) -> {:ok, cell}
+      free = nearest_free(grid, cell, ceil(within / grid.resolution)) -> {:ok, free}
+      true -> {:error, :blocked, outside}
+    end
+  end
+
+  defp nearest_free(grid, {col, row}, rings) do
+    Enum.find_value(1..max(rings, 1), fn r ->
+      ring = for dc <- -r..r, dr <- -r..r, max(abs(dc), abs(dr)) == r, do: {col + dc, row + dr}
+
+      case Enum.filter(ring, &Grid.passable?(grid, &1)) do
+        [] -> nil
+        free -> Enum.min_by(free, fn {c, w} -> {(c - col) ** 2 + (w - row) ** 2, c, w} end)
+      end
+    end)
+  end
+
+  defp search(planner, start, target) do
+    started = System.monotonic_time(:microsecond)
+    {kind, dstar, changed} = prepare(planner, start, target)
+    result = DStarLite.plan(dstar)
+    us = System.monotonic_time(:microsecond) - started
+    dstar = elem(result, tuple_size(result) - 1)
+    last = %{kind: kind, us: us, expanded: dstar.expanded, changed: changed}
+
+    last =
+      if planner.compare,
+        do: Map.put(last, :astar_us, astar_us(planner.grid, start, target)),
+        else: last
+
+    planner = %{planner | search: dstar, goal: target, pending: [], last: last}
+
+    case result do
+      {:ok, cells, _} -> {:ok, Enum.map(cells, &Grid.centre(planner.grid, &1)), planner}
+      {:error, :no_path, _} -> {:error, :no_path, planner}
+    end
+  end
+
+  defp prepare(%{search: %DStarLite{}, goal: target, pending: pending} = planner, start, target)
+       when is_list(pending) do
+    dstar = planner.search |> DStarLite.move_start(start) |> DStarLite.update_cells(pending)
+    {:repair, dstar, length(pending)}
+  end
+
+  defp prepare(planner, start, target),
+    do: {:initial, DStarLite.new(planner.grid, start, target), 0}
+
+  defp astar_us(grid, start, target) do
+    {us, _} = :timer.tc(fn -> AStar.plan(grid, start, target) end)
+    us
+  end
+end

@@ -1,0 +1,122 @@
+defmodule ThinkingCap.Navigation.PathPlannerTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{AStar, Grid, OccupancyGrid, PathPlanner}
+
+  # a 10 x 6 m room at 5 cm: walls around it, free inside; `boxes` as
+  # {x0, y0, x1, y1} occupied; the rest of the frame unknown
+  defp room(version, boxes \\ [], opts \\ []) do
+    {w, h} = {200, 120}
+    unknown_from = Keyword.get(opts, :unknown_from, 10.0)
+
+    data =
+      for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
+        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+        cond do
+          c == 0 or r == 0 or c == w - 1 or r == h - 1 ->
+            <<100>>
+
+          Enum.any?(boxes, fn {x0, y0, x1, y1} -> x >= x0 and x <= x1 and y >= y0 and y <= y1 end) ->
+            <<100>>
+
+          x > unknown_from ->
+            <<-1::signed-8>>
+
+          true ->
+            <<0>>
+        end
+      end
+
+    %OccupancyGrid{width: w, height: h, data: data, resolution: 0.05, version: version}
+  end
+
+  defp length_of(points),
+    do:
+      points
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.map(fn [{ax, ay}, {bx, by}] -> :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2) end)
+      |> Enum.sum()
+
+  test "plans on the map, the obstacles grown by the robot's radius" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    assert {:ok, path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+    assert planner.last.kind == :initial
+    assert_in_delta length_of(path), 8.0, 0.1
+    # no point of the path nearer than 0.3 m to the walls
+    assert Enum.all?(path, fn {x, y} -> x >= 0.3 and y >= 0.3 and x <= 9.7 and y <= 5.7 end)
+  end
+
+  test "a box that appears on the path is planned around by repair, as A* from scratch would" do
+    planner = PathPlanner.new(radius: 0.3, compare: true) |> PathPlanner.set_map(room(1))
+    {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+
+    # the robot moved on 1 m; a box now blocks the way ahead
+    planner = PathPlanner.set_map(planner, room(2, [{4.5, 2.0, 5.5, 4.5}]))
+    assert {:ok, path, planner} = PathPlanner.plan(planner, {2.0, 3.0}, {9.0, 3.0})
+    assert planner.last.kind == :repair
+    assert planner.last.changed > 0
+    assert is_integer(planner.last.astar_us)
+
+    # a box that appears away from the path costs the repair next to
+    # nothing, where a search from scratch would search the whole way again
+    boxes = [{4.5, 2.0, 5.5, 4.5}, {8.5, 0.1, 9.5, 0.6}]
+    planner = PathPlanner.set_map(planner, room(3, boxes))
+    assert {:ok, again, planner} = PathPlanner.plan(planner, {2.0, 3.0}, {9.0, 3.0})
+    assert again == path
+    assert planner.last.kind == :repair and planner.last.changed > 0
+    fresh = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(3, boxes))
+    {:ok, ^path, fresh} = PathPlanner.plan(fresh, {2.0, 3.0}, {9.0, 3.0})
+    assert planner.last.expanded * 20 < fresh.last.expanded
+
+    # around the box, at the robot's radius from it (within a cell)
+    assert Enum.all?(path, fn {x, y} ->
+             {dx, dy} = {max(0, max(4.5 - x, x - 5.5)), max(0, max(2.0 - y, y - 4.5))}
+             :math.sqrt(dx * dx + dy * dy) >= 0.25
+           end)
+
+    # as short as A* finds on the same grid
+    grid = planner.grid
+
+    {:ok, %{cost: cost}} =
+      AStar.plan(grid, Grid.cell_of(grid, {2.0, 3.0}), Grid.cell_of(grid, {9.0, 3.0}))
+
+    assert_in_delta length_of(path), cost * grid.resolution, 0.05
+  end
+
+  test "the same map seen again changes nothing; a new goal starts afresh" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    {:ok, _, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+    assert PathPlanner.set_map(planner, room(1)) == planner
+    {:ok, _, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {5.0, 5.0})
+    assert planner.last.kind == :initial
+  end
+
+  test "a goal in unknown space is planned to; one off the map, in a wall or unreachable is an error" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1, [], unknown_from: 6.0))
+    assert {:ok, path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {8.0, 3.0})
+    assert List.last(path) |> elem(0) > 7.9
+
+    assert {:error, :goal_outside_map, _} = PathPlanner.plan(planner, {1.0, 3.0}, {12.0, 3.0})
+    assert {:error, :start_outside_map, _} = PathPlanner.plan(planner, {-3.0, 3.0}, {2.0, 3.0})
+    assert {:error, :goal_blocked, _} = PathPlanner.plan(planner, {1.0, 3.0}, {0.02, 3.0})
+
+    # a wall across the room: the east half cannot be reached
+    walled = PathPlanner.set_map(planner, room(2, [{4.9, 0.0, 5.1, 6.0}]))
+    assert {:error, :no_path, _} = PathPlanner.plan(walled, {1.0, 3.0}, {8.0, 3.0})
+    assert {:error, :no_map, _} = PathPlanner.plan(PathPlanner.new(), {1.0, 3.0}, {2.0, 3.0})
+  end
+
+  test "a robot brushing a wall plans from the nearest free cell" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    assert {:ok, [first | _], _} = PathPlanner.plan(planner, {0.15, 3.0}, {5.0, 3.0})
+    assert elem(first, 0) >= 0.3
+  end
+
+  test "big maps are planned on coarser cells" do
+    planner = PathPlanner.new(radius: 0.3, resolution: 0.1) |> PathPlanner.set_map(room(1))
+    assert {planner.grid.width, planner.grid.height, planner.grid.resolution} == {100, 60, 0.1}
+    assert {:ok, path, _} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+    assert_in_delta length_of(path), 8.0, 0.2
+  end
+end
