@@ -53,9 +53,10 @@ defmodule ThinkingCap.Control.Blender do
       absent from
       `behaviours` are dropped;
     * `stop_states` - plan states in which the robot stands still, default
-      `[:idle, :done, :failed, :blocked, :waiting]` (`ThinkingCap.Planner.Monitor`:
-      no task, task done, task failed, waiting to retry a blocked route, no pose
-      yet);
+      `[:idle, :done, :failed, :blocked, :unreachable, :waiting]`
+      (`ThinkingCap.Planner.Monitor`: no task, task done, task failed,
+      waiting to retry a blocked route or a goal no path leads to, no pose
+      or map yet);
     * `max_speed`, `max_turn_rate` (defaults 0.5 m/s, 1.5 rad/s), `radius`
       (0.2 m) - used only without an RDF: with one (`context.rdf`), the
       limits come from its kinematics and the radius from its footprint.
@@ -78,7 +79,7 @@ defmodule ThinkingCap.Control.Blender do
   }
 
   @stop {:velocity, 0.0, 0.0}
-  @stop_states [:idle, :done, :failed, :blocked, :waiting]
+  @stop_states [:idle, :done, :failed, :blocked, :unreachable, :waiting]
 
   @impl true
   def init(params, context) do

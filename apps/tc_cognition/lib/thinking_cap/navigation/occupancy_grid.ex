@@ -91,6 +91,33 @@ defmodule ThinkingCap.Navigation.OccupancyGrid do
 
   def value(_map, _cell), do: -1
 
+  @doc """
+  The map grown by unknown cells: `left`, `bottom`, `right` and `top`
+  columns and rows more (the origin moves left and down accordingly).
+  """
+  @spec pad(t(), non_neg_integer(), non_neg_integer(), non_neg_integer(), non_neg_integer()) ::
+          t()
+  def pad(%__MODULE__{width: w, height: h} = map, left, bottom, right, top) do
+    width = w + left + right
+    unknown_row = :binary.copy(<<-1::signed-8>>, width)
+    {l, r} = {:binary.copy(<<-1::signed-8>>, left), :binary.copy(<<-1::signed-8>>, right)}
+    rows = for row <- 0..(h - 1), do: [l, binary_part(map.data, row * w, w), r]
+    {ox, oy} = map.origin
+
+    %{
+      map
+      | width: width,
+        height: h + bottom + top,
+        data:
+          IO.iodata_to_binary([
+            List.duplicate(unknown_row, bottom),
+            rows,
+            List.duplicate(unknown_row, top)
+          ]),
+        origin: {ox - left * map.resolution, oy - bottom * map.resolution}
+    }
+  end
+
   @doc "The cell holding a world point (it may lie outside the map)."
   @spec cell_of(t(), {number(), number()}) :: Grid.cell()
   def cell_of(%__MODULE__{origin: {ox, oy}, resolution: r}, {x, y}),

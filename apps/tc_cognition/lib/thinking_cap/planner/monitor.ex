@@ -8,40 +8,65 @@ defmodule ThinkingCap.Planner.Monitor do
 
   Tasks (param `task:`, or later a `{:task, robot, %{task: task}}` tuple):
   `{:go_to, waypoint}`, `{:visit, [waypoint]}`, `{:patrol, [waypoint]}`
-  (visits for ever) and `:idle`. Waypoints are the WDF's names, or
-  `{x, y}` points.
+  (visits for ever) and `:idle`. A waypoint is a point `{x, y}`, or a
+  name: a waypoint of the WDF, a room or corridor of the WDF, or a place
+  of the map the robot learned (`{:topology, robot, _}` from
+  `ThinkingCap.Navigation.Mapper`: "go to `:room_3`"). A task that is
+  not one of these, or a name nobody knows, is refused on the blackboard
+  (state `:failed`, `reason` saying why); the module carries on.
 
-  **Planning.** A route over the topological map of the WDF (places and
-  the doors between them, `ThinkingCap.Navigation.Topology`, closed doors
-  left out), refined by A* (`ThinkingCap.Navigation.AStar`) on the WDF's
-  grid inflated by the robot's radius, from the estimated pose
-  (`{:pose, robot, _}`, from the localizer).
+  **Planning** is done on a map by `ThinkingCap.Navigation.PathPlanner`
+  (obstacles grown by the robot's radius plus `margin`, unknown space
+  free, D* Lite repairs): the map the robot builds, `{:map, robot, _}`
+  from the map builder, as soon as one arrives; until then the WDF's
+  (its walls, obstacles, closed doors and imported map; unknown cells of
+  the imported map blocked). With a map builder, what the sensors see (a
+  box, a person, a shut door) is in the map, and the path is repaired at
+  the next cycle after a new map version (and every `replan_every`
+  seconds while moving). Planning starts from the estimated pose
+  (`{:pose, robot, _}`, from the localizer). A goal beyond the learned
+  map (unexplored space, within `reach` metres of it) is planned to
+  through unknown space.
 
   **Monitoring**, every cycle: a waypoint within `tolerance` is reached
   and the next one taken; a robot that makes no progress for
   `stuck_after` seconds gets a new plan, and after `max_replans` the
   waypoint is given up (a task that gave up any of its waypoints ends
-  `:failed`, not `:done`); a door on the route seen shut in the LPS
-  (`{:lps, robot, _}`) is marked closed,
-  and the route is replanned around it, or the task waits (state
-  `:blocked`) and tries again after `retry_after` seconds. A door counts
-  as shut when the LPS holds obstacle evidence (at least three points)
-  across the middle of its opening while the robot is within 3 m.
+  `:failed`, not `:done`). On the WDF's map (no map builder), a door on
+  the path seen shut in the LPS (`{:lps, robot, _}`: obstacle evidence,
+  at least three points, across the middle of its opening while the
+  robot is within 3 m) is marked closed and the path planned around it.
+  A goal no path leads to (state `:unreachable`) or a route blocked
+  (`:blocked`) is tried again after `retry_after` seconds, counted as a
+  replan.
 
-  **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:, path:,
-  door:, closed_doors:, replans:, reached:, given_up:}}` (latest value):
-  `state` is `:waiting` (no pose yet), `:moving`, `:blocked`, `:done` (every
-  waypoint reached), `:failed` (the task ended with waypoints given up) or
-  `:idle`;
-  `path` the rest of the metric path (world points); `door` the next door
-  to cross (`%{name:, centre:, width:, heading:}`, heading across the
-  opening in the direction of travel). Doors seen shut are also published as
-  `{:door, name, %{open: false, stamp: t}}`.
+  **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:,
+  path:, door:, closed_doors:, replans:, reached:, given_up:, reason:,
+  source:, planning:}}` (latest value): `state` is `:waiting` (no pose or
+  no map yet), `:moving`, `:blocked`, `:unreachable`, `:done` (every
+  waypoint reached), `:failed` (the task ended with waypoints given up,
+  or was refused) or `:idle`; `path` the rest of the metric path (world
+  points); `door` the next door the path crosses (`%{name:, centre:,
+  width:, heading:}`, heading across the opening in the direction of
+  travel: the WDF's doors, and those of the learned topology); `reason`
+  why the robot is not moving on (a sentence, or nil); `source` the map
+  planned on (`:wdf`, `:sensed` or nil); `planning` what the last
+  planning did (`ThinkingCap.Navigation.PathPlanner`'s `last`). Doors
+  seen shut are also published as `{:door, name, %{open: false, stamp: t}}`.
+
+  ## Parameters
+
+  `task`, `tolerance` (0.35 m), `stuck_after` (12 s), `max_replans` (3),
+  `retry_after` (10 s), `replan_every` (1 s), `margin` (0.08 m),
+  `radius` (default the RDF's footprint, else 0.2 m), `resolution` (the
+  planning cell, default the map's, at least 0.05 m), `reach` (20 m),
+  `compare` (time A* beside each plan, for benchmarks; default false).
   """
   use ThinkingCap.Module
   require Logger
 
-  alias ThinkingCap.Navigation.{AStar, Grid, Maps, Topology}
+  alias ThinkingCap.Config.WDF
+  alias ThinkingCap.Navigation.{Maps, OccupancyGrid, PathPlanner, Topology}
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
 
@@ -50,24 +75,37 @@ defmodule ThinkingCap.Planner.Monitor do
     stuck_after: 12.0,
     max_replans: 3,
     retry_after: 10.0,
+    replan_every: 1.0,
     resolution: nil,
-    margin: 0.08
+    margin: 0.08,
+    reach: 20.0,
+    compare: false
   ]
 
   @impl true
   def init(params, context) do
     params = Keyword.merge(@defaults, if(is_map(params), do: Map.to_list(params), else: params))
-    wdf = read_wdf!(context)
+    wdf = read_wdf(context)
     radius = robot_radius(context, params)
+
+    planner =
+      PathPlanner.new(
+        radius: radius + params[:margin],
+        resolution: max(params[:resolution] || 0.05, 0.05),
+        compare: params[:compare]
+      )
 
     state = %{
       robot: context.robot,
       params: params,
       wdf: wdf,
-      radius: radius,
-      topology: Topology.from_wdf(wdf),
-      closed: wdf.doors |> Enum.reject(& &1.open) |> MapSet.new(& &1.name),
-      grid: nil,
+      places: if(wdf, do: Topology.from_wdf(wdf).places, else: %{}),
+      learned: nil,
+      closed: initially_closed(wdf),
+      planner: planner,
+      source: nil,
+      incoming: nil,
+      map: nil,
       pose: nil,
       lps: nil,
       time: 0.0,
@@ -76,23 +114,27 @@ defmodule ThinkingCap.Planner.Monitor do
       target: nil,
       plan: nil,
       status: :idle,
+      reason: nil,
       reached: [],
       given_up: [],
       replans: 0,
       progress: nil,
-      blocked_at: nil
+      blocked_at: nil,
+      planned_at: nil
     }
 
     state =
       state
-      |> rebuild_grid()
+      |> wdf_map()
       |> set_task(Keyword.get(params, :task, :idle))
       |> resume(Map.get(context, :handoff))
 
     {[
        subscribe: {:pose, context.robot, :_},
        subscribe: {:lps, context.robot, :_},
-       subscribe: {:task, context.robot, :_}
+       subscribe: {:task, context.robot, :_},
+       subscribe: {:map, context.robot, :_},
+       subscribe: {:topology, context.robot, :_}
      ], state}
   end
 
@@ -109,14 +151,15 @@ defmodule ThinkingCap.Planner.Monitor do
   # after a failover: on with the task where it stood
   defp resume(state, %{task: _, queue: _, target: _, reached: _, given_up: _} = handoff) do
     status = if handoff.target == nil and handoff.queue == [], do: state.status, else: :waiting
-    state |> Map.merge(Map.put(handoff, :status, status)) |> rebuild_grid()
+    state |> Map.merge(Map.put(handoff, :status, status)) |> wdf_map()
   end
 
   defp resume(state, _handoff), do: state
 
   @impl true
-  def handle_tuple({:pose, robot, %{pose: pose}}, %{robot: robot} = state),
-    do: {[], %{state | pose: pose}}
+  def handle_tuple({:pose, robot, %{pose: {x, y, th} = pose}}, %{robot: robot} = state)
+      when is_number(x) and is_number(y) and is_number(th),
+      do: {[], %{state | pose: pose}}
 
   def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
     do: {[], %{state | lps: lps}}
@@ -124,44 +167,122 @@ defmodule ThinkingCap.Planner.Monitor do
   def handle_tuple({:task, robot, %{task: task}}, %{robot: robot} = state),
     do: {[], set_task(state, task)}
 
+  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot} = state),
+    do: {[], %{state | incoming: map}}
+
+  def handle_tuple({:topology, robot, %Topology{} = topology}, %{robot: robot} = state),
+    do: {[], %{state | learned: topology}}
+
   def handle_tuple(_tuple, state), do: {[], state}
 
   @impl true
   def handle_cycle(release, state) do
-    state = %{state | time: release.scheduled_ns / 1.0e9}
+    state = %{state | time: release.scheduled_ns / 1.0e9} |> take_map()
     {actions, state} = step(state)
     {actions ++ [publish(state)], state}
+  end
+
+  ## Maps
+
+  # the sensed map, once one came: it replaces the WDF's for good
+  defp take_map(%{incoming: nil} = state), do: state
+
+  defp take_map(%{incoming: map} = state) do
+    %{
+      state
+      | map: map,
+        source: :sensed,
+        incoming: nil,
+        planner: PathPlanner.set_map(state.planner, map)
+    }
+  end
+
+  # the WDF's map (with the doors known to be closed), while nothing is sensed
+  defp wdf_map(%{source: :sensed} = state), do: state
+  defp wdf_map(%{wdf: nil} = state), do: state
+
+  defp wdf_map(%{wdf: wdf} = state) do
+    if WDF.empty?(wdf) do
+      state
+    else
+      opts = [closed: MapSet.to_list(state.closed)]
+      opts = if wdf.grid, do: opts, else: [{:resolution, 0.05} | opts]
+      grid = Maps.grid_from_wdf(wdf, opts)
+      data = for <<b <- grid.cells>>, into: <<>>, do: <<b * 100>>
+
+      map = %OccupancyGrid{
+        width: grid.width,
+        height: grid.height,
+        data: data,
+        resolution: grid.resolution,
+        origin: grid.origin,
+        version: {:wdf, Enum.sort(state.closed)}
+      }
+
+      %{state | map: map, source: :wdf, planner: PathPlanner.set_map(state.planner, map)}
+    end
   end
 
   ## Tasks
 
   defp set_task(state, task) do
-    queue =
+    case queue(task) do
+      {:ok, queue} ->
+        %{
+          state
+          | task: task,
+            queue: queue,
+            target: nil,
+            plan: nil,
+            reached: [],
+            given_up: [],
+            replans: 0,
+            reason: nil
+        }
+        |> Map.put(:status, if(queue == [], do: :idle, else: :waiting))
+
+      {:error, reason} ->
+        Logger.warning("#{inspect(state.robot)}: task refused: #{reason}")
+
+        %{state | task: :idle, queue: [], target: nil, plan: nil}
+        |> Map.merge(%{status: :failed, reason: reason})
+    end
+  end
+
+  defp queue(task) do
+    waypoints =
       case task do
-        {:go_to, wp} -> [wp]
-        {:visit, wps} when is_list(wps) -> wps
-        {:patrol, wps} when is_list(wps) and wps != [] -> wps
-        :idle -> []
-        other -> raise ArgumentError, "unknown task #{inspect(other)}"
+        {:go_to, wp} -> {:ok, [wp]}
+        {:visit, wps} when is_list(wps) -> {:ok, wps}
+        {:patrol, [_ | _] = wps} -> {:ok, wps}
+        :idle -> {:ok, []}
+        other -> {:error, "unknown task #{inspect(other, limit: 5, printable_limit: 40)}"}
       end
 
-    %{
-      state
-      | task: task,
-        queue: queue,
-        target: nil,
-        plan: nil,
-        reached: [],
-        given_up: [],
-        replans: 0
-    }
-    |> Map.put(:status, if(queue == [], do: :idle, else: :waiting))
+    with {:ok, wps} <- waypoints do
+      case Enum.reject(wps, &waypoint?/1) do
+        [] -> {:ok, wps}
+        [bad | _] -> {:error, "#{inspect(bad, limit: 5, printable_limit: 40)} is not a waypoint"}
+      end
+    end
   end
+
+  defp waypoint?(name) when is_atom(name), do: true
+
+  defp waypoint?({x, y}) when is_number(x) and is_number(y),
+    do: abs(x) < 1.0e6 and abs(y) < 1.0e6
+
+  defp waypoint?(_), do: false
 
   ## Monitoring
 
   defp step(%{pose: nil} = state), do: {[], state}
-  defp step(%{status: status} = state) when status in [:idle, :done, :failed], do: {[], state}
+
+  defp step(%{status: status} = state) when status in [:idle, :done, :failed],
+    do: {[], state}
+
+  defp step(%{map: nil} = state),
+    do: {[], %{state | status: :waiting, reason: "no map yet: no WDF and no map builder"}}
 
   # resumed from a handoff with a waypoint under way: plan to it from here
   defp step(%{status: :waiting, target: target, plan: nil} = state) when target != nil,
@@ -177,11 +298,11 @@ defmodule ThinkingCap.Planner.Monitor do
     {[], plan(state)}
   end
 
-  defp step(%{status: :blocked} = state) do
+  defp step(%{status: status} = state) when status in [:blocked, :unreachable] do
     if state.time - state.blocked_at >= state.params[:retry_after] do
       # doors open again: forget what was seen shut, try again
-      state = %{state | closed: initially_closed(state)} |> rebuild_grid()
-      {[], plan(state)}
+      state = %{state | closed: initially_closed(state.wdf)} |> wdf_map()
+      retry(state)
     else
       {[], state}
     end
@@ -189,10 +310,19 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp step(state) do
     {x, y, _} = state.pose
-    {tx, ty} = target_point(state, state.target)
-    distance = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
-    {to_go, state} = to_go(state, distance)
 
+    case goal(state, state.target) do
+      {:ok, {tx, ty}} ->
+        distance = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
+        {to_go, state} = to_go(state, distance)
+        monitor(state, distance, to_go)
+
+      {:error, reason} ->
+        give_up(state, reason)
+    end
+  end
+
+  defp monitor(state, distance, to_go) do
     cond do
       distance <= state.params[:tolerance] ->
         state = %{state | reached: [state.target | state.reached], target: nil, plan: nil}
@@ -200,22 +330,46 @@ defmodule ThinkingCap.Planner.Monitor do
 
       door = shut_door(state) ->
         Logger.info("#{inspect(state.robot)}: door #{door.name} is shut; replanning")
-        state = %{state | closed: MapSet.put(state.closed, door.name)} |> rebuild_grid()
+        state = %{state | closed: MapSet.put(state.closed, door.name)} |> wdf_map()
         seen = {{:door, door.name, %{open: false, stamp: state.time}}, [key: {:door, door.name}]}
         {[out: seen], plan(state)}
 
       stuck?(state, to_go) ->
-        if state.replans >= state.params[:max_replans] do
-          Logger.info("#{inspect(state.robot)}: giving up #{inspect(state.target)}")
-          step(%{state | given_up: [state.target | state.given_up], target: nil, plan: nil})
-        else
-          {[], plan(%{state | replans: state.replans + 1})}
-        end
+        retry(state)
+
+      replan_due?(state) ->
+        {[], plan(state, keep_progress: true)}
 
       true ->
         {[], %{state | progress: progress(state.progress, to_go, state.time)}}
     end
   end
+
+  # another plan, or the waypoint given up after max_replans
+  defp retry(state) do
+    if state.replans >= state.params[:max_replans] do
+      give_up(state, state.reason || "no progress")
+    else
+      {[], plan(%{state | replans: state.replans + 1})}
+    end
+  end
+
+  defp give_up(state, reason) do
+    Logger.info("#{inspect(state.robot)}: giving up #{inspect(state.target)}: #{reason}")
+    state = %{state | given_up: [state.target | state.given_up], target: nil, plan: nil}
+    {actions, state} = step(state)
+    {actions, %{state | reason: reason}}
+  end
+
+  # on a sensed map, the path is repaired when the map changed, and now
+  # and then anyway (the robot strays from it)
+  defp replan_due?(%{source: :sensed} = state) do
+    state.planned_at == nil or
+      state.time - state.planned_at >= state.params[:replan_every] or
+      state.planner.version != state.map.version
+  end
+
+  defp replan_due?(_state), do: false
 
   # Progress is measured along the plan, not as the straight distance to
   # the target: a route that first leads away from the target (round the
@@ -267,6 +421,7 @@ defmodule ThinkingCap.Planner.Monitor do
   defp sub({ax, ay}, {bx, by}), do: {ax - bx, ay - by}
   defp dot({ax, ay}, {bx, by}), do: ax * bx + ay * by
   defp clamp(v, lo, hi), do: v |> max(lo) |> min(hi)
+  defp lerp({x1, y1}, {x2, y2}, t), do: {x1 + t * (x2 - x1), y1 + t * (y2 - y1)}
 
   # the best distance to the target so far, and when it was reached
   defp progress({best, _since}, distance, time) when distance < best - 0.2, do: {distance, time}
@@ -280,95 +435,172 @@ defmodule ThinkingCap.Planner.Monitor do
 
   ## Planning
 
-  defp plan(state) do
-    goal = target_point(state, state.target)
+  defp plan(state, opts \\ []) do
     {x, y, _} = state.pose
 
-    with {:ok, route} <- route(state, {x, y}, goal),
-         {:ok, path} <- metric_path(state, {x, y}, goal) do
+    with {:ok, goal} <- goal(state, state.target),
+         {:ok, cells, planner} <- path_to(state, {x, y}, goal) do
+      path = simplify(cells) ++ [goal]
       length = path_length(path)
-      plan = %{route: route, path: path, length: length, s: 0.0}
-      %{state | plan: plan, status: :moving, progress: {length, state.time}}
+      progress = if opts[:keep_progress], do: state.progress, else: {length, state.time}
+
+      %{
+        state
+        | planner: planner,
+          plan: %{path: path, length: length, s: 0.0},
+          status: :moving,
+          reason: nil,
+          progress: progress,
+          planned_at: state.time
+      }
     else
-      {:error, reason} ->
-        Logger.info(
-          "#{inspect(state.robot)}: no plan to #{inspect(state.target)}: #{inspect(reason)}"
-        )
-
-        %{state | plan: nil, status: :blocked, blocked_at: state.time}
+      {:error, reason, planner} -> not_planned(%{state | planner: planner}, reason)
+      {:error, reason} -> elem(give_up(state, reason), 1)
     end
   end
 
-  defp route(state, from, to) do
-    t = state.topology
-
-    case {Topology.place_of(t, from), Topology.place_of(t, to)} do
-      {nil, _} -> {:ok, []}
-      {_, nil} -> {:ok, []}
-      {a, b} -> Topology.route(t, a, b, closed: MapSet.to_list(state.closed))
-    end
-  end
-
-  defp metric_path(state, from, to) do
-    case AStar.plan_world(
-           state.grid,
-           nearest_free(state.grid, from),
-           nearest_free(state.grid, to)
-         ) do
-      {:ok, %{path: path}} -> {:ok, simplify(state.grid, path) ++ [to]}
-      {:error, reason} -> {:error, reason}
-    end
-  end
-
-  # the point itself, or the nearest free cell's centre (a pose can sit
-  # inside the inflated margin of a wall)
-  defp nearest_free(grid, point) do
-    {col, row} = Grid.cell_of(grid, point)
-
-    if Grid.passable?(grid, {col, row}) do
-      point
-    else
-      Enum.find_value(1..20, point, fn r ->
-        cells = for dc <- -r..r, dr <- -r..r, max(abs(dc), abs(dr)) == r, do: {col + dc, row + dr}
-
-        case Enum.filter(cells, &Grid.passable?(grid, &1)) do
-          [] ->
-            nil
-
-          free ->
-            Grid.centre(grid, Enum.min_by(free, fn {c, w} -> (c - col) ** 2 + (w - row) ** 2 end))
+  defp path_to(state, from, goal) do
+    case PathPlanner.plan(state.planner, from, goal) do
+      {:error, :goal_outside_map, planner} when state.source == :sensed ->
+        # beyond what was sensed: through unknown space, if near enough
+        case widen(state.map, goal, state.params[:reach]) do
+          {:ok, map} -> PathPlanner.plan(PathPlanner.set_map(planner, map), from, goal)
+          :error -> {:error, :goal_outside_map, planner}
         end
-      end)
+
+      result ->
+        result
     end
   end
 
-  # every 8th point, and the corners
-  defp simplify(_grid, path) when length(path) <= 2, do: path
+  # the map grown (unknown) to hold the goal with a margin, if the goal is
+  # within `reach` of it
+  defp widen(%OccupancyGrid{} = map, {gx, gy}, reach) do
+    {ox, oy} = map.origin
+    res = map.resolution
+    {x1, y1} = {ox + map.width * res, oy + map.height * res}
 
-  defp simplify(_grid, path) do
+    if gx > ox - reach and gx < x1 + reach and gy > oy - reach and gy < y1 + reach do
+      pad = 40
+      left = max(0, ceil((ox - gx) / res) + pad)
+      bottom = max(0, ceil((oy - gy) / res) + pad)
+      right = max(0, ceil((gx - x1) / res) + pad)
+      top = max(0, ceil((gy - y1) / res) + pad)
+      {:ok, OccupancyGrid.pad(map, left, bottom, right, top)}
+    else
+      :error
+    end
+  end
+
+  defp not_planned(state, reason) do
+    {status, sentence} =
+      case reason do
+        :no_map -> {:waiting, "no map yet"}
+        :no_path -> {:unreachable, "no path to #{inspect(state.target)} on the map as known"}
+        :goal_blocked -> {:blocked, "#{inspect(state.target)} lies in an obstacle"}
+        :start_blocked -> {:blocked, "the robot is inside an obstacle as mapped"}
+        :start_outside_map -> {:blocked, "the robot is off the map"}
+        :goal_outside_map -> {:gone, "#{inspect(state.target)} is outside the map"}
+      end
+
+    Logger.info("#{inspect(state.robot)}: no plan to #{inspect(state.target)}: #{sentence}")
+
+    case status do
+      :gone -> elem(give_up(state, sentence), 1)
+      _ -> %{state | plan: nil, status: status, reason: sentence, blocked_at: state.time}
+    end
+  end
+
+  # every 8th point, and the ends
+  defp simplify(path) when length(path) <= 2, do: path
+
+  defp simplify(path) do
     path
     |> Enum.with_index()
     |> Enum.filter(fn {_p, i} -> rem(i, 8) == 0 end)
     |> Enum.map(&elem(&1, 0))
   end
 
-  defp rebuild_grid(state) do
-    # an imported occupancy map sets the resolution; 5 cm otherwise
-    resolution = state.params[:resolution] || if(state.wdf.grid, do: nil, else: 0.05)
-    opts = [closed: MapSet.to_list(state.closed)]
-    opts = if resolution, do: [{:resolution, resolution} | opts], else: opts
-    grid = Maps.grid_from_wdf(state.wdf, opts)
+  defp initially_closed(nil), do: MapSet.new()
+  defp initially_closed(wdf), do: wdf.doors |> Enum.reject(& &1.open) |> MapSet.new(& &1.name)
 
-    %{state | grid: Maps.inflate(grid, state.radius + state.params[:margin])}
+  ## Goals
+
+  defp goal(_state, {x, y}) when is_number(x) and is_number(y), do: {:ok, {x * 1.0, y * 1.0}}
+
+  defp goal(state, name) when is_atom(name) do
+    waypoints = if state.wdf, do: state.wdf.waypoints, else: []
+    learned = if state.learned, do: state.learned.places, else: %{}
+
+    case Enum.find(waypoints, &(&1.name == name)) do
+      %{at: at} ->
+        {:ok, {elem(at, 0) * 1.0, elem(at, 1) * 1.0}}
+
+      nil ->
+        case Map.get(learned, name) || Map.get(state.places, name) do
+          %{centroid: centre} -> {:ok, centre}
+          nil -> {:error, "#{inspect(name)} is no waypoint or place of #{known(state)}"}
+        end
+    end
   end
 
-  defp initially_closed(state),
-    do: state.wdf.doors |> Enum.reject(& &1.open) |> MapSet.new(& &1.name)
+  defp known(%{wdf: nil, learned: nil}), do: "the robot's (it knows none yet)"
+  defp known(%{wdf: %{file: file}}), do: file
+  defp known(_state), do: "the learned map"
 
   ## Doors
 
-  # the next door of the route, if the LPS holds obstacle evidence across
-  # the middle of its opening while the robot is near it
+  # the doors the robot knows: the WDF's open ones and the learned map's
+  defp doors(state) do
+    drawn =
+      for d <- (state.wdf && state.wdf.doors) || [], not MapSet.member?(state.closed, d.name) do
+        door(d.name, d.from, d.to)
+      end
+
+    learned =
+      for d <- (state.learned && Map.values(state.learned.doors)) || [],
+          do: door(d.name, d.from, d.to)
+
+    drawn ++ learned
+  end
+
+  defp door(name, {x1, y1} = a, {x2, y2} = b) do
+    %{
+      name: name,
+      jambs: {a, b},
+      centre: {(x1 + x2) / 2, (y1 + y2) / 2},
+      width: :math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2)
+    }
+  end
+
+  # the first door the rest of the path crosses (its centre within half a
+  # metre of the path), at least 0.4 m from the robot
+  defp next_door(%{plan: %{path: _}, pose: {x, y, _}} = state) do
+    path = remaining_path(state)
+    indexed = Enum.with_index(path)
+
+    state
+    |> doors()
+    |> Enum.flat_map(fn %{centre: {cx, cy} = c} = door ->
+      near = Enum.find(indexed, fn {p, _} -> dist(p, c) < 0.5 end)
+
+      if near && :math.sqrt((cx - x) ** 2 + (cy - y) ** 2) > 0.4,
+        do: [{elem(near, 1), door}],
+        else: []
+    end)
+    |> Enum.min_by(&elem(&1, 0), fn -> nil end)
+    |> case do
+      nil -> nil
+      {_, door} -> door
+    end
+  end
+
+  defp next_door(_state), do: nil
+
+  # on the WDF's map only: the next door of the path, if the LPS holds
+  # obstacle evidence across the middle of its opening while the robot is
+  # near it (on a sensed map the shut door is in the map)
+  defp shut_door(%{source: :sensed}), do: nil
   defp shut_door(%{lps: nil}), do: nil
   defp shut_door(%{plan: nil}), do: nil
 
@@ -381,9 +613,11 @@ defmodule ThinkingCap.Planner.Monitor do
         {x, y, _} = state.pose
         {cx, cy} = door.centre
         d = :math.sqrt((cx - x) ** 2 + (cy - y) ** 2)
-        if d < 3.0 and across(state, door) >= 3, do: door, else: nil
+        if d < 3.0 and across(state, door) >= 3 and wdf_door?(state, door), do: door, else: nil
     end
   end
+
+  defp wdf_door?(state, door), do: Enum.any?(state.wdf.doors, &(&1.name == door.name))
 
   # obstacle points within 0.1 m of the middle 60 % of the door's opening
   defp across(state, door) do
@@ -396,8 +630,6 @@ defmodule ThinkingCap.Planner.Monitor do
     end)
   end
 
-  defp lerp({x1, y1}, {x2, y2}, t), do: {x1 + t * (x2 - x1), y1 + t * (y2 - y1)}
-
   defp to_robot({x, y, th}, {px, py}) do
     {c, s} = {:math.cos(th), :math.sin(th)}
     {dx, dy} = {px - x, py - y}
@@ -406,30 +638,9 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp segment_distance({x, y}, {ax, ay}, {bx, by}) do
     {ex, ey} = {bx - ax, by - ay}
-    u = max(0.0, min(1.0, ((x - ax) * ex + (y - ay) * ey) / (ex * ex + ey * ey)))
+    len2 = ex * ex + ey * ey
+    u = if len2 == 0, do: 0.0, else: max(0.0, min(1.0, ((x - ax) * ex + (y - ay) * ey) / len2))
     :math.sqrt((ax + u * ex - x) ** 2 + (ay + u * ey - y) ** 2)
-  end
-
-  defp next_door(%{plan: %{route: route}} = state) do
-    {x, y, _} = state.pose
-
-    route
-    |> Enum.map(& &1.via_door)
-    |> Enum.reject(&is_nil/1)
-    |> Enum.map(&door_info(state, &1))
-    |> Enum.find(fn %{centre: {cx, cy}} -> :math.sqrt((cx - x) ** 2 + (cy - y) ** 2) > 0.4 end)
-  end
-
-  defp door_info(state, name) do
-    d = Enum.find(state.wdf.doors, &(&1.name == name))
-    {{x1, y1}, {x2, y2}} = {d.from, d.to}
-
-    %{
-      name: name,
-      jambs: {d.from, d.to},
-      centre: {(x1 + x2) / 2, (y1 + y2) / 2},
-      width: :math.sqrt((x2 - x1) ** 2 + (y2 - y1) ** 2)
-    }
   end
 
   ## Publishing
@@ -439,16 +650,28 @@ defmodule ThinkingCap.Planner.Monitor do
       task: state.task,
       state: state.status,
       waypoint: state.target,
-      goal: state.target && target_point(state, state.target),
+      goal: goal_point(state),
       path: remaining_path(state),
       door: door_to_cross(state),
       closed_doors: MapSet.to_list(state.closed),
       replans: state.replans,
       reached: Enum.reverse(state.reached),
-      given_up: Enum.reverse(state.given_up)
+      given_up: Enum.reverse(state.given_up),
+      reason: state.reason,
+      source: state.source,
+      planning: state.planner.last
     }
 
     {:out, {{:plan, state.robot, plan}, [key: {:plan, state.robot}]}}
+  end
+
+  defp goal_point(%{target: nil}), do: nil
+
+  defp goal_point(state) do
+    case goal(state, state.target) do
+      {:ok, point} -> point
+      {:error, _} -> nil
+    end
   end
 
   defp remaining_path(%{plan: %{path: path}, pose: {x, y, _}}) do
@@ -481,27 +704,22 @@ defmodule ThinkingCap.Planner.Monitor do
     end
   end
 
-  defp target_point(_state, {x, y}) when is_number(x) and is_number(y), do: {x * 1.0, y * 1.0}
-
-  defp target_point(state, name) when is_atom(name) do
-    case Enum.find(state.wdf.waypoints, &(&1.name == name)) do
-      %{at: {x, y}} -> {x * 1.0, y * 1.0}
-      %{at: {x, y, _}} -> {x * 1.0, y * 1.0}
-      nil -> raise ArgumentError, "no waypoint #{inspect(name)} in #{state.wdf.file}"
-    end
-  end
-
   ## Context
 
-  defp read_wdf!(%{wdf: path}) when is_binary(path) do
+  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
     case ThinkingCap.Config.read(path) do
-      {:ok, wdf} -> wdf
-      {:error, errors} -> raise ArgumentError, ThinkingCap.Config.format_errors(errors)
+      {:ok, %WDF{} = wdf} ->
+        wdf
+
+      {:ok, _} ->
+        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
+
+      {:error, errors} ->
+        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
     end
   end
 
-  defp read_wdf!(context),
-    do: raise(ArgumentError, "#{inspect(context.name)}: the planner needs the ADF's wdf:")
+  defp read_wdf(_context), do: nil
 
   defp robot_radius(%{rdf: rdf}, params) when is_binary(rdf) do
     case Description.load(rdf) do

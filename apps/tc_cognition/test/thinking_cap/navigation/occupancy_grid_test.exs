@@ -31,6 +31,20 @@ defmodule ThinkingCap.Navigation.OccupancyGridTest do
     assert back.data == map.data
   end
 
+  test "a map padded with unknown cells keeps its cells where they were in the world" do
+    map = %{
+      OccupancyGrid.new(2, 2, resolution: 0.5, origin: {1.0, 1.0})
+      | data: <<0, 100, 50, 0>>
+    }
+
+    padded = OccupancyGrid.pad(map, 1, 2, 3, 1)
+    assert {padded.width, padded.height, padded.origin} == {6, 5, {0.5, 0.0}}
+
+    for {point, value} <- [{{1.2, 1.2}, 0}, {{1.7, 1.2}, 100}, {{1.2, 1.7}, 50}, {{0.7, 0.2}, -1}] do
+      assert OccupancyGrid.value(padded, OccupancyGrid.cell_of(padded, point)) == value
+    end
+  end
+
   test "unknown cells are blocked by default and passable on request" do
     map = %{OccupancyGrid.new(2, 1) | data: <<-1::signed-8, 70>>}
     assert OccupancyGrid.to_grid(map).cells == <<1, 1>>

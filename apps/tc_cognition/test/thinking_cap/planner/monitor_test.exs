@@ -115,7 +115,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
-  test "with every way in shut the task is blocked, then tried again", %{tmp_dir: dir} do
+  test "with every way in shut the goal is unreachable, then tried again", %{tmp_dir: dir} do
     text =
       String.replace(
         @two_doors,
@@ -128,7 +128,8 @@ defmodule ThinkingCap.Planner.MonitorTest do
     {_plan, _, state} = cycle(state, 0.0)
     state = lps(state, shut_ahead(1.5))
     {plan, _, state} = cycle(state, 0.5)
-    assert plan.state == :blocked
+    assert plan.state == :unreachable
+    assert plan.reason =~ "no path to :desk"
     # the door opens again; after retry_after the planner tries again
     state = lps(state, LPS.empty())
     {plan, _, _state} = cycle(state, 11.0)
