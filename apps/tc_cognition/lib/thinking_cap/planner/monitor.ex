@@ -188,14 +188,28 @@ defmodule ThinkingCap.Planner.Monitor do
   defp take_map(%{incoming: nil} = state), do: state
 
   defp take_map(%{incoming: map} = state) do
-    %{
-      state
-      | map: map,
-        source: :sensed,
-        incoming: nil,
-        planner: PathPlanner.set_map(state.planner, map)
-    }
+    map = keep_frame(map, state.map)
+    planner = PathPlanner.set_map(state.planner, map)
+    %{state | map: map, source: :sensed, incoming: nil, planner: planner}
   end
+
+  # a map that fits in the frame planned on (widened towards a goal in
+  # unexplored space) is padded out to it: the same frame, so the plan is
+  # repaired rather than searched again
+  defp keep_frame(map, %OccupancyGrid{resolution: res} = frame) when res == map.resolution do
+    {{fx, fy}, {mx, my}} = {frame.origin, map.origin}
+    {left, bottom} = {round((mx - fx) / res), round((my - fy) / res)}
+    right = frame.width - map.width - left
+    top = frame.height - map.height - bottom
+    aligned = abs(fx + left * res - mx) < res / 100 and abs(fy + bottom * res - my) < res / 100
+
+    if aligned and left >= 0 and bottom >= 0 and right >= 0 and top >= 0 and
+         {left, bottom, right, top} != {0, 0, 0, 0},
+       do: OccupancyGrid.pad(map, left, bottom, right, top),
+       else: map
+  end
+
+  defp keep_frame(map, _frame), do: map
 
   # the WDF's map (with the doors known to be closed), while nothing is sensed
   defp wdf_map(%{source: :sensed} = state), do: state
@@ -439,7 +453,7 @@ defmodule ThinkingCap.Planner.Monitor do
     {x, y, _} = state.pose
 
     with {:ok, goal} <- goal(state, state.target),
-         {:ok, cells, planner} <- path_to(state, {x, y}, goal) do
+         {:ok, cells, planner, state} <- path_to(state, {x, y}, goal) do
       path = simplify(cells) ++ [goal]
       length = path_length(path)
       progress = if opts[:keep_progress], do: state.progress, else: {length, state.time}
@@ -461,15 +475,22 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp path_to(state, from, goal) do
     case PathPlanner.plan(state.planner, from, goal) do
+      {:ok, cells, planner} ->
+        {:ok, cells, planner, state}
+
       {:error, :goal_outside_map, planner} when state.source == :sensed ->
         # beyond what was sensed: through unknown space, if near enough
-        case widen(state.map, goal, state.params[:reach]) do
-          {:ok, map} -> PathPlanner.plan(PathPlanner.set_map(planner, map), from, goal)
+        with {:ok, map} <- widen(state.map, goal, state.params[:reach]),
+             planner = PathPlanner.set_map(planner, map),
+             {:ok, cells, planner} <- PathPlanner.plan(planner, from, goal) do
+          {:ok, cells, planner, %{state | map: map}}
+        else
           :error -> {:error, :goal_outside_map, planner}
+          error -> error
         end
 
-      result ->
-        result
+      error ->
+        error
     end
   end
 
@@ -486,7 +507,8 @@ defmodule ThinkingCap.Planner.Monitor do
       bottom = max(0, ceil((oy - gy) / res) + pad)
       right = max(0, ceil((gx - x1) / res) + pad)
       top = max(0, ceil((gy - y1) / res) + pad)
-      {:ok, OccupancyGrid.pad(map, left, bottom, right, top)}
+      padded = OccupancyGrid.pad(map, left, bottom, right, top)
+      {:ok, %{padded | version: {:widened, map.version, left, bottom, right, top}}}
     else
       :error
     end
