@@ -2,7 +2,8 @@ Code.require_file("../../mix/c_build.exs", __DIR__)
 
 defmodule Mix.Tasks.Compile.TcGrid do
   @moduledoc false
-  # Builds the navigation grid NIF (c_src/tc_grid.c -> priv/lib/tc_grid.so).
+  # Builds the navigation grid NIF (c_src/tc_grid.c and tc_plan.c ->
+  # priv/lib/tc_grid.so).
   use Mix.Task.Compiler
 
   # run inside the app's project (cwd), not the umbrella's
@@ -11,7 +12,11 @@ defmodule Mix.Tasks.Compile.TcGrid do
 
   @impl true
   def run(_args) do
-    ThinkingCap.Build.C.compile("tc_grid", __DIR__, ["c_src/tc_grid.c"], @target,
+    ThinkingCap.Build.C.compile(
+      "tc_grid",
+      __DIR__,
+      ["c_src/tc_grid.c", "c_src/tc_plan.c"],
+      @target,
       nif: true,
       ldflags: ["-lm"]
     )

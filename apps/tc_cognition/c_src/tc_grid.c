@@ -16,16 +16,20 @@
  *    so evidence accumulates as readings agree, and what the sensors now
  *    see empty (an obstacle that left) fades out of the occupied degree.
  *
+ *  - A* and D* Lite (tc_plan.c).
+ *
  *  - Pure functions on byte grids (row-major from the bottom row): the
  *    exact Euclidean distance transform (Felzenszwalb & Huttenlocher),
- *    inflation, the difference of two grids, connected components and
- *    region growing (the room segmentation of the topological map).
+ *    inflation, thresholds, downsampling, patches and the difference of
+ *    two grids, and the room segmentation of the topological map.
  *
  * Every function checks its arguments and returns badarg, never crashes.
  * Work proportional to a whole map runs on a dirty CPU scheduler.
  */
 #include <erl_nif.h>
 #include <math.h>
+
+#include "tc_plan.h"
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -70,7 +74,7 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     ATOM_OK = enif_make_atom(env, "ok");
     ATOM_NIL = enif_make_atom(env, "nil");
     ATOM_ERROR = enif_make_atom(env, "error");
-    return FMAP_TYPE == NULL;
+    return FMAP_TYPE == NULL || tc_plan_load(env);
 }
 
 static int upgrade(ErlNifEnv *env, void **priv, void **old, ERL_NIF_TERM info)
@@ -533,86 +537,6 @@ static ERL_NIF_TERM nif_diff(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     return enif_make_tuple2(env, enif_make_long(env, count), list);
 }
 
-/* label(mask, w, h) -> {n, labels}: 8-connected components of the
- * non-zero cells, labels 1..n as native int32, 0 elsewhere */
-static ERL_NIF_TERM nif_label(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
-{
-    (void)argc;
-    ErlNifBinary b;
-    int w, h;
-    if (!get_grid(env, argv, &b, &w, &h)) return enif_make_badarg(env);
-    size_t n = (size_t)w * h;
-    ERL_NIF_TERM out;
-    int32_t *lab = (int32_t *)enif_make_new_binary(env, n * sizeof(int32_t), &out);
-    memset(lab, 0, n * sizeof(int32_t));
-    int32_t *queue = malloc(n * sizeof(int32_t));
-    if (!queue) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    int32_t next = 0;
-    for (size_t s = 0; s < n; s++) {
-        if (!b.data[s] || lab[s]) continue;
-        next++;
-        size_t head = 0, tail = 0;
-        queue[tail++] = (int32_t)s;
-        lab[s] = next;
-        while (head < tail) {
-            int32_t i = queue[head++];
-            int c = i % w, r = i / w;
-            for (int dr = -1; dr <= 1; dr++)
-                for (int dc = -1; dc <= 1; dc++) {
-                    int cc = c + dc, rr = r + dr;
-                    if ((dc || dr) && cc >= 0 && rr >= 0 && cc < w && rr < h) {
-                        size_t j = (size_t)rr * w + cc;
-                        if (b.data[j] && !lab[j]) {
-                            lab[j] = next;
-                            queue[tail++] = (int32_t)j;
-                        }
-                    }
-                }
-        }
-    }
-    free(queue);
-    return enif_make_tuple2(env, enif_make_int(env, next), out);
-}
-
-/* grow(labels, free, w, h) -> labels grown over the free (non-zero)
- * unlabelled cells, breadth first from every labelled cell at once
- * (4-connected): each free cell takes the label of the nearest seed */
-static ERL_NIF_TERM nif_grow(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
-{
-    (void)argc;
-    ErlNifBinary lb, fb;
-    int w, h;
-    if (!enif_inspect_binary(env, argv[0], &lb) || !enif_inspect_binary(env, argv[1], &fb) ||
-        !enif_get_int(env, argv[2], &w) || !enif_get_int(env, argv[3], &h) || w <= 0 || h <= 0 ||
-        (long)w * h > MAX_CELLS || fb.size != (size_t)w * h || lb.size != fb.size * 4)
-        return enif_make_badarg(env);
-    size_t n = (size_t)w * h;
-    ERL_NIF_TERM out;
-    int32_t *lab = (int32_t *)enif_make_new_binary(env, n * sizeof(int32_t), &out);
-    memcpy(lab, lb.data, n * sizeof(int32_t));
-    int32_t *queue = malloc(n * sizeof(int32_t));
-    if (!queue) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    size_t head = 0, tail = 0;
-    for (size_t i = 0; i < n; i++)
-        if (lab[i] > 0) queue[tail++] = (int32_t)i;
-    static const int dc4[4] = {1, -1, 0, 0}, dr4[4] = {0, 0, 1, -1};
-    while (head < tail) {
-        int32_t i = queue[head++];
-        int c = i % w, r = i / w;
-        for (int k = 0; k < 4; k++) {
-            int cc = c + dc4[k], rr = r + dr4[k];
-            if (cc < 0 || rr < 0 || cc >= w || rr >= h) continue;
-            size_t j = (size_t)rr * w + cc;
-            if (fb.data[j] && lab[j] <= 0) {
-                lab[j] = lab[i];
-                queue[tail++] = (int32_t)j;
-            }
-        }
-    }
-    free(queue);
-    return out;
-}
-
 /* blocked(occupancy, threshold, unknown) -> 1 where the signed byte is
  * >= threshold, `unknown` (0 or 1) where it is -1, else 0 */
 static ERL_NIF_TERM nif_blocked(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -652,6 +576,185 @@ static ERL_NIF_TERM nif_downsample(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     return enif_make_tuple3(env, enif_make_int(env, cw), enif_make_int(env, ch), out);
 }
 
+/* patch(cells, changes) -> a copy of cells with each {index, value} of
+ * changes (native int32 pairs) set; indices outside are ignored */
+static ERL_NIF_TERM nif_patch(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b, ch;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_inspect_binary(env, argv[1], &ch) ||
+        ch.size % 8 != 0)
+        return enif_make_badarg(env);
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, b.size, &out);
+    memcpy(p, b.data, b.size);
+    const int32_t *c = (const int32_t *)ch.data;
+    for (size_t k = 0; k < ch.size / 8; k++)
+        if (c[2 * k] >= 0 && (size_t)c[2 * k] < b.size) p[c[2 * k]] = (unsigned char)c[2 * k + 1];
+    return out;
+}
+
+/* rooms(occupancy, w, h, free_below, half_door, min_core) -> {regions,
+ * contacts}: the room segmentation of ThinkingCap.Navigation.Maps.Rooms.
+ * Free cells (0 <= v < free_below) farther than half_door cells from any
+ * other cell are cores; 8-connected cores of fewer than min_core cells
+ * are dropped; every free cell joins the core it reaches first (4-
+ * connected, breadth first). regions: [{label, count, sum_c, sum_r,
+ * sum_cc, sum_cr, sum_rr, [{row, col_min, col_max}]}]; contacts: [{a, b,
+ * x2, y2}] for every pair of 4-neighbours of regions a < b, at the
+ * doubled coordinates of the edge between them (cell {c, r} spans
+ * [2c, 2c + 2] x [2r, 2r + 2]). */
+static ERL_NIF_TERM nif_rooms(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h, free_below;
+    double half, min_core;
+    if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &free_below) ||
+        !get_number(env, argv[4], &half) || !get_number(env, argv[5], &min_core))
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    unsigned char *blocked = calloc(n, 1);
+    int32_t *lab = calloc(n, sizeof(int32_t));
+    int32_t *queue = malloc(n * sizeof(int32_t));
+    if (!blocked || !lab || !queue) {
+        free(blocked);
+        free(lab);
+        free(queue);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (size_t i = 0; i < n; i++) {
+        int8_t v = (int8_t)b.data[i];
+        blocked[i] = !(v >= 0 && v < free_below);
+    }
+    double *g = edt2(blocked, w, h);
+    if (!g) {
+        free(blocked);
+        free(lab);
+        free(queue);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    double h2 = half * half;
+    /* cores, labelled 8-connected; small ones dropped */
+    int32_t next = 0;
+    for (size_t s0 = 0; s0 < n; s0++) {
+        if (blocked[s0] || lab[s0] || !(g[s0] > h2)) continue;
+        next++;
+        size_t head = 0, tail = 0;
+        queue[tail++] = (int32_t)s0;
+        lab[s0] = next;
+        while (head < tail) {
+            int32_t i = queue[head++];
+            int c = i % w, r = i / w;
+            for (int dr = -1; dr <= 1; dr++)
+                for (int dc = -1; dc <= 1; dc++) {
+                    int cc = c + dc, rr = r + dr;
+                    if ((dc || dr) && cc >= 0 && rr >= 0 && cc < w && rr < h) {
+                        size_t j = (size_t)rr * w + cc;
+                        if (!blocked[j] && !lab[j] && g[j] > h2) {
+                            lab[j] = next;
+                            queue[tail++] = (int32_t)j;
+                        }
+                    }
+                }
+        }
+        if ((double)tail < min_core)
+            for (size_t k = 0; k < tail; k++) lab[queue[k]] = -1; /* dropped */
+    }
+    free(g);
+    /* grow over the free cells, breadth first from every core at once */
+    size_t head = 0, tail = 0;
+    for (size_t i = 0; i < n; i++) {
+        if (lab[i] < 0) lab[i] = 0;
+        if (lab[i] > 0) queue[tail++] = (int32_t)i;
+    }
+    static const int dc4[4] = {1, -1, 0, 0}, dr4[4] = {0, 0, 1, -1};
+    while (head < tail) {
+        int32_t i = queue[head++];
+        int c = i % w, r = i / w;
+        for (int k = 0; k < 4; k++) {
+            int cc = c + dc4[k], rr = r + dr4[k];
+            if (cc < 0 || rr < 0 || cc >= w || rr >= h) continue;
+            size_t j = (size_t)rr * w + cc;
+            if (!blocked[j] && lab[j] == 0) {
+                lab[j] = lab[i];
+                queue[tail++] = (int32_t)j;
+            }
+        }
+    }
+    free(queue);
+    free(blocked);
+    /* statistics per label, and row extents */
+    double *st = calloc((size_t)(next + 1) * 6, sizeof(double));
+    int32_t *rmin = malloc((size_t)(next + 1) * h * sizeof(int32_t));
+    int32_t *rmax = malloc((size_t)(next + 1) * h * sizeof(int32_t));
+    if (!st || !rmin || !rmax) {
+        free(st);
+        free(rmin);
+        free(rmax);
+        free(lab);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (size_t k = 0; k < (size_t)(next + 1) * h; k++) rmin[k] = w, rmax[k] = -1;
+    ERL_NIF_TERM contacts = enif_make_list(env, 0);
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            int32_t a = lab[(size_t)r * w + c];
+            if (a <= 0) continue;
+            double *t = st + (size_t)a * 6;
+            t[0] += 1, t[1] += c, t[2] += r, t[3] += (double)c * c, t[4] += (double)c * r,
+                t[5] += (double)r * r;
+            size_t e = (size_t)a * h + r;
+            if (c < rmin[e]) rmin[e] = c;
+            if (c > rmax[e]) rmax[e] = c;
+            int32_t right = c + 1 < w ? lab[(size_t)r * w + c + 1] : 0;
+            int32_t up = r + 1 < h ? lab[(size_t)(r + 1) * w + c] : 0;
+            if (right > 0 && right != a)
+                contacts = enif_make_list_cell(
+                    env,
+                    enif_make_tuple4(env, enif_make_int(env, a < right ? a : right),
+                                     enif_make_int(env, a < right ? right : a),
+                                     enif_make_int(env, 2 * c + 2), enif_make_int(env, 2 * r + 1)),
+                    contacts);
+            if (up > 0 && up != a)
+                contacts = enif_make_list_cell(
+                    env,
+                    enif_make_tuple4(env, enif_make_int(env, a < up ? a : up),
+                                     enif_make_int(env, a < up ? up : a),
+                                     enif_make_int(env, 2 * c + 1), enif_make_int(env, 2 * r + 2)),
+                    contacts);
+        }
+    ERL_NIF_TERM regions = enif_make_list(env, 0);
+    for (int32_t a = next; a >= 1; a--) {
+        double *t = st + (size_t)a * 6;
+        if (t[0] == 0) continue;
+        ERL_NIF_TERM rows = enif_make_list(env, 0);
+        for (int r = h - 1; r >= 0; r--) {
+            size_t e = (size_t)a * h + r;
+            if (rmax[e] >= 0)
+                rows = enif_make_list_cell(env,
+                                           enif_make_tuple3(env, enif_make_int(env, r),
+                                                            enif_make_int(env, rmin[e]),
+                                                            enif_make_int(env, rmax[e])),
+                                           rows);
+        }
+        ERL_NIF_TERM fields[8] = {enif_make_int(env, a),
+                                  enif_make_long(env, (long)t[0]),
+                                  enif_make_double(env, t[1]),
+                                  enif_make_double(env, t[2]),
+                                  enif_make_double(env, t[3]),
+                                  enif_make_double(env, t[4]),
+                                  enif_make_double(env, t[5]),
+                                  rows};
+        regions = enif_make_list_cell(env, enif_make_tuple_from_array(env, fields, 8), regions);
+    }
+    free(st);
+    free(rmin);
+    free(rmax);
+    free(lab);
+    return enif_make_tuple2(env, regions, contacts);
+}
+
 static ErlNifFunc funcs[] = {
     {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_integrate", 8, nif_fmap_integrate, 0},
@@ -664,10 +767,15 @@ static ErlNifFunc funcs[] = {
     {"edt", 3, nif_edt, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"label", 3, nif_label, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"grow", 4, nif_grow, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"downsample", 4, nif_downsample, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"patch", 2, nif_patch, 0},
+    {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"dsl_update", 2, tc_nif_dsl_update, 0},
+    {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
+    {"dsl_plan", 1, tc_nif_dsl_plan, 0},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

@@ -88,19 +88,12 @@ defmodule ThinkingCap.Navigation.Grid do
   def update(%__MODULE__{} = grid, []), do: grid
 
   def update(%__MODULE__{width: w, cells: cells} = grid, changes) do
-    bytes =
-      for {{col, row} = cell, blocked?} <- changes, inside?(grid, cell), into: %{} do
-        {row * w + col, if(blocked?, do: 1, else: 0)}
-      end
+    packed =
+      for {{col, row} = cell, blocked?} <- changes,
+          inside?(grid, cell),
+          into: <<>>,
+          do: <<row * w + col::signed-32-native, if(blocked?, do: 1, else: 0)::signed-32-native>>
 
-    {parts, from} =
-      bytes
-      |> Enum.sort()
-      |> Enum.reduce({[], 0}, fn {i, value}, {parts, from} ->
-        {[value, binary_part(cells, from, i - from) | parts], i + 1}
-      end)
-
-    tail = binary_part(cells, from, byte_size(cells) - from)
-    %{grid | cells: IO.iodata_to_binary(Enum.reverse([tail | parts]))}
+    %{grid | cells: ThinkingCap.Navigation.Core.GridNif.patch(cells, packed)}
   end
 end

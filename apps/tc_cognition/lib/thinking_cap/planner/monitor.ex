@@ -42,7 +42,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
   **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:,
   path:, door:, closed_doors:, replans:, reached:, given_up:, reason:,
-  source:, planning:}}` (latest value): `state` is `:waiting` (no pose or
+  source:, planning:, planned_at:}}` (latest value): `state` is `:waiting` (no pose or
   no map yet), `:moving`, `:blocked`, `:unreachable`, `:done` (every
   waypoint reached), `:failed` (the task ended with waypoints given up,
   or was refused) or `:idle`; `path` the rest of the metric path (world
@@ -51,7 +51,8 @@ defmodule ThinkingCap.Planner.Monitor do
   travel: the WDF's doors, and those of the learned topology); `reason`
   why the robot is not moving on (a sentence, or nil); `source` the map
   planned on (`:wdf`, `:sensed` or nil); `planning` what the last
-  planning did (`ThinkingCap.Navigation.PathPlanner`'s `last`). Doors
+  planning did (`ThinkingCap.Navigation.PathPlanner`'s `last`) and
+  `planned_at` when (the cycle's time, s). Doors
   seen shut are also published as `{:door, name, %{open: false, stamp: t}}`.
 
   ## Parameters
@@ -681,7 +682,8 @@ defmodule ThinkingCap.Planner.Monitor do
       given_up: Enum.reverse(state.given_up),
       reason: state.reason,
       source: state.source,
-      planning: state.planner.last
+      planning: state.planner.last,
+      planned_at: state.planned_at
     }
 
     {:out, {{:plan, state.robot, plan}, [key: {:plan, state.robot}]}}

@@ -1,8 +1,9 @@
 defmodule ThinkingCap.Navigation.Core.GridNif do
   @moduledoc false
-  # The grid NIF (c_src/tc_grid.c): a fuzzy grid map held as a resource,
-  # and pure functions on byte grids (distance transform, inflation,
-  # difference, connected components, region growing). Callers go through
+  # The grid NIF (c_src/tc_grid.c, tc_plan.c): a fuzzy grid map held as a
+  # resource, A* and D* Lite (a D* Lite search is a resource too), and pure
+  # functions on byte grids (distance transform, inflation, thresholds,
+  # downsampling, patches, difference, room segmentation). Callers go through
   # ThinkingCap.Navigation.Maps.SensedGrid and ThinkingCap.Navigation.CostMap.
 
   @on_load :load_nif
@@ -26,8 +27,16 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def edt(_cells, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
   def inflate(_cells, _w, _h, _radius), do: :erlang.nif_error(:nif_not_loaded)
   def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
-  def label(_mask, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
-  def grow(_labels, _free, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
   def blocked(_occupancy, _threshold, _unknown), do: :erlang.nif_error(:nif_not_loaded)
   def downsample(_cells, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
+  def patch(_cells, _changes), do: :erlang.nif_error(:nif_not_loaded)
+
+  def rooms(_occupancy, _w, _h, _free_below, _half_door, _min_core),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_move_start(_dsl, _cell), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end

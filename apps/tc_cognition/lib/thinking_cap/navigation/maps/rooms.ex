@@ -48,46 +48,36 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
   """
   @spec from_occupancy(OccupancyGrid.t(), opts()) :: Topology.t()
   def from_occupancy(%OccupancyGrid{width: w, height: h} = map, opts \\ []) do
+    res = map.resolution
     door_width = Keyword.get(opts, :door_width, 1.2)
-    min_cells = Keyword.get(opts, :min_area, 1.5) / (map.resolution * map.resolution)
-    threshold = Keyword.get(opts, :threshold, 50)
+    min_cells = Keyword.get(opts, :min_area, 1.5) / (res * res)
+    free_below = Keyword.get(opts, :free_below, 20)
+    max_cells = door_width / res
+    min_cells_door = Keyword.get(opts, :min_door, 0.5) / res
 
-    free =
-      for <<v::signed-8 <- map.data>>,
-        into: <<>>,
-        do: <<if(v >= 0 and v < threshold, do: 1, else: 0)>>
+    # cores, regions and their contacts (c_src/tc_grid.c); cores smaller
+    # than a quarter of the smallest place are noise
+    {regions, touching} =
+      GridNif.rooms(map.data, w, h, free_below, door_width / 2 / res, min_cells / 4)
 
-    blocked = for <<f <- free>>, into: <<>>, do: <<1 - f>>
-    clearance = GridNif.edt(blocked, w, h)
-    half = door_width / 2 / map.resolution
-
-    cores =
-      for <<d::float-32-native <- clearance>>, into: <<>>, do: <<if(d > half, do: 1, else: 0)>>
-
-    {_n, core_labels} = GridNif.label(cores, w, h)
-    core_labels = drop_small(core_labels, min_cells)
-    labels = GridNif.grow(core_labels, free, w, h)
-    cells = cells_by_label(labels, w)
-    max_cells = door_width / map.resolution
-    min_cells_door = Keyword.get(opts, :min_door, 0.5) / map.resolution
+    regions = Map.new(regions, &{elem(&1, 0), region(&1)})
 
     # each stretch of contact between two regions is a door candidate; a
     # gap narrower than a door (a weakly seen wall) is none
     contacts =
-      for {pair, points} <- contacts(labels, w, h),
+      for {pair, points} <- Enum.group_by(touching, &{elem(&1, 0), elem(&1, 1)}, &half_cell/1),
           stretch <- stretches(points),
           extent(stretch) >= min_cells_door,
           do: {pair, stretch}
 
     {wide, narrow} = Enum.split_with(contacts, fn {_pair, pts} -> extent(pts) > max_cells end)
-
-    merged = merge(Map.keys(cells), Enum.map(wide, &elem(&1, 0)))
+    merged = merge(Map.keys(regions), Enum.map(wide, &elem(&1, 0)))
 
     regions =
-      cells
+      regions
       |> Enum.group_by(fn {label, _} -> Map.fetch!(merged, label) end, &elem(&1, 1))
-      |> Map.new(fn {root, lists} -> {root, List.flatten(lists)} end)
-      |> Map.filter(fn {_root, pts} -> length(pts) >= min_cells end)
+      |> Map.new(fn {root, parts} -> {root, Enum.reduce(parts, &join/2)} end)
+      |> Map.filter(fn {_root, region} -> region.count >= min_cells end)
 
     places = places(map, regions, Keyword.get(opts, :corridor_ratio, 3.0))
     doors = doors(map, narrow, merged, places)
@@ -97,6 +87,28 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
       doors: Map.new(doors, &{&1.name, &1})
     }
   end
+
+  # a region's cell count, coordinate sums and the extent of each of its rows
+  defp region({_label, n, sc, sr, scc, scr, srr, rows}),
+    do: %{
+      count: n,
+      sums: {sc, sr, scc, scr, srr},
+      rows: Map.new(rows, fn {r, a, b} -> {r, {a, b}} end)
+    }
+
+  defp join(a, b) do
+    {a1, a2, a3, a4, a5} = a.sums
+    {b1, b2, b3, b4, b5} = b.sums
+
+    %{
+      count: a.count + b.count,
+      sums: {a1 + b1, a2 + b2, a3 + b3, a4 + b4, a5 + b5},
+      rows: Map.merge(a.rows, b.rows, fn _r, {p, q}, {u, v} -> {min(p, u), max(q, v)} end)
+    }
+  end
+
+  # a contact on the edge between two cells, in cell-corner coordinates
+  defp half_cell({_a, _b, x2, y2}), do: {x2 / 2, y2 / 2}
 
   @doc """
   Carries names over from `previous`: a place whose centroid lies in a
@@ -191,62 +203,6 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
 
   ## regions
 
-  defp drop_small(labels, min_cells) do
-    counts =
-      for <<l::signed-32-native <- labels>>, l > 0,
-        reduce: %{},
-        do: (c -> Map.update(c, l, 1, &(&1 + 1)))
-
-    small = for {l, n} <- counts, n < min_cells / 4, into: MapSet.new(), do: l
-
-    if MapSet.size(small) == 0,
-      do: labels,
-      else:
-        for(
-          <<l::signed-32-native <- labels>>,
-          into: <<>>,
-          do: <<if(MapSet.member?(small, l), do: 0, else: l)::signed-32-native>>
-        )
-  end
-
-  defp cells_by_label(labels, w) do
-    {acc, _} =
-      for <<l::signed-32-native <- labels>>, reduce: {%{}, 0} do
-        {acc, i} ->
-          acc =
-            if l > 0,
-              do: Map.update(acc, l, [{rem(i, w), div(i, w)}], &[{rem(i, w), div(i, w)} | &1]),
-              else: acc
-
-          {acc, i + 1}
-      end
-
-    acc
-  end
-
-  # the cells where two labelled regions touch (4-neighbours), by pair
-  defp contacts(labels, w, h) do
-    tuple = for(<<l::signed-32-native <- labels>>, do: l) |> List.to_tuple()
-
-    for r <- 0..(h - 1), c <- 0..(w - 1), reduce: %{} do
-      acc ->
-        a = elem(tuple, r * w + c)
-
-        if a > 0 do
-          acc
-          |> touch(a, c + 1 < w && elem(tuple, r * w + c + 1), {c + 0.5, r * 1.0})
-          |> touch(a, r + 1 < h && elem(tuple, (r + 1) * w + c), {c * 1.0, r + 0.5})
-        else
-          acc
-        end
-    end
-  end
-
-  defp touch(acc, a, b, point) when is_integer(b) and b > 0 and b != a,
-    do: Map.update(acc, {min(a, b), max(a, b)}, [point], &[point | &1])
-
-  defp touch(acc, _a, _b, _point), do: acc
-
   # contact points split into stretches of neighbours (at most a cell apart)
   defp stretches(points) do
     set = MapSet.new(points)
@@ -328,14 +284,11 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
 
   defp places(map, regions, corridor_ratio) do
     described =
-      for {root, pts} <- regions do
-        {cx, cy} = mean(pts)
-
-        {cx, cy} =
-          if Enum.member?(pts, {round(cx), round(cy)}), do: {cx, cy}, else: nearest(pts, {cx, cy})
-
-        kind = if elongation(pts) > corridor_ratio, do: :corridor, else: :room
-        {root, kind, world(map, {cx + 0.5, cy + 0.5}), hull(pts) |> Enum.map(&world(map, &1))}
+      for {root, region} <- regions do
+        {cx, cy} = inside(region, centre(region))
+        kind = if elongation(region) > corridor_ratio, do: :corridor, else: :room
+        polygon = region |> corners() |> hull() |> Enum.map(&world(map, &1))
+        {root, kind, world(map, {cx + 0.5, cy + 0.5}), polygon}
       end
 
     described
@@ -351,25 +304,35 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
     |> Map.new()
   end
 
-  defp nearest(pts, {cx, cy}) do
-    {c, r} = Enum.min_by(pts, fn {c, r} -> (c - cx) ** 2 + (r - cy) ** 2 end)
-    {c * 1.0, r * 1.0}
+  defp centre(%{count: n, sums: {sc, sr, _, _, _}}), do: {sc / n, sr / n}
+
+  # the point itself if the region's row there holds it, else the nearest
+  # point of the region's rows
+  defp inside(%{rows: rows}, {cx, cy}) do
+    case Map.get(rows, round(cy)) do
+      {a, b} when a <= round(cx) and round(cx) <= b ->
+        {cx, cy}
+
+      _ ->
+        rows
+        |> Enum.map(fn {r, {a, b}} -> {min(max(cx, a * 1.0), b * 1.0), r * 1.0} end)
+        |> Enum.min_by(fn {x, y} -> (x - cx) ** 2 + (y - cy) ** 2 end)
+    end
   end
 
-  defp elongation(pts) do
-    {mx, my} = mean(pts)
-    n = length(pts)
-
-    {sxx, sxy, syy} =
-      Enum.reduce(pts, {0.0, 0.0, 0.0}, fn {x, y}, {a, b, c} ->
-        {a + (x - mx) ** 2, b + (x - mx) * (y - my), c + (y - my) ** 2}
-      end)
-
-    {a, b, c} = {sxx / n, sxy / n, syy / n}
+  # the square root of the ratio of the principal second moments
+  defp elongation(%{count: n, sums: {sc, sr, scc, scr, srr}}) do
+    {mx, my} = {sc / n, sr / n}
+    {a, b, c} = {scc / n - mx * mx, scr / n - mx * my, srr / n - my * my}
     d = :math.sqrt(((a - c) / 2) ** 2 + b * b)
     {l1, l2} = {(a + c) / 2 + d, max((a + c) / 2 - d, 1.0e-9)}
     :math.sqrt(l1 / l2)
   end
+
+  # the corners of each row's first and last cells
+  defp corners(%{rows: rows}),
+    do:
+      Enum.flat_map(rows, fn {r, {a, b}} -> [{a, r}, {b + 1, r}, {a, r + 1}, {b + 1, r + 1}] end)
 
   defp doors(map, contacts, merged, places) do
     contacts
@@ -380,13 +343,12 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
            %{name: pa} <- Map.get(places, ra),
            %{name: pb} <- Map.get(places, rb) do
         {p, q} = ends(points)
-        {from, to} = {world(map, shift(p)), world(map, shift(q))}
-        {mx, my} = mean(points)
+        {from, to} = {world(map, p), world(map, q)}
 
         [
           %{
             name: nil,
-            centre: world(map, {mx + 0.5, my + 0.5}),
+            centre: world(map, mean(points)),
             connects: Enum.sort([pa, pb]),
             open: true,
             from: from,
@@ -403,18 +365,12 @@ defmodule ThinkingCap.Navigation.Maps.Rooms do
     |> Enum.map(fn {d, i} -> %{d | name: :"door_#{i}"} end)
   end
 
-  defp shift({x, y}), do: {x + 0.5, y + 0.5}
-
   defp world(%OccupancyGrid{origin: {ox, oy}, resolution: res}, {c, r}),
     do: {ox + c * res, oy + r * res}
 
-  # the convex hull of the cells' corners (monotone chain), counter-clockwise
-  defp hull(pts) do
-    corners =
-      pts
-      |> Enum.flat_map(fn {c, r} -> [{c, r}, {c + 1, r}, {c, r + 1}, {c + 1, r + 1}] end)
-      |> Enum.uniq()
-      |> Enum.sort()
+  # the convex hull of points (monotone chain), counter-clockwise
+  defp hull(points) do
+    corners = points |> Enum.uniq() |> Enum.sort()
 
     lower = chain(corners)
     upper = chain(Enum.reverse(corners))

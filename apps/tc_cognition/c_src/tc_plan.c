@@ -1,0 +1,651 @@
+/*
+ * tc_plan: A* and D* Lite on a byte grid, for the grid NIF (tc_grid.c;
+ * ThinkingCap.Navigation.AStar and ThinkingCap.Navigation.DStarLite wrap
+ * them). The cost model is ThinkingCap.Navigation.Core.Cost's, in the
+ * same exact integer units: 8-connected, a straight step 2^36, a diagonal
+ * round(sqrt(2) 2^36), no corner cutting (a diagonal step needs both
+ * orthogonal cells passable), octile heuristic. Cells: row-major from the
+ * bottom row, 0 passable, anything else blocked.
+ *
+ * A* keeps its scratch per thread between calls, stamped with the search
+ * it belongs to, so a search costs only the cells it touches. D* Lite (Koenig & Likhachev,
+ * the optimized version of their figure 4) is a resource holding its own
+ * copy of the grid, g and rhs (as INF - value, so zeroed memory is
+ * infinite), each queued vertex's first key (0: not queued) and a binary
+ * heap with lazy deletion: an entry is live while its first key is the
+ * one recorded for its vertex and its second is min(g, rhs).
+ */
+#include "tc_plan.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define INF (1LL << 58)
+/* vertices a plan processes on the calling scheduler before it goes on
+ * on a dirty one (well under a millisecond), and changes an update makes
+ * there */
+#define PLAN_BUDGET 4000
+#define SMALL_UPDATE 2000
+#define STRAIGHT (1LL << 36)
+
+static int64_t DIAGONAL;
+static ErlNifResourceType *DSL_TYPE;
+static ERL_NIF_TERM A_OK, A_ERROR, A_NO_PATH;
+
+typedef struct {
+    int64_t k1, k2;
+    int32_t u;
+} Entry;
+
+typedef struct {
+    Entry *e;
+    size_t n, cap;
+} Heap;
+
+static int less(const Entry *a, const Entry *b)
+{
+    return a->k1 < b->k1 || (a->k1 == b->k1 && a->k2 < b->k2);
+}
+
+static int heap_push(Heap *h, int64_t k1, int64_t k2, int32_t u)
+{
+    if (h->n == h->cap) {
+        size_t cap = h->cap ? 2 * h->cap : 1024;
+        Entry *e = realloc(h->e, cap * sizeof(Entry));
+        if (!e) return 0;
+        h->e = e;
+        h->cap = cap;
+    }
+    size_t i = h->n++;
+    Entry x = {k1, k2, u};
+    while (i > 0) {
+        size_t p = (i - 1) / 2;
+        if (!less(&x, &h->e[p])) break;
+        h->e[i] = h->e[p];
+        i = p;
+    }
+    h->e[i] = x;
+    return 1;
+}
+
+static Entry heap_pop(Heap *h)
+{
+    Entry top = h->e[0];
+    Entry x = h->e[--h->n];
+    size_t i = 0;
+    for (;;) {
+        size_t c = 2 * i + 1;
+        if (c >= h->n) break;
+        if (c + 1 < h->n && less(&h->e[c + 1], &h->e[c])) c++;
+        if (!less(&h->e[c], &x)) break;
+        h->e[i] = h->e[c];
+        i = c;
+    }
+    if (h->n > 0) h->e[i] = x;
+    return top;
+}
+
+static int64_t octile(int c1, int r1, int c2, int r2)
+{
+    int64_t dx = abs(c1 - c2), dy = abs(r1 - r2);
+    return dx > dy ? STRAIGHT * (dx - dy) + DIAGONAL * dy : STRAIGHT * (dy - dx) + DIAGONAL * dx;
+}
+
+/* The edges of cell i: up to 8 {neighbour, cost}, none from a blocked
+ * cell, in the order left, right, down, up, down-left, down-right,
+ * up-left, up-right. */
+static int edges(const uint8_t *cells, int w, int h, int32_t i, int32_t *to, int64_t *cost)
+{
+    if (cells[i]) return 0;
+    int c = i % w, r = i / w;
+#define AT(dc, dr)                                                                              \
+    ((c + (dc)) >= 0 && (r + (dr)) >= 0 && (c + (dc)) < w && (r + (dr)) < h                     \
+         ? cells[(size_t)(r + (dr)) * w + (c + (dc))]                                           \
+         : 1)
+    uint8_t l = AT(-1, 0), rr = AT(1, 0), d = AT(0, -1), u = AT(0, 1);
+    uint8_t dl = AT(-1, -1), dr = AT(1, -1), ul = AT(-1, 1), ur = AT(1, 1);
+#undef AT
+    int n = 0;
+    if (!l) to[n] = i - 1, cost[n++] = STRAIGHT;
+    if (!rr) to[n] = i + 1, cost[n++] = STRAIGHT;
+    if (!d) to[n] = i - w, cost[n++] = STRAIGHT;
+    if (!u) to[n] = i + w, cost[n++] = STRAIGHT;
+    if (!(l | d | dl)) to[n] = i - w - 1, cost[n++] = DIAGONAL;
+    if (!(rr | d | dr)) to[n] = i - w + 1, cost[n++] = DIAGONAL;
+    if (!(l | u | ul)) to[n] = i + w - 1, cost[n++] = DIAGONAL;
+    if (!(rr | u | ur)) to[n] = i + w + 1, cost[n++] = DIAGONAL;
+    return n;
+}
+
+static ERL_NIF_TERM path_term(ErlNifEnv *env, const int32_t *cells, size_t n, int w)
+{
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (size_t k = n; k > 0; k--) {
+        int32_t i = cells[k - 1];
+        list = enif_make_list_cell(
+            env, enif_make_tuple2(env, enif_make_int(env, i % w), enif_make_int(env, i / w)), list);
+    }
+    return list;
+}
+
+static int get_cell(ErlNifEnv *env, ERL_NIF_TERM t, int w, int h, int32_t *out)
+{
+    int arity, c, r;
+    const ERL_NIF_TERM *e;
+    if (!enif_get_tuple(env, t, &arity, &e) || arity != 2 || !enif_get_int(env, e[0], &c) ||
+        !enif_get_int(env, e[1], &r) || c < 0 || r < 0 || c >= w || r >= h)
+        return 0;
+    *out = r * w + c;
+    return 1;
+}
+
+/* ---- A* ---- */
+
+/* Each thread (a dirty scheduler) keeps its A* scratch between calls: a
+ * cell's g is valid when its stamp is this search's; closed cells have
+ * bit 0 of the stamp word set in a second stamp. Nothing is cleared
+ * between searches. */
+static __thread struct {
+    size_t cap;
+    int64_t *g;
+    uint32_t *seen, *closed;
+    uint32_t gen;
+} scratch;
+
+static int scratch_for(size_t n)
+{
+    if (scratch.cap < n) {
+        free(scratch.g);
+        free(scratch.seen);
+        free(scratch.closed);
+        scratch.g = malloc(n * sizeof(int64_t));
+        scratch.seen = calloc(n, sizeof(uint32_t));
+        scratch.closed = calloc(n, sizeof(uint32_t));
+        scratch.gen = 0;
+        scratch.cap = scratch.g && scratch.seen && scratch.closed ? n : 0;
+        if (!scratch.cap) return 0;
+    }
+    if (++scratch.gen == 0) {
+        memset(scratch.seen, 0, scratch.cap * sizeof(uint32_t));
+        memset(scratch.closed, 0, scratch.cap * sizeof(uint32_t));
+        scratch.gen = 1;
+    }
+    return 1;
+}
+
+static inline int seen(int32_t i) { return scratch.seen[i] == scratch.gen; }
+static inline int is_closed(int32_t i) { return scratch.closed[i] == scratch.gen; }
+static inline void close_cell(int32_t i) { scratch.closed[i] = scratch.gen; }
+static inline int64_t get_g(int32_t i) { return scratch.g[i]; }
+
+static inline void set_g(int32_t i, int64_t v)
+{
+    scratch.g[i] = v;
+    scratch.seen[i] = scratch.gen;
+}
+
+/* astar(cells, w, h, start, goal) -> {:ok, path, cost_units, expanded} |
+ * {:error, :no_path, expanded}; start and goal passable, distinct. Ties on
+ * f go to the larger g (the deeper cell). */
+ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    int32_t s, g;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
+        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
+        b.size != (size_t)w * h || !get_cell(env, argv[3], w, h, &s) ||
+        !get_cell(env, argv[4], w, h, &g))
+        return enif_make_badarg(env);
+    const uint8_t *cells = b.data;
+    size_t n = (size_t)w * h;
+    if (!scratch_for(n)) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    Heap heap = {0};
+    int gc = g % w, gr = g / w;
+    set_g(s, 0);
+    /* f first, then -g (deeper first) */
+    int ok = heap_push(&heap, octile(s % w, s / w, gc, gr), 0, s);
+    long expanded = 0;
+    int found = 0;
+    int32_t to[8];
+    int64_t cost[8];
+    while (ok && heap.n > 0) {
+        Entry e = heap_pop(&heap);
+        int32_t u = e.u;
+        if (is_closed(u)) continue;
+        close_cell(u);
+        expanded++;
+        if (u == g) {
+            found = 1;
+            break;
+        }
+        int64_t gu = get_g(u);
+        int m = edges(cells, w, h, u, to, cost);
+        for (int k = 0; k < m; k++) {
+            int32_t v = to[k];
+            int64_t gv = gu + cost[k];
+            if (!is_closed(v) && (!seen(v) || gv < get_g(v))) {
+                set_g(v, gv);
+                ok = heap_push(&heap, gv + octile(v % w, v / w, gc, gr), -gv, v) && ok;
+            }
+        }
+    }
+    ERL_NIF_TERM result;
+    if (!ok) {
+        result = enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    } else if (!found) {
+        result = enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, expanded));
+    } else {
+        /* back from the goal along optimal predecessors (closed, g + cost == g) */
+        size_t cap = 1024, len = 0;
+        int32_t *path = malloc(cap * sizeof(int32_t));
+        int32_t u = g;
+        while (path) {
+            if (len == cap) {
+                int32_t *p = realloc(path, 2 * cap * sizeof(int32_t));
+                if (!p) {
+                    free(path);
+                    path = NULL;
+                    break;
+                }
+                path = p;
+                cap *= 2;
+            }
+            path[len++] = u;
+            if (u == s) break;
+            int m = edges(cells, w, h, u, to, cost);
+            int32_t next = -1;
+            for (int k = 0; k < m && next < 0; k++)
+                if (is_closed(to[k]) && get_g(to[k]) + cost[k] == get_g(u)) next = to[k];
+            if (next < 0) break;
+            u = next;
+        }
+        if (!path) {
+            result = enif_raise_exception(env, enif_make_atom(env, "enomem"));
+        } else {
+            /* reverse into start..goal */
+            for (size_t a = 0, z = len - 1; a < z; a++, z--) {
+                int32_t t = path[a];
+                path[a] = path[z];
+                path[z] = t;
+            }
+            result = enif_make_tuple4(env, A_OK, path_term(env, path, len, w),
+                                      enif_make_int64(env, get_g(g)),
+                                      enif_make_long(env, expanded));
+            free(path);
+        }
+    }
+    free(heap.e);
+    return result;
+}
+
+/* ---- D* Lite ---- */
+
+typedef struct {
+    ErlNifMutex *lock;
+    int w, h;
+    uint8_t *cells;
+    int64_t *g, *rhs; /* INF - value: zeroed memory is infinite */
+    int64_t *key;     /* first key + 1 of a queued vertex, 0 if not queued */
+    Heap heap;
+    int64_t km;
+    int32_t start, goal;
+    long work;
+} Dsl;
+
+#define G(d, i) (INF - (d)->g[i])
+#define RHS(d, i) (INF - (d)->rhs[i])
+#define SET_G(d, i, v) ((d)->g[i] = INF - (v))
+#define SET_RHS(d, i, v) ((d)->rhs[i] = INF - (v))
+
+static void dsl_free(ErlNifEnv *env, void *obj)
+{
+    (void)env;
+    Dsl *d = obj;
+    free(d->cells);
+    free(d->g);
+    free(d->rhs);
+    free(d->key);
+    free(d->heap.e);
+    if (d->lock) enif_mutex_destroy(d->lock);
+}
+
+int tc_plan_load(ErlNifEnv *env)
+{
+    DIAGONAL = (int64_t)llround(sqrt(2.0) * (double)STRAIGHT);
+    DSL_TYPE = enif_open_resource_type(env, NULL, "tc_plan_dsl", dsl_free,
+                                       ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
+    A_OK = enif_make_atom(env, "ok");
+    A_ERROR = enif_make_atom(env, "error");
+    A_NO_PATH = enif_make_atom(env, "no_path");
+    return DSL_TYPE == NULL;
+}
+
+static int update_vertex(Dsl *d, int32_t u)
+{
+    int64_t g = G(d, u), rhs = RHS(d, u);
+    if (g != rhs) {
+        int64_t k2 = g < rhs ? g : rhs;
+        int64_t k1 = k2 + octile(d->start % d->w, d->start / d->w, u % d->w, u / d->w) + d->km;
+        d->key[u] = k1 + 1;
+        return heap_push(&d->heap, k1, k2, u);
+    }
+    d->key[u] = 0;
+    return 1;
+}
+
+static int64_t best_rhs(Dsl *d, int32_t u)
+{
+    int32_t to[8];
+    int64_t cost[8];
+    int m = edges(d->cells, d->w, d->h, u, to, cost);
+    int64_t best = INF;
+    for (int k = 0; k < m; k++) {
+        int64_t gv = G(d, to[k]);
+        if (gv < INF && cost[k] + gv < best) best = cost[k] + gv;
+    }
+    return best;
+}
+
+/* dsl_new(cells, w, h, start, goal) */
+ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    int32_t s, g;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
+        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
+        b.size != (size_t)w * h || !get_cell(env, argv[3], w, h, &s) ||
+        !get_cell(env, argv[4], w, h, &g))
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    Dsl *d = enif_alloc_resource(DSL_TYPE, sizeof(Dsl));
+    memset(d, 0, sizeof(Dsl));
+    d->w = w;
+    d->h = h;
+    d->cells = malloc(n);
+    d->g = calloc(n, sizeof(int64_t));
+    d->rhs = calloc(n, sizeof(int64_t));
+    d->key = calloc(n, sizeof(int64_t));
+    d->lock = enif_mutex_create("tc_plan_dsl");
+    d->start = s;
+    d->goal = g;
+    if (!d->cells || !d->g || !d->rhs || !d->key || !d->lock) {
+        enif_release_resource(d);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    memcpy(d->cells, b.data, n);
+    SET_RHS(d, g, 0);
+    if (!update_vertex(d, g)) {
+        enif_release_resource(d);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    ERL_NIF_TERM t = enif_make_resource(env, d);
+    enif_release_resource(d);
+    return t;
+}
+
+/* dsl_update(dsl, changes): changes is a binary of native int32 pairs
+ * {index, blocked}. Returns the number of vertices whose rhs was looked
+ * at. Only blocking changes next to a vertex whose rhs is infinite
+ * (unexplored) leave it alone: its rhs cannot fall. */
+static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    ErlNifBinary b;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
+        !enif_inspect_binary(env, argv[1], &b) || b.size % 8 != 0)
+        return enif_make_badarg(env);
+    const int32_t *ch = (const int32_t *)b.data;
+    size_t m = b.size / 8;
+    long n = (long)d->w * d->h, looked = 0;
+    int ok = 1;
+    enif_mutex_lock(d->lock);
+    /* the cells first, so every rhs below sees the new grid */
+    for (size_t k = 0; k < m; k++)
+        if (ch[2 * k] >= 0 && ch[2 * k] < n) d->cells[ch[2 * k]] = ch[2 * k + 1] ? 1 : 0;
+    for (size_t k = 0; k < m && ok; k++) {
+        int32_t i = ch[2 * k];
+        if (i < 0 || i >= n) continue;
+        int freed = !ch[2 * k + 1];
+        int c = i % d->w, r = i / d->w;
+        for (int dr = -1; dr <= 1; dr++)
+            for (int dc = -1; dc <= 1; dc++) {
+                int cc = c + dc, rr = r + dr;
+                if (cc < 0 || rr < 0 || cc >= d->w || rr >= d->h) continue;
+                int32_t u = rr * d->w + cc;
+                if (u == d->goal) continue;
+                int64_t old = RHS(d, u);
+                if (!freed && old >= INF) continue;
+                looked++;
+                int64_t v = best_rhs(d, u);
+                if (v != old) {
+                    SET_RHS(d, u, v);
+                    ok = update_vertex(d, u) && ok;
+                }
+            }
+    }
+    d->work += looked;
+    enif_mutex_unlock(d->lock);
+    if (!ok) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    return enif_make_long(env, looked);
+}
+
+/* small updates run on the calling scheduler; big ones on a dirty one */
+ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary b;
+    if (argc == 2 && enif_inspect_binary(env, argv[1], &b) && b.size / 8 > SMALL_UPDATE)
+        return enif_schedule_nif(env, "dsl_update", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_update_now,
+                                 argc, argv);
+    return dsl_update_now(env, argc, argv);
+}
+
+/* dsl_move_start(dsl, cell) */
+ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    int32_t s;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
+        !get_cell(env, argv[1], d->w, d->h, &s))
+        return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    d->km += octile(d->start % d->w, d->start / d->w, s % d->w, s / d->w);
+    d->start = s;
+    enif_mutex_unlock(d->lock);
+    return A_OK;
+}
+
+/* rebuilds the heap from its live entries once stale ones pile up */
+static void compact(Dsl *d)
+{
+    size_t j = 0;
+    for (size_t k = 0; k < d->heap.n; k++) {
+        Entry e = d->heap.e[k];
+        int64_t g = G(d, e.u), rhs = RHS(d, e.u);
+        if (d->key[e.u] == e.k1 + 1 && (g < rhs ? g : rhs) == e.k2) d->heap.e[j++] = e;
+    }
+    Heap h = {d->heap.e, 0, d->heap.cap};
+    for (size_t k = 0; k < j; k++) {
+        /* re-heapify in place: entries 0..k-1 form a heap */
+        Entry x = h.e[k];
+        size_t i = h.n++;
+        while (i > 0) {
+            size_t p = (i - 1) / 2;
+            if (!less(&x, &h.e[p])) break;
+            h.e[i] = h.e[p];
+            i = p;
+        }
+        h.e[i] = x;
+    }
+    d->heap = h;
+}
+
+/* ComputeShortestPath, processing at most `budget` vertices (0: no
+ * limit); returns the vertices processed, -1 out of memory, and sets
+ * *done when the start is consistent (or nothing is left to do) */
+static long compute(Dsl *d, long budget, int *done)
+{
+    int w = d->w;
+    int sc = d->start % w, sr = d->start / w;
+    long processed = 0;
+    int32_t to[8];
+    int64_t cost[8];
+    *done = 1;
+    while (d->heap.n > 0) {
+        if (budget && processed >= budget) {
+            *done = 0;
+            break;
+        }
+        Entry e = d->heap.e[0];
+        int64_t gu = G(d, e.u), ru = RHS(d, e.u);
+        if (d->key[e.u] != e.k1 + 1 || (gu < ru ? gu : ru) != e.k2) {
+            heap_pop(&d->heap); /* stale */
+            continue;
+        }
+        int64_t gs = G(d, d->start), rs = RHS(d, d->start);
+        int64_t ms = gs < rs ? gs : rs;
+        if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < ms) || rs > gs)) break;
+        heap_pop(&d->heap);
+        int32_t u = e.u;
+        int64_t n1 = e.k2 + octile(sc, sr, u % w, u / w) + d->km;
+        if (e.k1 < n1) {
+            d->key[u] = n1 + 1;
+            if (!heap_push(&d->heap, n1, e.k2, u)) return -1;
+            continue;
+        }
+        processed++;
+        int m = edges(d->cells, w, d->h, u, to, cost);
+        if (gu > ru) {
+            /* overconsistent: settle it, offer the new g to its predecessors */
+            SET_G(d, u, ru);
+            d->key[u] = 0;
+            for (int k = 0; k < m; k++) {
+                int32_t s = to[k];
+                if (s == d->goal) continue;
+                int64_t v = cost[k] + ru;
+                if (v < RHS(d, s)) {
+                    SET_RHS(d, s, v);
+                    if (!update_vertex(d, s)) return -1;
+                }
+            }
+        } else {
+            /* underconsistent: forget its g; predecessors that relied on it look again */
+            SET_G(d, u, INF);
+            for (int k = 0; k < m; k++) {
+                int32_t s = to[k];
+                if (s == d->goal) continue;
+                if (RHS(d, s) == cost[k] + gu) {
+                    SET_RHS(d, s, best_rhs(d, s));
+                    if (!update_vertex(d, s)) return -1;
+                }
+            }
+            if (!update_vertex(d, u)) return -1;
+        }
+    }
+    return processed;
+}
+
+/* dsl_plan(dsl) -> {:ok, path, expanded} | {:error, :no_path, expanded}.
+ * It starts on the calling scheduler with a budget of vertices (a repair
+ * is usually small) and goes on on a dirty scheduler if that runs out. */
+static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long budget,
+                                 long before);
+
+static ERL_NIF_TERM dsl_plan_dirty(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    long before;
+    if (!enif_get_long(env, argv[1], &before)) return enif_make_badarg(env);
+    return dsl_plan_run(env, argv, 0, before);
+}
+
+ERL_NIF_TERM tc_nif_dsl_plan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    return dsl_plan_run(env, argv, PLAN_BUDGET, 0);
+}
+
+static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long budget,
+                                 long before)
+{
+    Dsl *d;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    long n = (long)d->w * d->h;
+    if (d->cells[d->start] || d->cells[d->goal]) {
+        enif_mutex_unlock(d->lock);
+        return enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, 0));
+    }
+    int done;
+    long processed = compute(d, budget, &done);
+    if (processed < 0) {
+        enif_mutex_unlock(d->lock);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    if (!done) {
+        d->work += processed;
+        enif_mutex_unlock(d->lock);
+        ERL_NIF_TERM args[2] = {argv[0], enif_make_long(env, before + processed)};
+        return enif_schedule_nif(env, "dsl_plan", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_plan_dirty, 2,
+                                 args);
+    }
+    d->work += processed;
+    processed += before;
+    /* compacting a big heap is long work: on a dirty scheduler only */
+    if ((size_t)d->work > (size_t)(n / 4 > 4096 ? n / 4 : 4096) && d->heap.n > 1024 &&
+        (budget == 0 || d->heap.n < 65536)) {
+        compact(d);
+        d->work = 0;
+    }
+    ERL_NIF_TERM result;
+    if (RHS(d, d->start) >= INF) {
+        result = enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
+    } else {
+        /* from the start, always to the successor minimising c + g */
+        size_t cap = 1024, len = 0;
+        int32_t *path = malloc(cap * sizeof(int32_t));
+        int32_t u = d->start, to[8];
+        int64_t cost[8];
+        int ok = path != NULL;
+        while (ok) {
+            if (len == cap) {
+                int32_t *p = realloc(path, 2 * cap * sizeof(int32_t));
+                if (!p) {
+                    ok = 0;
+                    break;
+                }
+                path = p;
+                cap *= 2;
+            }
+            path[len++] = u;
+            if (u == d->goal || (long)len > n) break;
+            int m = edges(d->cells, d->w, d->h, u, to, cost);
+            int64_t best = INF;
+            int32_t next = -1;
+            for (int k = 0; k < m; k++) {
+                int64_t gv = G(d, to[k]);
+                if (gv < INF && cost[k] + gv < best) best = cost[k] + gv, next = to[k];
+            }
+            if (next < 0) break;
+            u = next;
+        }
+        if (!ok) {
+            free(path);
+            enif_mutex_unlock(d->lock);
+            return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+        }
+        result = path[len - 1] == d->goal
+                     ? enif_make_tuple3(env, A_OK, path_term(env, path, len, d->w),
+                                        enif_make_long(env, processed))
+                     : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
+        free(path);
+    }
+    enif_mutex_unlock(d->lock);
+    return result;
+}

@@ -1,0 +1,170 @@
+Code.require_file("support/nav_run.exs", __DIR__)
+
+defmodule ThinkingCap.Bench.NavUnknown do
+  @moduledoc """
+  `mix tc.bench nav_unknown [--map PATH.yaml ...] [--runs N] [--seed S] [--trace]`:
+  as `mix tc.bench nav` (the robot is given the map), but the true world
+  also holds 8 boxes the robot was not told about, three of them on the
+  shortest path from start to goal (one 0.4 to 0.7 m square at 30, 50 and
+  70 % of its length) and five elsewhere in free space, and (when the
+  simulator has walkers) a person walking through. The stack adds the map
+  builder (`ThinkingCap.Navigation.Mapper`, seeded with the given map) and
+  plans on what it builds, repairing its plans with D* Lite.
+
+  The optimal path is the shortest one in the true world, boxes
+  included. `replan_speedup_live` is, over the plan repairs made in the
+  runs, the mean time A* from scratch takes on the same grid over the
+  mean time D* Lite took (`ThinkingCap.Navigation.PathPlanner`'s
+  `compare: true`).
+
+  Ends with
+  `nav_unknown: runs=N success=K collisions=C path_ratio=R replan_speedup_live=X`.
+  """
+
+  alias ThinkingCap.Bench.NavRun
+  alias ThinkingCap.Navigation.{AStar, Grid}
+  alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Sim
+
+  @boxes_on_path [0.3, 0.5, 0.7]
+  @boxes_elsewhere 5
+
+  def run(args) do
+    opts = NavRun.options(args, 20)
+    tmp = NavRun.tmp_dir()
+    {:ok, d} = Description.load(NavRun.rdf())
+    radius = d.footprint.radius
+
+    results =
+      Enum.flat_map(opts.maps, fn yaml ->
+        name = Path.basename(yaml, ".yaml")
+        robot_wdf = NavRun.write_wdf(tmp, name, yaml)
+        {grid, tight} = NavRun.grids(robot_wdf, radius)
+        {:ok, world} = Sim.World.load(robot_wdf)
+        free? = fn cell -> Sim.World.free?(world, Grid.centre(grid, cell), radius + 0.05) end
+        rng = :rand.seed_s(:exsss, {opts.seed, 43, 1})
+        {pairs, rng} = NavRun.pairs(grid, tight, free?, opts.runs, rng)
+
+        {results, _} =
+          pairs
+          |> Enum.with_index(1)
+          |> Enum.map_reduce(rng, fn {pair, i}, rng ->
+            {boxes, rng} = boxes(grid, pair, rng)
+            truth = NavRun.write_wdf(tmp, "#{name}_#{i}", yaml, boxes)
+            {pair, reachable} = true_optimal(truth, radius, pair)
+
+            r =
+              if reachable do
+                NavRun.run(truth, robot_wdf, pair,
+                  seed: opts.seed * 1000 + i,
+                  modules: &modules/1,
+                  walkers: walkers(pair)
+                )
+              end
+
+            if r, do: IO.puts(NavRun.line(name, i, r))
+            {r, rng}
+          end)
+
+        results = Enum.reject(results, &is_nil/1)
+        print(name, results)
+        results
+      end)
+
+    print("nav_unknown", results)
+    File.rm_rf!(tmp)
+  end
+
+  defp modules(pair) do
+    [
+      perception: {ThinkingCap.Perception.Fuser, []},
+      localization:
+        {ThinkingCap.Navigation.Localizer, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
+      mapper: {ThinkingCap.Navigation.Mapper, []},
+      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      planner:
+        {ThinkingCap.Planner.Monitor, [task: {:go_to, pair.goal}, compare: true], period: 0.5}
+    ]
+  end
+
+  # a person walking across the path's middle, when the simulator has walkers
+  defp walkers(pair) do
+    if function_exported?(Sim, :add_walker, 3) do
+      {x, y} = Enum.at(pair.path, div(length(pair.path), 2))
+      [[:person, [route: [{x - 2.0, y}, {x + 2.0, y}], speed: 0.8]]]
+    else
+      []
+    end
+  end
+
+  # three boxes on the path, five elsewhere: squares of 0.4 to 0.7 m, at
+  # least 1 m from the start and the goal
+  defp boxes(grid, pair, rng) do
+    path = List.to_tuple(pair.path)
+    n = tuple_size(path)
+    {sx, sy, _} = pair.start
+    far? = fn {x, y} -> dist({x, y}, {sx, sy}) > 1.0 and dist({x, y}, pair.goal) > 1.0 end
+
+    {on_path, rng} =
+      Enum.map_reduce(@boxes_on_path, rng, fn f, rng ->
+        {x, y} = elem(path, min(n - 1, round(f * (n - 1))))
+        {size, rng} = size(rng)
+        {if(far?.({x, y}), do: square({x, y}, size)), rng}
+      end)
+
+    {elsewhere, rng} =
+      Enum.map_reduce(1..@boxes_elsewhere, rng, fn _, rng ->
+        {cell, rng} = NavRun.free_cell(grid, rng)
+        {size, rng} = size(rng)
+        centre = Grid.centre(grid, cell)
+        {if(far?.(centre), do: square(centre, size)), rng}
+      end)
+
+    {Enum.reject(on_path ++ elsewhere, &is_nil/1), rng}
+  end
+
+  defp size(rng) do
+    {u, rng} = :rand.uniform_s(rng)
+    {0.4 + 0.3 * u, rng}
+  end
+
+  defp square({x, y}, s) do
+    h = s / 2
+    [{x - h, y - h}, {x + h, y - h}, {x + h, y + h}, {x - h, y + h}]
+  end
+
+  # the shortest collision-free path in the true world, boxes included
+  defp true_optimal(truth, radius, pair) do
+    {grid, tight} = NavRun.grids(truth, radius)
+    {sx, sy, _} = pair.start
+
+    with {:ok, _} <-
+           AStar.plan(grid, Grid.cell_of(grid, {sx, sy}), Grid.cell_of(grid, pair.goal)),
+         {:ok, %{cost: cost}} <-
+           AStar.plan(tight, Grid.cell_of(tight, {sx, sy}), Grid.cell_of(tight, pair.goal)) do
+      {%{pair | optimal: cost * tight.resolution}, true}
+    else
+      _ -> {pair, false}
+    end
+  end
+
+  defp dist({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+
+  defp print(label, results) do
+    s = NavRun.summary(results)
+
+    repairs =
+      for r <- results, p <- r.replans, p.kind == :repair, Map.has_key?(p, :astar_us), do: p
+
+    astar = NavRun.mean(Enum.map(repairs, & &1.astar_us))
+    dstar = NavRun.mean(Enum.map(repairs, & &1.us))
+    speedup = if dstar > 0, do: astar / dstar, else: 0.0
+
+    IO.puts(
+      "#{label}: runs=#{s.runs} success=#{s.success} collisions=#{s.collisions} " <>
+        "path_ratio=#{NavRun.fmt(s.path_ratio)} replan_speedup_live=#{NavRun.fmt(speedup)}" <>
+        " (#{length(repairs)} repairs of #{round(NavRun.mean(Enum.map(repairs, & &1.changed)))} cells: " <>
+        "A* #{round(astar)} us, D* Lite #{round(dstar)} us)"
+    )
+  end
+end
