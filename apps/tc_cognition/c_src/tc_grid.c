@@ -21,7 +21,8 @@
  *  - Pure functions on byte grids (row-major from the bottom row): the
  *    exact Euclidean distance transform (Felzenszwalb & Huttenlocher),
  *    inflation, thresholds, downsampling, patches and the difference of
- *    two grids, and the room segmentation of the topological map.
+ *    two grids, the room segmentation of the topological map, and the
+ *    frontiers between known free and unknown space.
  *
  * Every function checks its arguments and returns badarg, never crashes.
  * Work proportional to a whole map runs on a dirty CPU scheduler.
@@ -755,6 +756,79 @@ static ERL_NIF_TERM nif_rooms(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     return enif_make_tuple2(env, regions, contacts);
 }
 
+/* frontiers(occupancy, w, h, free_below, min_size) -> [{size, {c, r}}]:
+ * the frontiers between known free space (0 <= v < free_below) and
+ * unknown space (-1): free cells with an unknown 4-neighbour, grouped
+ * 8-connected; for each group of at least min_size cells, its size and
+ * its cell nearest its centroid. */
+static ERL_NIF_TERM nif_frontiers(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h, free_below, min_size;
+    if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &free_below) ||
+        !enif_get_int(env, argv[4], &min_size))
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    const int8_t *v = (const int8_t *)b.data;
+    unsigned char *front = calloc(n, 1);
+    int32_t *queue = malloc(n * sizeof(int32_t));
+    if (!front || !queue) {
+        free(front);
+        free(queue);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            size_t i = (size_t)r * w + c;
+            if (!(v[i] >= 0 && v[i] < free_below)) continue;
+            int unknown = (c > 0 && v[i - 1] < 0) || (c < w - 1 && v[i + 1] < 0) ||
+                          (r > 0 && v[i - w] < 0) || (r < h - 1 && v[i + w] < 0);
+            front[i] = unknown ? 1 : 0;
+        }
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (size_t s0 = 0; s0 < n; s0++) {
+        if (front[s0] != 1) continue;
+        size_t head = 0, tail = 0;
+        queue[tail++] = (int32_t)s0;
+        front[s0] = 2;
+        double sc = 0, sr = 0;
+        while (head < tail) {
+            int32_t i = queue[head++];
+            int c = i % w, r = i / w;
+            sc += c;
+            sr += r;
+            for (int dr = -1; dr <= 1; dr++)
+                for (int dc = -1; dc <= 1; dc++) {
+                    int cc = c + dc, rr = r + dr;
+                    if ((dc || dr) && cc >= 0 && rr >= 0 && cc < w && rr < h) {
+                        size_t j = (size_t)rr * w + cc;
+                        if (front[j] == 1) {
+                            front[j] = 2;
+                            queue[tail++] = (int32_t)j;
+                        }
+                    }
+                }
+        }
+        if ((long)tail < min_size) continue;
+        double mc = sc / tail, mr = sr / tail, best = 1e300;
+        int32_t at = queue[0];
+        for (size_t k = 0; k < tail; k++) {
+            double dc = queue[k] % w - mc, dr = queue[k] / w - mr;
+            if (dc * dc + dr * dr < best) best = dc * dc + dr * dr, at = queue[k];
+        }
+        list = enif_make_list_cell(
+            env,
+            enif_make_tuple2(env, enif_make_long(env, (long)tail),
+                             enif_make_tuple2(env, enif_make_int(env, at % w),
+                                              enif_make_int(env, at / w))),
+            list);
+    }
+    free(front);
+    free(queue);
+    return list;
+}
+
 static ErlNifFunc funcs[] = {
     {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_integrate", 8, nif_fmap_integrate, 0},
@@ -771,6 +845,7 @@ static ErlNifFunc funcs[] = {
     {"downsample", 4, nif_downsample, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"patch", 2, nif_patch, 0},
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},

@@ -8,7 +8,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
   Tasks (param `task:`, or later a `{:task, robot, %{task: task}}` tuple):
   `{:go_to, waypoint}`, `{:visit, [waypoint]}`, `{:patrol, [waypoint]}`
-  (visits for ever) and `:idle`. A waypoint is a point `{x, y}`, or a
+  (visits for ever), `:explore` and `:idle`. A waypoint is a point `{x, y}`, or a
   name: a waypoint of the WDF, a room or corridor of the WDF, or a place
   of the map the robot learned (`{:topology, robot, _}` from
   `ThinkingCap.Navigation.Mapper`: "go to `:room_3`"). A task that is
@@ -27,6 +27,15 @@ defmodule ThinkingCap.Planner.Monitor do
   (`{:pose, robot, _}`, from the localizer). A goal beyond the learned
   map (unexplored space, within `reach` metres of it) is planned to
   through unknown space.
+
+  **Exploring** (`:explore`, on the map the map builder builds; without
+  one the task fails after `map_timeout` seconds, saying so): the robot
+  visits frontiers between known free and unknown space
+  (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first), a
+  frontier seen from afar is dropped for the next, one out of reach is
+  given up (and not chosen again), and when none is left the task is
+  `:done` and, with `save_to: path`, the map builder is asked to save the
+  map there (`{:save_map, robot, %{path: path}}`).
 
   **Monitoring**, every cycle: a waypoint within `tolerance` is reached
   and the next one taken; a robot that makes no progress for
@@ -61,13 +70,14 @@ defmodule ThinkingCap.Planner.Monitor do
   `retry_after` (10 s), `replan_every` (1 s), `margin` (0.08 m),
   `radius` (default the RDF's footprint, else 0.2 m), `resolution` (the
   planning cell, default the map's, at least 0.05 m), `reach` (20 m),
-  `compare` (time A* beside each plan, for benchmarks; default false).
+  `compare` (time A* beside each plan, for benchmarks; default false),
+  `map_timeout` (10 s), `save_to` (where an exploration's map is saved).
   """
   use ThinkingCap.Module
   require Logger
 
   alias ThinkingCap.Config.WDF
-  alias ThinkingCap.Navigation.{Maps, OccupancyGrid, PathPlanner, Topology}
+  alias ThinkingCap.Navigation.{Frontiers, Maps, OccupancyGrid, PathPlanner, Topology}
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
 
@@ -80,7 +90,9 @@ defmodule ThinkingCap.Planner.Monitor do
     resolution: nil,
     margin: 0.08,
     reach: 20.0,
-    compare: false
+    compare: false,
+    map_timeout: 10.0,
+    save_to: nil
   ]
 
   @impl true
@@ -121,7 +133,8 @@ defmodule ThinkingCap.Planner.Monitor do
       replans: 0,
       progress: nil,
       blocked_at: nil,
-      planned_at: nil
+      planned_at: nil,
+      waiting_since: nil
     }
 
     state =
@@ -179,8 +192,9 @@ defmodule ThinkingCap.Planner.Monitor do
   @impl true
   def handle_cycle(release, state) do
     state = %{state | time: release.scheduled_ns / 1.0e9} |> take_map()
+    before = state.status
     {actions, state} = step(state)
-    {actions ++ [publish(state)], state}
+    {actions ++ explored(before, state) ++ [publish(state)], state}
   end
 
   ## Maps
@@ -254,7 +268,7 @@ defmodule ThinkingCap.Planner.Monitor do
             replans: 0,
             reason: nil
         }
-        |> Map.put(:status, if(queue == [], do: :idle, else: :waiting))
+        |> Map.put(:status, if(queue == [] and task != :explore, do: :idle, else: :waiting))
 
       {:error, reason} ->
         Logger.warning("#{inspect(state.robot)}: task refused: #{reason}")
@@ -271,6 +285,7 @@ defmodule ThinkingCap.Planner.Monitor do
         {:visit, wps} when is_list(wps) -> {:ok, wps}
         {:patrol, [_ | _] = wps} -> {:ok, wps}
         :idle -> {:ok, []}
+        :explore -> {:ok, []}
         other -> {:error, "unknown task #{inspect(other, limit: 5, printable_limit: 40)}"}
       end
 
@@ -296,12 +311,46 @@ defmodule ThinkingCap.Planner.Monitor do
   defp step(%{status: status} = state) when status in [:idle, :done, :failed],
     do: {[], state}
 
+  defp step(%{task: :explore, source: source} = state) when source != :sensed do
+    waited = state.time - (state.waiting_since || state.time)
+
+    if waited >= state.params[:map_timeout] do
+      reason =
+        "exploring needs a map builder (ThinkingCap.Navigation.Mapper) in the ADF: " <>
+          "no map came in #{round(waited)} s"
+
+      Logger.warning("#{inspect(state.robot)}: #{reason}")
+      {[], %{state | status: :failed, reason: reason, task: :idle}}
+    else
+      {[],
+       %{
+         state
+         | status: :waiting,
+           reason: "waiting for the map builder's first map",
+           waiting_since: state.waiting_since || state.time
+       }}
+    end
+  end
+
   defp step(%{map: nil} = state),
     do: {[], %{state | status: :waiting, reason: "no map yet: no WDF and no map builder"}}
 
   # resumed from a handoff with a waypoint under way: plan to it from here
   defp step(%{status: :waiting, target: target, plan: nil} = state) when target != nil,
     do: {[], plan(state)}
+
+  defp step(%{task: :explore, target: nil} = state) do
+    {x, y, _} = state.pose
+    frontiers = Frontiers.find(state.map)
+
+    case Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up) do
+      nil ->
+        {[], %{state | status: :done, reason: "explored: no frontier left"}}
+
+      %{point: point} ->
+        {[], plan(%{state | target: point, replans: 0})}
+    end
+  end
 
   defp step(%{target: nil, queue: [], given_up: []} = state), do: {[], %{state | status: :done}}
   defp step(%{target: nil, queue: []} = state), do: {[], %{state | status: :failed}}
@@ -343,6 +392,10 @@ defmodule ThinkingCap.Planner.Monitor do
         state = %{state | reached: [state.target | state.reached], target: nil, plan: nil}
         step(state)
 
+      explored?(state) ->
+        # the frontier was seen from afar: on to the next
+        step(%{state | target: nil, plan: nil})
+
       door = shut_door(state) ->
         Logger.info("#{inspect(state.robot)}: door #{door.name} is shut; replanning")
         state = %{state | closed: MapSet.put(state.closed, door.name)} |> wdf_map()
@@ -359,6 +412,26 @@ defmodule ThinkingCap.Planner.Monitor do
         {[], %{state | progress: progress(state.progress, to_go, state.time)}}
     end
   end
+
+  defp explored?(%{task: :explore, target: target, map: map}),
+    do: not Frontiers.unknown_near?(map, target, state_radius())
+
+  defp explored?(_state), do: false
+
+  # how near a frontier's point unknown space must stay for it to be one
+  defp state_radius, do: 0.5
+
+  # an exploration just done: the map saved where asked
+  defp explored(before, %{task: :explore, status: :done} = state) when before != :done do
+    Logger.info("#{inspect(state.robot)}: explored: no frontier left")
+
+    case state.params[:save_to] do
+      nil -> []
+      path -> [out: {:save_map, state.robot, %{path: Path.expand(path)}}]
+    end
+  end
+
+  defp explored(_before, _state), do: []
 
   # another plan, or the waypoint given up after max_replans
   defp retry(state) do
@@ -529,6 +602,8 @@ defmodule ThinkingCap.Planner.Monitor do
     Logger.info("#{inspect(state.robot)}: no plan to #{inspect(state.target)}: #{sentence}")
 
     case status do
+      # a frontier out of reach is left for the next
+      _ when state.task == :explore -> elem(give_up(state, sentence), 1)
       :gone -> elem(give_up(state, sentence), 1)
       _ -> %{state | plan: nil, status: status, reason: sentence, blocked_at: state.time}
     end
