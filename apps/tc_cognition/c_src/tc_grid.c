@@ -16,7 +16,7 @@
  *    so evidence accumulates as readings agree, and what the sensors now
  *    see empty (an obstacle that left) fades out of the occupied degree.
  *
- *  - A* and D* Lite (tc_plan.c).
+ *  - A* and D* Lite (tc_plan.c), Monte Carlo localization (tc_mcl.c).
  *
  *  - Pure functions on byte grids (row-major from the bottom row): the
  *    exact Euclidean distance transform (Felzenszwalb & Huttenlocher),
@@ -30,6 +30,7 @@
 #include <erl_nif.h>
 #include <math.h>
 
+#include "tc_mcl.h"
 #include "tc_plan.h"
 #include <stdint.h>
 #include <stdlib.h>
@@ -75,7 +76,7 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     ATOM_OK = enif_make_atom(env, "ok");
     ATOM_NIL = enif_make_atom(env, "nil");
     ATOM_ERROR = enif_make_atom(env, "error");
-    return FMAP_TYPE == NULL || tc_plan_load(env);
+    return FMAP_TYPE == NULL || tc_plan_load(env) || tc_mcl_load(env);
 }
 
 static int upgrade(ErlNifEnv *env, void **priv, void **old, ERL_NIF_TERM info)
@@ -847,6 +848,16 @@ static ErlNifFunc funcs[] = {
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"field_new", 7, tc_nif_field_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"field_score", 4, tc_nif_field_score, 0},
+    {"field_search", 6, tc_nif_field_search, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"pf_new", 2, tc_nif_pf_new, 0},
+    {"pf_spread", 3, tc_nif_pf_spread, 0},
+    {"pf_move", 3, tc_nif_pf_move, 0},
+    {"pf_weigh", 4, tc_nif_pf_weigh, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"pf_resample", 3, tc_nif_pf_resample, 0},
+    {"pf_estimate", 1, tc_nif_pf_estimate, 0},
+    {"pf_sample", 2, tc_nif_pf_sample, 0},
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},

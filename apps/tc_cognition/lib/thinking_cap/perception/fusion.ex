@@ -67,8 +67,12 @@ defmodule ThinkingCap.Perception.Fusion do
   @spec put_odometry(t(), {float(), float(), float()}, float()) :: t()
   def put_odometry(state, pose, time), do: %{state | odom: pose, time: max(state.time, time)}
 
-  @doc "The robot's estimated world pose (brings the a priori map in)."
+  @doc """
+  The robot's estimated world pose (brings the a priori map in); ignored
+  before the first odometry reading, which it is paired with.
+  """
   @spec put_world_pose(t(), {float(), float(), float()}) :: t()
+  def put_world_pose(%{odom: nil} = state, _pose), do: state
   def put_world_pose(state, pose), do: %{state | world_pose: {pose, state.odom}}
 
   @doc """

@@ -1,7 +1,8 @@
 defmodule ThinkingCap.Navigation.Core.GridNif do
   @moduledoc false
-  # The grid NIF (c_src/tc_grid.c, tc_plan.c): a fuzzy grid map held as a
-  # resource, A* and D* Lite (a D* Lite search is a resource too), and pure
+  # The grid NIF (c_src/tc_grid.c, tc_plan.c, tc_mcl.c): a fuzzy grid map
+  # held as a resource, A* and D* Lite (a D* Lite search is a resource too),
+  # a likelihood field and a particle set for localization, and pure
   # functions on byte grids (distance transform, inflation, thresholds,
   # downsampling, patches, difference, room segmentation). Callers go through
   # ThinkingCap.Navigation.Maps.SensedGrid and ThinkingCap.Navigation.CostMap.
@@ -37,6 +38,21 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def rooms(_occupancy, _w, _h, _free_below, _half_door, _min_core),
     do: :erlang.nif_error(:nif_not_loaded)
 
+  def field_new(_occupancy, _w, _h, _res, _ox, _oy, _threshold),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  def field_score(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
+
+  def field_search(_field, _beams, _model, _step, _headings, _top),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  def pf_new(_poses, _seed), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_spread(_pf, _pose, _sigmas), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_move(_pf, _delta, _alphas), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_weigh(_pf, _field, _beams, _model), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_resample(_pf, _share, _poses), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_estimate(_pf), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_sample(_pf, _k), do: :erlang.nif_error(:nif_not_loaded)
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)

@@ -1,0 +1,627 @@
+/*
+ * tc_mcl: Monte Carlo localization for the grid NIF (see tc_grid.c;
+ * ThinkingCap.Navigation.ParticleFilter wraps it).
+ *
+ * A likelihood field (Thrun, Burgard & Fox, Probabilistic Robotics 6.4):
+ * for every cell of an occupancy grid the distance to the nearest
+ * occupied cell (exact distance transform), and whether the cell is
+ * unknown. A beam's endpoint scores
+ *     z_hit * exp(-d^2 / 2 sigma^2) + z_rand / range_max
+ * where d is that distance; an endpoint off the map or in unknown space
+ * says nothing (it scores like the average of a free beam, so a map still
+ * being built does not pull the particles towards what is known).
+ *
+ * A particle set: poses and log-weights, with its own random generator
+ * (xoshiro256**, seeded by the caller: runs are deterministic), moved by
+ * the odometry motion model (sample_motion_model_odometry, table 5.6),
+ * weighed by a scan, resampled (low variance), summarised (mean, circular
+ * mean heading, covariance). A global search scores a scan at every free
+ * cell of a coarse lattice and every heading step, for relocalization.
+ */
+#include "tc_mcl.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_PARTICLES 200000
+#define MAX_BEAMS 4096
+#define TWO_PI 6.283185307179586
+
+static ErlNifResourceType *FIELD_TYPE, *PF_TYPE;
+static ERL_NIF_TERM M_OK;
+
+typedef struct {
+    int w, h;
+    double res, ox, oy;
+    float *dist;      /* metres to the nearest occupied cell */
+    uint8_t *unknown; /* 1 where the map does not know */
+} Field;
+
+typedef struct {
+    ErlNifMutex *lock;
+    int n;
+    double *x, *y, *th, *lw; /* poses, log-weights */
+    uint64_t s[4];           /* xoshiro256** state */
+} Pf;
+
+static void field_free(ErlNifEnv *env, void *obj)
+{
+    (void)env;
+    Field *f = obj;
+    free(f->dist);
+    free(f->unknown);
+}
+
+static void pf_free(ErlNifEnv *env, void *obj)
+{
+    (void)env;
+    Pf *p = obj;
+    free(p->x);
+    free(p->y);
+    free(p->th);
+    free(p->lw);
+    if (p->lock) enif_mutex_destroy(p->lock);
+}
+
+int tc_mcl_load(ErlNifEnv *env)
+{
+    FIELD_TYPE = enif_open_resource_type(env, NULL, "tc_mcl_field", field_free,
+                                         ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
+    PF_TYPE = enif_open_resource_type(env, NULL, "tc_mcl_pf", pf_free,
+                                      ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
+    M_OK = enif_make_atom(env, "ok");
+    return FIELD_TYPE == NULL || PF_TYPE == NULL;
+}
+
+static int num(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
+{
+    long l;
+    if (enif_get_double(env, t, out)) return isfinite(*out);
+    if (enif_get_long(env, t, &l)) {
+        *out = (double)l;
+        return 1;
+    }
+    return 0;
+}
+
+/* ---- random numbers ---- */
+
+static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+
+static uint64_t next(Pf *p)
+{
+    uint64_t *s = p->s;
+    uint64_t r = rotl(s[1] * 5, 7) * 9, t = s[1] << 17;
+    s[2] ^= s[0];
+    s[3] ^= s[1];
+    s[1] ^= s[2];
+    s[0] ^= s[3];
+    s[2] ^= t;
+    s[3] = rotl(s[3], 45);
+    return r;
+}
+
+static double uniform(Pf *p) { return (next(p) >> 11) * (1.0 / 9007199254740992.0); }
+
+static double gauss(Pf *p)
+{
+    double u = uniform(p), v = uniform(p);
+    if (u < 1e-300) u = 1e-300;
+    return sqrt(-2.0 * log(u)) * cos(TWO_PI * v);
+}
+
+static void seed(Pf *p, uint64_t seed)
+{
+    /* splitmix64 */
+    for (int i = 0; i < 4; i++) {
+        uint64_t z = (seed += 0x9e3779b97f4a7c15ULL);
+        z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+        z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+        p->s[i] = z ^ (z >> 31);
+    }
+}
+
+static double wrap(double a)
+{
+    a = fmod(a + M_PI, TWO_PI);
+    if (a < 0) a += TWO_PI;
+    return a - M_PI;
+}
+
+/* ---- the likelihood field ---- */
+
+/* squared distance transform of a line (as tc_grid.c's) */
+static void dt1(const double *f, double *d, int n, int *v, double *z)
+{
+    int k = 0;
+    v[0] = 0;
+    z[0] = -INFINITY;
+    z[1] = INFINITY;
+    for (int q = 1; q < n; q++) {
+        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
+        while (s <= z[k]) {
+            k--;
+            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
+        }
+        k++;
+        v[k] = q;
+        z[k] = s;
+        z[k + 1] = INFINITY;
+    }
+    k = 0;
+    for (int q = 0; q < n; q++) {
+        while (z[k + 1] < q) k++;
+        double dq = q - v[k];
+        d[q] = dq * dq + f[v[k]];
+    }
+}
+
+/* field_new(occupancy, w, h, resolution, ox, oy, threshold) */
+ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h, threshold;
+    double res, ox, oy;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
+        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
+        b.size != (size_t)w * h || !num(env, argv[3], &res) || res <= 0 ||
+        !num(env, argv[4], &ox) || !num(env, argv[5], &oy) ||
+        !enif_get_int(env, argv[6], &threshold))
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    int m = w > h ? w : h;
+    Field *f = enif_alloc_resource(FIELD_TYPE, sizeof(Field));
+    memset(f, 0, sizeof(Field));
+    f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy;
+    f->dist = malloc(n * sizeof(float));
+    f->unknown = malloc(n);
+    double *g = malloc(n * sizeof(double));
+    double *fl = calloc(m, sizeof(double)), *d = calloc(m, sizeof(double));
+    double *z = malloc((m + 1) * sizeof(double));
+    int *v = malloc(m * sizeof(int));
+    if (!f->dist || !f->unknown || !g || !fl || !d || !z || !v) {
+        free(g), free(fl), free(d), free(z), free(v);
+        enif_release_resource(f);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    const double big = 1e20;
+    for (int c = 0; c < w; c++) {
+        for (int r = 0; r < h; r++) {
+            int8_t val = (int8_t)b.data[(size_t)r * w + c];
+            fl[r] = val >= threshold ? 0.0 : big;
+        }
+        dt1(fl, d, h, v, z);
+        for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r];
+    }
+    for (int r = 0; r < h; r++) {
+        for (int c = 0; c < w; c++) fl[c] = g[(size_t)r * w + c];
+        dt1(fl, d, w, v, z);
+        for (int c = 0; c < w; c++) {
+            size_t i = (size_t)r * w + c;
+            f->dist[i] = d[c] >= big / 2 ? 1e6f : (float)(sqrt(d[c]) * res);
+            f->unknown[i] = (int8_t)b.data[i] < 0;
+        }
+    }
+    free(g), free(fl), free(d), free(z), free(v);
+    ERL_NIF_TERM t = enif_make_resource(env, f);
+    enif_release_resource(f);
+    return t;
+}
+
+typedef struct {
+    double sigma, z_hit, z_rand, range_max;
+} Model;
+
+/* beams: native doubles {x, y, angle, range} per beam: the sensor's
+ * position and the beam's direction in the robot frame, and its range
+ * (at or beyond range_max: no echo, skipped) */
+typedef struct {
+    const double *b;
+    int n;
+} Beams;
+
+/* log-likelihood of the beams from pose (x, y, th), and how many beams
+ * fell on known map */
+static double score(const Field *f, const Beams *bs, const Model *m, double x, double y,
+                    double th, int *known)
+{
+    double c = cos(th), s = sin(th), sum = 0.0;
+    double rand_p = m->z_rand / m->range_max;
+    double two_s2 = 2.0 * m->sigma * m->sigma;
+    /* what a beam into unknown space scores: the likelihood of a beam a
+     * sigma off an obstacle */
+    double neutral = log(m->z_hit * exp(-0.5) + rand_p);
+    int k = 0;
+    /* a robot off the map, in unknown space or in an obstacle: every beam
+     * as unlikely as noise */
+    {
+        long col = (long)floor((x - f->ox) / f->res), row = (long)floor((y - f->oy) / f->res);
+        size_t cell = (size_t)row * f->w + col;
+        if (col < 0 || row < 0 || col >= f->w || row >= f->h || f->unknown[cell] ||
+            f->dist[cell] < 0.5 * f->res) {
+            int used = 0;
+            for (int i = 0; i < bs->n; i++)
+                if (bs->b[4 * i + 3] < m->range_max) used++;
+            *known = 0;
+            return used * log(rand_p);
+        }
+    }
+    for (int i = 0; i < bs->n; i++) {
+        const double *q = bs->b + 4 * i;
+        double r = q[3];
+        if (!(r < m->range_max)) continue;
+        double sx = x + c * q[0] - s * q[1], sy = y + s * q[0] + c * q[1];
+        double ex = sx + r * cos(th + q[2]), ey = sy + r * sin(th + q[2]);
+        long col = (long)floor((ex - f->ox) / f->res), row = (long)floor((ey - f->oy) / f->res);
+        if (col < 0 || row < 0 || col >= f->w || row >= f->h) {
+            sum += neutral;
+            continue;
+        }
+        size_t cell = (size_t)row * f->w + col;
+        if (f->unknown[cell]) {
+            sum += neutral;
+            continue;
+        }
+        double dd = f->dist[cell];
+        sum += log(m->z_hit * exp(-dd * dd / two_s2) + rand_p);
+        k++;
+    }
+    *known = k;
+    return sum;
+}
+
+static int get_model(ErlNifEnv *env, ERL_NIF_TERM t, Model *m)
+{
+    int arity;
+    const ERL_NIF_TERM *e;
+    return enif_get_tuple(env, t, &arity, &e) && arity == 4 && num(env, e[0], &m->sigma) &&
+           m->sigma > 0 && num(env, e[1], &m->z_hit) && num(env, e[2], &m->z_rand) &&
+           num(env, e[3], &m->range_max) && m->range_max > 0;
+}
+
+static int get_beams(ErlNifEnv *env, ERL_NIF_TERM t, Beams *bs)
+{
+    ErlNifBinary b;
+    if (!enif_inspect_binary(env, t, &b) || b.size % (4 * sizeof(double)) != 0 ||
+        b.size / (4 * sizeof(double)) > MAX_BEAMS)
+        return 0;
+    bs->b = (const double *)b.data;
+    bs->n = (int)(b.size / (4 * sizeof(double)));
+    for (int i = 0; i < 4 * bs->n; i++)
+        if (!isfinite(bs->b[i])) return 0;
+    return 1;
+}
+
+/* field_score(field, beams, model, {x, y, th}) -> {log_likelihood, known} */
+ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Field *f;
+    Beams bs;
+    Model m;
+    int arity, known;
+    const ERL_NIF_TERM *e;
+    double x, y, th;
+    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
+        !get_model(env, argv[2], &m) || !enif_get_tuple(env, argv[3], &arity, &e) || arity != 3 ||
+        !num(env, e[0], &x) || !num(env, e[1], &y) || !num(env, e[2], &th))
+        return enif_make_badarg(env);
+    double l = score(f, &bs, &m, x, y, th, &known);
+    return enif_make_tuple2(env, enif_make_double(env, l), enif_make_int(env, known));
+}
+
+/* field_search(field, beams, model, step, heading_steps, top) -> [{ll, x,
+ * y, th}]: the best `top` poses of a lattice over the field's free known
+ * cells (every `step` metres, `heading_steps` headings), best first */
+ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Field *f;
+    Beams bs;
+    Model m;
+    double step;
+    int headings, top;
+    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
+        !get_model(env, argv[2], &m) || !num(env, argv[3], &step) || step <= 0 ||
+        !enif_get_int(env, argv[4], &headings) || headings < 1 || headings > 720 ||
+        !enif_get_int(env, argv[5], &top) || top < 1 || top > 10000)
+        return enif_make_badarg(env);
+    double *best_l = malloc(top * sizeof(double)), *best_p = malloc(3 * top * sizeof(double));
+    if (!best_l || !best_p) {
+        free(best_l), free(best_p);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    int kept = 0;
+    int stride = (int)fmax(1.0, round(step / f->res));
+    /* a pose needs its robot in known free space, clear of obstacles */
+    for (int r = stride / 2; r < f->h; r += stride)
+        for (int c = stride / 2; c < f->w; c += stride) {
+            size_t i = (size_t)r * f->w + c;
+            if (f->unknown[i] || f->dist[i] < 0.15) continue;
+            double x = f->ox + (c + 0.5) * f->res, y = f->oy + (r + 0.5) * f->res;
+            for (int k = 0; k < headings; k++) {
+                double th = -M_PI + TWO_PI * k / headings;
+                int known;
+                double l = score(f, &bs, &m, x, y, th, &known);
+                if (kept < top || l > best_l[kept - 1]) {
+                    int j = kept < top ? kept++ : top - 1;
+                    while (j > 0 && best_l[j - 1] < l) {
+                        best_l[j] = best_l[j - 1];
+                        memcpy(best_p + 3 * j, best_p + 3 * (j - 1), 3 * sizeof(double));
+                        j--;
+                    }
+                    best_l[j] = l;
+                    best_p[3 * j] = x, best_p[3 * j + 1] = y, best_p[3 * j + 2] = th;
+                }
+            }
+        }
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (int j = kept - 1; j >= 0; j--)
+        list = enif_make_list_cell(
+            env,
+            enif_make_tuple4(env, enif_make_double(env, best_l[j]),
+                             enif_make_double(env, best_p[3 * j]),
+                             enif_make_double(env, best_p[3 * j + 1]),
+                             enif_make_double(env, best_p[3 * j + 2])),
+            list);
+    free(best_l), free(best_p);
+    return list;
+}
+
+/* ---- the particle set ---- */
+
+static Pf *pf_alloc(int n)
+{
+    Pf *p = enif_alloc_resource(PF_TYPE, sizeof(Pf));
+    memset(p, 0, sizeof(Pf));
+    p->n = n;
+    p->x = malloc(n * sizeof(double));
+    p->y = malloc(n * sizeof(double));
+    p->th = malloc(n * sizeof(double));
+    p->lw = calloc(n, sizeof(double));
+    p->lock = enif_mutex_create("tc_mcl_pf");
+    if (!p->x || !p->y || !p->th || !p->lw || !p->lock) {
+        enif_release_resource(p);
+        return NULL;
+    }
+    return p;
+}
+
+/* pf_new(poses, seed): poses a binary of native doubles {x, y, th} */
+ERL_NIF_TERM tc_nif_pf_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    ErlNifUInt64 s;
+    if (!enif_inspect_binary(env, argv[0], &b) || b.size == 0 ||
+        b.size % (3 * sizeof(double)) != 0 || b.size / (3 * sizeof(double)) > MAX_PARTICLES ||
+        !enif_get_uint64(env, argv[1], &s))
+        return enif_make_badarg(env);
+    int n = (int)(b.size / (3 * sizeof(double)));
+    const double *q = (const double *)b.data;
+    for (int i = 0; i < 3 * n; i++)
+        if (!isfinite(q[i])) return enif_make_badarg(env);
+    Pf *p = pf_alloc(n);
+    if (!p) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    for (int i = 0; i < n; i++) p->x[i] = q[3 * i], p->y[i] = q[3 * i + 1], p->th[i] = wrap(q[3 * i + 2]);
+    seed(p, s);
+    ERL_NIF_TERM t = enif_make_resource(env, p);
+    enif_release_resource(p);
+    return t;
+}
+
+/* pf_spread(pf, {x, y, th}, {sx, sy, sth}): every particle drawn anew
+ * around a pose, weights equal */
+ERL_NIF_TERM tc_nif_pf_spread(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    int a1, a2;
+    const ERL_NIF_TERM *e1, *e2;
+    double x, y, th, sx, sy, sth;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &x) ||
+        !num(env, e1[1], &y) || !num(env, e1[2], &th) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        a2 != 3 || !num(env, e2[0], &sx) || !num(env, e2[1], &sy) || !num(env, e2[2], &sth))
+        return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    for (int i = 0; i < p->n; i++) {
+        p->x[i] = x + sx * gauss(p);
+        p->y[i] = y + sy * gauss(p);
+        p->th[i] = wrap(th + sth * gauss(p));
+        p->lw[i] = 0.0;
+    }
+    enif_mutex_unlock(p->lock);
+    return M_OK;
+}
+
+/* pf_move(pf, {dx, dy, dth}, {a1, a2, a3, a4}): the odometry motion model
+ * (rot1, trans, rot2 with noise from the alphas) */
+ERL_NIF_TERM tc_nif_pf_move(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    int a1, a2;
+    const ERL_NIF_TERM *e1, *e2;
+    double dx, dy, dth, al[4];
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &dx) ||
+        !num(env, e1[1], &dy) || !num(env, e1[2], &dth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        a2 != 4)
+        return enif_make_badarg(env);
+    for (int k = 0; k < 4; k++)
+        if (!num(env, e2[k], &al[k]) || al[k] < 0) return enif_make_badarg(env);
+    double trans = sqrt(dx * dx + dy * dy);
+    /* a backward move turns by pi less (Probabilistic Robotics' remark) */
+    double rot1 = trans < 1e-6 ? 0.0 : atan2(dy, dx);
+    int back = 0;
+    if (fabs(rot1) > M_PI / 2) {
+        back = 1;
+        rot1 = wrap(rot1 + M_PI);
+    }
+    double rot2 = wrap(dth - rot1);
+    enif_mutex_lock(p->lock);
+    for (int i = 0; i < p->n; i++) {
+        double r1 = rot1 - sqrt(al[0] * rot1 * rot1 + al[1] * trans * trans) * gauss(p);
+        double t = trans - sqrt(al[2] * trans * trans + al[3] * (rot1 * rot1 + rot2 * rot2)) * gauss(p);
+        double r2 = rot2 - sqrt(al[0] * rot2 * rot2 + al[1] * trans * trans) * gauss(p);
+        double dir = back ? -1.0 : 1.0;
+        p->x[i] += dir * t * cos(p->th[i] + r1);
+        p->y[i] += dir * t * sin(p->th[i] + r1);
+        p->th[i] = wrap(p->th[i] + r1 + r2);
+    }
+    enif_mutex_unlock(p->lock);
+    return M_OK;
+}
+
+/* pf_weigh(pf, field, beams, model) -> {mean_likelihood, n_eff, known}:
+ * every particle's log-weight grows by its scan's log-likelihood; the
+ * weights are then normalised. mean_likelihood is the mean over
+ * particles of exp(log-likelihood / beams), a per-beam figure for the
+ * augmented-MCL averages; known the best particle's beams on known map */
+ERL_NIF_TERM tc_nif_pf_weigh(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    Field *f;
+    Beams bs;
+    Model m;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
+        !enif_get_resource(env, argv[1], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[2], &bs) ||
+        !get_model(env, argv[3], &m))
+        return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    double mean = 0.0, top = -INFINITY;
+    int used = 0, best_known = 0;
+    for (int i = 0; i < bs.n; i++)
+        if (bs.b[4 * i + 3] < m.range_max) used++;
+    for (int i = 0; i < p->n; i++) {
+        int known;
+        double l = score(f, &bs, &m, p->x[i], p->y[i], p->th[i], &known);
+        mean += used ? exp(l / used) : 1.0;
+        p->lw[i] += l;
+        if (p->lw[i] > top) top = p->lw[i], best_known = known;
+    }
+    mean /= p->n;
+    double sum = 0.0, sum2 = 0.0;
+    for (int i = 0; i < p->n; i++) {
+        p->lw[i] -= top;
+        double w = exp(p->lw[i]);
+        sum += w;
+        sum2 += w * w;
+    }
+    double lsum = log(sum);
+    for (int i = 0; i < p->n; i++) p->lw[i] -= lsum;
+    double n_eff = sum * sum / sum2;
+    enif_mutex_unlock(p->lock);
+    return enif_make_tuple3(env, enif_make_double(env, mean), enif_make_double(env, n_eff),
+                            enif_make_int(env, best_known));
+}
+
+/* pf_resample(pf, random_share, {x0, y0, x1, y1} | poses): low-variance
+ * resampling; a share of the particles (augmented MCL's) replaced by
+ * poses drawn from `poses` (a binary of {x, y, th} doubles) */
+ERL_NIF_TERM tc_nif_pf_resample(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    double share;
+    ErlNifBinary poses;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !num(env, argv[1], &share) ||
+        share < 0 || share > 1 || !enif_inspect_binary(env, argv[2], &poses) ||
+        poses.size % (3 * sizeof(double)) != 0)
+        return enif_make_badarg(env);
+    const double *q = (const double *)poses.data;
+    int nq = (int)(poses.size / (3 * sizeof(double)));
+    enif_mutex_lock(p->lock);
+    int n = p->n;
+    double *x = malloc(n * sizeof(double)), *y = malloc(n * sizeof(double)),
+           *th = malloc(n * sizeof(double));
+    if (!x || !y || !th) {
+        free(x), free(y), free(th);
+        enif_mutex_unlock(p->lock);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    double step = 1.0 / n, u = uniform(p) * step, c = exp(p->lw[0]);
+    int j = 0;
+    for (int i = 0; i < n; i++) {
+        double target = u + i * step;
+        while (target > c && j < n - 1) c += exp(p->lw[++j]);
+        if (nq > 0 && uniform(p) < share) {
+            int k = (int)(uniform(p) * nq);
+            if (k >= nq) k = nq - 1;
+            x[i] = q[3 * k], y[i] = q[3 * k + 1], th[i] = wrap(q[3 * k + 2]);
+        } else {
+            x[i] = p->x[j], y[i] = p->y[j], th[i] = p->th[j];
+        }
+    }
+    memcpy(p->x, x, n * sizeof(double));
+    memcpy(p->y, y, n * sizeof(double));
+    memcpy(p->th, th, n * sizeof(double));
+    double lw = -log((double)n);
+    for (int i = 0; i < n; i++) p->lw[i] = lw;
+    free(x), free(y), free(th);
+    enif_mutex_unlock(p->lock);
+    return M_OK;
+}
+
+/* pf_estimate(pf) -> {{x, y, th}, [[cxx, cxy, cxt], [..], [..]], n_eff} */
+ERL_NIF_TERM tc_nif_pf_estimate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p)) return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    double mx = 0, my = 0, mc = 0, ms = 0, sw = 0, sw2 = 0;
+    for (int i = 0; i < p->n; i++) {
+        double w = exp(p->lw[i]);
+        mx += w * p->x[i], my += w * p->y[i];
+        mc += w * cos(p->th[i]), ms += w * sin(p->th[i]);
+        sw += w, sw2 += w * w;
+    }
+    mx /= sw, my /= sw;
+    double mt = atan2(ms, mc);
+    double c[3][3] = {{0}};
+    for (int i = 0; i < p->n; i++) {
+        double w = exp(p->lw[i]) / sw;
+        double d[3] = {p->x[i] - mx, p->y[i] - my, wrap(p->th[i] - mt)};
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) c[a][b] += w * d[a] * d[b];
+    }
+    enif_mutex_unlock(p->lock);
+    ERL_NIF_TERM rows[3];
+    for (int a = 0; a < 3; a++)
+        rows[a] = enif_make_list3(env, enif_make_double(env, c[a][0]), enif_make_double(env, c[a][1]),
+                                  enif_make_double(env, c[a][2]));
+    return enif_make_tuple3(
+        env,
+        enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
+                         enif_make_double(env, mt)),
+        enif_make_list3(env, rows[0], rows[1], rows[2]), enif_make_double(env, sw * sw / sw2));
+}
+
+/* pf_sample(pf, k) -> [{x, y, th}]: k particles spread evenly over the set */
+ERL_NIF_TERM tc_nif_pf_sample(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    int k;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !enif_get_int(env, argv[1], &k) ||
+        k < 0)
+        return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    if (k > p->n) k = p->n;
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (int j = k - 1; j >= 0; j--) {
+        int i = (int)((long)j * p->n / (k ? k : 1));
+        list = enif_make_list_cell(env,
+                                   enif_make_tuple3(env, enif_make_double(env, p->x[i]),
+                                                    enif_make_double(env, p->y[i]),
+                                                    enif_make_double(env, p->th[i])),
+                                   list);
+    }
+    enif_mutex_unlock(p->lock);
+    return list;
+}

@@ -1,0 +1,414 @@
+defmodule ThinkingCap.Navigation.MCL do
+  @moduledoc """
+  Laser localization as an ADF module (event-driven): Monte Carlo
+  localization (`ThinkingCap.Navigation.ParticleFilter`) against the map
+  the robot has, without beacons.
+
+      localization: [module: ThinkingCap.Navigation.MCL, activity: :event,
+                     params: [initial: :dock, initial_sigma: {0.5, 0.3}]]
+
+  **The map** is the map builder's (`{:map, robot, %OccupancyGrid{}}`,
+  from `ThinkingCap.Navigation.Mapper`) once one comes, taken again at
+  most every `map_every` seconds; until then the WDF's (its walls,
+  obstacles and closed doors, and its imported `map_server` map). With an
+  empty WDF and a map builder this is simultaneous localization and
+  mapping: the map is built at this module's estimates, and the estimates
+  are held to the map; until the first map comes the odometry alone moves
+  the estimate.
+
+  It subscribes to the robot's odometry and its lasers (the RDF's
+  sensors). On odometry the particles move by the motion since the last
+  reading; a scan weighs them once the robot moved `update_distance` (m)
+  or turned `update_angle` (rad) since the last weighing, using at most
+  `beams` of its beams, evenly spread.
+
+  **Lost and found.** Each scan is also scored from the estimate (the
+  fit: the mean per-beam likelihood over the best possible, in [0, 1]).
+  When the fit stays under `lost_fit` for `lost_after` scans while most
+  beams land on known map (a robot carried away, a wrong initial pose),
+  the whole map is searched for the scan and the particles spread round
+  the poses that fit it best (`relocalizing`) until the estimate settles.
+
+  ## Published
+
+      {:pose, robot, %{pose: {x, y, θ}, covariance: [[..], [..], [..]],
+                      stamp: t, confidence: c, status: s}}
+
+  (latest value, key `{:pose, robot}`) after each weighing and, between
+  them, after odometry when `publish_period` (default 0.1 s) of stamp has
+  passed. `confidence` in [0, 1] is the fit of the last scan, lowered as
+  the position's standard deviation grows past 0.1 m; `status` is
+  `:tracking`, `:uncertain` (a poor fit or a wide spread), `:lost`
+  (about to search) or `:relocalizing`, or `:dead_reckoning` without a
+  map. Also `{:particles, robot, %{poses: [{x, y, θ}], stamp: t}}`, up
+  to 200 of them, at most twice a second.
+
+  ## Parameters
+
+    * `initial` - the start pose `{x, y, θ}`, `{x, y}` or a waypoint's name
+      (default `{0, 0, 0}`), `initial_sigma` - `{σ_xy, σ_θ}` (default
+      `{0.2, 0.1}`);
+    * `particles` (default 500), `beams` (default 40), `seed` (default 1);
+    * `sigma_hit`, `z_hit`, `z_rand` - the sensor model (defaults 0.1,
+      0.9, 0.1); `alphas` - the motion model (default from the RDF's
+      `odometry_error`: generous multiples of its slips);
+    * `update_distance` (0.05 m), `update_angle` (0.05 rad),
+      `publish_period` (0.1 s), `map_every` (5 s);
+    * `lost_fit` (0.35), `lost_after` (5), `search_step` (0.25 m),
+      `search_headings` (36).
+  """
+
+  use ThinkingCap.Module
+  require Logger
+
+  alias ThinkingCap.Config.WDF
+  alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, ParticleFilter}
+  alias ThinkingCap.Robot.Description
+
+  @defaults [
+    initial: {0.0, 0.0, 0.0},
+    initial_sigma: {0.2, 0.1},
+    particles: 500,
+    beams: 40,
+    seed: 1,
+    sigma_hit: 0.1,
+    z_hit: 0.9,
+    z_rand: 0.1,
+    alphas: nil,
+    update_distance: 0.05,
+    update_angle: 0.05,
+    publish_period: 0.1,
+    map_every: 5.0,
+    lost_fit: 0.35,
+    lost_after: 5,
+    search_step: 0.25,
+    search_headings: 36
+  ]
+
+  @impl true
+  def init(params, context) do
+    params = Keyword.merge(@defaults, Enum.to_list(params || []))
+    rdf = describe!(context)
+    wdf = read_wdf(context)
+    lasers = for %{type: :laser} = s <- rdf.sensors, into: %{}, do: {s.name, s}
+
+    if lasers == %{} do
+      raise ArgumentError,
+            "#{inspect(context.name)}: the robot of #{context.rdf} has no laser to localize with"
+    end
+
+    range_max = lasers |> Map.values() |> Enum.map(&elem(&1.range, 1)) |> Enum.max()
+    odometry = Description.sensor_name(rdf, :odometry, :odom)
+    initial = initial_pose(params[:initial], wdf)
+
+    filter =
+      ParticleFilter.new(initial, params[:initial_sigma],
+        count: params[:particles],
+        seed: params[:seed],
+        sigma_hit: params[:sigma_hit],
+        z_hit: params[:z_hit],
+        z_rand: params[:z_rand],
+        range_max: range_max,
+        alphas: params[:alphas] || alphas(rdf.odometry_error)
+      )
+
+    filter =
+      if map = wdf_map(wdf), do: ParticleFilter.set_map(filter, map, params[:seed]), else: filter
+
+    state = %{
+      robot: context.robot,
+      params: params,
+      lasers: lasers,
+      odometry: odometry,
+      filter: filter,
+      source: if(filter.map, do: :wdf, else: nil),
+      map_at: nil,
+      pending_map: nil,
+      last_odometry: nil,
+      moved: {0.0, 0.0},
+      fit: nil,
+      poor: 0,
+      status: if(filter.map, do: :tracking, else: :dead_reckoning),
+      published: nil,
+      particles_at: nil
+    }
+
+    subscriptions =
+      for tag <- [odometry, :map | Map.keys(lasers)], do: {:subscribe, {tag, context.robot, :_}}
+
+    {subscriptions, resume(state, Map.get(context, :handoff))}
+  end
+
+  @doc """
+  What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the
+  estimate and the odometry reading it is up to date with; the standby
+  starts its particles round it.
+  """
+  @impl true
+  @spec handoff(map()) :: map()
+  def handoff(state) do
+    {pose, covariance} = ParticleFilter.estimate(state.filter)
+    %{pose: pose, covariance: covariance, last_odometry: state.last_odometry}
+  end
+
+  defp resume(state, %{pose: pose, covariance: [[sxx | _], [_, syy | _], [_, _, stt]]} = h) do
+    sigma = {:math.sqrt(max(sxx, syy)) + 0.05, :math.sqrt(stt) + 0.02}
+    filter = ParticleFilter.new(pose, sigma, particle_opts(state))
+
+    filter =
+      if state.filter.map, do: ParticleFilter.set_map(filter, state.filter.map), else: filter
+
+    %{state | filter: filter, last_odometry: h.last_odometry}
+  end
+
+  defp resume(state, _handoff), do: state
+
+  defp particle_opts(state) do
+    {s, z_hit, z_rand, range_max} = state.filter.model
+
+    [
+      count: state.filter.count,
+      seed: state.params[:seed],
+      sigma_hit: s,
+      z_hit: z_hit,
+      z_rand: z_rand,
+      range_max: range_max,
+      alphas: state.filter.alphas
+    ]
+  end
+
+  @impl true
+  def handle_tuple(
+        {tag, robot, %{pose: {_, _, _} = odom} = p},
+        %{odometry: tag, robot: robot} = s
+      ) do
+    stamp = Map.get(p, :stamp)
+
+    case s.last_odometry do
+      nil ->
+        {[], %{s | last_odometry: odom}}
+
+      previous ->
+        {dx, dy, dth} = delta = EKF.relative(previous, odom)
+        filter = ParticleFilter.move(s.filter, delta)
+        {d, a} = s.moved
+        moved = {d + :math.sqrt(dx * dx + dy * dy), a + abs(dth)}
+        s = %{s | filter: filter, last_odometry: odom, moved: moved}
+        if due?(s, stamp), do: publish(s, stamp), else: {[], s}
+    end
+  end
+
+  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot} = state),
+    do: {[], %{state | pending_map: map}}
+
+  def handle_tuple({tag, robot, %{ranges: ranges} = scan}, %{robot: robot} = state)
+      when is_map_key(state.lasers, tag) and is_list(ranges) do
+    stamp = Map.get(scan, :stamp)
+    state = take_map(state, stamp)
+    {d, a} = state.moved
+
+    if d >= state.params[:update_distance] or a >= state.params[:update_angle] or
+         state.fit == nil do
+      beams = beams(scan, Map.fetch!(state.lasers, tag), state.params[:beams])
+      state |> weigh(beams) |> Map.put(:moved, {0.0, 0.0}) |> publish(stamp)
+    else
+      {[], state}
+    end
+  end
+
+  def handle_tuple(_tuple, state), do: {[], state}
+
+  ## the filter
+
+  # the map builder's map, at most every map_every seconds
+  defp take_map(%{pending_map: nil} = state, _stamp), do: state
+
+  defp take_map(%{pending_map: map} = state, stamp) do
+    if state.map_at == nil or stamp == nil or stamp - state.map_at >= state.params[:map_every] do
+      filter = ParticleFilter.set_map(state.filter, map, state.params[:seed])
+      status = if state.status == :dead_reckoning, do: :tracking, else: state.status
+      %{state | filter: filter, source: :sensed, map_at: stamp, pending_map: nil, status: status}
+    else
+      state
+    end
+  end
+
+  defp weigh(%{filter: %{map: nil}} = state, _beams), do: state
+
+  defp weigh(state, beams) do
+    {filter, _mean} = ParticleFilter.sense(state.filter, beams)
+    {pose, _covariance} = ParticleFilter.estimate(filter)
+    state = %{state | filter: filter}
+
+    case ParticleFilter.fit(filter, beams, pose) do
+      nil ->
+        state
+
+      {fit, known} ->
+        poor = if fit < state.params[:lost_fit] and known >= 0.5, do: state.poor + 1, else: 0
+        state = %{state | fit: fit, poor: poor}
+        if poor >= state.params[:lost_after], do: relocalize(state, beams), else: settle(state)
+    end
+  end
+
+  defp relocalize(state, beams) do
+    Logger.info("#{inspect(state.robot)}: lost (the scan fits the map poorly); searching the map")
+
+    {filter, found} =
+      ParticleFilter.relocalize(state.filter, beams,
+        step: state.params[:search_step],
+        headings: state.params[:search_headings],
+        seed: state.params[:seed]
+      )
+
+    if found, do: Logger.info("#{inspect(state.robot)}: best fit at #{inspect(found)}")
+    %{state | filter: filter, poor: 0, status: :relocalizing}
+  end
+
+  defp settle(state) do
+    {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(state.filter)
+    sigma = :math.sqrt(max(sxx, syy))
+
+    status =
+      cond do
+        state.poor > 0 -> if state.status == :relocalizing, do: :relocalizing, else: :uncertain
+        sigma > 0.3 -> if state.status == :relocalizing, do: :relocalizing, else: :uncertain
+        true -> :tracking
+      end
+
+    %{state | status: status}
+  end
+
+  # at most `n` beams with an echo, evenly spread: {x, y, angle, range}
+  # in the robot frame
+  defp beams(scan, laser, n) do
+    {px, py, pth} = Map.get(laser, :pose, {0.0, 0.0, 0.0})
+    range_min = Map.get(scan, :range_min, 0.0)
+    range_max = scan.range_max
+    total = length(scan.ranges)
+    every = max(1, div(total, n))
+
+    scan.ranges
+    |> Enum.with_index()
+    |> Enum.filter(fn {r, i} ->
+      rem(i, every) == 0 and is_number(r) and r >= range_min and r < range_max
+    end)
+    |> Enum.map(fn {r, i} ->
+      a = pth + scan.angle_min + i * scan.angle_increment
+
+      <<px * 1.0::float-native, py * 1.0::float-native, a * 1.0::float-native,
+        r * 1.0::float-native>>
+    end)
+    |> IO.iodata_to_binary()
+  end
+
+  ## publishing
+
+  defp due?(%{published: nil}, _stamp), do: true
+  defp due?(_state, nil), do: true
+  defp due?(state, stamp), do: stamp - state.published >= state.params[:publish_period] - 1.0e-9
+
+  defp publish(state, stamp) do
+    {pose, covariance} = ParticleFilter.estimate(state.filter)
+    [[sxx | _], [_, syy | _] | _] = covariance
+    sigma = :math.sqrt(max(max(sxx, syy), 0.0))
+    confidence = (state.fit || 0.0) * min(1.0, 0.1 / max(sigma, 0.1))
+
+    payload = %{
+      pose: pose,
+      covariance: covariance,
+      stamp: stamp,
+      confidence: Float.round(confidence, 3),
+      status: state.status
+    }
+
+    out = [out: {{:pose, state.robot, payload}, [key: {:pose, state.robot}]}]
+    {more, state} = particles(state, stamp)
+    last = if is_number(stamp), do: stamp, else: state.published
+    {out ++ more, %{state | published: last}}
+  end
+
+  defp particles(state, stamp) do
+    if is_number(stamp) and (state.particles_at == nil or stamp - state.particles_at >= 0.5) do
+      poses = ParticleFilter.sample(state.filter, 200)
+      tuple = {:particles, state.robot, %{poses: poses, stamp: stamp}}
+      {[out: {tuple, [key: {:particles, state.robot}]}], %{state | particles_at: stamp}}
+    else
+      {[], state}
+    end
+  end
+
+  ## descriptions
+
+  # generous multiples of the RDF's slips (the filter must cover what the
+  # error model does not say: wheels on a bump, a floor's slope)
+  defp alphas(error) do
+    slip = max(Map.get(error || %{}, :slip, 0.01) || 0.01, 0.01)
+    turn = max(Map.get(error || %{}, :turn_slip, 0.02) || 0.02, 0.02)
+    {min(0.5, 25 * turn * turn + 0.02), 0.01, min(0.5, 25 * slip * slip + 0.005), 0.005}
+  end
+
+  defp wdf_map(nil), do: nil
+
+  defp wdf_map(%WDF{} = wdf) do
+    if WDF.empty?(wdf) do
+      nil
+    else
+      opts = if wdf.grid, do: [unknown: :free], else: [resolution: 0.05]
+      Maps.prior(wdf, Maps.grid_from_wdf(wdf, opts)) |> known_inside(wdf)
+    end
+  end
+
+  # a WDF drawn with walls only knows nothing of the floor: the cells
+  # inside its walls' bounds count as free space
+  defp known_inside(map, %WDF{grid: nil}) do
+    data =
+      for <<v::signed-8 <- map.data>>, into: <<>>, do: <<if(v < 0, do: 0, else: v)::signed-8>>
+
+    %{map | data: data}
+  end
+
+  defp known_inside(map, _wdf), do: map
+
+  defp initial_pose({x, y, th}, _wdf), do: {x * 1.0, y * 1.0, th * 1.0}
+  defp initial_pose({x, y}, _wdf), do: {x * 1.0, y * 1.0, 0.0}
+
+  defp initial_pose(name, wdf) when is_atom(name) do
+    waypoints = if wdf, do: wdf.waypoints, else: []
+
+    case Enum.find(waypoints, &(&1.name == name)) do
+      nil ->
+        raise ArgumentError,
+              "localization: initial: #{inspect(name)} is not a waypoint of the world " <>
+                "(waypoints: #{Enum.map_join(waypoints, ", ", &inspect(&1.name))})"
+
+      %{at: at} ->
+        initial_pose(at, wdf)
+    end
+  end
+
+  defp describe!(%{rdf: rdf} = context) when is_binary(rdf) do
+    case Description.load(rdf) do
+      {:ok, d} -> d
+      {:error, message} -> raise ArgumentError, "#{inspect(context.name)}: #{message}"
+    end
+  end
+
+  defp describe!(context),
+    do: raise(ArgumentError, "#{inspect(context.name)}: laser localization needs the ADF's rdf:")
+
+  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
+    case ThinkingCap.Config.read(path) do
+      {:ok, %WDF{} = wdf} ->
+        wdf
+
+      {:ok, _} ->
+        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
+
+      {:error, errors} ->
+        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
+    end
+  end
+
+  defp read_wdf(_context), do: nil
+end

@@ -1,0 +1,247 @@
+defmodule ThinkingCap.Navigation.ParticleFilter do
+  @moduledoc """
+  Monte Carlo localization on an occupancy grid, in the manner of ROS's
+  AMCL: a set of pose hypotheses (particles) moved by the odometry motion
+  model, weighed by how well a laser scan fits the map from each (a
+  likelihood field), resampled; augmented MCL's two averages of the fit
+  (`w_slow`, `w_fast`) bring in particles drawn anywhere in free space
+  when the fit falls short of what it was, and `relocalize/2` searches the
+  whole map for the scan (a global correlative search) when the robot is
+  lost. The numbers run in C (`c_src/tc_mcl.c`); this module holds the
+  filter's parameters and bookkeeping.
+
+  Sensor model (Probabilistic Robotics 6.4): a beam ending `d` metres from
+  the nearest obstacle of the map scores `z_hit · exp(−d²/2σ²) + z_rand /
+  range_max` (defaults σ 0.1 m, z_hit 0.9, z_rand 0.1); a beam without
+  echo is skipped, one ending in unknown space or off the map says nothing
+  (the map may still be being built), and a particle off the map, in
+  unknown space or inside an obstacle scores as noise.
+
+  Motion model (table 5.6, sample_motion_model_odometry): a move is a
+  turn, a straight line and a turn, each with noise of variance
+  `α1·rot² + α2·trans²` (turns) and `α3·trans² + α4·rot²` (the line).
+
+  The value is mutable (NIF resources): functions change it in place and
+  return it with its bookkeeping updated.
+  """
+
+  alias ThinkingCap.Navigation.OccupancyGrid
+  alias ThinkingCap.Navigation.Core.GridNif
+
+  defstruct [
+    :set,
+    :field,
+    :map,
+    count: 500,
+    model: {0.1, 0.9, 0.1, 8.0},
+    alphas: {0.1, 0.02, 0.05, 0.01},
+    alpha_slow: 0.001,
+    alpha_fast: 0.1,
+    w_slow: nil,
+    w_fast: nil,
+    free_poses: <<>>,
+    n_eff: 0.0
+  ]
+
+  @type pose :: {float(), float(), float()}
+  @type t :: %__MODULE__{}
+
+  @doc """
+  A filter of `count` particles (default 500) spread around `pose` with
+  standard deviations `{σ_xy, σ_θ}`. Options: `count`, `seed` (default 1),
+  `sigma_hit`, `z_hit`, `z_rand`, `range_max` (the sensor model), `alphas`
+  (`{α1, α2, α3, α4}`, the motion model).
+  """
+  @spec new(pose(), {number(), number()}, keyword()) :: t()
+  def new({x, y, th}, {s_xy, s_th}, opts \\ []) do
+    count = Keyword.get(opts, :count, 500)
+    base = %__MODULE__{count: count}
+
+    model =
+      {Keyword.get(opts, :sigma_hit, 0.1) * 1.0, Keyword.get(opts, :z_hit, 0.9) * 1.0,
+       Keyword.get(opts, :z_rand, 0.1) * 1.0, Keyword.get(opts, :range_max, 8.0) * 1.0}
+
+    poses =
+      :binary.copy(
+        <<x * 1.0::float-native, y * 1.0::float-native, th * 1.0::float-native>>,
+        count
+      )
+
+    set = GridNif.pf_new(poses, Keyword.get(opts, :seed, 1))
+
+    :ok =
+      GridNif.pf_spread(set, {x * 1.0, y * 1.0, th * 1.0}, {s_xy * 1.0, s_xy * 1.0, s_th * 1.0})
+
+    alphas = Keyword.get(opts, :alphas, base.alphas)
+    %{base | set: set, model: model, alphas: alphas}
+  end
+
+  @doc """
+  Takes a map: the likelihood field is built from its cells of occupancy
+  at least 50, and a few thousand poses in its known free space are drawn
+  (with `seed`) for the particles augmented MCL brings in.
+  """
+  @spec set_map(t(), OccupancyGrid.t(), integer()) :: t()
+  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1) do
+    {ox, oy} = map.origin
+
+    field =
+      GridNif.field_new(map.data, map.width, map.height, map.resolution, ox * 1.0, oy * 1.0, 50)
+
+    %{pf | field: field, map: map, free_poses: free_poses(map, 4000, seed)}
+  end
+
+  defp free_poses(%OccupancyGrid{} = map, n, seed) do
+    free = for {i, _} <- :binary.matches(map.data, <<0>>), do: i
+    count = length(free)
+
+    if count == 0 do
+      <<>>
+    else
+      cells = List.to_tuple(free)
+      rng = :rand.seed_s(:exsss, {seed, 13, 7})
+      {ox, oy} = map.origin
+
+      {poses, _} =
+        Enum.map_reduce(1..n, rng, fn _, rng ->
+          {u, rng} = :rand.uniform_s(count, rng)
+          {v, rng} = :rand.uniform_s(rng)
+          i = elem(cells, u - 1)
+          x = ox + (rem(i, map.width) + 0.5) * map.resolution
+          y = oy + (div(i, map.width) + 0.5) * map.resolution
+          th = (v - 0.5) * 2 * :math.pi()
+          {<<x::float-native, y::float-native, th::float-native>>, rng}
+        end)
+
+      IO.iodata_to_binary(poses)
+    end
+  end
+
+  @doc "Moves every particle by an odometry motion `{dx, dy, dθ}` in the robot frame."
+  @spec move(t(), pose()) :: t()
+  def move(%__MODULE__{} = pf, {dx, dy, dth}) do
+    :ok = GridNif.pf_move(pf.set, {dx * 1.0, dy * 1.0, dth * 1.0}, pf.alphas)
+    pf
+  end
+
+  @doc """
+  Weighs the particles by a scan (`beams`: a binary of native doubles
+  `{x, y, angle, range}` per beam, the sensor's position and the beam's
+  direction in the robot frame) and resamples when the effective number
+  of particles falls under half, bringing in the share of free-space
+  poses augmented MCL asks for. Returns the filter and the mean per-beam
+  likelihood of the scan over the particles. Without a map, nothing.
+  """
+  @spec sense(t(), binary()) :: {t(), float()}
+  def sense(%__MODULE__{field: nil} = pf, _beams), do: {pf, 0.0}
+
+  def sense(%__MODULE__{} = pf, beams) do
+    {mean, n_eff, _known} = GridNif.pf_weigh(pf.set, pf.field, beams, pf.model)
+    w_slow = average(pf.w_slow, mean, pf.alpha_slow)
+    w_fast = average(pf.w_fast, mean, pf.alpha_fast)
+    pf = %{pf | w_slow: w_slow, w_fast: w_fast, n_eff: n_eff}
+
+    if n_eff < pf.count / 2 do
+      share = max(0.0, 1.0 - w_fast / max(w_slow, 1.0e-12))
+      :ok = GridNif.pf_resample(pf.set, min(share, 0.5), pf.free_poses)
+      {%{pf | n_eff: pf.count * 1.0}, mean}
+    else
+      {pf, mean}
+    end
+  end
+
+  defp average(nil, x, _alpha), do: x
+  defp average(avg, x, alpha), do: avg + alpha * (x - avg)
+
+  @doc """
+  The estimate: the weighted mean pose (circular mean heading) and the
+  covariance of `{x, y, θ}` as a list of rows.
+  """
+  @spec estimate(t()) :: {pose(), [[float()]]}
+  def estimate(%__MODULE__{} = pf) do
+    {pose, covariance, _n_eff} = GridNif.pf_estimate(pf.set)
+    {pose, covariance}
+  end
+
+  @doc """
+  How well a scan fits the map from `pose`: the mean per-beam likelihood
+  over the largest it can be (`z_hit + z_rand / range_max`), in [0, 1],
+  and the share of the beams with an echo that ended on known map. nil
+  without a map or without a beam to judge by.
+  """
+  @spec fit(t(), binary(), pose()) :: {float(), float()} | nil
+  def fit(%__MODULE__{field: nil}, _beams, _pose), do: nil
+
+  def fit(%__MODULE__{model: {_s, z_hit, z_rand, range_max} = model} = pf, beams, pose) do
+    used = count_echoes(beams, range_max)
+
+    if used == 0 do
+      nil
+    else
+      {ll, known} = GridNif.field_score(pf.field, beams, model, pose)
+      best = z_hit + z_rand / range_max
+      {min(1.0, :math.exp(ll / used) / best), known / used}
+    end
+  end
+
+  defp count_echoes(beams, range_max) do
+    for <<_x::float-native, _y::float-native, _a::float-native, r::float-native <- beams>>,
+        r < range_max,
+        reduce: 0,
+        do: (n -> n + 1)
+  end
+
+  @doc """
+  Searches the whole map for the scan: the `top` poses (default 40) of a
+  lattice over the known free space (`step` metres, default 0.25, and
+  `headings` headings, default 36) that fit it best, and spreads the
+  particles around them (`{σ_xy, σ_θ}` default `{0.15, 0.1}`), the better
+  poses with more. Returns the filter and the best pose, or nil without a
+  map.
+  """
+  @spec relocalize(t(), binary(), keyword()) :: {t(), pose() | nil}
+  def relocalize(pf, beams, opts \\ [])
+  def relocalize(%__MODULE__{field: nil} = pf, _beams, _opts), do: {pf, nil}
+
+  def relocalize(%__MODULE__{} = pf, beams, opts) do
+    step = Keyword.get(opts, :step, 0.25)
+    headings = Keyword.get(opts, :headings, 36)
+    top = Keyword.get(opts, :top, 40)
+    {s_xy, s_th} = Keyword.get(opts, :sigma, {0.15, 0.1})
+
+    case GridNif.field_search(pf.field, beams, pf.model, step * 1.0, headings, top) do
+      [] ->
+        {pf, nil}
+
+      [{best_ll, bx, by, bth} | _] = found ->
+        # particles in proportion to each pose's likelihood relative to the best
+        weights = Enum.map(found, fn {ll, _, _, _} -> :math.exp(max(ll - best_ll, -30.0)) end)
+        total = Enum.sum(weights)
+        rng = :rand.seed_s(:exsss, {round(abs(bx) * 1000), round(abs(by) * 1000), 1})
+
+        {poses, _} =
+          found
+          |> Enum.zip(weights)
+          |> Enum.flat_map(fn {{_, x, y, th}, w} ->
+            List.duplicate({x, y, th}, max(1, round(w / total * pf.count)))
+          end)
+          |> Stream.cycle()
+          |> Enum.take(pf.count)
+          |> Enum.map_reduce(rng, fn {x, y, th}, rng ->
+            {a, rng} = :rand.normal_s(rng)
+            {b, rng} = :rand.normal_s(rng)
+            {c, rng} = :rand.normal_s(rng)
+
+            {<<x + s_xy * a::float-native, y + s_xy * b::float-native,
+               th + s_th * c::float-native>>, rng}
+          end)
+
+        set = GridNif.pf_new(IO.iodata_to_binary(poses), Keyword.get(opts, :seed, 1))
+        {%{pf | set: set, w_slow: nil, w_fast: nil}, {bx, by, bth}}
+    end
+  end
+
+  @doc "Up to `k` particles' poses, spread evenly over the set (for display)."
+  @spec sample(t(), non_neg_integer()) :: [pose()]
+  def sample(%__MODULE__{} = pf, k), do: GridNif.pf_sample(pf.set, k)
+end
