@@ -312,22 +312,29 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     return enif_make_tuple2(env, enif_make_double(env, l), enif_make_int(env, known));
 }
 
-/* field_search(field, beams, model, step, heading_steps, top) -> [{ll, x,
- * y, th}]: the best `top` poses of a lattice over the field's free known
- * cells (every `step` metres, `heading_steps` headings), best first */
+/* field_search(field, beams, model, step, heading_steps, top, {x0, y0, x1,
+ * y1}) -> [{ll, x, y, th}]: the best `top` poses of a lattice over the
+ * field's free known cells within the box (every `step` metres,
+ * `heading_steps` headings), best first */
 ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
     Field *f;
     Beams bs;
     Model m;
-    double step;
-    int headings, top;
+    double step, bx0, by0, bx1, by1;
+    int headings, top, arity;
+    const ERL_NIF_TERM *box;
     if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
         !get_model(env, argv[2], &m) || !num(env, argv[3], &step) || step <= 0 ||
         !enif_get_int(env, argv[4], &headings) || headings < 1 || headings > 720 ||
-        !enif_get_int(env, argv[5], &top) || top < 1 || top > 10000)
+        !enif_get_int(env, argv[5], &top) || top < 1 || top > 10000 ||
+        !enif_get_tuple(env, argv[6], &arity, &box) || arity != 4 || !num(env, box[0], &bx0) ||
+        !num(env, box[1], &by0) || !num(env, box[2], &bx1) || !num(env, box[3], &by1))
         return enif_make_badarg(env);
+    int c0 = (int)fmax(0.0, floor((bx0 - f->ox) / f->res)), r0 = (int)fmax(0.0, floor((by0 - f->oy) / f->res));
+    int c1 = (int)fmin(f->w - 1.0, floor((bx1 - f->ox) / f->res));
+    int r1 = (int)fmin(f->h - 1.0, floor((by1 - f->oy) / f->res));
     double *best_l = malloc(top * sizeof(double)), *best_p = malloc(3 * top * sizeof(double));
     if (!best_l || !best_p) {
         free(best_l), free(best_p);
@@ -336,8 +343,8 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     int kept = 0;
     int stride = (int)fmax(1.0, round(step / f->res));
     /* a pose needs its robot in known free space, clear of obstacles */
-    for (int r = stride / 2; r < f->h; r += stride)
-        for (int c = stride / 2; c < f->w; c += stride) {
+    for (int r = r0 + stride / 2; r <= r1; r += stride)
+        for (int c = c0 + stride / 2; c <= c1; c += stride) {
             size_t i = (size_t)r * f->w + c;
             if (f->unknown[i] || f->dist[i] < 0.15) continue;
             double x = f->ox + (c + 0.5) * f->res, y = f->oy + (r + 0.5) * f->res;
@@ -476,8 +483,9 @@ ERL_NIF_TERM tc_nif_pf_move(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return M_OK;
 }
 
-/* pf_weigh(pf, field, beams, model) -> {mean_likelihood, n_eff, known}:
- * every particle's log-weight grows by its scan's log-likelihood; the
+/* pf_weigh(pf, field, beams, model, scale) -> {mean_likelihood, n_eff,
+ * known}: every particle's log-weight grows by its scan's log-likelihood
+ * times scale (below 1: tempered, while hypotheses should live on); the
  * weights are then normalised. mean_likelihood is the mean over
  * particles of exp(log-likelihood / beams), a per-beam figure for the
  * augmented-MCL averages; known the best particle's beams on known map */
@@ -488,9 +496,10 @@ ERL_NIF_TERM tc_nif_pf_weigh(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     Field *f;
     Beams bs;
     Model m;
+    double scale;
     if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
         !enif_get_resource(env, argv[1], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[2], &bs) ||
-        !get_model(env, argv[3], &m))
+        !get_model(env, argv[3], &m) || !num(env, argv[4], &scale) || scale <= 0 || scale > 1)
         return enif_make_badarg(env);
     enif_mutex_lock(p->lock);
     double mean = 0.0, top = -INFINITY;
@@ -501,7 +510,7 @@ ERL_NIF_TERM tc_nif_pf_weigh(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
         int known;
         double l = score(f, &bs, &m, p->x[i], p->y[i], p->th[i], &known);
         mean += used ? exp(l / used) : 1.0;
-        p->lw[i] += l;
+        p->lw[i] += scale * l;
         if (p->lw[i] > top) top = p->lw[i], best_known = known;
     }
     mean /= p->n;
@@ -600,6 +609,23 @@ ERL_NIF_TERM tc_nif_pf_estimate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
                          enif_make_double(env, mt)),
         enif_make_list3(env, rows[0], rows[1], rows[2]), enif_make_double(env, sw * sw / sw2));
+}
+
+/* pf_best(pf) -> {x, y, th}: the particle of the largest weight */
+ERL_NIF_TERM tc_nif_pf_best(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p)) return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    int best = 0;
+    for (int i = 1; i < p->n; i++)
+        if (p->lw[i] > p->lw[best]) best = i;
+    ERL_NIF_TERM t = enif_make_tuple3(env, enif_make_double(env, p->x[best]),
+                                      enif_make_double(env, p->y[best]),
+                                      enif_make_double(env, p->th[best]));
+    enif_mutex_unlock(p->lock);
+    return t;
 }
 
 /* pf_sample(pf, k) -> [{x, y, th}]: k particles spread evenly over the set */

@@ -20,14 +20,20 @@ defmodule ThinkingCap.Navigation.MCL do
   sensors). On odometry the particles move by the motion since the last
   reading; a scan weighs them once the robot moved `update_distance` (m)
   or turned `update_angle` (rad) since the last weighing, using at most
-  `beams` of its beams, evenly spread.
+  `beams` of its beams, evenly spread. A robot standing still is not
+  weighed again, but its scan is still judged twice a second (below).
 
   **Lost and found.** Each scan is also scored from the estimate (the
   fit: the mean per-beam likelihood over the best possible, in [0, 1]).
-  When the fit stays under `lost_fit` for `lost_after` scans while most
-  beams land on known map (a robot carried away, a wrong initial pose),
-  the whole map is searched for the scan and the particles spread round
-  the poses that fit it best (`relocalizing`) until the estimate settles.
+  When the fit from the best particle falls under `lost_fit` while most
+  beams land on known map, `lost_after` times more often than not, or
+  the particles stay spread wider than 0.5 m for twenty weighings (and the cloud
+  had ten weighings to settle since it was spread) (a robot carried away, a wrong initial pose),
+  the whole map is searched for the scan (the estimate staying a
+  candidate) and the particles spread round the poses that fit it best
+  (`relocalizing`), weighed tempered for a while so that places one scan
+  cannot tell apart live on until the moves to come do. An initial pose given roughly (`initial_sigma` wider
+  than 0.15 m) is sought the same way round it at the first scan.
 
   ## Published
 
@@ -54,8 +60,8 @@ defmodule ThinkingCap.Navigation.MCL do
       `odometry_error`: generous multiples of its slips);
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
       `publish_period` (0.1 s), `map_every` (5 s);
-    * `lost_fit` (0.35), `lost_after` (5), `search_step` (0.25 m),
-      `search_headings` (36).
+    * `lost_fit` (0.5), `lost_after` (3), `search_step` (0.2 m),
+      `search_headings` (72).
   """
 
   use ThinkingCap.Module
@@ -79,11 +85,14 @@ defmodule ThinkingCap.Navigation.MCL do
     update_angle: 0.05,
     publish_period: 0.1,
     map_every: 5.0,
-    lost_fit: 0.35,
-    lost_after: 5,
-    search_step: 0.25,
-    search_headings: 36
+    lost_fit: 0.5,
+    lost_after: 3,
+    search_step: 0.2,
+    search_headings: 72
   ]
+
+  # weighings a fresh cloud of particles gets before it may be judged lost
+  @settling 10
 
   @impl true
   def init(params, context) do
@@ -128,6 +137,9 @@ defmodule ThinkingCap.Navigation.MCL do
       moved: {0.0, 0.0},
       fit: nil,
       poor: 0,
+      updates: 0,
+      spread: 0,
+      checked: nil,
       status: if(filter.map, do: :tracking, else: :dead_reckoning),
       published: nil,
       particles_at: nil
@@ -209,10 +221,26 @@ defmodule ThinkingCap.Navigation.MCL do
 
     if d >= state.params[:update_distance] or a >= state.params[:update_angle] or
          state.fit == nil do
-      beams = beams(scan, Map.fetch!(state.lasers, tag), state.params[:beams])
-      state |> weigh(beams) |> Map.put(:moved, {0.0, 0.0}) |> publish(stamp)
+      laser = Map.fetch!(state.lasers, tag)
+      beams = beams(scan, laser, state.params[:beams])
+      many = fn -> beams(scan, laser, 3 * state.params[:beams]) end
+
+      state
+      |> first_fix(many)
+      |> weigh(beams, many)
+      |> Map.merge(%{moved: {0.0, 0.0}, checked: stamp})
+      |> publish(stamp)
     else
-      {[], state}
+      # standing still: no weighing (the same scan again would only make the
+      # particles surer), but still a look whether the scan fits
+      if stamp && (state.checked == nil or stamp - state.checked >= 0.5) do
+        laser = Map.fetch!(state.lasers, tag)
+        beams = beams(scan, laser, state.params[:beams])
+        many = fn -> beams(scan, laser, 3 * state.params[:beams]) end
+        state |> judge(beams, many) |> Map.put(:checked, stamp) |> publish(stamp)
+      else
+        {[], state}
+      end
     end
   end
 
@@ -233,24 +261,72 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
-  defp weigh(%{filter: %{map: nil}} = state, _beams), do: state
+  # an initial pose known only roughly: the scan sought round it first
+  defp first_fix(%{fit: nil, filter: %{map: %OccupancyGrid{}}} = state, many) do
+    {s_xy, _} = state.params[:initial_sigma]
 
-  defp weigh(state, beams) do
-    {filter, _mean} = ParticleFilter.sense(state.filter, beams)
-    {pose, _covariance} = ParticleFilter.estimate(filter)
-    state = %{state | filter: filter}
+    if s_xy > 0.15 do
+      {{x, y, _}, _} = ParticleFilter.estimate(state.filter)
+      radius = min(3 * s_xy, 3.0)
 
-    case ParticleFilter.fit(filter, beams, pose) do
+      {filter, _found} =
+        ParticleFilter.relocalize(state.filter, many.(),
+          around: {{x, y}, radius},
+          step: state.params[:search_step] / 2,
+          headings: state.params[:search_headings],
+          seed: state.params[:seed]
+        )
+
+      %{state | filter: filter}
+    else
+      state
+    end
+  end
+
+  defp first_fix(state, _many), do: state
+
+  defp weigh(%{filter: %{map: nil}} = state, _beams, _many), do: state
+
+  # `many`: more of the scan's beams, for a search of the whole map
+  defp weigh(state, beams, many) do
+    # after a search, hypotheses the scan cannot tell apart live on until
+    # the moves to come do
+    temper = if state.status == :relocalizing and state.updates < 40, do: 0.25, else: 1.0
+    {filter, _mean} = ParticleFilter.sense(state.filter, beams, temper)
+    judge(%{state | filter: filter, updates: state.updates + 1}, beams, many)
+  end
+
+  # judged from the best particle (the mean of a cloud still split between
+  # places fits nowhere), and not while a fresh cloud settles
+  defp judge(%{filter: %{map: nil}} = state, _beams, _many), do: state
+
+  defp judge(%{filter: filter} = state, beams, many) do
+    case ParticleFilter.fit(filter, beams, ParticleFilter.best(filter)) do
       nil ->
         state
 
       {fit, known} ->
-        poor = if fit < state.params[:lost_fit] and known >= 0.5, do: state.poor + 1, else: 0
-        state = %{state | fit: fit, poor: poor}
-        if poor >= state.params[:lost_after], do: relocalize(state, beams), else: settle(state)
+        # a good fit now and then (a particle thrown in that fits a place
+        # like this one) takes one poor one back, not all of them
+        poor =
+          if fit < state.params[:lost_fit] and known >= 0.5,
+            do: state.poor + 1,
+            else: max(state.poor - 1, 0)
+
+        # a cloud that stays spread wide has no place either
+        {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(filter)
+        spread = if :math.sqrt(max(sxx, syy)) > 0.5, do: state.spread + 1, else: 0
+        state = %{state | fit: fit, poor: poor, spread: spread}
+
+        if (poor >= state.params[:lost_after] or spread >= 2 * @settling) and
+             state.updates > @settling,
+           do: relocalize(state, many.()),
+           else: settle(state)
     end
   end
 
+  # the whole map (the estimate staying a candidate): a robot carried
+  # away, a wrong initial pose
   defp relocalize(state, beams) do
     Logger.info("#{inspect(state.robot)}: lost (the scan fits the map poorly); searching the map")
 
@@ -262,7 +338,7 @@ defmodule ThinkingCap.Navigation.MCL do
       )
 
     if found, do: Logger.info("#{inspect(state.robot)}: best fit at #{inspect(found)}")
-    %{state | filter: filter, poor: 0, status: :relocalizing}
+    %{state | filter: filter, poor: 0, spread: 0, status: :relocalizing, updates: 0}
   end
 
   defp settle(state) do

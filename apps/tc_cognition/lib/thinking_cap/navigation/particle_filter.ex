@@ -129,14 +129,18 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   `{x, y, angle, range}` per beam, the sensor's position and the beam's
   direction in the robot frame) and resamples when the effective number
   of particles falls under half, bringing in the share of free-space
-  poses augmented MCL asks for. Returns the filter and the mean per-beam
-  likelihood of the scan over the particles. Without a map, nothing.
+  poses augmented MCL asks for. `temper` (in (0, 1], default 1) scales
+  the scan's log-likelihood: below 1, hypotheses that one scan cannot
+  tell apart live on for the next. Returns the filter and the mean
+  per-beam likelihood of the scan over the particles. Without a map,
+  nothing.
   """
-  @spec sense(t(), binary()) :: {t(), float()}
-  def sense(%__MODULE__{field: nil} = pf, _beams), do: {pf, 0.0}
+  @spec sense(t(), binary(), float()) :: {t(), float()}
+  def sense(pf, beams, temper \\ 1.0)
+  def sense(%__MODULE__{field: nil} = pf, _beams, _temper), do: {pf, 0.0}
 
-  def sense(%__MODULE__{} = pf, beams) do
-    {mean, n_eff, _known} = GridNif.pf_weigh(pf.set, pf.field, beams, pf.model)
+  def sense(%__MODULE__{} = pf, beams, temper) do
+    {mean, n_eff, _known} = GridNif.pf_weigh(pf.set, pf.field, beams, pf.model, temper * 1.0)
     w_slow = average(pf.w_slow, mean, pf.alpha_slow)
     w_fast = average(pf.w_fast, mean, pf.alpha_fast)
     pf = %{pf | w_slow: w_slow, w_fast: w_fast, n_eff: n_eff}
@@ -192,11 +196,14 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   @doc """
-  Searches the whole map for the scan: the `top` poses (default 40) of a
-  lattice over the known free space (`step` metres, default 0.25, and
-  `headings` headings, default 36) that fit it best, and spreads the
-  particles around them (`{σ_xy, σ_θ}` default `{0.15, 0.1}`), the better
-  poses with more. Returns the filter and the best pose, or nil without a
+  Searches the map for the scan (the whole map, or with `around: {{x,
+  y}, r}` a square of half-side r round a point): the `top` poses
+  (default 60) of a lattice over the known free space (`step` metres, default 0.2, and
+  `headings` headings, default 72) that fit it best, each refined on a
+  finer lattice round it, and with the estimate as it was (a robot that
+  was not moved keeps its place if it fits best), and spreads the
+  particles around them
+  (`{σ_xy, σ_θ}` default `{0.1, 0.05}`), the better poses with more. Returns the filter and the best pose, or nil without a
   map.
   """
   @spec relocalize(t(), binary(), keyword()) :: {t(), pose() | nil}
@@ -204,20 +211,36 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   def relocalize(%__MODULE__{field: nil} = pf, _beams, _opts), do: {pf, nil}
 
   def relocalize(%__MODULE__{} = pf, beams, opts) do
-    step = Keyword.get(opts, :step, 0.25)
-    headings = Keyword.get(opts, :headings, 36)
-    top = Keyword.get(opts, :top, 40)
-    {s_xy, s_th} = Keyword.get(opts, :sigma, {0.15, 0.1})
+    step = Keyword.get(opts, :step, 0.2)
+    headings = Keyword.get(opts, :headings, 72)
+    top = Keyword.get(opts, :top, 60)
+    {s_xy, s_th} = Keyword.get(opts, :sigma, {0.1, 0.05})
 
-    case GridNif.field_search(pf.field, beams, pf.model, step * 1.0, headings, top) do
+    # the estimate itself stays a candidate: a robot that was not moved
+    # keeps its place if it fits best
+    {{x, y, th} = here, _} = estimate(pf)
+    {ll, _} = GridNif.field_score(pf.field, beams, pf.model, here)
+
+    found =
+      pf.field
+      |> GridNif.field_search(beams, pf.model, step * 1.0, headings, top, box(pf, opts[:around]))
+      |> List.insert_at(0, {ll, x, y, th})
+      |> Enum.map(&refine(pf, beams, &1, step / 2, :math.pi() / headings))
+      |> Enum.sort_by(&(-elem(&1, 0)))
+
+    case found do
       [] ->
         {pf, nil}
 
-      [{best_ll, bx, by, bth} | _] = found ->
-        # particles in proportion to each pose's likelihood relative to the best
-        weights = Enum.map(found, fn {ll, _, _, _} -> :math.exp(max(ll - best_ll, -30.0)) end)
+      [{best_ll, bx, by, bth} | _] ->
+        # particles round each pose, in proportion to its likelihood over
+        # the best's, tempered (a scan alone may not tell two places apart:
+        # the moves to come will)
+        weights =
+          Enum.map(found, fn {ll, _, _, _} -> :math.exp(max((ll - best_ll) / 4, -30.0)) end)
+
         total = Enum.sum(weights)
-        rng = :rand.seed_s(:exsss, {round(abs(bx) * 1000), round(abs(by) * 1000), 1})
+        rng = :rand.seed_s(:exsss, {Keyword.get(opts, :seed, 1), 5, 5})
 
         {poses, _} =
           found
@@ -240,6 +263,34 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         {%{pf | set: set, w_slow: nil, w_fast: nil}, {bx, by, bth}}
     end
   end
+
+  # the lattice's box: the whole map, or a square round a point
+  defp box(%{map: map}, nil) do
+    {ox, oy} = map.origin
+    {ox, oy, ox + map.width * map.resolution, oy + map.height * map.resolution}
+  end
+
+  defp box(_pf, {{x, y}, r}), do: {x - r, y - r, x + r, y + r}
+
+  # the best pose of a small lattice round a found one (a third of the
+  # search's steps)
+  defp refine(pf, beams, {ll, x, y, th}, half_step, half_turn) do
+    offsets = fn h -> [-h, -h / 3, h / 3, h] end
+
+    for dx <- [0.0 | offsets.(half_step)],
+        dy <- [0.0 | offsets.(half_step)],
+        dth <- [0.0 | offsets.(half_turn)],
+        reduce: {ll, x, y, th} do
+      {best, _, _, _} = acc ->
+        pose = {x + dx, y + dy, th + dth}
+        {l, _known} = GridNif.field_score(pf.field, beams, pf.model, pose)
+        if l > best, do: {l, x + dx, y + dy, th + dth}, else: acc
+    end
+  end
+
+  @doc "The particle of the largest weight."
+  @spec best(t()) :: pose()
+  def best(%__MODULE__{} = pf), do: GridNif.pf_best(pf.set)
 
   @doc "Up to `k` particles' poses, spread evenly over the set (for display)."
   @spec sample(t(), non_neg_integer()) :: [pose()]

@@ -43,15 +43,16 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
 
   def field_score(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
 
-  def field_search(_field, _beams, _model, _step, _headings, _top),
+  def field_search(_field, _beams, _model, _step, _headings, _top, _box),
     do: :erlang.nif_error(:nif_not_loaded)
 
   def pf_new(_poses, _seed), do: :erlang.nif_error(:nif_not_loaded)
   def pf_spread(_pf, _pose, _sigmas), do: :erlang.nif_error(:nif_not_loaded)
   def pf_move(_pf, _delta, _alphas), do: :erlang.nif_error(:nif_not_loaded)
-  def pf_weigh(_pf, _field, _beams, _model), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_weigh(_pf, _field, _beams, _model, _scale), do: :erlang.nif_error(:nif_not_loaded)
   def pf_resample(_pf, _share, _poses), do: :erlang.nif_error(:nif_not_loaded)
   def pf_estimate(_pf), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_best(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_sample(_pf, _k), do: :erlang.nif_error(:nif_not_loaded)
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)

@@ -1,0 +1,146 @@
+defmodule ThinkingCap.Navigation.MCLTest do
+  # Laser localization on a simulated robot, in lockstep with the simulator.
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{MCL, OccupancyGrid}
+  alias ThinkingCap.Sim
+  alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Testing.Sim, as: T
+
+  @moduletag :tmp_dir
+  @moduletag timeout: 120_000
+
+  @rdf Path.expand("../../../../../priv/examples/office_robot.rdf", __DIR__)
+  @office Path.expand("../../../../../priv/examples/office.wdf", __DIR__)
+
+  # the office robot patrolling the office, localized by MCL from `initial`
+  defp patrol(initial, sigma, seed \\ 3) do
+    {:ok, sim} =
+      Sim.start_link(world: @office, mode: :fast, running: false, step: 0.05, seed: seed)
+
+    on_exit(fn -> if Process.alive?(sim), do: GenServer.stop(sim) end)
+
+    modules = [
+      perception: {ThinkingCap.Perception.Fuser, []},
+      localization: {MCL, [initial: initial, initial_sigma: sigma, seed: seed]},
+      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      planner:
+        {ThinkingCap.Planner.Monitor, [task: {:patrol, [:lab_bench, :desk_a, :hall_east, :dock]}],
+         period: 0.5}
+    ]
+
+    :ok =
+      Sim.add_robot(sim, :r,
+        rdf: @rdf,
+        at: {1.0, 1.0, 0.0},
+        controller: {Sim.LockstepController, modules: modules, rdf: @rdf, wdf: @office}
+      )
+
+    sim
+  end
+
+  # runs `seconds`, returning the estimate's position error and the pose tuple
+  defp run(sim, seconds) do
+    :ok = Sim.run_for(sim, seconds)
+    {:ok, {x, y, _}} = Sim.pose(sim, :r)
+    {:ok, c} = Sim.controller_state(sim, :r)
+    {:pose, :r, %{pose: {ex, ey, _}} = p} = Lockstep.latest(c.lock, {:pose, :r, :_})
+    {:math.sqrt((ex - x) ** 2 + (ey - y) ** 2), p}
+  end
+
+  test "tracks the robot without beacons, and finds it again after a kidnapping" do
+    sim = patrol({1.0, 1.0, 0.0}, {0.1, 0.05})
+    {error, pose} = run(sim, 30)
+    assert error < 0.1
+    assert pose.status == :tracking and pose.confidence > 0.8
+    assert [_, _, _] = pose.covariance
+
+    # carried 14 m away without notice
+    {:ok, {x0, _, _}} = Sim.pose(sim, :r)
+    :ok = Sim.teleport(sim, :r, {15.0, 1.5, 0.0})
+    assert abs(15.0 - x0) > 10
+
+    {error, pose} = run(sim, 15.0)
+    assert error < 0.15, "still #{error} m off after the kidnapping"
+    assert pose.status == :tracking
+
+    {:ok, c} = Sim.controller_state(sim, :r)
+
+    assert {:particles, :r, %{poses: [{_, _, _} | _] = poses}} =
+             Lockstep.latest(c.lock, {:particles, :r, :_})
+
+    assert length(poses) <= 200
+  end
+
+  test "a wrong initial pose, given with its uncertainty, is corrected" do
+    # the robot stands at {1, 1, 0}; it is told {1.4, 0.7, 0.25}
+    sim = patrol({1.4, 0.7, 0.25}, {0.5, 0.3})
+    {error, pose} = run(sim, 10)
+    assert error < 0.1
+    assert pose.status == :tracking
+  end
+
+  test "with no map it dead-reckons, and takes up a map builder's map when one comes", %{
+    tmp_dir: dir
+  } do
+    empty = T.wdf!(dir, [])
+    context = %{name: :localization, robot: :r, rdf: @rdf, wdf: empty}
+    {_subscriptions, state} = MCL.init([initial: {1.0, 1.0, 0.0}], context)
+    assert state.status == :dead_reckoning
+
+    # odometry moves the estimate
+    {_, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.0, 0.0, 0.0}, stamp: 0.0}}, state)
+    {actions, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.5, 0.0, 0.0}, stamp: 0.2}}, state)
+    assert [{:out, {{:pose, :r, %{pose: {x, _, _}, status: :dead_reckoning}}, _}} | _] = actions
+    assert_in_delta x, 1.5, 0.1
+
+    # a map comes: the next scan takes it up
+    map = %{
+      OccupancyGrid.new(80, 60, resolution: 0.1)
+      | data: :binary.copy(<<0>>, 4800),
+        version: 3
+    }
+
+    {[], state} = MCL.handle_tuple({:map, :r, map}, state)
+
+    scan = %{
+      ranges: List.duplicate(3.0, 181),
+      angle_min: -1.57,
+      angle_increment: 0.0174,
+      range_max: 8.0,
+      stamp: 0.3
+    }
+
+    {_actions, state} = MCL.handle_tuple({:laser, :r, scan}, state)
+    assert state.source == :sensed
+    assert state.status != :dead_reckoning
+  end
+
+  test "garbage tuples are ignored" do
+    context = %{name: :localization, robot: :r, rdf: @rdf, wdf: @office}
+    {_subscriptions, state} = MCL.init([initial: :dock], context)
+
+    for tuple <- [
+          {:map, :r, "not a map"},
+          {:laser, :r, %{ranges: "no list"}},
+          {:odom, :r, %{pose: :nowhere, stamp: 1.0}},
+          {:laser, :other_robot, %{ranges: []}}
+        ] do
+      assert {[], ^state} = MCL.handle_tuple(tuple, state)
+    end
+  end
+
+  test "a robot with no laser, or an unknown initial waypoint, is refused with the reason", %{
+    tmp_dir: dir
+  } do
+    no_laser = T.rdf!(dir, sensors: [[name: :odom, type: :odometry]])
+
+    assert_raise ArgumentError, ~r/no laser/, fn ->
+      MCL.init([], %{name: :localization, robot: :r, rdf: no_laser, wdf: @office})
+    end
+
+    assert_raise ArgumentError, ~r/:nowhere is not a waypoint/, fn ->
+      MCL.init([initial: :nowhere], %{name: :localization, robot: :r, rdf: @rdf, wdf: @office})
+    end
+  end
+end
