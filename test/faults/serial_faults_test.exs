@@ -74,4 +74,60 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
 
     Tally.survived()
   end
+
+  test "SIGTERM on the node driving a Create 2: the stop is the last frame, the node gone in 5 s",
+       %{tmp_dir: dir} do
+    link = Path.join(dir, "create2")
+    emu = start_supervised!({Create2Emulator, link: link})
+    robot = :"t#{System.unique_integer([:positive])}"
+    adf = Path.join(dir, "#{robot}.adf")
+
+    File.write!(adf, """
+    [
+      robot: :#{robot},
+      rdf: #{inspect(@rdf)},
+      modules: [
+        base: [module: ThinkingCap.Robot.Create2, activity: :periodic, period: 0.01,
+               deadline: 0.003, fallback: :stop,
+               params: [device: #{inspect(link)}, command_timeout: 30.0]]
+      ]
+    ]
+    """)
+
+    [node] = Cluster.start(1, apps: [:tc_robot])
+    on_exit(fn -> Cluster.stop(node) end)
+    assert {:ok, _} = Cluster.call(node, Runtime, :start, [adf])
+
+    command = {:drive, robot, %{command: {:velocity, 0.2, 0.0}}}
+    :ok = Cluster.call(node, Blackboard, :out, [command, [key: {:drive, robot}]])
+    Cluster.wait_until(fn -> match?(%{left: 200, right: 200}, Create2Emulator.state(emu)) end)
+
+    os_pid = Cluster.call(node, System, :pid, [])
+    Tally.injected()
+    sent_at = System.monotonic_time(:millisecond)
+    {_, 0} = System.cmd("kill", ["-TERM", os_pid])
+
+    # the node's OS process ends within 5 s
+    gone_at =
+      Enum.find_value(1..120, fn _ ->
+        Process.sleep(50)
+        {_, status} = System.cmd("kill", ["-0", os_pid], stderr_to_stdout: true)
+        if status != 0, do: System.monotonic_time(:millisecond)
+      end)
+
+    assert gone_at, "the node still runs 6 s after SIGTERM"
+    assert gone_at - sent_at <= 5_000
+
+    # the wheels stopped, and the last command on the wire is the stop
+    assert %{left: 0, right: 0} = Create2Emulator.state(emu)
+
+    last_drive =
+      emu
+      |> Create2Emulator.commands()
+      |> Enum.filter(&match?({:drive_direct, _, _}, &1.command))
+      |> List.last()
+
+    assert last_drive.command == {:drive_direct, 0, 0}
+    Tally.survived()
+  end
 end

@@ -23,7 +23,11 @@ defmodule ThinkingCap.Dashboard do
   Controlling actions (teleoperation, goals, releasing an E-stop,
   restarting a module, publishing `/cmd_vel`) need the access token, a
   random string made at start and printed in the URL (as notebook servers
-  do). Without it the page is refused, unless `public_view: true` lets
+  do), or read from `token_file` (a file its owner alone may read). It is
+  compared in constant time and never written to a log: yaws' access log
+  is off, and its own logs go to a directory of mode 0700 of the
+  dashboard's (`$XDG_RUNTIME_DIR` or the system's temporary directory),
+  removed when the dashboard stops. Without it the page is refused, unless `public_view: true` lets
   viewers watch (never control). Engaging an E-stop needs no token: anyone
   who sees the robot may stop it. Browsers must come from the dashboard's
   own origin or one listed in `origins`.
@@ -55,8 +59,9 @@ defmodule ThinkingCap.Dashboard do
     if config() do
       {:error, {:already_started, info()}}
     else
-      config = Map.put(opts, :token, opts.token || Access.new_token())
-      do_start(config)
+      with {:ok, token} <- token(opts) do
+        do_start(Map.put(opts, :token, token))
+      end
     end
   end
 
@@ -90,8 +95,10 @@ defmodule ThinkingCap.Dashboard do
     # the appmods read the configuration: it is there before a port opens
     :persistent_term.put(@config, Map.put(config, :ready, false))
 
+    limits = Map.take(config, [:max_connections, :idle_timeout])
+
     with {:ok, _} <- start_telemetry(config),
-         {:ok, ports} <- Yaws.start(servers) do
+         {:ok, ports} <- Yaws.start(servers, limits) do
       config =
         Map.merge(config, %{port: ports.page, rosbridge_port: ports[:rosbridge], ready: true})
 
@@ -104,11 +111,16 @@ defmodule ThinkingCap.Dashboard do
     end
   end
 
-  @doc "Stops the dashboard (its servers and its telemetry)."
-  @spec stop() :: :ok
-  def stop do
+  @doc """
+  Stops the dashboard (its servers and its telemetry) and removes its
+  runtime files. `stop_yaws: false` leaves the yaws application to the
+  application controller (for a node that is shutting down).
+  """
+  @spec stop(keyword()) :: :ok
+  def stop(opts \\ []) do
     ThinkingCap.Dashboard.Core.Socket.close_all()
-    Yaws.stop()
+    if Keyword.get(opts, :stop_yaws, true), do: Yaws.stop()
+    ThinkingCap.Dashboard.Core.RuntimeDir.remove()
 
     for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),
         do: DynamicSupervisor.terminate_child(ThinkingCap.Dashboard.Supervisor, pid)
@@ -154,6 +166,29 @@ defmodule ThinkingCap.Dashboard do
   # the running configuration (the validated options and the token)
   @spec config() :: map() | nil
   def config, do: :persistent_term.get(@config, nil)
+
+  # the token given, read from its file, or a new one
+  defp token(%{token_file: path}) when is_binary(path) do
+    with {:ok, %{mode: mode}} <- File.stat(path),
+         0 <- Bitwise.band(mode, 0o077),
+         {:ok, text} <- File.read(path),
+         token when byte_size(token) >= 8 <- String.trim(text) do
+      {:ok, token}
+    else
+      {:error, reason} ->
+        {:error, "token file #{path}: #{:file.format_error(reason)}"}
+
+      bits when is_integer(bits) ->
+        {:error,
+         "token file #{path} is readable by others (mode #{Integer.to_string(bits, 8)} " <>
+           "beyond the owner's): chmod 600 it"}
+
+      _short ->
+        {:error, "token file #{path}: the token must be at least 8 characters"}
+    end
+  end
+
+  defp token(opts), do: {:ok, opts.token || Access.new_token()}
 
   defp start_telemetry(config) do
     DynamicSupervisor.start_child(

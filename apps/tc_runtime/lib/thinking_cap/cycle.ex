@@ -98,7 +98,7 @@ defmodule ThinkingCap.Cycle do
   Adding a name again takes the activity over (a restarted module) unless
   another live process owns it: that is refused with the owner's pid.
   """
-  @spec add(name(), keyword()) :: :ok | {:error, {:name_taken, pid()}}
+  @spec add(name(), keyword()) :: :ok | {:error, {:name_taken, pid()} | :stopping}
   def add(name, opts) do
     # checked here, in the caller: bad options raise there, never in the
     # server that holds every activity's releases
@@ -117,6 +117,21 @@ defmodule ThinkingCap.Cycle do
   @doc "Removes a periodic activity."
   @spec remove(name()) :: :ok
   def remove(name), do: GenServer.call(__MODULE__, {:remove, name})
+
+  @doc """
+  Stops every robot of this node: each periodic activity is removed, so
+  the worker applies its fallback now (the stop command, and a serial
+  robot's stop frame on its wire) and releases it no more; activities
+  added afterwards are refused (`{:error, :stopping}`). For a node that
+  is about to shut down (`ThinkingCap.Runtime.Shutdown`). Returns the
+  names of the activities stopped; `[]` when the cycle is not running.
+  """
+  @spec stop_all() :: [name()]
+  def stop_all do
+    if Process.whereis(__MODULE__), do: GenServer.call(__MODULE__, :stop_all), else: []
+  catch
+    :exit, _ -> []
+  end
 
   @doc """
   Sends the result of a release (the command to apply) to the worker. Safe
@@ -235,13 +250,17 @@ defmodule ThinkingCap.Cycle do
       restarts: 0,
       watchers: %{},
       # wire attachments waiting for the worker's answer, by activity id
-      attaching: %{}
+      attaching: %{},
+      stopping: false
     }
 
     {:ok, open(state)}
   end
 
   @impl true
+  def handle_call({:add, _name, _opts}, _from, %{stopping: true} = state),
+    do: {:reply, {:error, :stopping}, state}
+
   def handle_call({:add, name, opts}, _from, state) do
     period = Keyword.fetch!(opts, :period)
     deadline = Keyword.get(opts, :deadline, period)
@@ -259,6 +278,12 @@ defmodule ThinkingCap.Cycle do
   end
 
   def handle_call({:remove, name}, _from, state), do: {:reply, :ok, remove_activity(state, name)}
+
+  def handle_call(:stop_all, _from, state) do
+    names = Map.keys(state.ids) |> Enum.filter(&Map.has_key?(state.activities, state.ids[&1]))
+    state = Enum.reduce(names, state, &remove_activity(&2, &1))
+    {:reply, names, %{state | stopping: true}}
+  end
 
   def handle_call({:attach_wire, name, device, fallback}, from, state) do
     with {:ok, id} <- activity_id(state, name),

@@ -12,9 +12,11 @@ defmodule Mix.Tasks.Tc.Run do
   to watch the robot and drive it by hand.
 
       mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P]
+                 [--token-file PATH]
 
   `--port` and `--rosbridge-port` override the ADF's dashboard ports (0:
-  any free port).
+  any free port); `--token-file` gives the access token (a file its owner
+  alone may read) instead of a new one.
 
   `bin/run` does the set-up and starts it.
   """
@@ -26,7 +28,13 @@ defmodule Mix.Tasks.Tc.Run do
   def run(args) do
     {opts, _rest} =
       OptionParser.parse!(args,
-        strict: [seconds: :integer, adf: :string, port: :integer, rosbridge_port: :integer]
+        strict: [
+          seconds: :integer,
+          adf: :string,
+          port: :integer,
+          rosbridge_port: :integer,
+          token_file: :string
+        ]
       )
 
     Mix.Task.run("app.start")
@@ -68,7 +76,12 @@ defmodule Mix.Tasks.Tc.Run do
   end
 
   defp dashboard_ports(adf, opts) do
-    overrides = Keyword.take(opts, [:port, :rosbridge_port])
+    overrides =
+      opts
+      |> Keyword.take([:port, :rosbridge_port, :token_file])
+      |> Keyword.update(:token_file, nil, &Path.expand/1)
+      |> Enum.reject(fn {_key, value} -> value == nil end)
+
     %{adf | dashboard: Map.merge(adf.dashboard, Map.new(overrides))}
   end
 
@@ -76,8 +89,15 @@ defmodule Mix.Tasks.Tc.Run do
 
   defp report(robot, left) do
     Process.sleep(1000)
-    IO.puts(status_line(robot))
-    report(robot, left && left - 1)
+
+    if ThinkingCap.Runtime.Shutdown.begun?() do
+      # the node is stopping (SIGTERM, Ctrl-C): the robot is stopped; the
+      # VM ends when its applications are down
+      Process.sleep(:infinity)
+    else
+      IO.puts(status_line(robot))
+      report(robot, left && left - 1)
+    end
   end
 
   defp status_line(robot) do

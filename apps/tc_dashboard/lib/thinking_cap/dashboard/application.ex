@@ -21,9 +21,15 @@ defmodule ThinkingCap.Dashboard.Application do
     Supervisor.start_link(children, strategy: :one_for_one, name: ThinkingCap.Dashboard.Root)
   end
 
+  # The top application: when the node stops, the robots stop first
+  # (ThinkingCap.Runtime.Shutdown), then the dashboard closes its sockets.
+  # yaws is an application of its own, stopped by the application
+  # controller: stopping it from here would wait on the controller, which
+  # waits on this very callback.
   @impl true
   def prep_stop(state) do
-    ThinkingCap.Dashboard.stop()
+    ThinkingCap.Runtime.Shutdown.begin()
+    ThinkingCap.Dashboard.stop(stop_yaws: false)
     state
   end
 end

@@ -24,13 +24,24 @@ defmodule ThinkingCap.Dashboard.Launcher do
     if dashboard[:enabled] && ThinkingCap.Dashboard.config() == nil do
       opts =
         dashboard
-        |> Map.take([:host, :port, :rosbridge_port, :public_view])
+        |> Map.take([
+          :host,
+          :port,
+          :rosbridge_port,
+          :public_view,
+          :token_file,
+          :max_connections,
+          :idle_timeout
+        ])
+        |> Enum.reject(fn {_key, value} -> value == nil end)
+        |> Map.new()
         |> Map.put(:world, adf[:wdf])
         |> Enum.to_list()
 
       case ThinkingCap.Dashboard.start(opts) do
         {:ok, info} ->
-          Logger.info("dashboard for #{inspect(robot)}: #{info.url}")
+          # never the token: logs outlive the run and others may read them
+          Logger.info("dashboard for #{inspect(robot)} on #{info.host}:#{info.port}")
 
         {:error, reason} ->
           Logger.error("dashboard for #{inspect(robot)} could not start: #{inspect(reason)}")

@@ -14,7 +14,15 @@ defmodule ThinkingCap.Config.ADF do
        default: 9090, doc: "rosbridge v2 endpoint port (0: any free port)"},
     public_view:
       {:boolean,
-       default: false, doc: "let viewers without the access token watch (never control)"}
+       default: false, doc: "let viewers without the access token watch (never control)"},
+    token_file:
+      {:string,
+       default: nil,
+       doc: "a file holding the access token, readable by its owner only (default: a new token)"},
+    max_connections:
+      {{:int_range, 1, 65_535}, default: 512, doc: "open connections at most, beyond: refused"},
+    idle_timeout:
+      {{:int_range, 100, 600_000}, default: 5_000, doc: "ms an HTTP connection may stay idle"}
   ]
 
   @module_fields [

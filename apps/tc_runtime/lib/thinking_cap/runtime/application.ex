@@ -20,6 +20,8 @@ defmodule ThinkingCap.Runtime.Application do
   @impl true
   def start(_type, _args) do
     ThinkingCap.Runtime.Scheduling.apply_config()
+    # SIGTERM stops the robots before the node (ThinkingCap.Runtime.Shutdown)
+    :ok = ThinkingCap.Runtime.Shutdown.install()
 
     children = [
       %{id: :pg, start: {:pg, :start_link, [ThinkingCap.Runtime.scope()]}},
@@ -46,12 +48,17 @@ defmodule ThinkingCap.Runtime.Application do
     )
   end
 
-  # The BEAM's threads go back to normal scheduling before the VM halts:
+  # Stopping, the robots stop first (Shutdown.begin/1, a no-op when an
+  # application above already called it), then the BEAM's threads go back
+  # to normal scheduling before the VM halts:
   # while it shuts down, a scheduler at SCHED_FIFO spins waiting on
   # threads at normal priority, which it then keeps off the CPU (seen on
   # peer nodes: a stop that never ended, a core at 100 %).
   @impl true
   def prep_stop(state) do
+    # the robots stop first, if no application above did it already
+    ThinkingCap.Runtime.Shutdown.begin()
+
     if Application.get_env(:tc_runtime, :beam_priority, :realtime) != nil,
       do: ThinkingCap.Runtime.Scheduling.nice(0)
 

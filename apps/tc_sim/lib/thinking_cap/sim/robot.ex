@@ -72,6 +72,12 @@ defmodule ThinkingCap.Sim.Robot do
   def handle_data({:tc_sim, :readings, robot, readings}, %{robot: robot} = state),
     do: {readings, state}
 
+  # the simulation shut down in order (its node is stopping): a shutdown,
+  # not a crash to report
+  def handle_data({:DOWN, ref, :process, _pid, reason}, %{monitor: ref})
+      when reason in [:shutdown, :normal],
+      do: exit({:shutdown, {:simulation_down, reason}})
+
   def handle_data({:DOWN, ref, :process, _pid, reason}, %{monitor: ref}),
     do: exit({:simulation_down, reason})
 

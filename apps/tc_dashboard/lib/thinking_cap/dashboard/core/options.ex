@@ -10,6 +10,11 @@ defmodule ThinkingCap.Dashboard.Core.Options do
       {9090, "the rosbridge v2 endpoint's port (0: any free port, nil: none)", :port_or_nil?},
     public_view: {false, "let viewers without the token watch (never control)", :boolean?},
     token: {nil, "the access token (default: a new random one)", :token?},
+    token_file:
+      {nil, "a file holding the access token (readable by its owner only)", :string_or_nil?},
+    max_connections:
+      {512, "open connections at most, both servers together (beyond: refused)", :pos_int?},
+    idle_timeout: {5_000, "ms a kept-alive HTTP connection may stay idle", :pos_int?},
     origins: {[], "browser origins allowed besides the dashboard's own", :strings?},
     world: {nil, "the WDF shown on the map (a path or a ThinkingCap.Config.WDF)", :any?},
     max_frame: {1_048_576, "the largest WebSocket frame accepted, bytes", :pos_int?},

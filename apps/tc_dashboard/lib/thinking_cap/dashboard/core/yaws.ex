@@ -26,11 +26,13 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
 
   @doc """
   Starts yaws with `servers`, a list of `%{name, host, port, docroot,
-  appmods: [{path, module}], opaque: keyword}`; returns the ports bound (a
-  port 0 picks a free one).
+  appmods: [{path, module}], opaque: keyword}`, and `limits`
+  (`max_connections`, open connections at most; `idle_timeout`, ms a
+  kept-alive connection may idle); returns the ports bound (a port 0 picks
+  a free one).
   """
-  @spec start([map()]) :: {:ok, %{atom() => :inet.port_number()}} | {:error, term()}
-  def start(servers) do
+  @spec start([map()], map()) :: {:ok, %{atom() => :inet.port_number()}} | {:error, term()}
+  def start(servers, limits \\ %{}) do
     with true <- ensure_available() || {:error, :yaws_not_installed},
          :ok <- load_yaws(),
          servers = Enum.map(servers, &bind/1),
@@ -38,7 +40,7 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
            :yaws_api.embedded_start_conf(
              docroot(servers),
              Enum.map(servers, &sconf/1),
-             gconf(),
+             gconf(limits),
              @id
            ),
          {:ok, _} <- Application.ensure_all_started(:yaws),
@@ -95,16 +97,24 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
       docroot: to_charlist(server.docroot),
       appmods: Enum.map(server.appmods, fn {path, mod} -> {to_charlist(path), mod} end),
       opaque: server |> Map.get(:opaque, []) |> Enum.to_list(),
-      access_log: false,
-      deflate: false
+      # yaws reads these only under flags: (a top-level access_log: false
+      # is ignored, and every request, ?token= included, was logged)
+      flags: [access_log: false, auth_log: false, deflate: false, dir_listings: false]
     ]
     |> Keyword.merge(Map.get(server, :yaws, []))
   end
 
-  defp gconf do
-    logdir = Path.join(System.tmp_dir!(), "thinkingcap-yaws")
-    File.mkdir_p!(logdir)
-    [id: @id, logdir: to_charlist(logdir), copy_errlog: false]
+  # yaws' own logs (its error report) go to the dashboard's private
+  # runtime directory, wrapped at 1 MB
+  defp gconf(limits) do
+    [
+      id: @id,
+      logdir: to_charlist(ThinkingCap.Dashboard.Core.RuntimeDir.path()),
+      log_wrap_size: 1_000_000,
+      flags: [copy_errlog: false, log_resolve_hostname: false],
+      max_connections: Map.get(limits, :max_connections, :nolimit),
+      keepalive_timeout: Map.get(limits, :idle_timeout, 5_000)
+    ]
   end
 
   defp start_children(specs) do

@@ -1,0 +1,73 @@
+defmodule ThinkingCap.Dashboard.SecretsTest do
+  # The access token stays secret: never in a file others may read, never
+  # in a log; the dashboard's runtime files are private and go with it.
+  use ThinkingCap.Dashboard.Test.Case, async: false
+
+  alias ThinkingCap.Dashboard
+  alias ThinkingCap.Dashboard.Core.RuntimeDir
+
+  @moduletag :tmp_dir
+
+  defp get(port, path) do
+    :inets.start()
+    url = ~c"http://127.0.0.1:#{port}#{path}"
+    {:ok, {{_, status, _}, _headers, _body}} = :httpc.request(:get, {url, []}, [], [])
+    status
+  end
+
+  # every regular file under `dir` whose content holds `secret`
+  defp files_holding(dir, secret) do
+    Path.wildcard(Path.join(dir, "**/*"), match_dot: true)
+    |> Enum.filter(&File.regular?/1)
+    |> Enum.filter(fn path ->
+      case File.read(path) do
+        {:ok, content} -> String.contains?(content, secret)
+        _ -> false
+      end
+    end)
+  end
+
+  test "page loads with the token leave it in no file; the runtime files are private",
+       %{dashboard: info} do
+    assert get(info.port, "/?token=#{token()}") == 200
+    assert get(info.port, "/assets/app.css") == 200
+    assert get(info.port, "/?token=wrong-token-xyz") in [200, 401, 403]
+
+    dir = RuntimeDir.path()
+    assert %{mode: mode} = File.stat!(dir)
+    assert Bitwise.band(mode, 0o777) == 0o700
+    # yaws' logs go there, and hold no token
+    assert files_holding(dir, token()) == []
+    # nor anything the system's temporary directory got from this run
+    assert files_holding(System.tmp_dir!(), token()) == []
+  end
+
+  test "stopping the dashboard removes its runtime files" do
+    dir = RuntimeDir.path()
+    assert File.dir?(dir)
+    Dashboard.stop()
+    refute File.exists?(dir)
+  end
+
+  test "the token may come from a file its owner alone can read", %{tmp_dir: dir} do
+    Dashboard.stop()
+    file = Path.join(dir, "token")
+    File.write!(file, "from-a-file-0123456789\n")
+
+    File.chmod!(file, 0o644)
+    assert {:error, message} = Dashboard.start(port: 0, rosbridge_port: nil, token_file: file)
+    assert message =~ "readable by others" and message =~ file
+
+    File.chmod!(file, 0o600)
+    assert {:ok, info} = Dashboard.start(port: 0, rosbridge_port: nil, token_file: file)
+    assert info.token == "from-a-file-0123456789"
+
+    assert {:error, message} =
+             (
+               Dashboard.stop()
+               Dashboard.start(port: 0, rosbridge_port: nil, token_file: file <> "-none")
+             )
+
+    assert message =~ "no such file"
+  end
+end
