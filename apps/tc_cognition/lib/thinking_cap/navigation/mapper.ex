@@ -57,6 +57,8 @@ defmodule ThinkingCap.Navigation.Mapper do
     * `prior` - the degree given to the WDF's cells (default 0.7);
     * `publish_every` (default 1.0 s), `topology_every` (default 5.0 s);
     * `save`, `save_every` (default 30 s);
+    * `max_turn_rate` - scans taken while the robot turns faster (rad/s,
+      default 0.6; nil: every scan) are left out: they land smeared;
     * `fade`, `lambda`, `known`, `laser`, `sonar` - the fuzzy grid's
       (`ThinkingCap.Navigation.Maps.SensedGrid.new/3`); on a robot with
       a laser, sonars add only echoes closer than 2 m by default
@@ -87,7 +89,8 @@ defmodule ThinkingCap.Navigation.Mapper do
     save: nil,
     save_every: 30.0,
     door_width: 1.2,
-    min_area: 1.5
+    min_area: 1.5,
+    max_turn_rate: 0.6
   ]
 
   @grid_opts [:fade, :lambda, :known, :laser, :sonar]
@@ -169,19 +172,39 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   def handle_tuple({tag, robot, %{ranges: ranges} = reading}, %{robot: robot} = state)
       when is_map_key(state.sensors, tag) and is_list(ranges) do
-    case pose_at(state, Map.get(reading, :stamp)) do
-      nil ->
+    pose = pose_at(state, Map.get(reading, :stamp))
+
+    cond do
+      pose == nil ->
         {[], state}
 
-      pose ->
-        spec = Map.fetch!(state.sensors, tag)
-        add(state.grid, spec, reading, pose)
+      # a scan taken while turning fast lands smeared (the pose a sweep was
+      # taken at is known less well than the sweep is long): left out
+      turning_fast?(state) ->
+        {[], state}
+
+      true ->
+        add(state.grid, Map.fetch!(state.sensors, tag), reading, pose)
         stamp = Map.get(reading, :stamp) || state.stamp
         due(%{state | changed: true, stamp: stamp})
     end
   end
 
   def handle_tuple(_tuple, state), do: {[], state}
+
+  defp turning_fast?(%{params: params} = state),
+    do: params[:max_turn_rate] != nil and turn_rate(state) > params[:max_turn_rate]
+
+  # the turn rate between the last two odometry readings, rad/s
+  defp turn_rate(state) do
+    case :queue.to_list(state.history) |> Enum.take(-2) do
+      [{t0, {_, _, a0}}, {t1, {_, _, a1}}] when t1 > t0 ->
+        abs(EKF.normalize(a1 - a0)) / (t1 - t0)
+
+      _ ->
+        0.0
+    end
+  end
 
   @impl true
   def terminate(_reason, %{params: params} = state) do

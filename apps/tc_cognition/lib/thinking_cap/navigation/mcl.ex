@@ -23,17 +23,22 @@ defmodule ThinkingCap.Navigation.MCL do
   `beams` of its beams, evenly spread. A robot standing still is not
   weighed again, but its scan is still judged twice a second (below).
 
-  **Lost and found.** Each scan is also scored from the estimate (the
-  fit: the mean per-beam likelihood over the best possible, in [0, 1]).
-  When the fit from the best particle falls under `lost_fit` while most
-  beams land on known map, `lost_after` times more often than not, or
-  the particles stay spread wider than 0.5 m for twenty weighings (and the cloud
-  had ten weighings to settle since it was spread) (a robot carried away, a wrong initial pose),
-  the whole map is searched for the scan (the estimate staying a
-  candidate) and the particles spread round the poses that fit it best
-  (`relocalizing`), weighed tempered for a while so that places one scan
-  cannot tell apart live on until the moves to come do. An initial pose given roughly (`initial_sigma` wider
-  than 0.15 m) is sought the same way round it at the first scan.
+  **Lost and found.** Each scan is also scored from the best particle
+  (the fit: the mean per-beam likelihood over the best possible, in
+  [0, 1]; the mean of a cloud still split between places fits nowhere).
+  The robot is taken to be lost (carried away, or started from a wrong
+  pose) when the fit falls under `lost_fit` while most beams land on
+  known map, `lost_after` times more often than not, or when the
+  particles stay spread wider than 0.5 m for twenty weighings, once a
+  fresh cloud had ten weighings to settle. Then the whole map is searched
+  for the scan (the estimate staying a candidate), the particles spread
+  round the poses that fit it best (`relocalizing`), and the scans after
+  are weighed tempered for a while, so that places one scan cannot tell
+  apart live on until the moves to come do. Not in simultaneous
+  localization and mapping (no map to start from): a map half built has
+  not the places to search. An initial pose given roughly
+  (`initial_sigma` wider than 0.15 m) is sought round itself at the
+  first scan.
 
   ## Published
 
@@ -131,6 +136,9 @@ defmodule ThinkingCap.Navigation.MCL do
       odometry: odometry,
       filter: filter,
       source: if(filter.map, do: :wdf, else: nil),
+      # no map to start from: the map is built at these estimates, and a
+      # search of a map half built would move the robot somewhere wrong
+      slam: filter.map == nil,
       map_at: nil,
       pending_map: nil,
       last_odometry: nil,
@@ -318,7 +326,8 @@ defmodule ThinkingCap.Navigation.MCL do
         spread = if :math.sqrt(max(sxx, syy)) > 0.5, do: state.spread + 1, else: 0
         state = %{state | fit: fit, poor: poor, spread: spread}
 
-        if (poor >= state.params[:lost_after] or spread >= 2 * @settling) and
+        if not state.slam and
+             (poor >= state.params[:lost_after] or spread >= 2 * @settling) and
              state.updates > @settling,
            do: relocalize(state, many.()),
            else: settle(state)

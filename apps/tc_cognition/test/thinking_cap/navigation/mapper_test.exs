@@ -104,13 +104,14 @@ defmodule ThinkingCap.Navigation.MapperTest do
 
     assert {:segments, :r, %{segments: segments}} = Lockstep.latest(lock, {:segments, :r, :_})
     # the hall's south wall, y = 0 from x = 0 to 20: covered by segments
-    # lying along it, believed occupied
+    # lying along it, believed occupied, over more than half its length
+    # (scans taken while turning fast are left out of the map)
     along =
       for {{x1, y1}, {x2, y2}, degree} <- segments,
           abs(y1) < 0.15 and abs(y2) < 0.15 and degree > 0.5,
           do: abs(x2 - x1)
 
-    assert Enum.sum(along) > 15
+    assert Enum.sum(along) > 10
   end
 
   test "a map given a WDF learns the box it was not told about", %{tmp_dir: dir} do

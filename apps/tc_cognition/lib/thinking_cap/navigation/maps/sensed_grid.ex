@@ -54,7 +54,7 @@ defmodule ThinkingCap.Navigation.Maps.SensedGrid do
     fade: 0.5,
     lambda: {0.2, 1.0},
     margin: nil,
-    known: 0.1,
+    known: 0.25,
     laser: %{k_empty: 0.3, k_occupied: 0.5, range: 6.0},
     sonar: %{k_empty: 0.12, k_occupied: 0.3, trust: 3.0, ray_spacing: 0.05}
   ]
@@ -81,7 +81,8 @@ defmodule ThinkingCap.Navigation.Maps.SensedGrid do
   default `{0, 0}`), `fade`, `lambda` (the fading `{λe, λo}`, default
   `{0.2, 1.0}`), `margin`
   (default 1.5 cells), `known` (a cell whose degrees are both below this
-  is unknown, default 0.1), `laser` and `sonar` (maps of the degrees
+  is unknown, default 0.25: a beam grazing a cell once does not make it
+  known), `laser` and `sonar` (maps of the degrees
   above, merged with the defaults).
   """
   @spec new(pos_integer(), pos_integer(), keyword()) :: t()

@@ -1,0 +1,261 @@
+Code.require_file("support/nav_run.exs", __DIR__)
+
+defmodule ThinkingCap.Bench.Explore do
+  @moduledoc """
+  `mix tc.bench explore [--map PATH.yaml ...] [--runs N] [--seed S]`:
+  exploring an unknown building. In each `map_server` map (default: the
+  office drawn in `priv/maps/office.yaml` and nav2's `turtlebot3_world`),
+  each run starts the office robot (no beacon sensor) at a random
+  reachable pose with an empty WDF: the map builder starts from nothing,
+  the laser localizer holds the robot to the map being built (SLAM), and
+  the planner explores (`task: :explore`) until no frontier is left
+  reachable, then saves the map; at most 30 simulated minutes.
+
+  Figures, from the saved map (`map_server` format, read back):
+  `coverage_pct`, the share of the true free cells reachable from the
+  start that it labels free; `accuracy_pct`, the share of its labelled
+  cells (free or occupied) whose label the true map has within 5 cm;
+  `seconds`, the simulated time taken (mean).
+
+  Ends with `explore: runs=N coverage_pct=C accuracy_pct=A seconds=S`.
+  """
+
+  alias ThinkingCap.Bench.NavRun
+  alias ThinkingCap.Config.RosMap
+  alias ThinkingCap.Navigation.{Grid, OccupancyGrid}
+  alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Sim
+  alias ThinkingCap.Testing.Lockstep
+
+  @limit 1800.0
+  @root Path.expand("..", __DIR__)
+
+  def run(args) do
+    {opts, _, _} = OptionParser.parse(args, strict: [map: :keep, runs: :integer, seed: :integer])
+
+    maps =
+      case Keyword.get_values(opts, :map) do
+        [] ->
+          Enum.map(
+            ["priv/maps/office.yaml", "priv/maps/turtlebot3_world.yaml"],
+            &Path.join(@root, &1)
+          )
+
+        given ->
+          Enum.map(given, &Path.expand/1)
+      end
+
+    runs = opts[:runs] || 3
+    seed = opts[:seed] || 1
+    tmp = NavRun.tmp_dir()
+    rdf = write_rdf(tmp)
+    {:ok, d} = Description.load(rdf)
+    empty = Path.join(tmp, "empty.wdf")
+    File.write!(empty, ~s([name: "nothing known"]))
+
+    results =
+      Enum.flat_map(maps, fn yaml ->
+        name = Path.basename(yaml, ".yaml")
+        world = Path.join(tmp, "#{name}.wdf")
+        File.write!(world, inspect(name: name, map: [yaml: yaml]))
+        {:ok, truth} = RosMap.load(yaml)
+        {grid, _} = NavRun.grids(world, d.footprint.radius)
+        {:ok, simworld} = Sim.World.load(world)
+
+        free? = fn cell ->
+          Sim.World.free?(simworld, Grid.centre(grid, cell), d.footprint.radius + 0.1)
+        end
+
+        rng = :rand.seed_s(:exsss, {seed, 45, 1})
+
+        {rs, _} =
+          Enum.map_reduce(1..runs, rng, fn i, rng ->
+            {start, rng} = start(grid, free?, rng)
+            saved = Path.join(tmp, "#{name}_#{i}.yaml")
+            r = one_run(world, empty, rdf, start, saved, truth, seed * 1000 + i)
+            IO.puts(line(name, i, r))
+            {r, rng}
+          end)
+
+        print(name, rs)
+        rs
+      end)
+
+    print("explore", results)
+    if System.get_env("TC_KEEP"), do: IO.puts("kept #{tmp}"), else: File.rm_rf!(tmp)
+  end
+
+  defp write_rdf(dir) do
+    {:ok, data, _} = ThinkingCap.Config.Literal.parse(File.read!(NavRun.rdf()), NavRun.rdf())
+    sensors = Enum.reject(data[:sensors], &(&1[:type] == :beacon_laser))
+    path = Path.join(dir, "no_beacons.rdf")
+    File.write!(path, inspect(Keyword.put(data, :sensors, sensors), limit: :infinity))
+    path
+  end
+
+  defp start(grid, free?, rng) do
+    {cell, rng} = NavRun.free_cell(grid, rng)
+    {th, rng} = :rand.uniform_s(rng)
+
+    if free?.(cell) do
+      {Tuple.append(Grid.centre(grid, cell), (th - 0.5) * 2 * :math.pi()), rng}
+    else
+      start(grid, free?, rng)
+    end
+  end
+
+  defp one_run(world, empty, rdf, {sx, sy, _} = start, saved, truth, seed) do
+    {:ok, sim} = Sim.start_link(world: world, mode: :fast, running: false, step: 0.05, seed: seed)
+    {w, h} = {truth.width * truth.resolution, truth.height * truth.resolution}
+    size = min(2 * max(w, h) + 4, 120.0)
+
+    modules = [
+      perception: {ThinkingCap.Perception.Fuser, []},
+      localization:
+        {ThinkingCap.Navigation.MCL, [initial: start, initial_sigma: {0.05, 0.02}, seed: seed]},
+      mapper: {ThinkingCap.Navigation.Mapper, [initial: {sx, sy}, size: {size, size}]},
+      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      planner: {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved], period: 0.5}
+    ]
+
+    :ok =
+      Sim.add_robot(sim, :explorer,
+        rdf: rdf,
+        at: start,
+        controller: {Sim.LockstepController, modules: modules, rdf: rdf, wdf: empty}
+      )
+
+    {time, state} = drive(sim, 0.0)
+    blocked = Sim.status(sim).blocked
+    GenServer.stop(sim)
+
+    {coverage, accuracy} =
+      case OccupancyGrid.load(saved) do
+        {:ok, map} -> score(map, truth, {sx, sy})
+        {:error, _} -> {0.0, 0.0}
+      end
+
+    %{time: time, state: state, coverage: coverage, accuracy: accuracy, blocked: blocked}
+  end
+
+  # 10 s at a time until the exploration is done (or gave up) or time is up
+  defp drive(sim, t) do
+    :ok = Sim.run_for(sim, 10.0)
+    t = t + 10.0
+    {:ok, c} = Sim.controller_state(sim, :explorer)
+    saved = Lockstep.latest(c.lock, {:map_saved, :explorer, :_})
+
+    case Lockstep.latest(c.lock, {:plan, :explorer, :_}) do
+      {:plan, _, %{state: s}} when s in [:done, :failed] and saved != nil -> {t, s}
+      {:plan, _, %{state: s}} when t >= @limit -> {t, s}
+      _ -> drive(sim, t)
+    end
+  end
+
+  ## scoring
+
+  defp score(%OccupancyGrid{} = map, truth, start) do
+    {coverage(map, truth, start), accuracy(map, truth)}
+  end
+
+  # the true free cells reachable from the start (4-connected), and how
+  # many of them the map labels free
+  defp coverage(map, truth, {sx, sy}) do
+    {ox, oy, _} = truth.origin
+    res = truth.resolution
+    start = {floor((sx - ox) / res), floor((sy - oy) / res)}
+    reachable = flood(truth, start)
+
+    seen =
+      Enum.count(reachable, fn {c, r} ->
+        OccupancyGrid.value(
+          map,
+          OccupancyGrid.cell_of(map, {ox + (c + 0.5) * res, oy + (r + 0.5) * res})
+        ) == 0
+      end)
+
+    100.0 * seen / max(length(reachable), 1)
+  end
+
+  defp flood(truth, start) do
+    w = truth.width
+    visited = :atomics.new(truth.width * truth.height, [])
+
+    free? = fn {c, r} ->
+      c >= 0 and r >= 0 and c < w and r < truth.height and RosMap.cell(truth, c, r) == 0
+    end
+
+    if free?.(start) do
+      :atomics.put(visited, index(start, w) + 1, 1)
+      bfs(:queue.from_list([start]), [start], visited, w, free?)
+    else
+      []
+    end
+  end
+
+  defp bfs(queue, acc, visited, w, free?) do
+    case :queue.out(queue) do
+      {:empty, _} ->
+        acc
+
+      {{:value, {c, r}}, queue} ->
+        {queue, acc} =
+          Enum.reduce([{c + 1, r}, {c - 1, r}, {c, r + 1}, {c, r - 1}], {queue, acc}, fn n,
+                                                                                         {q, a} ->
+            if free?.(n) and :atomics.compare_exchange(visited, index(n, w) + 1, 0, 1) == :ok,
+              do: {:queue.in(n, q), [n | a]},
+              else: {q, a}
+          end)
+
+        bfs(queue, acc, visited, w, free?)
+    end
+  end
+
+  defp index({c, r}, w), do: r * w + c
+
+  # the map's labelled cells whose label the truth has within 5 cm
+  defp accuracy(map, truth) do
+    {ox, oy, _} = truth.origin
+    tres = truth.resolution
+    k = max(1, ceil(0.05 / tres - 1.0e-9))
+    {mx, my} = map.origin
+
+    {ok, all} =
+      for r <- 0..(map.height - 1), c <- 0..(map.width - 1), reduce: {0, 0} do
+        {ok, all} ->
+          v = OccupancyGrid.value(map, {c, r})
+
+          if v < 0 do
+            {ok, all}
+          else
+            label = if v >= 50, do: 100, else: 0
+            x = mx + (c + 0.5) * map.resolution
+            y = my + (r + 0.5) * map.resolution
+            {tc, tr} = {floor((x - ox) / tres), floor((y - oy) / tres)}
+
+            good =
+              Enum.any?(for(dc <- -k..k, dr <- -k..k, do: {tc + dc, tr + dr}), fn {a, b} ->
+                a >= 0 and b >= 0 and a < truth.width and b < truth.height and
+                  RosMap.cell(truth, a, b) == label
+              end)
+
+            {if(good, do: ok + 1, else: ok), all + 1}
+          end
+      end
+
+    100.0 * ok / max(all, 1)
+  end
+
+  defp line(name, i, r) do
+    "  #{name} #{i}: #{r.state} in #{NavRun.fmt(r.time)} s, coverage #{NavRun.fmt(r.coverage)} %, " <>
+      "accuracy #{NavRun.fmt(r.accuracy)} %, blocked #{r.blocked}"
+  end
+
+  defp print(label, rs) do
+    IO.puts(
+      "#{label}: runs=#{length(rs)} coverage_pct=#{NavRun.fmt(NavRun.mean(Enum.map(rs, & &1.coverage)))} " <>
+        "accuracy_pct=#{NavRun.fmt(NavRun.mean(Enum.map(rs, & &1.accuracy)))} " <>
+        "seconds=#{NavRun.fmt(NavRun.mean(Enum.map(rs, & &1.time)))}"
+    )
+  end
+end
