@@ -43,9 +43,9 @@ defmodule ThinkingCap.Navigation.Mapper do
   ## Saving
 
   With `save: "path.yaml"` the map is saved in the `map_server` format
-  (`ThinkingCap.Navigation.OccupancyGrid.save/2`) every `save_every`
-  seconds and when the module stops. A `{:save_map, robot, %{path: p}}`
-  tuple saves it at once to `p`.
+  (`ThinkingCap.Navigation.OccupancyGrid.save/2`; its directory made if
+  missing) every `save_every` seconds and when the module stops. A
+  `{:save_map, robot, %{path: p}}` tuple saves it at once to `p`.
 
   ## Parameters
 
@@ -295,6 +295,7 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   defp save(state, path) do
     map = SensedGrid.occupancy(state.grid, version: state.version, stamp: state.stamp)
+    _ = File.mkdir_p(Path.dirname(path))
     result = OccupancyGrid.save(map, path)
 
     case result do

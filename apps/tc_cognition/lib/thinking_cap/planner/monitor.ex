@@ -343,7 +343,14 @@ defmodule ThinkingCap.Planner.Monitor do
     {x, y, _} = state.pose
     frontiers = Frontiers.find(state.map)
 
+    seen_around? =
+      OccupancyGrid.value(state.map, OccupancyGrid.cell_of(state.map, {x, y})) in 0..49
+
     case Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up) do
+      # the first maps may hold nothing but a few echoes
+      nil when not seen_around? ->
+        {[], %{state | status: :waiting, reason: "waiting for the map around the robot"}}
+
       nil ->
         {[], %{state | status: :done, reason: "explored: no frontier left"}}
 

@@ -157,13 +157,19 @@ defmodule ThinkingCap.Navigation.MapperTest do
     # what was labelled is labelled the same (map_saver's trinary thresholds)
     assert saved.data == trinary(current.data)
 
-    # an unwritable path is reported, not a crash
-    lock = Lockstep.deliver(lock, {:save_map, :r, %{path: Path.join(dir, "no/such/dir/m.yaml")}})
+    # a missing directory is made; an unwritable path is reported, not a crash
+    nested = Path.join(dir, "new/dir/m.yaml")
+    lock = Lockstep.deliver(lock, {:save_map, :r, %{path: nested}})
+    assert {:map_saved, :r, %{result: :ok}} = Lockstep.latest(lock, {:map_saved, :r, :_})
+    assert File.exists?(nested)
+
+    File.write!(Path.join(dir, "a_file"), "")
+    lock = Lockstep.deliver(lock, {:save_map, :r, %{path: Path.join(dir, "a_file/m.yaml")}})
 
     assert {:map_saved, :r, %{result: {:error, message}}} =
              Lockstep.latest(lock, {:map_saved, :r, :_})
 
-    assert message =~ "no/such/dir"
+    assert message =~ "a_file"
   end
 
   defp trinary(data) do

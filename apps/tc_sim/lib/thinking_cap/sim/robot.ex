@@ -9,6 +9,10 @@ defmodule ThinkingCap.Sim.Robot do
   first use and shared by every simulated robot of that WDF on the node
   (`ThinkingCap.Sim.Worlds`). ADF params:
 
+    * `world:` - the WDF of the simulated world, when it is not the one
+      the robot's modules are told (a robot exploring a building it knows
+      nothing of: the ADF's `wdf:` is empty, the simulator's is the
+      building); a relative path is taken from the ADF's `wdf:` directory;
     * `at:` - the start pose `{x, y, theta}`, a point, or a waypoint of the
       WDF (default: the WDF's first waypoint, else the origin);
     * `seed:` - the world's seed when this robot starts it (default 1);
@@ -38,8 +42,24 @@ defmodule ThinkingCap.Sim.Robot do
     end
   end
 
-  defp wdf(%{wdf: wdf}) when is_binary(wdf), do: {:ok, wdf}
-  defp wdf(_context), do: {:error, "a simulated robot needs the ADF's wdf: (its world)"}
+  defp wdf(%{params: params} = context) do
+    case {Keyword.get(params, :world), Map.get(context, :wdf)} do
+      {world, wdf} when is_binary(world) and is_binary(wdf) ->
+        {:ok, Path.expand(world, Path.dirname(wdf))}
+
+      {world, _} when is_binary(world) ->
+        {:ok, Path.expand(world)}
+
+      {nil, wdf} when is_binary(wdf) ->
+        {:ok, wdf}
+
+      {nil, _} ->
+        {:error, "a simulated robot needs the ADF's wdf: or a world: param (its world)"}
+
+      {other, _} ->
+        {:error, "world: #{inspect(other)} is not a path to a WDF"}
+    end
+  end
 
   defp join(sim, robot, description, at, wdf) do
     at = at || default_start(sim)
