@@ -7,14 +7,16 @@ defmodule ThinkingCap.Navigation.MCL do
       localization: [module: ThinkingCap.Navigation.MCL, activity: :event,
                      params: [initial: :dock, initial_sigma: {0.5, 0.3}]]
 
-  **The map** is the map builder's (`{:map, robot, %OccupancyGrid{}}`,
-  from `ThinkingCap.Navigation.Mapper`) once one comes, taken again at
-  most every `map_every` seconds; until then the WDF's (its walls,
-  obstacles and closed doors, and its imported `map_server` map). With an
-  empty WDF and a map builder this is simultaneous localization and
-  mapping: the map is built at this module's estimates, and the estimates
-  are held to the map; until the first map comes the odometry alone moves
-  the estimate.
+  **The map** is the WDF's (its walls, obstacles and closed doors, and
+  its imported `map_server` map; the floor inside a WDF drawn with walls
+  only counts as free). With an empty WDF it is the map builder's
+  (`{:map, robot, %OccupancyGrid{}}`, from `ThinkingCap.Navigation.Mapper`),
+  taken again at most every `map_every` seconds: simultaneous
+  localization and mapping, the map built at this module's estimates and
+  the estimates held to the map; until the first map comes the odometry
+  alone moves the estimate. (A map being built knows little at first,
+  and what it does not know says nothing: with a WDF, its map is the
+  firmer ground.)
 
   It subscribes to the robot's odometry and its lasers (the RDF's
   sensors). On odometry the particles move by the motion since the last
@@ -218,7 +220,9 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
-  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot} = state),
+  # the map builder's map, when there is no WDF map to hold to: a map being
+  # built knows little at first, and what it does not know says nothing
+  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot, slam: true} = state),
     do: {[], %{state | pending_map: map}}
 
   def handle_tuple({tag, robot, %{ranges: ranges} = scan}, %{robot: robot} = state)
