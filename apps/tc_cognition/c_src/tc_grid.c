@@ -830,6 +830,29 @@ static ERL_NIF_TERM nif_frontiers(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     return list;
 }
 
+/* shrink(occupancy, w, h, k) -> {w', h', occupancy'}: each k x k block
+ * one cell, the largest of its signed values (unknown, -1, only where
+ * every cell of the block is) */
+static ERL_NIF_TERM nif_shrink(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h, k;
+    if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &k) || k < 1 || k > 64)
+        return enif_make_badarg(env);
+    int cw = (w + k - 1) / k, ch = (h + k - 1) / k;
+    ERL_NIF_TERM out;
+    int8_t *p = (int8_t *)enif_make_new_binary(env, (size_t)cw * ch, &out);
+    memset(p, -1, (size_t)cw * ch);
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            int8_t v = (int8_t)b.data[(size_t)r * w + c];
+            int8_t *q = p + (size_t)(r / k) * cw + c / k;
+            if (v > *q) *q = v;
+        }
+    return enif_make_tuple3(env, enif_make_int(env, cw), enif_make_int(env, ch), out);
+}
+
 static ErlNifFunc funcs[] = {
     {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_integrate", 8, nif_fmap_integrate, 0},
@@ -847,6 +870,7 @@ static ErlNifFunc funcs[] = {
     {"patch", 2, nif_patch, 0},
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"shrink", 4, nif_shrink, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_new", 7, tc_nif_field_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_score", 4, tc_nif_field_score, 0},

@@ -1,8 +1,9 @@
 // The live 2D view: the world (walls, rooms, doors, obstacles, areas, an
 // occupancy grid), beacons and waypoints, and for each robot its pose and
-// footprint (true and estimated, with the estimate's covariance), laser
-// and sonar readings, the Local Perceptual Space, the planned path and
-// goal. Wheel to zoom, drag to pan, click to send the selected robot a
+// footprint (true and estimated, with the estimate's covariance and the
+// localizer's particles), the map it learned (obstacles it sensed
+// included), laser and sonar readings, the Local Perceptual Space, the
+// planned path and goal. Wheel to zoom, drag to pan, click to send the selected robot a
 // goal (a waypoint when the click is on one), click a robot to select it.
 //
 // World coordinates are metres, x east, y north (REP-103); the view keeps
@@ -14,6 +15,8 @@ const TAU = Math.PI * 2;
 
 export const LAYERS = {
   grid: 'Occupancy grid',
+  learned: 'Learned map',
+  particles: 'Particles',
   metric: 'Metric grid',
   laser: 'Laser',
   sonar: 'Sonar',
@@ -54,6 +57,8 @@ export class MapView {
     this.drawn = {};
     this.goalMarker = null;
     this._gridImage = null;
+    /** robot id → {version, canvas} of its learned map, drawn once per version */
+    this._learned = {};
     this._static = null;
     this._staticKey = '';
     this._bindInput();
@@ -276,6 +281,7 @@ export class MapView {
     const ctx = this.ctx;
     ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
     this._drawStatic(ctx);
+    if (this.layers.learned) for (const id of this.store.robots) this._drawLearned(ctx, id);
 
     const drawn = {};
     const robots = this.store.robots;
@@ -432,6 +438,64 @@ export class MapView {
     ctx.translate(sx, sy);
     ctx.rotate(-oth);
     const s = res * this.scale;
+    ctx.scale(s, s);
+    ctx.drawImage(img, 0, -img.height);
+    ctx.restore();
+  }
+
+  // A robot's learned map (the map builder's occupancy grid): unknown cells
+  // left clear, free ones a faint teal, occupied ones orange by degree.
+  _learnedCanvas(id, m) {
+    const cached = this._learned[id];
+    const version = m.version ?? 0;
+    if (cached && cached.version === version) return cached.canvas;
+    const width = m.width | 0;
+    const height = m.height | 0;
+    if (!width || !height || typeof m.data !== 'string') return null;
+    let bin;
+    try {
+      bin = atob(m.data);
+    } catch (e) {
+      console.warn('dashboard: a learned map whose cells are not base64', e);
+      return null;
+    }
+    const img = new ImageData(width, height);
+    const d = img.data;
+    for (let r = 0; r < height; r++) {
+      const row = height - 1 - r;
+      for (let c = 0; c < width; c++) {
+        const i = r * width + c;
+        if (i >= bin.length) break;
+        let v = bin.charCodeAt(i);
+        if (v > 127) v -= 256;
+        if (v < 0) continue;
+        const k = (row * width + c) * 4;
+        if (v >= 50) {
+          d[k] = 255; d[k + 1] = 166; d[k + 2] = 87; d[k + 3] = 110 + v;
+        } else {
+          d[k] = 56; d[k + 1] = 139; d[k + 2] = 153; d[k + 3] = 40 + v;
+        }
+      }
+    }
+    const cv = document.createElement('canvas');
+    cv.width = width;
+    cv.height = height;
+    cv.getContext('2d').putImageData(img, 0, 0);
+    this._learned[id] = { version, canvas: cv };
+    return cv;
+  }
+
+  _drawLearned(ctx, id) {
+    const m = obj(this.store.get(`map/${id}`));
+    if (!m) return;
+    const img = this._learnedCanvas(id, m);
+    if (!img) return;
+    const [ox, oy] = pt(m.origin) || [0, 0];
+    const [sx, sy] = this.worldToScreen(ox, oy);
+    const s = m.resolution * this.scale;
+    ctx.save();
+    ctx.imageSmoothingEnabled = false;
+    ctx.translate(sx, sy);
     ctx.scale(s, s);
     ctx.drawImage(img, 0, -img.height);
     ctx.restore();
@@ -702,6 +766,18 @@ export class MapView {
         }
         const goal = pt(plan.goal);
         if (goal) this._drawFlag(ctx, goal, color);
+      }
+    }
+
+    if (this.layers.particles) {
+      const cloud = s.get(`particles/${id}`);
+      const poses = cloud && Array.isArray(cloud.poses) ? cloud.poses : [];
+      ctx.fillStyle = 'rgba(210,168,255,0.75)';
+      for (const q of poses) {
+        const e = pose3(q);
+        if (!e) continue;
+        const [qx, qy] = this.worldToScreen(e[0], e[1]);
+        ctx.fillRect(qx - 1, qy - 1, 2, 2);
       }
     }
 

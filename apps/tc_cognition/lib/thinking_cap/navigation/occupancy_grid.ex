@@ -118,6 +118,21 @@ defmodule ThinkingCap.Navigation.OccupancyGrid do
     }
   end
 
+  @doc """
+  The map at most `max_cells` cells (for display): blocks of `k × k`
+  cells made one, `k` as small as that allows, each the largest value of
+  its block (unknown only where the whole block is). A map small enough
+  comes back as it is.
+  """
+  @spec shrink(t(), pos_integer()) :: t()
+  def shrink(%__MODULE__{width: w, height: h} = map, max_cells) when w * h <= max_cells, do: map
+
+  def shrink(%__MODULE__{width: w, height: h} = map, max_cells) do
+    k = ceil(:math.sqrt(w * h / max_cells))
+    {cw, ch, data} = ThinkingCap.Navigation.Core.GridNif.shrink(map.data, w, h, k)
+    %{map | width: cw, height: ch, data: data, resolution: map.resolution * k}
+  end
+
   @doc "The cell holding a world point (it may lie outside the map)."
   @spec cell_of(t(), {number(), number()}) :: Grid.cell()
   def cell_of(%__MODULE__{origin: {ox, oy}, resolution: r}, {x, y}),

@@ -45,6 +45,19 @@ defmodule ThinkingCap.Navigation.OccupancyGridTest do
     end
   end
 
+  test "a map shrunk for display keeps its obstacles and its frame" do
+    # 4 x 2: an obstacle in the second block, the third block unknown
+    data = <<0, 0, 0, 100, -1::signed-8, -1::signed-8, 0, 0, 0, 0, -1::signed-8, -1::signed-8>>
+    map = %{OccupancyGrid.new(6, 2, resolution: 0.1, origin: {1.0, 2.0}) | data: data}
+    assert OccupancyGrid.shrink(map, 12) == map
+    small = OccupancyGrid.shrink(map, 3)
+    assert {small.width, small.height, small.resolution, small.origin} == {3, 1, 0.2, {1.0, 2.0}}
+    assert small.data == <<0, 100, -1::signed-8>>
+
+    assert OccupancyGrid.shrink(%{map | data: :binary.copy(<<-1::signed-8>>, 12)}, 3).data ==
+             :binary.copy(<<-1::signed-8>>, 3)
+  end
+
   test "unknown cells are blocked by default and passable on request" do
     map = %{OccupancyGrid.new(2, 1) | data: <<-1::signed-8, 70>>}
     assert OccupancyGrid.to_grid(map).cells == <<1, 1>>

@@ -20,24 +20,25 @@ defmodule ThinkingCap.Dashboard.Rosbridge do
   |---|---|---|
   | `/r1/scan` | `sensor_msgs/msg/LaserScan` | `{:laser, r1, ...}` (the robot's first laser sensor; frame `r1/laser`) |
   | `/r1/odom` | `nav_msgs/msg/Odometry` | `{:odom, r1, ...}` (its odometry sensor; frame `r1/odom`, child `r1/base_link`) |
-  | `/r1/pose` | `geometry_msgs/msg/PoseWithCovarianceStamped` | `{:pose, r1, ...}`, the localizer's estimate (frame `map`) |
+  | `/r1/pose`, `/r1/amcl_pose` | `geometry_msgs/msg/PoseWithCovarianceStamped` | `{:pose, r1, ...}`, the localizer's estimate (frame `map`) |
+  | `/r1/map` | `nav_msgs/msg/OccupancyGrid` | `{:map, r1, ...}`, the map the robot learned (`ThinkingCap.Navigation.Mapper`; frame `map`), each new version |
   | `/r1/cmd_vel` | `geometry_msgs/msg/Twist` | published by clients: teleoperation (see below); subscribing shows the command the base applies (`{:control, r1, ...}`) |
   | `/r1/tf`, `/r1/tf_static` | `tf2_msgs/msg/TFMessage` | that robot's part of `/tf` and `/tf_static` |
   | `/tf` | `tf2_msgs/msg/TFMessage` | every robot's `map → r1/odom` and `r1/odom → r1/base_link` |
   | `/tf_static` | `tf2_msgs/msg/TFMessage` | every robot's `r1/base_link → r1/<sensor>`, for each sensor with a pose |
-  | `/map` | `nav_msgs/msg/OccupancyGrid` | the dashboard's world (frame `map`) |
+  | `/map` | `nav_msgs/msg/OccupancyGrid` | the maps the robots learned, else the dashboard's world (frame `map`) |
 
   `map → r1/odom` is what places the odometry frame in the map: the
   localizer's estimate composed with the inverse of the odometry pose
-  (both the newest ones), identity while there is no estimate. `/map` is
-  the WDF's imported ROS map as it is, or, without one, its walls,
-  obstacles and closed doors rasterized at 5 cm (occupied 100, free 0); it
-  is sent once, when subscribed (a latched topic), and only when the
-  dashboard has a world.
+  (both the newest ones), identity while there is no estimate. `/map`
+  carries every new version of a map a robot learned, and the newest at
+  once when subscribed; without one, the WDF's imported ROS map as it is
+  or its walls, obstacles and closed doors rasterized at 5 cm (occupied
+  100, free 0), sent once when subscribed (a latched topic).
 
   **Namespaces.** Robot topics are always namespaced (`/r1/scan`), so
   adding a second robot never renames a topic. While exactly one robot is
-  known, `/scan`, `/odom`, `/pose` and `/cmd_vel` are also served as
+  known, `/scan`, `/odom`, `/pose`, `/amcl_pose` and `/cmd_vel` are also served as
   aliases of its topics (the names single-robot ROS tools default to),
   resolved when subscribed or advertised: they keep naming that robot.
   With several robots they are refused as ambiguous. Frame ids are always

@@ -8,9 +8,12 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   last saw (`changes_since/1`), so a slow browser gets fewer, fresher frames
   and never a queue, and the blackboard's writers never wait for a browser.
 
-  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door)a)}`
+  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology)a)}`
   (`{tag, id, payload}` tuples, keyed `"tag/id"`), plus `modules/all`, the
-  modules running in the cluster, once a second.
+  modules running in the cluster, once a second. A learned map (`map`)
+  of more than #{250_000} cells is shrunk for display
+  (`ThinkingCap.Navigation.OccupancyGrid.shrink/2`), its cells sent as
+  base64.
   """
   use GenServer
   require Logger
@@ -19,7 +22,8 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   alias ThinkingCap.Dashboard.Core.JSON
 
   @table __MODULE__
-  @streams ~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door)a
+  @streams ~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology)a
+  @map_cells 250_000
   @modules_every 1_000
 
   @doc false
@@ -169,6 +173,11 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
   # to 0.1 mm, 0.1 mrad, 0.1 ms: what a screen can show, in a third of
   # the text a browser must parse
+  defp encode(key, %ThinkingCap.Navigation.OccupancyGrid{} = map) do
+    small = ThinkingCap.Navigation.OccupancyGrid.shrink(map, @map_cells)
+    encode(key, %{Map.from_struct(small) | data: Base.encode64(small.data)})
+  end
+
   defp encode(key, payload) do
     payload |> JSON.encode!(decimals: 4) |> IO.iodata_to_binary()
   rescue

@@ -104,6 +104,47 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
     assert page_errors(b) == []
   end
 
+  test "the learned map and the particles are drawn where the robot learned them", ctx do
+    b = ctx.browser
+    open!(b, url(ctx))
+    wait!(b, "tc.drawn[#{js(ctx.name)}]")
+
+    # a learned map of the hall: free, with a 1 m box sensed at x 8..9, y 0.5..1.5
+    alias ThinkingCap.Navigation.OccupancyGrid
+    {w, h} = {200, 60}
+
+    data =
+      for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
+        {x, y} = {(c + 0.5) * 0.1, (r + 0.5) * 0.1}
+        if x >= 8 and x <= 9 and y >= 0.5 and y <= 1.5, do: <<100>>, else: <<0>>
+      end
+
+    map = %OccupancyGrid{width: w, height: h, data: data, resolution: 0.1, version: 7}
+    :ok = Blackboard.out({:map, ctx.robot, map}, key: {:map, ctx.robot})
+    cloud = %{poses: for(i <- 1..50, do: {2.0 + i * 0.01, 2.5, 0.0}), stamp: 1.0}
+    :ok = Blackboard.out({:particles, ctx.robot, cloud}, key: {:particles, ctx.robot})
+
+    wait!(
+      b,
+      "tc.item('map/' + #{js(ctx.name)}) && tc.item('map/' + #{js(ctx.name)}).version === 7"
+    )
+
+    wait!(b, "tc.item('particles/' + #{js(ctx.name)})")
+    :ok = Browser.eval(b, "tc.redraw && tc.redraw()") |> then(fn _ -> :ok end)
+    Process.sleep(300)
+
+    # the box's middle is orange (sensed obstacle), the hall's floor beside it is not
+    [bx, by] = eval!(b, "tc.worldToScreen(8.5, 1.0)")
+    [r, g, bl | _] = eval!(b, pixel_js(bx, by))
+    assert r > 150 and r > bl + 60, "the box is drawn #{inspect([r, g, bl])}"
+    [fx, fy] = eval!(b, "tc.worldToScreen(11.5, 2.5)")
+    [fr, _fg, fb | _] = eval!(b, pixel_js(fx, fy))
+    assert fr < 120 and fb >= fr, "the floor is drawn #{inspect([fr, fb])}"
+
+    Browser.screenshot(b, "learned_map")
+    assert page_errors(b) == []
+  end
+
   test "holding an arrow key drives the robot; letting go stops it", ctx do
     b = ctx.browser
     open!(b, url(ctx))

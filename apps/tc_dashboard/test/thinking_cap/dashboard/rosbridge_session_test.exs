@@ -245,6 +245,46 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
       assert Enum.at(pose["pose"]["covariance"], 35) == 0.3
     end
 
+    test "/r1/map and /map carry the map the robot learned; /amcl_pose its estimate" do
+      robot = robot!()
+      name = Atom.to_string(robot)
+      s = open()
+      {[], s} = send_msg(s, %{op: "subscribe", topic: "/#{name}/map"})
+      {[], s} = send_msg(s, %{op: "subscribe", topic: "/#{name}/amcl_pose"})
+
+      grid = %ThinkingCap.Navigation.OccupancyGrid{
+        width: 3,
+        height: 2,
+        data: <<0, 100, -1::signed-8, 0, 0, 50>>,
+        resolution: 0.1,
+        origin: {1.0, 2.0},
+        version: 4
+      }
+
+      out({:map, robot, grid})
+      {frames, s} = deliver_until(s, &(&1["topic"] == "/#{name}/map"))
+      assert [msg] = published(frames, "/#{name}/map")
+      assert msg["data"] == [0, 100, -1, 0, 0, 50]
+      assert {msg["info"]["width"], msg["info"]["height"]} == {3, 2}
+      assert msg["info"]["origin"]["position"]["x"] == 1.0
+      assert msg["header"]["frame_id"] == "map"
+
+      out(
+        {:pose, robot,
+         %{pose: {3.0, 2.0, 1.0}, covariance: [[0.1, 0, 0], [0, 0.2, 0], [0, 0, 0.3]], stamp: 1.0}}
+      )
+
+      {frames, _s} = deliver_until(s, &(&1["topic"] == "/#{name}/amcl_pose"))
+      assert [pose] = published(frames, "/#{name}/amcl_pose")
+      assert pose["pose"]["pose"]["position"]["x"] == 3.0
+
+      # a new subscriber of /map gets the learned map at once, not the world's
+      s2 = open(world: Path.join(@examples, "office.wdf"))
+      {frames, _} = send_msg(s2, %{op: "subscribe", topic: "/map"})
+      assert Enum.any?(published(frames, "/map"), &(&1["data"] == [0, 100, -1, 0, 0, 50]))
+      Blackboard.takep({:map, robot, :_})
+    end
+
     test "/map is the world's occupancy grid" do
       s = open(world: Path.join(@examples, "office.wdf"))
 

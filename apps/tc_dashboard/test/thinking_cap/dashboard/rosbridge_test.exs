@@ -207,7 +207,8 @@ defmodule ThinkingCap.Dashboard.RosbridgeTest do
       names = Enum.map(one, &elem(&1, 0))
       assert {"/r1/scan", "sensor_msgs/msg/LaserScan"} in one
       assert {"/map", "nav_msgs/msg/OccupancyGrid"} in one
-      assert Enum.all?(~w(/scan /odom /pose /cmd_vel /tf /tf_static), &(&1 in names))
+      assert Enum.all?(~w(/scan /odom /pose /amcl_pose /cmd_vel /tf /tf_static), &(&1 in names))
+      assert {"/r1/map", "nav_msgs/msg/OccupancyGrid"} in one
       assert names == Enum.sort(names)
 
       two = Topics.list(robots(["r1", "r2"]), false) |> Enum.map(&elem(&1, 0))

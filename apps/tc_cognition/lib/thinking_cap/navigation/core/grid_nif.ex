@@ -32,6 +32,8 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def downsample(_cells, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
   def patch(_cells, _changes), do: :erlang.nif_error(:nif_not_loaded)
 
+  def shrink(_occupancy, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
+
   def frontiers(_occupancy, _w, _h, _free_below, _min_size),
     do: :erlang.nif_error(:nif_not_loaded)
 

@@ -28,6 +28,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
   alias ThinkingCap.Dashboard.Control
   alias ThinkingCap.Dashboard.Core.{Access, JSON}
   alias ThinkingCap.Dashboard.Rosbridge.{Messages, Services, Topics, WorldMap}
+  alias ThinkingCap.Navigation.OccupancyGrid
 
   @levels %{"info" => 0, "warning" => 1, "error" => 2, "none" => 3}
   @max_ids 256
@@ -277,7 +278,9 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
     case m["service"] do
       service when is_binary(service) and byte_size(service) <= 256 ->
         service = Topics.absolute(service)
-        topics = Topics.list(state.robots, state.world != nil)
+        # /map when there is a world, or a map a robot learned
+        map? = state.world != nil or Blackboard.rdp({:map, :_, :_}) != :none
+        topics = Topics.list(state.robots, map?)
 
         response =
           case Services.call(service, m["args"], topics) do
@@ -408,10 +411,27 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
   ## messages of the topics
 
   # what a subscription sends at once: the topics' latest values
-  defp initial(%{kind: :map}, state) do
-    case WorldMap.cells(state.world) do
-      {:ok, cells} -> {:ok, [{nil, Messages.occupancy_grid(cells)}], state}
-      {:error, reason} -> {:error, reason}
+  # the map a robot learned (ThinkingCap.Navigation.Mapper), else the world's
+  defp initial(%{kind: :map, robot: only} = topic, state) do
+    learned =
+      for {:map, id, %OccupancyGrid{} = map} <- Blackboard.rd_all({:map, :_, :_}),
+          robot = to_string(id),
+          only == nil or only == robot,
+          message <- messages(topic, :map, robot, map, state),
+          do: message
+
+    case {learned, only} do
+      {[_ | _], _} ->
+        {:ok, learned, state}
+
+      {[], nil} ->
+        case WorldMap.cells(state.world) do
+          {:ok, cells} -> {:ok, [{nil, Messages.occupancy_grid(cells)}], state}
+          {:error, reason} -> {:error, reason}
+        end
+
+      {[], _robot} ->
+        {:ok, [], state}
     end
   end
 
@@ -495,6 +515,9 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
       transforms -> [{robot, Messages.tf_message(transforms)}]
     end
   end
+
+  defp messages(%{kind: :map}, :map, robot, %OccupancyGrid{origin: {x, y}} = map, _state),
+    do: [{robot, Messages.occupancy_grid(%{map | origin: {x, y, 0.0}})}]
 
   defp messages(_topic, _tag, _robot, _payload, _state), do: []
 

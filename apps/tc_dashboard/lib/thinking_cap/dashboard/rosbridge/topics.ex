@@ -13,6 +13,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
     "scan" => {:scan, "sensor_msgs/msg/LaserScan"},
     "odom" => {:odom, "nav_msgs/msg/Odometry"},
     "pose" => {:pose, "geometry_msgs/msg/PoseWithCovarianceStamped"},
+    "amcl_pose" => {:pose, "geometry_msgs/msg/PoseWithCovarianceStamped"},
+    "map" => {:map, "nav_msgs/msg/OccupancyGrid"},
     "cmd_vel" => {:cmd_vel, "geometry_msgs/msg/Twist"},
     "tf" => {:tf, "tf2_msgs/msg/TFMessage"},
     "tf_static" => {:tf_static, "tf2_msgs/msg/TFMessage"}
@@ -25,7 +27,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
   }
 
   # the robot topics that have an un-namespaced alias when there is one robot
-  @aliased ~w(scan odom pose cmd_vel)
+  @aliased ~w(scan odom pose amcl_pose cmd_vel)
 
   @type robots :: %{String.t() => %{id: atom(), caps: map()}}
   @type topic :: %{
@@ -100,7 +102,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
 
   @doc """
   The topics served, `{name, type}` sorted by name: every robot's, the
-  global ones (`/map` only when there is a world), and the un-namespaced
+  global ones (`/map` only when there is a map: `world?`), and the un-namespaced
   aliases when there is exactly one robot.
   """
   @spec list(robots(), boolean()) :: [{String.t(), String.t()}]
@@ -134,7 +136,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
     sensors = Map.get(caps, :sensors, [])
     types = Enum.map(sensors, & &1[:type])
 
-    Enum.filter(~w(scan odom pose cmd_vel tf tf_static), fn
+    Enum.filter(~w(scan odom pose amcl_pose map cmd_vel tf tf_static), fn
       "scan" -> :laser in types
       "odom" -> :odometry in types
       _ -> true
@@ -173,12 +175,12 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
     do: Enum.uniq([sensor_tag(robots, r, :odometry, :odom), :pose])
 
   def tags(%{kind: :tf_static}, _robots), do: [:robot]
-  def tags(%{kind: :map}, _robots), do: []
+  def tags(%{kind: :map}, _robots), do: [:map]
 
   @doc "Whether a blackboard tuple `{tag, robot, _}` feeds a topic."
   @spec feeds?(topic(), atom(), String.t(), robots()) :: boolean()
   def feeds?(%{robot: r} = _topic, _tag, robot, _robots) when r != nil and r != robot, do: false
-  def feeds?(%{kind: :map}, _tag, _robot, _robots), do: false
+  def feeds?(%{kind: :map}, tag, _robot, _robots), do: tag == :map
   def feeds?(%{kind: :tf_static}, tag, _robot, _robots), do: tag == :robot
 
   def feeds?(%{kind: :tf}, tag, robot, robots),
