@@ -121,6 +121,12 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
 
     map = %OccupancyGrid{width: w, height: h, data: data, resolution: 0.1, version: 7}
     :ok = Blackboard.out({:map, ctx.robot, map}, key: {:map, ctx.robot})
+    # other tests read /map: this map must not outlive the test
+    on_exit(fn ->
+      Blackboard.takep({:map, ctx.robot, :_})
+      Blackboard.takep({:particles, ctx.robot, :_})
+    end)
+
     cloud = %{poses: for(i <- 1..50, do: {2.0 + i * 0.01, 2.5, 0.0}), stamp: 1.0}
     :ok = Blackboard.out({:particles, ctx.robot, cloud}, key: {:particles, ctx.robot})
 
