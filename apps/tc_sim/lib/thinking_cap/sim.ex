@@ -25,7 +25,8 @@ defmodule ThinkingCap.Sim do
   Every robot moves by its kinematics and odometry error model
   (`ThinkingCap.Robot.Kinematics`, `ThinkingCap.Robot.OdometryError`) under
   its current command; a move into an obstacle (a wall, a closed door, an
-  occupied map cell or another robot) is refused and closes the bumper.
+  occupied map cell, another robot or a walker) is refused and closes the
+  bumper. Walkers (`add_walker/3`) then take their step.
   Then each sensor due at this step reads (its `rate` from the RDF), seeing
   the world and the other robots (as discs of their footprint radius, where
   they stood at the start of the step). Robots are stepped in parallel, in
@@ -82,6 +83,8 @@ defmodule ThinkingCap.Sim do
       with `running: false` waits for `run_for/2` or `step/2`);
     * `:publish` - publish readings on the blackboard (default `false`);
     * `:shards` - processes stepping robots (default: the schedulers online);
+    * `:walkers` - people walking in the world: `[{id, opts}]` as
+      `add_walker/3`;
     * `:name` - a name to register.
   """
   @spec start_link(keyword()) :: GenServer.on_start()
@@ -150,6 +153,26 @@ defmodule ThinkingCap.Sim do
   def pose(sim, id), do: GenServer.call(sim, {:get, id, :pose})
 
   @doc """
+  Adds a walker: a person, a disc of `radius` (default 0.25 m) walking
+  `route` (a list of two points or waypoint names or more) at `speed`
+  (default 0.8 m/s), back and forth, or round with `loop: true`. Every
+  sensor sees walkers as it sees robots, a robot moving into one is
+  stopped (its bumper pressed), and a walker waits while its next step
+  would touch a robot or another walker. Deterministic: walkers draw no
+  random numbers.
+  """
+  @spec add_walker(sim(), term(), keyword()) :: :ok | {:error, String.t()}
+  def add_walker(sim, id, opts), do: GenServer.call(sim, {:add_walker, id, opts})
+
+  @doc "Removes a walker."
+  @spec remove_walker(sim(), term()) :: :ok | {:error, :no_walker}
+  def remove_walker(sim, id), do: GenServer.call(sim, {:remove_walker, id})
+
+  @doc "The walkers and where they stand."
+  @spec walkers(sim()) :: %{term() => {float(), float()}}
+  def walkers(sim), do: GenServer.call(sim, :walkers)
+
+  @doc """
   Moves a robot to `pose` (a point, a pose or a waypoint's name) without
   its knowing: its odometry carries on from where it was, as when a robot
   is carried away (a kidnapping). Refused if the robot would overlap
@@ -177,7 +200,7 @@ defmodule ThinkingCap.Sim do
 
   @doc """
   The clock (`time`, `steps`, `step`, `mode`, `running`, `lagged`
-  releases in real-time mode), `robots`, `shards`, `rays` cast (primary
+  releases in real-time mode), `robots`, `walkers`, `shards`, `rays` cast (primary
   rays: cone rays and beams, bounces not counted) and `blocked`
   robot-steps (moves refused because of a contact).
   """

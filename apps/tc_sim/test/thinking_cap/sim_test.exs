@@ -302,6 +302,64 @@ defmodule ThinkingCap.SimTest do
     end
   end
 
+  describe "walkers" do
+    test "a walker walks its route back and forth, seen by the laser", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {1, 5, 0}, owner: self())
+      :ok = Sim.add_walker(sim, :person, route: [{6, 2}, {6, 8}], speed: 1.0)
+      assert Sim.walkers(sim) == %{person: {6.0, 2.0}}
+
+      # at y = 5 after 3 s, right in front of the robot: a disc of 0.25 m at 5 m
+      :ok = Sim.run_for(sim, 3.0)
+      {:person, {6.0, y}} = Enum.at(Sim.walkers(sim), 0)
+      assert_in_delta y, 5.0, 0.02
+      [scan] = collect(sim, :r, 1, :laser)
+      assert_in_delta Enum.at(scan.ranges, 90), 5.0 - 0.25, 0.05
+
+      # at the end of the route it turns back
+      :ok = Sim.run_for(sim, 4.0)
+      {:person, {6.0, y}} = Enum.at(Sim.walkers(sim), 0)
+      assert_in_delta y, 7.0, 0.05
+      assert Sim.status(sim).walkers == 1
+    end
+
+    test "a robot driving into a walker is stopped; a walker waits for a robot in its way", %{
+      tmp_dir: dir
+    } do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      robot = T.robot!(dir, sensors: [[name: :bumper, type: :bumper, rate: 100]])
+      :ok = Sim.add_robot(sim, :r, description: robot, at: {3, 5, 0}, owner: self())
+      # a walker standing still on a route it cannot pass: the robot is on it
+      :ok = Sim.add_walker(sim, :person, route: [{6, 5}, {1, 5}], speed: 0.5)
+      Sim.command(sim, :r, {:velocity, 0.5, 0.0})
+      :ok = Sim.run_for(sim, 6.0)
+      {:ok, {x, _, _}} = Sim.pose(sim, :r)
+      {:person, {px, _}} = Enum.at(Sim.walkers(sim), 0)
+      # they met and neither went through the other
+      assert px - x >= 0.2 + 0.25 - 0.01
+      assert Sim.status(sim).blocked > 0
+      assert [%{pressed: true}] = collect(sim, :r, 1, :bumper)
+    end
+
+    test "walkers come back to their start on reset; bad routes are refused", %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)))
+      :ok = Sim.add_walker(sim, :a, route: [{2, 2}, {8, 2}], loop: true)
+      :ok = Sim.run_for(sim, 2.0)
+      refute Sim.walkers(sim).a == {2.0, 2.0}
+      :ok = Sim.reset(sim)
+      assert Sim.walkers(sim).a == {2.0, 2.0}
+
+      assert {:error, message} = Sim.add_walker(sim, :b, route: [{2, 2}])
+      assert message =~ "route"
+      assert {:error, message} = Sim.add_walker(sim, :a, route: [{3, 3}, {4, 4}])
+      assert message =~ "exists"
+      assert {:error, :no_walker} = Sim.remove_walker(sim, :nobody)
+      assert :ok = Sim.remove_walker(sim, :a)
+      assert Sim.walkers(sim) == %{}
+    end
+  end
+
   describe "kidnapping" do
     test "a teleported robot is elsewhere while its odometry carries on", %{tmp_dir: dir} do
       shelf = [name: :shelf, polygon: [{6, 4}, {8, 4}, {8, 6}, {6, 6}]]

@@ -60,8 +60,17 @@ defmodule ThinkingCap.Sim.Core.Server do
         lagged: 0,
         activity: nil,
         target: nil,
-        started_at: System.monotonic_time()
+        started_at: System.monotonic_time(),
+        walkers: %{}
       }
+
+      state =
+        Enum.reduce(Keyword.get(opts, :walkers, []), state, fn {id, wopts}, state ->
+          case add_walker(state, id, wopts) do
+            {:ok, state} -> state
+            {:error, message} -> raise ArgumentError, message
+          end
+        end)
 
       {:ok, schedule(state)}
     else
@@ -173,8 +182,112 @@ defmodule ThinkingCap.Sim.Core.Server do
     shards = Tuple.to_list(state.shards)
     Enum.each(shards, &GenServer.cast(&1, {:step, ref, state.step, time}))
     bodies = collect(ref, length(shards), state.bodies)
+    {walkers, bodies} = walk(state.walkers, bodies, state.dt)
     set_bodies(state.world, bodies, state.next_index)
-    %{state | step: state.step + 1, bodies: bodies}
+    %{state | step: state.step + 1, bodies: bodies, walkers: walkers}
+  end
+
+  ## Walkers
+
+  # People (discs) walking routes of points at their speed, back and forth
+  # (or round, `loop: true`); one waits while its next step would touch a
+  # robot or another walker. They are bodies of the ray caster, as robots
+  # are: every sensor sees them, and a robot moving into one is stopped.
+  defp add_walker(state, id, opts) do
+    with :ok <- new_walker(state, id),
+         {:ok, route} <- route(state.world, Keyword.get(opts, :route)),
+         {:ok, speed} <- positive(opts, :speed, 0.8),
+         {:ok, radius} <- positive(opts, :radius, 0.25),
+         {x, y} = hd(route),
+         true <-
+           World.free?(state.world, {x, y}, radius) ||
+             {:error, "walker #{inspect(id)}: #{inspect({x, y})} is not free"} do
+      {index, state} = take_index(state)
+
+      walker = %{
+        index: index,
+        route: List.to_tuple(route),
+        start: {x, y},
+        at: {x, y},
+        leg: 1,
+        dir: 1,
+        loop: Keyword.get(opts, :loop, false) == true,
+        speed: speed,
+        radius: radius
+      }
+
+      bodies = Map.put(state.bodies, index, {x, y, radius})
+      set_bodies(state.world, bodies, state.next_index)
+      {:ok, %{state | walkers: Map.put(state.walkers, id, walker), bodies: bodies}}
+    end
+  end
+
+  defp new_walker(state, id) do
+    cond do
+      Map.has_key?(state.walkers, id) -> {:error, "walker #{inspect(id)} exists already"}
+      Map.has_key?(state.robots, id) -> {:error, "#{inspect(id)} is a robot"}
+      true -> :ok
+    end
+  end
+
+  defp route(world, points) when is_list(points) and length(points) >= 2 do
+    points
+    |> Enum.reduce_while([], fn p, acc ->
+      case World.resolve_pose(world, p) do
+        {:ok, {x, y, _}} -> {:cont, [{x, y} | acc]}
+        {:error, message} -> {:halt, {:error, "walker route: #{message}"}}
+      end
+    end)
+    |> case do
+      {:error, _} = error -> error
+      list -> {:ok, Enum.reverse(list)}
+    end
+  end
+
+  defp route(_world, other),
+    do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
+
+  defp walk(walkers, bodies, _dt) when map_size(walkers) == 0, do: {walkers, bodies}
+
+  defp walk(walkers, bodies, dt) do
+    walkers
+    |> Enum.sort()
+    |> Enum.reduce({walkers, bodies}, fn {id, w}, {walkers, bodies} ->
+      w = step_walker(w, bodies, dt)
+      {x, y} = w.at
+      {Map.put(walkers, id, w), Map.put(bodies, w.index, {x, y, w.radius})}
+    end)
+  end
+
+  defp step_walker(w, bodies, dt) do
+    {x, y} = w.at
+    {tx, ty} = elem(w.route, w.leg)
+    d = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
+    step = w.speed * dt
+
+    if d <= step do
+      next_leg(%{w | at: {tx, ty}})
+    else
+      next = {x + (tx - x) * step / d, y + (ty - y) * step / d}
+      if clear?(next, w, bodies), do: %{w | at: next}, else: w
+    end
+  end
+
+  defp next_leg(%{leg: leg, dir: dir, route: route} = w) do
+    n = tuple_size(route)
+
+    cond do
+      w.loop -> %{w | leg: rem(leg + 1, n)}
+      leg + dir >= 0 and leg + dir < n -> %{w | leg: leg + dir}
+      true -> %{w | leg: leg - dir, dir: -dir}
+    end
+  end
+
+  defp clear?({x, y}, w, bodies) do
+    Enum.all?(bodies, fn
+      {i, _} when i == w.index -> true
+      {_, {bx, by, r}} -> (bx - x) ** 2 + (by - y) ** 2 > (r + w.radius + 0.05) ** 2
+    end)
   end
 
   defp collect(_ref, 0, bodies), do: bodies
@@ -250,6 +363,30 @@ defmodule ThinkingCap.Sim.Core.Server do
     end
   end
 
+  def handle_call({:add_walker, id, opts}, _from, state) do
+    case add_walker(state, id, opts) do
+      {:ok, state} -> {:reply, :ok, state}
+      {:error, message} -> {:reply, {:error, message}, state}
+    end
+  end
+
+  def handle_call({:remove_walker, id}, _from, state) do
+    case Map.pop(state.walkers, id) do
+      {nil, _} ->
+        {:reply, {:error, :no_walker}, state}
+
+      {w, walkers} ->
+        bodies = Map.delete(state.bodies, w.index)
+        set_bodies(state.world, bodies, state.next_index)
+
+        {:reply, :ok,
+         %{state | walkers: walkers, bodies: bodies, free_indexes: [w.index | state.free_indexes]}}
+    end
+  end
+
+  def handle_call(:walkers, _from, state),
+    do: {:reply, Map.new(state.walkers, fn {id, w} -> {id, w.at} end), state}
+
   def handle_call({:teleport, id, at}, _from, state) do
     with {:ok, {index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
          {:ok, {x, y, _} = pose} <- World.resolve_pose(state.world, at),
@@ -308,8 +445,16 @@ defmodule ThinkingCap.Sim.Core.Server do
           into: %{},
           do: {index, {x, y, r}}
 
+    walkers = Map.new(state.walkers, fn {id, w} -> {id, %{w | at: w.start, leg: 1, dir: 1}} end)
+
+    bodies =
+      Enum.reduce(walkers, bodies, fn {_id, %{at: {x, y}} = w}, acc ->
+        Map.put(acc, w.index, {x, y, w.radius})
+      end)
+
     set_bodies(world, bodies, state.next_index)
-    {:reply, :ok, %{state | world: world, step: 0, bodies: bodies, lagged: 0}}
+
+    {:reply, :ok, %{state | world: world, step: 0, bodies: bodies, lagged: 0, walkers: walkers}}
   end
 
   def handle_call(:time, _from, state), do: {:reply, state.step * state.dt, state}
@@ -342,6 +487,7 @@ defmodule ThinkingCap.Sim.Core.Server do
        mode: state.mode,
        running: state.running,
        robots: map_size(state.robots),
+       walkers: map_size(state.walkers),
        shards: tuple_size(state.shards),
        lagged: state.lagged,
        rays: :counters.get(state.counters, 1),
