@@ -5,12 +5,12 @@ defmodule ThinkingCap.Bench.Nav do
   `mix tc.bench nav [--map PATH.yaml ...] [--runs N] [--seed S] [--trace]`:
   autonomous navigation end to end on a map the robot is given. The
   simulated differential robot of `priv/examples/office_robot.rdf` (sonar
-  ring, laser, beacon sensor, odometry error on) runs the whole cognitive
-  stack (perception, EKF localization with beacons, blended fuzzy
+  ring, laser, odometry error on) runs the whole cognitive stack
+  (perception, laser localization without beacons, blended fuzzy
   behaviours, planner/monitor) in lockstep with the simulator
   (`ThinkingCap.Sim.LockstepController`), as fast as possible, in each
   `map_server` map (default: nav2's `turtlebot3_world` and `warehouse`,
-  `priv/maps/`) with beacons placed at random in free space, from N
+  `priv/maps/`), from N
   (default 50) start and goal pairs drawn with the seed from reachable
   free space.
 
@@ -71,7 +71,7 @@ defmodule ThinkingCap.Bench.Nav do
     [
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
-        {ThinkingCap.Navigation.Localizer, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
+        {ThinkingCap.Navigation.MCL, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner: {ThinkingCap.Planner.Monitor, [task: {:go_to, pair.goal}], period: 0.5}
     ]

@@ -6,8 +6,9 @@ defmodule ThinkingCap.Bench.NavUnknown do
   as `mix tc.bench nav` (the robot is given the map), but the true world
   also holds 8 boxes the robot was not told about, three of them on the
   shortest path from start to goal (one 0.4 to 0.7 m square at 30, 50 and
-  70 % of its length) and five elsewhere in free space, and (when the
-  simulator has walkers) a person walking through. The stack adds the map
+  70 % of its length) and five elsewhere in free space, and a person
+  walking back and forth across the path's middle (`ThinkingCap.Sim`'s
+  walkers), seen by every sensor. The stack adds the map
   builder (`ThinkingCap.Navigation.Mapper`, seeded with the given map) and
   plans on what it builds, repairing its plans with D* Lite.
 
@@ -49,16 +50,15 @@ defmodule ThinkingCap.Bench.NavUnknown do
           pairs
           |> Enum.with_index(1)
           |> Enum.map_reduce(rng, fn {pair, i}, rng ->
-            {boxes, rng} = boxes(grid, pair, rng)
-            truth = NavRun.write_wdf(tmp, "#{name}_#{i}", yaml, boxes)
-            {pair, reachable} = true_optimal(truth, radius, pair)
+            {truth, pair, reachable, rng} =
+              place_boxes(tmp, "#{name}_#{i}", yaml, grid, radius, pair, rng, 10)
 
             r =
               if reachable do
                 NavRun.run(truth, robot_wdf, pair,
                   seed: opts.seed * 1000 + i,
                   modules: &modules/1,
-                  walkers: walkers(pair)
+                  walkers: walkers(simworld_of(truth), pair)
                 )
               end
 
@@ -79,7 +79,7 @@ defmodule ThinkingCap.Bench.NavUnknown do
     [
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
-        {ThinkingCap.Navigation.Localizer, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
+        {ThinkingCap.Navigation.MCL, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
       mapper: {ThinkingCap.Navigation.Mapper, []},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner:
@@ -87,13 +87,43 @@ defmodule ThinkingCap.Bench.NavUnknown do
     ]
   end
 
-  # a person walking across the path's middle, when the simulator has walkers
-  defp walkers(pair) do
-    if function_exported?(Sim, :add_walker, 3) do
-      {x, y} = Enum.at(pair.path, div(length(pair.path), 2))
-      [[:person, [route: [{x - 2.0, y}, {x + 2.0, y}], speed: 0.8]]]
+  # a person walking across the path's middle, as far as the free space
+  # there goes each way (up to 3 m), back and forth
+  defp walkers(world, pair) do
+    path = List.to_tuple(pair.path)
+    n = tuple_size(path)
+    {x, y} = elem(path, div(n, 2))
+    {ax, ay} = elem(path, max(div(n, 2) - 3, 0))
+    {bx, by} = elem(path, min(div(n, 2) + 3, n - 1))
+    len = max(:math.sqrt((bx - ax) ** 2 + (by - ay) ** 2), 1.0e-9)
+    {nx, ny} = {-(by - ay) / len, (bx - ax) / len}
+    reach = fn sign -> free_reach(world, {x, y}, {sign * nx, sign * ny}, 0.0) end
+    {a, b} = {reach.(1), reach.(-1)}
+
+    if a + b >= 1.0 do
+      [[:person, [route: [{x + nx * a, y + ny * a}, {x - nx * b, y - ny * b}], speed: 0.8]]]
     else
       []
+    end
+  end
+
+  defp free_reach(world, {x, y} = p, {dx, dy} = d, s) do
+    next = s + 0.1
+
+    if next <= 3.0 and Sim.World.free?(world, {x + dx * next, y + dy * next}, 0.3),
+      do: free_reach(world, p, d, next),
+      else: s
+  end
+
+  # boxes that leave the goal reachable (drawn again if they do not)
+  defp place_boxes(tmp, name, yaml, grid, radius, pair, rng, tries) do
+    {boxes, rng} = boxes(grid, pair, rng)
+    truth = NavRun.write_wdf(tmp, name, yaml, boxes)
+
+    case true_optimal(truth, radius, pair) do
+      {pair, true} -> {truth, pair, true, rng}
+      {pair, false} when tries <= 1 -> {truth, pair, false, rng}
+      _ -> place_boxes(tmp, name, yaml, grid, radius, pair, rng, tries - 1)
     end
   end
 
@@ -149,6 +179,11 @@ defmodule ThinkingCap.Bench.NavUnknown do
   end
 
   defp dist({ax, ay}, {bx, by}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+
+  defp simworld_of(wdf) do
+    {:ok, world} = Sim.World.load(wdf)
+    world
+  end
 
   defp print(label, results) do
     s = NavRun.summary(results)

@@ -874,6 +874,7 @@ static ErlNifFunc funcs[] = {
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_new", 7, tc_nif_field_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_score", 4, tc_nif_field_score, 0},
+    {"field_through", 4, tc_nif_field_through, 0},
     {"field_search", 7, tc_nif_field_search, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"pf_new", 2, tc_nif_pf_new, 0},
     {"pf_spread", 3, tc_nif_pf_spread, 0},

@@ -25,12 +25,14 @@ defmodule ThinkingCap.Navigation.MCL do
   `beams` of its beams, evenly spread. A robot standing still is not
   weighed again, but its scan is still judged twice a second (below).
 
-  **Lost and found.** Each scan is also scored from the best particle
-  (the fit: the mean per-beam likelihood over the best possible, in
-  [0, 1]; the mean of a cloud still split between places fits nowhere).
-  The robot is taken to be lost (carried away, or started from a wrong
-  pose) when the fit falls under `lost_fit` while most beams land on
-  known map, `lost_after` times more often than not, or when the
+  **Lost and found.** Each scan is judged from the best particle (the
+  mean of a cloud still split between places stands nowhere): a laser
+  does not see through walls, so beams that pass through a wall of the
+  map well short of their end contradict the pose, while beams that end
+  short of one (a box, a person the map does not hold) contradict
+  nothing. The robot is taken to be lost (carried away, or started from a
+  wrong pose) when more than `lost_through` of the judged beams
+  contradict it, `lost_after` times more often than not, or when the
   particles stay spread wider than 0.5 m for twenty weighings, once a
   fresh cloud had ten weighings to settle. Then the whole map is searched
   for the scan (the estimate staying a candidate), the particles spread
@@ -40,7 +42,8 @@ defmodule ThinkingCap.Navigation.MCL do
   localization and mapping (no map to start from): a map half built has
   not the places to search. An initial pose given roughly
   (`initial_sigma` wider than 0.15 m) is sought round itself at the
-  first scan.
+  first scan. The fit of the scan (the mean per-beam likelihood over the
+  best possible, in [0, 1]) gives the confidence.
 
   ## Published
 
@@ -67,7 +70,7 @@ defmodule ThinkingCap.Navigation.MCL do
       `odometry_error`: generous multiples of its slips);
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
       `publish_period` (0.1 s), `map_every` (5 s);
-    * `lost_fit` (0.5), `lost_after` (3), `search_step` (0.2 m),
+    * `lost_through` (0.2), `lost_after` (3), `search_step` (0.2 m),
       `search_headings` (72).
   """
 
@@ -92,7 +95,7 @@ defmodule ThinkingCap.Navigation.MCL do
     update_angle: 0.05,
     publish_period: 0.1,
     map_every: 5.0,
-    lost_fit: 0.5,
+    lost_through: 0.2,
     lost_after: 3,
     search_step: 0.2,
     search_headings: 72
@@ -313,17 +316,23 @@ defmodule ThinkingCap.Navigation.MCL do
   defp judge(%{filter: %{map: nil}} = state, _beams, _many), do: state
 
   defp judge(%{filter: filter} = state, beams, many) do
-    case ParticleFilter.fit(filter, beams, ParticleFilter.best(filter)) do
-      nil ->
+    best = ParticleFilter.best(filter)
+
+    case {ParticleFilter.fit(filter, beams, best),
+          ParticleFilter.contradiction(filter, beams, best)} do
+      {nil, _} ->
         state
 
-      {fit, known} ->
-        # a good fit now and then (a particle thrown in that fits a place
-        # like this one) takes one poor one back, not all of them
+      {{fit, _known}, contradiction} ->
+        # beams seen through walls say the pose is wrong; a good scan now
+        # and then takes one poor one back, not all of them
+        limit = state.params[:lost_through]
+
         poor =
-          if fit < state.params[:lost_fit] and known >= 0.5,
-            do: state.poor + 1,
-            else: max(state.poor - 1, 0)
+          case contradiction do
+            {share, judged} when judged >= 10 and share > limit -> state.poor + 1
+            _ -> max(state.poor - 1, 0)
+          end
 
         # a cloud that stays spread wide has no place either
         {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(filter)

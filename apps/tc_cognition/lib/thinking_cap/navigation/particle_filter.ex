@@ -8,7 +8,12 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   when the fit falls short of what it was, and `relocalize/2` searches the
   whole map for the scan (a global correlative search) when the robot is
   lost. The numbers run in C (`c_src/tc_mcl.c`); this module holds the
-  filter's parameters and bookkeeping.
+  filter's parameters and bookkeeping. The injection is off by default
+  (`max_injection: 0.0`, as AMCL's recovery alphas are): in a map with
+  look-alike places, a box or a person in front of the laser makes the
+  true pose fit worse than a thrown-in particle at a look-alike place,
+  and the estimate jumped there; a robot really lost is found by
+  `relocalize/2`.
 
   Sensor model (Probabilistic Robotics 6.4): a beam ending `d` metres from
   the nearest obstacle of the map scores `z_hit · exp(−d²/2σ²) + z_rand /
@@ -37,6 +42,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     alphas: {0.1, 0.02, 0.05, 0.01},
     alpha_slow: 0.001,
     alpha_fast: 0.1,
+    max_injection: 0.0,
     w_slow: nil,
     w_fast: nil,
     free_poses: <<>>,
@@ -50,7 +56,9 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   A filter of `count` particles (default 500) spread around `pose` with
   standard deviations `{σ_xy, σ_θ}`. Options: `count`, `seed` (default 1),
   `sigma_hit`, `z_hit`, `z_rand`, `range_max` (the sensor model), `alphas`
-  (`{α1, α2, α3, α4}`, the motion model).
+  (`{α1, α2, α3, α4}`, the motion model), `max_injection` (the largest
+  share of particles augmented MCL may throw in at a resampling, default
+  0).
   """
   @spec new(pose(), {number(), number()}, keyword()) :: t()
   def new({x, y, th}, {s_xy, s_th}, opts \\ []) do
@@ -73,7 +81,8 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
       GridNif.pf_spread(set, {x * 1.0, y * 1.0, th * 1.0}, {s_xy * 1.0, s_xy * 1.0, s_th * 1.0})
 
     alphas = Keyword.get(opts, :alphas, base.alphas)
-    %{base | set: set, model: model, alphas: alphas}
+    injection = Keyword.get(opts, :max_injection, base.max_injection) * 1.0
+    %{base | set: set, model: model, alphas: alphas, max_injection: injection}
   end
 
   @doc """
@@ -147,7 +156,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
     if n_eff < pf.count / 2 do
       share = max(0.0, 1.0 - w_fast / max(w_slow, 1.0e-12))
-      :ok = GridNif.pf_resample(pf.set, min(share, 0.5), pf.free_poses)
+      :ok = GridNif.pf_resample(pf.set, min(share, pf.max_injection), pf.free_poses)
       {%{pf | n_eff: pf.count * 1.0}, mean}
     else
       {pf, mean}
@@ -185,6 +194,24 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
       {ll, known} = GridNif.field_score(pf.field, beams, model, pose)
       best = z_hit + z_rand / range_max
       {min(1.0, :math.exp(ll / used) / best), known / used}
+    end
+  end
+
+  @doc """
+  How much a scan contradicts the map from `pose`: the share of its beams
+  (those with an echo, over known map) that pass through a wall of the
+  map more than 0.25 m short of their end, in [0, 1], with the number of
+  beams judged; nil without a map or a beam to judge by. A laser does not
+  see through walls; a beam ending short of one (a box, a person the map
+  does not hold) contradicts nothing.
+  """
+  @spec contradiction(t(), binary(), pose()) :: {float(), non_neg_integer()} | nil
+  def contradiction(%__MODULE__{field: nil}, _beams, _pose), do: nil
+
+  def contradiction(%__MODULE__{} = pf, beams, pose) do
+    case GridNif.field_through(pf.field, beams, pf.model, pose) do
+      {_through, 0} -> nil
+      {through, judged} -> {through / judged, judged}
     end
   end
 

@@ -45,6 +45,8 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
 
   def field_score(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
 
+  def field_through(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
+
   def field_search(_field, _beams, _model, _step, _headings, _top, _box),
     do: :erlang.nif_error(:nif_not_loaded)
 
