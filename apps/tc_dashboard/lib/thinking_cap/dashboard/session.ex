@@ -95,7 +95,9 @@ defmodule ThinkingCap.Dashboard.Session do
     with {:ok, message} <- JSON.decode(text),
          {:ok, message} <- object(message),
          {:ok, reply, state} <- handle(message["op"], message, state) do
-      {:reply, List.wrap(reply), state}
+      # one reply is one frame, whatever the iodata's shape (jiffy returns
+      # a list for a long text: wrapping it made a frame of each piece)
+      {:reply, if(reply == :none, do: [], else: [reply]), state}
     else
       {:error, reason} -> {:reply, [error(id_of(text), reason)], state}
       {:error, id, reason} -> {:reply, [error(id, reason)], state}
@@ -141,7 +143,7 @@ defmodule ThinkingCap.Dashboard.Session do
 
   defp handle("ack", %{"seq" => seq}, state) when is_integer(seq) and seq > 0 do
     if seq <= state.seq,
-      do: {:ok, [], %{state | acked: max(seq, state.acked || 0)}},
+      do: {:ok, :none, %{state | acked: max(seq, state.acked || 0)}},
       else: {:error, "ack of telemetry frame #{seq}, but #{state.seq} were sent"}
   end
 

@@ -141,6 +141,19 @@ defmodule ThinkingCap.Dashboard.SessionTest do
     WSClient.close(client)
   end
 
+  test "a reply of a megabyte is one frame of valid JSON", ctx do
+    tag = :"big#{System.unique_integer([:positive])}"
+    text = String.duplicate("x", 2_100)
+    for i <- 1..500, do: ThinkingCap.Blackboard.out({tag, :"r#{i}", %{text: text, i: i}})
+    on_exit(fn -> for i <- 1..500, do: ThinkingCap.Blackboard.takep({tag, :"r#{i}", :_}) end)
+
+    {_welcome, client} = connect!(ctx.dashboard)
+    {reply, _client} = request(client, %{op: "query", template: [Atom.to_string(tag), "_", "_"]})
+    assert reply["op"] == "result"
+    assert length(reply["tuples"]) == 500
+    assert IO.iodata_length(:jiffy.encode(reply)) > 1_000_000
+  end
+
   @tag dashboard: [max_frame: 65_536]
   test "a frame above the size limit closes that socket; the server goes on", ctx do
     {_welcome, client} = connect!(ctx.dashboard)
