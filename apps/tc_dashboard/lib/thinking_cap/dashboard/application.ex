@@ -5,6 +5,7 @@ defmodule ThinkingCap.Dashboard.Application do
   #     their processes; the registry lets stop/0 close them),
   #   * Dashboard.Supervisor, a DynamicSupervisor for a running dashboard's
   #     telemetry collector (started by ThinkingCap.Dashboard.start/1),
+  #   * Core.RestartLimit, how often clients may restart modules,
   #   * Dashboard.Launcher, which starts the dashboard when an ADF that
   #     enables it starts on this node.
   # yaws runs as its own application, started and stopped with the dashboard.
@@ -15,6 +16,7 @@ defmodule ThinkingCap.Dashboard.Application do
     children = [
       {Registry, keys: :duplicate, name: ThinkingCap.Dashboard.Sockets},
       {DynamicSupervisor, name: ThinkingCap.Dashboard.Supervisor, strategy: :one_for_one},
+      ThinkingCap.Dashboard.Core.RestartLimit,
       ThinkingCap.Dashboard.Launcher
     ]
 

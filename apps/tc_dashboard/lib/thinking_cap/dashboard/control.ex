@@ -15,6 +15,7 @@ defmodule ThinkingCap.Dashboard.Control do
   Callers check the access rights; these functions check the arguments.
   """
 
+  alias ThinkingCap.Dashboard.Core.RestartLimit
   alias ThinkingCap.Blackboard
 
   @type robot :: atom()
@@ -104,7 +105,9 @@ defmodule ThinkingCap.Dashboard.Control do
   @doc """
   Restarts a running module by its ADF name (a string from a client, or an
   atom), of `robot` when given. Without a robot, a name that two robots'
-  modules share is refused, naming them.
+  modules share is refused, naming them. Restarts are rate limited, all
+  clients together (a module at most once every 5 s, 20 a minute in all):
+  the runtime's module supervisor gives up after 100 restarts in 10 s.
   """
   @spec restart(String.t() | atom(), String.t() | atom() | nil) :: :ok | {:error, String.t()}
   def restart(name, robot \\ nil) do
@@ -119,9 +122,11 @@ defmodule ThinkingCap.Dashboard.Control do
         {:error, "no module #{inspect(name)} is running#{if robot, do: " for robot #{robot}"}"}
 
       [%{name: name, robot: robot}] ->
-        case ThinkingCap.Runtime.restart({robot, name}) do
-          :ok -> :ok
-          {:error, :not_running} -> {:error, "module #{name} stopped meanwhile"}
+        with :ok <- RestartLimit.admit({robot, name}) do
+          case ThinkingCap.Runtime.restart({robot, name}) do
+            :ok -> :ok
+            {:error, :not_running} -> {:error, "module #{name} stopped meanwhile"}
+          end
         end
 
       several ->

@@ -65,6 +65,30 @@ defmodule ThinkingCap.Dashboard.ControlTest do
              Map.new(listed(name), &{&1["robot"], &1["restarts"]})
   end
 
+  test "a storm of restart requests cannot exhaust the module supervisor", %{tmp_dir: dir} do
+    name = :"stormy_#{System.unique_integer([:positive])}"
+    robot = :"r#{System.unique_integer([:positive])}"
+    path = Path.join(dir, "#{robot}.adf")
+
+    File.write!(path, """
+    [robot: :#{robot}, modules: [#{name}: [module: #{inspect(Quiet)}, activity: :event,
+                                           subscribe: [{:never_sent, :_, :_}]]]]
+    """)
+
+    {:ok, _} = Runtime.start(Config.read!(path))
+    on_exit(fn -> Runtime.stop({robot, name}) end)
+    supervisor = Process.whereis(ThinkingCap.Runtime.Modules)
+
+    results = for _ <- 1..200, do: Control.restart(to_string(name), to_string(robot))
+    assert Enum.count(results, &(&1 == :ok)) == 1
+    assert {:error, message} = List.last(results)
+    assert message =~ "try again"
+
+    # the supervisor lives on, and so does the module
+    assert Process.whereis(ThinkingCap.Runtime.Modules) == supervisor
+    wait_until(fn -> is_pid(Runtime.whereis({robot, name})) end)
+  end
+
   # the dashboard's telemetry entries for module `name`
   defp listed(name) do
     {_version, items} = ThinkingCap.Dashboard.Telemetry.changes_since(0)
