@@ -153,8 +153,8 @@ defmodule ThinkingCap.Dashboard.Session do
   defp handle("teleop", m, state) do
     with :ok <- may_control(m, state),
          {:ok, robot} <- robot(m),
-         {:ok, v} <- number(m, "v"),
-         {:ok, w} <- number(m, "w"),
+         {:ok, v} <- number(m, "v", 100),
+         {:ok, w} <- number(m, "w", 100),
          {:ok, _} <- wrap(m, Control.teleop(robot, v, w, by: state.by, sent_at: m["sent_at"])) do
       {:ok, ok(m), state}
     end
@@ -242,10 +242,19 @@ defmodule ThinkingCap.Dashboard.Session do
     end
   end
 
-  defp number(m, field) do
+  # a number no larger than `max` in size (an integer of 5,000 digits is
+  # refused here, not by the arithmetic it would break further on)
+  defp number(m, field, max) do
     case m[field] do
-      x when is_number(x) -> {:ok, x}
-      other -> {:error, m["id"], "#{field} must be a number, not #{inspect(other)}"}
+      x when is_number(x) and abs(x) <= max ->
+        {:ok, x * 1.0}
+
+      x when is_number(x) ->
+        {:error, m["id"], "#{field} must be a number from #{-max} to #{max}"}
+
+      other ->
+        {:error, m["id"],
+         "#{field} must be a number, not #{inspect(other, limit: 5, printable_limit: 40)}"}
     end
   end
 
@@ -256,16 +265,32 @@ defmodule ThinkingCap.Dashboard.Session do
     end
   end
 
-  defp target(%{"x" => x, "y" => y}) when is_number(x) and is_number(y),
-    do: {:ok, {x * 1.0, y * 1.0}}
+  # a point within 100 km of the origin, or the name of a waypoint or place
+  # the robots know (never a new atom)
+  defp target(%{"x" => _, "y" => _} = m) do
+    with {:ok, x} <- number(m, "x", 100_000), {:ok, y} <- number(m, "y", 100_000) do
+      {:ok, {x, y}}
+    end
+  end
 
-  defp target(%{"waypoint" => name} = m) when is_binary(name) do
-    {:ok, String.to_existing_atom(name)}
-  rescue
-    ArgumentError -> {:error, m["id"], "no waypoint #{inspect(name)}"}
+  defp target(%{"waypoint" => name} = m) when is_binary(name) and byte_size(name) <= 128 do
+    if name in known_places(),
+      do: {:ok, String.to_existing_atom(name)},
+      else: {:error, m["id"], "no waypoint or place #{inspect(name)}"}
   end
 
   defp target(m), do: {:error, m["id"], "a goal needs numbers x and y, or a waypoint name"}
+
+  # the waypoints, rooms and corridors of the dashboard's world, and the
+  # places of the maps the robots learned
+  defp known_places do
+    learned =
+      for {:topology, _robot, %{places: places}} <- Blackboard.rd_all({:topology, :_, :_}),
+          {name, _} <- places,
+          do: to_string(name)
+
+    Telemetry.world_places() ++ learned
+  end
 
   defp template(%{"template" => list} = m)
        when is_list(list) and list != [] and length(list) <= 16 do

@@ -70,10 +70,22 @@ defmodule ThinkingCap.Dashboard.Telemetry do
     :error, :badarg -> "null"
   end
 
+  @doc "The names of the world's waypoints, rooms and corridors (strings)."
+  @spec world_places() :: [String.t()]
+  def world_places do
+    case :ets.lookup(@table, :places) do
+      [{:places, names}] -> names
+      [] -> []
+    end
+  catch
+    :error, :badarg -> []
+  end
+
   @impl true
   def init(config) do
     table = :ets.new(@table, [:named_table, :protected, :set, read_concurrency: true])
-    :ets.insert(table, [{:version, 0}, {:world, world(config.world)}])
+    wdf = read_world(config.world)
+    :ets.insert(table, [{:version, 0}, {:world, world(wdf)}, {:places, places(wdf)}])
 
     for tag <- @streams, do: {:ok, _} = Blackboard.subscribe({tag, :_, :_})
 
@@ -190,22 +202,27 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   defp key(tag, id) when is_atom(id) or is_binary(id) or is_number(id), do: "#{tag}/#{id}"
   defp key(tag, id), do: "#{tag}/#{inspect(id)}"
 
-  defp world(nil), do: "null"
-
-  defp world(path) when is_binary(path) do
+  defp read_world(path) when is_binary(path) do
     case ThinkingCap.Config.read(path) do
       {:ok, wdf} ->
-        world(wdf)
+        wdf
 
       {:error, errors} ->
         Logger.warning("dashboard: #{ThinkingCap.Config.format_errors(errors)}")
-        "null"
+        nil
     end
   end
+
+  defp read_world(other), do: other
 
   defp world(%ThinkingCap.Config.WDF{} = wdf) do
     wdf |> Map.from_struct() |> Map.delete(:file) |> JSON.encode!() |> IO.iodata_to_binary()
   end
 
   defp world(_other), do: "null"
+
+  defp places(%ThinkingCap.Config.WDF{} = wdf),
+    do: Enum.map(wdf.waypoints ++ wdf.rooms ++ wdf.corridors, &Atom.to_string(&1.name))
+
+  defp places(_other), do: []
 end

@@ -68,6 +68,7 @@ defmodule ThinkingCap.Dashboard.SessionTest do
     end
   end
 
+  @tag dashboard: [world: @office]
   test "controlling actions become blackboard writes, teleoperation clamped to the limits", ctx do
     {_welcome, client} = connect!(ctx.dashboard)
 
@@ -95,6 +96,18 @@ defmodule ThinkingCap.Dashboard.SessionTest do
 
     {%{"op" => "ok"}, client} = request(client, %{op: "goal", robot: ctx.name, waypoint: "dock"})
     assert {:ok, {:task, _, %{task: {:go_to, :dock}}}} = Blackboard.rdp({:task, ctx.robot, :_})
+
+    # a place of the map a robot learned is a goal too
+    Blackboard.out({:topology, ctx.robot, %{places: %{learned_room_7: %{}}}},
+      key: {:topology, ctx.robot}
+    )
+
+    {%{"op" => "ok"}, client} =
+      request(client, %{op: "goal", robot: ctx.name, waypoint: "learned_room_7"})
+
+    assert {:ok, {:task, _, %{task: {:go_to, :learned_room_7}}}} =
+             Blackboard.rdp({:task, ctx.robot, :_})
+
     WSClient.close(client)
   end
 
@@ -118,7 +131,12 @@ defmodule ThinkingCap.Dashboard.SessionTest do
       ~s({"op": "tail", "template": ["pose", "_", "_"]}),
       ~s({"op": "restart", "module": "no_such_module_q9z"}),
       ~s({"op": "restart", "module": "no_such_module_q9z", "robot": {"a": 1}}),
-      String.duplicate("[", 5000)
+      String.duplicate("[", 5000),
+      # numbers too large for a robot, and an atom that exists but names no place
+      ~s({"op": "teleop", "robot": "#{ctx.name}", "v": 1#{String.duplicate("0", 5000)}, "w": 0}),
+      ~s({"op": "teleop", "robot": "#{ctx.name}", "v": 0.1, "w": -1e300}),
+      ~s({"op": "goal", "robot": "#{ctx.name}", "x": -1e300, "y": 0}),
+      ~s({"op": "goal", "robot": "#{ctx.name}", "waypoint": "erlang"})
     ]
 
     client =
@@ -128,6 +146,17 @@ defmodule ThinkingCap.Dashboard.SessionTest do
         assert is_binary(reply["message"]) and reply["message"] != "", text
         client
       end)
+
+    # the error says which field is wrong
+    for {text, expected} <- [
+          {~s({"op": "teleop", "robot": "#{ctx.name}", "v": 1e12, "w": 0}), "v must be"},
+          {~s({"op": "goal", "robot": "#{ctx.name}", "x": 1, "y": 1e9}), "y must be"},
+          {~s({"op": "goal", "robot": "#{ctx.name}", "waypoint": "erlang"}), "no waypoint"}
+        ] do
+      :ok = WSClient.send_text(client, text)
+      {:ok, reply, _} = WSClient.recv_json_until(client, &(&1["op"] == "error"))
+      assert reply["message"] =~ expected
+    end
 
     # binary frames are not understood either
     :ok = WSClient.send_frame(client, 2, <<1, 2, 3>>)

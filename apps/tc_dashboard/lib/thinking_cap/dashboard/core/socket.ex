@@ -11,8 +11,9 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
   #     flooding (@flood_close drops without a pause) is closed (1008);
   #   * a send timeout: a browser that stops reading is dropped, so it never
   #     holds the process that serves it (nor anything upstream of it);
-  #   * a handler that raises gets its error logged and an error reply sent,
-  #     the socket stays open;
+  #   * a handler that raises gets an error reply, and its error logged
+  #     once a minute per client at most, without a stack trace; the
+  #     socket stays open;
   #   * binary frames get an error reply.
 
   require Logger
@@ -72,6 +73,7 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
            budget: RateBudget.new(@rate, @burst),
            open: false,
            held: [],
+           logged_at: nil,
            send_timeout: conn.config[:send_timeout] || @send_timeout
          }}
 
@@ -185,10 +187,21 @@ defmodule ThinkingCap.Dashboard.Core.Socket do
     end
   rescue
     exception ->
-      Logger.error(
-        "dashboard: #{inspect(state.handler)}.#{fun} failed: " <>
-          Exception.format(:error, exception, __STACKTRACE__)
-      )
+      # once a minute per client at most, and no stack trace: a client
+      # sending the same bad message on and on must not fill the log
+      now = now()
+
+      state =
+        if state.logged_at == nil or now - state.logged_at >= 60_000 do
+          Logger.error(
+            "dashboard: #{inspect(state.handler)}.#{fun} failed on a client's message: " <>
+              Exception.message(exception)
+          )
+
+          %{state | logged_at: now}
+        else
+          state
+        end
 
       {:reply,
        [frame(state.handler.error_frame("internal error: #{Exception.message(exception)}"))],
