@@ -45,7 +45,8 @@ defmodule ThinkingCap.Dashboard do
           token: String.t(),
           host: String.t(),
           port: :inet.port_number(),
-          rosbridge_port: :inet.port_number() | nil
+          rosbridge_port: :inet.port_number() | nil,
+          estop_port: :inet.port_number() | nil
         }
 
   @doc """
@@ -95,12 +96,24 @@ defmodule ThinkingCap.Dashboard do
     # the appmods read the configuration: it is there before a port opens
     :persistent_term.put(@config, Map.put(config, :ready, false))
 
-    limits = Map.take(config, [:max_connections, :idle_timeout])
+    servers = Yaws.bind_all(servers)
+
+    limits = %{
+      max_connections: max_connections(config, length(servers)),
+      idle_timeout: config.idle_timeout
+    }
 
     with {:ok, _} <- start_telemetry(config),
-         {:ok, ports} <- Yaws.start(servers, limits) do
+         {:ok, ports} <- Yaws.start(servers, limits),
+         {:ok, _} <- start_child({ThinkingCap.Dashboard.Core.Watchdog, {servers, limits}}),
+         {:ok, estop} <- start_estop(config) do
       config =
-        Map.merge(config, %{port: ports.page, rosbridge_port: ports[:rosbridge], ready: true})
+        Map.merge(config, %{
+          port: ports.page,
+          rosbridge_port: ports[:rosbridge],
+          estop_port: estop && ThinkingCap.Dashboard.Core.EstopListener.port(),
+          ready: true
+        })
 
       :persistent_term.put(@config, config)
       {:ok, info()}
@@ -118,12 +131,13 @@ defmodule ThinkingCap.Dashboard do
   """
   @spec stop(keyword()) :: :ok
   def stop(opts \\ []) do
+    # the watchdog first, or it would start the web server again
+    for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),
+        do: DynamicSupervisor.terminate_child(ThinkingCap.Dashboard.Supervisor, pid)
+
     ThinkingCap.Dashboard.Core.Socket.close_all()
     if Keyword.get(opts, :stop_yaws, true), do: Yaws.stop()
     ThinkingCap.Dashboard.Core.RuntimeDir.remove()
-
-    for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),
-        do: DynamicSupervisor.terminate_child(ThinkingCap.Dashboard.Supervisor, pid)
 
     :persistent_term.erase(@config)
     :ok
@@ -139,7 +153,8 @@ defmodule ThinkingCap.Dashboard do
           token: c.token,
           host: c.host,
           port: c.port,
-          rosbridge_port: c.rosbridge_port
+          rosbridge_port: c.rosbridge_port,
+          estop_port: c.estop_port
         }
 
       _starting_or_stopped ->
@@ -190,11 +205,35 @@ defmodule ThinkingCap.Dashboard do
 
   defp token(opts), do: {:ok, opts.token || Access.new_token()}
 
-  defp start_telemetry(config) do
-    DynamicSupervisor.start_child(
-      ThinkingCap.Dashboard.Supervisor,
-      {ThinkingCap.Dashboard.Telemetry, config}
-    )
+  defp start_telemetry(config), do: start_child({ThinkingCap.Dashboard.Telemetry, config})
+
+  defp start_estop(%{estop_port: nil}), do: {:ok, nil}
+
+  defp start_estop(config),
+    do:
+      start_child(
+        {ThinkingCap.Dashboard.Core.EstopListener, Map.take(config, [:host, :estop_port])}
+      )
+
+  defp start_child(spec),
+    do: DynamicSupervisor.start_child(ThinkingCap.Dashboard.Supervisor, spec)
+
+  # connections per listener: the option, but never so many that the
+  # listeners together could take the node's last file descriptors (yaws
+  # exits when accept fails for want of one); a quarter of them is kept
+  # for the rest of the node (code loading, serial lines, the timing worker)
+  defp max_connections(config, listeners) do
+    fds =
+      :erlang.system_info(:check_io)
+      |> List.wrap()
+      |> List.flatten()
+      |> Enum.find_value(65_536, fn
+        {:max_fds, n} when is_integer(n) -> n
+        _ -> nil
+      end)
+
+    budget = max(div(div(fds * 3, 4) - 64, listeners), 16)
+    min(config.max_connections, budget)
   end
 
   defp url_host("0.0.0.0"), do: "127.0.0.1"

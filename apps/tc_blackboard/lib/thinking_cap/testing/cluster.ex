@@ -30,6 +30,7 @@ defmodule ThinkingCap.Testing.Cluster do
           | {:log_level, Logger.level()}
           | {:names, [atom()]}
           | {:cookie, atom()}
+          | {:max_fds, pos_integer()}
 
   @doc """
   Starts `count` nodes, starts `apps` (default `[:tc_blackboard]`) on each
@@ -39,7 +40,8 @@ defmodule ThinkingCap.Testing.Cluster do
   `names:` gives the nodes' short names (they run on host 127.0.0.1;
   default: random names), so a test can write them into an ADF or start a
   killed node again under its name; `cookie:` joins nodes started earlier
-  (`cookie/1` tells theirs).
+  (`cookie/1` tells theirs); `max_fds:` runs them under that many file
+  descriptors (`ulimit -n`), to see what running out of them does.
   """
   @spec start(pos_integer(), [option()]) :: [t()]
   def start(count, opts \\ []) do
@@ -84,6 +86,18 @@ defmodule ThinkingCap.Testing.Cluster do
         [~c"-tc_runtime", ~c"beam_priority", ~c"nil", ~c"-pa" | :code.get_path()]
 
     spec = %{name: name, host: ~c"127.0.0.1", longnames: true, args: args}
+
+    spec =
+      case opts[:max_fds] do
+        nil ->
+          spec
+
+        n ->
+          erl = System.find_executable("erl")
+          script = ~c"ulimit -n #{n} && exec #{erl} \"$@\""
+          Map.put(spec, :exec, {~c"/bin/sh", [~c"-c", script, ~c"sh"]})
+      end
+
     # Without a :connection the peer is controlled over distribution.
     spec = if connection == :dist, do: spec, else: Map.put(spec, :connection, :standard_io)
     {:ok, peer, node} = :peer.start(spec)

@@ -4,7 +4,9 @@ defmodule ThinkingCap.Dashboard.Application do
   #   * Dashboard.Sockets, a registry of the open WebSockets (yaws owns
   #     their processes; the registry lets stop/0 close them),
   #   * Dashboard.Supervisor, a DynamicSupervisor for a running dashboard's
-  #     telemetry collector (started by ThinkingCap.Dashboard.start/1),
+  #     telemetry collector, its web server's watchdog (Core.Watchdog) and
+  #     its E-stop port (Core.EstopListener), started by
+  #     ThinkingCap.Dashboard.start/1,
   #   * Core.RestartLimit, how often clients may restart modules,
   #   * Dashboard.Launcher, which starts the dashboard when an ADF that
   #     enables it starts on this node.
@@ -13,6 +15,8 @@ defmodule ThinkingCap.Dashboard.Application do
 
   @impl true
   def start(_type, _args) do
+    ThinkingCap.Dashboard.Core.LogLimit.install()
+
     children = [
       {Registry, keys: :duplicate, name: ThinkingCap.Dashboard.Sockets},
       {DynamicSupervisor, name: ThinkingCap.Dashboard.Supervisor, strategy: :one_for_one},

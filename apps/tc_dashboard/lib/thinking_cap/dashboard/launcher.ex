@@ -28,6 +28,7 @@ defmodule ThinkingCap.Dashboard.Launcher do
           :host,
           :port,
           :rosbridge_port,
+          :estop_port,
           :public_view,
           :token_file,
           :max_connections,
@@ -41,7 +42,10 @@ defmodule ThinkingCap.Dashboard.Launcher do
       case ThinkingCap.Dashboard.start(opts) do
         {:ok, info} ->
           # never the token: logs outlive the run and others may read them
-          Logger.info("dashboard for #{inspect(robot)} on #{info.host}:#{info.port}")
+          Logger.info(
+            "dashboard for #{inspect(robot)} on #{info.host}:#{info.port}" <>
+              if(info.estop_port, do: ", E-stop port #{info.estop_port}", else: "")
+          )
 
         {:error, reason} ->
           Logger.error("dashboard for #{inspect(robot)} could not start: #{inspect(reason)}")

@@ -19,8 +19,14 @@ defmodule ThinkingCap.Config.ADF do
       {:string,
        default: nil,
        doc: "a file holding the access token, readable by its owner only (default: a new token)"},
+    estop_port:
+      {{:int_range, 0, 65_535},
+       default: nil,
+       doc:
+         "a port apart from the web server that only engages E-stops (`curl -X POST HOST:PORT/estop`), reachable during a flood"},
     max_connections:
-      {{:int_range, 1, 65_535}, default: 512, doc: "open connections at most, beyond: refused"},
+      {{:int_range, 1, 65_535},
+       default: 512, doc: "open connections at most per listener, beyond: closed at once"},
     idle_timeout:
       {{:int_range, 100, 600_000}, default: 5_000, doc: "ms an HTTP connection may stay idle"}
   ]

@@ -12,8 +12,14 @@ defmodule ThinkingCap.Dashboard.Core.Options do
     token: {nil, "the access token (default: a new random one)", :token?},
     token_file:
       {nil, "a file holding the access token (readable by its owner only)", :string_or_nil?},
+    estop_port:
+      {nil,
+       "a port that only engages E-stops (`POST /estop`), apart from the web server " <>
+         "(0: any free port, nil: none)", :port_or_nil?},
     max_connections:
-      {512, "open connections at most, both servers together (beyond: refused)", :pos_int?},
+      {512,
+       "open connections at most per listener (beyond: closed at once); lowered so " <>
+         "that the listeners never take more than 3/4 of the node's file descriptors", :pos_int?},
     idle_timeout: {5_000, "ms a kept-alive HTTP connection may stay idle", :pos_int?},
     origins: {[], "browser origins allowed besides the dashboard's own", :strings?},
     world: {nil, "the WDF shown on the map (a path or a ThinkingCap.Config.WDF)", :any?},

@@ -35,7 +35,7 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
   def start(servers, limits \\ %{}) do
     with true <- ensure_available() || {:error, :yaws_not_installed},
          :ok <- load_yaws(),
-         servers = Enum.map(servers, &bind/1),
+         servers = bind_all(servers),
          {:ok, sc_groups, gc, child_specs} <-
            :yaws_api.embedded_start_conf(
              docroot(servers),
@@ -87,6 +87,10 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
 
   defp bind(server), do: server
 
+  @doc "The servers as bound: each port 0 replaced by a free port."
+  @spec bind_all([map()]) :: [map()]
+  def bind_all(servers), do: Enum.map(servers, &bind/1)
+
   defp docroot([first | _]), do: to_charlist(first.docroot)
 
   defp sconf(server) do
@@ -127,7 +131,9 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
     end)
   end
 
-  defp ip(host) when is_binary(host) do
+  @doc "The address of `host`, an IP address string."
+  @spec ip(String.t()) :: :inet.ip_address()
+  def ip(host) when is_binary(host) do
     case :inet.parse_address(to_charlist(host)) do
       {:ok, ip} -> ip
       {:error, _} -> raise ArgumentError, "dashboard host #{inspect(host)} is not an IP address"

@@ -1,0 +1,223 @@
+defmodule ThinkingCap.Dashboard.Core.EstopListener do
+  @moduledoc false
+  # A listener that does one thing: engage E-stops. It is not the web
+  # server, so a flood of connections to the page or to rosbridge (or the
+  # web server being down) leaves it free:
+  #
+  #     curl -X POST http://127.0.0.1:4001/estop        # every robot
+  #     curl -X POST http://127.0.0.1:4001/estop/r1     # one robot
+  #
+  # Engaging an E-stop needs no token (as on the page: anyone who sees the
+  # robot may stop it); releasing one is not offered here. Its own flood
+  # cannot block it either: at most @max_open connections at once, each
+  # given @read_timeout ms to send its request; beyond the cap a
+  # connection gets a 503 at once and is closed. Nor can running out of
+  # file descriptors: it holds a spare one (/dev/null open), which it
+  # gives up to accept when the node has no other left.
+
+  use GenServer
+  require Logger
+
+  alias ThinkingCap.Dashboard.Control
+
+  @max_open 16
+  @read_timeout 1_000
+  @max_headers 32
+  @accept_wait 200
+
+  @doc "Starts the listener on `estop_port` (0: a free port) of `host`."
+  @spec start_link(%{host: String.t(), estop_port: :inet.port_number()}) :: GenServer.on_start()
+  def start_link(opts), do: GenServer.start_link(__MODULE__, opts, name: __MODULE__)
+
+  @doc "The port it listens on; nil when it is not running."
+  @spec port() :: :inet.port_number() | nil
+  def port do
+    case Process.whereis(__MODULE__) do
+      nil -> nil
+      _pid -> GenServer.call(__MODULE__, :port)
+    end
+  end
+
+  @impl true
+  def init(%{host: host, estop_port: port}) do
+    options = [
+      :binary,
+      packet: :http_bin,
+      active: false,
+      reuseaddr: true,
+      backlog: 128,
+      ip: ThinkingCap.Dashboard.Core.Yaws.ip(host)
+    ]
+
+    case :gen_tcp.listen(port, options) do
+      {:ok, listen} ->
+        {:ok, port} = :inet.port(listen)
+        {:ok, %{listen: listen, port: port, open: %{}, spare: spare()}, 0}
+
+      {:error, reason} ->
+        {:stop, "E-stop port #{port}: #{:inet.format_error(reason)}"}
+    end
+  end
+
+  @impl true
+  def handle_call(:port, _from, state), do: {:reply, state.port, state, 0}
+
+  # a timeout of 0 fires when the mailbox is empty: the listener accepts
+  # (waiting a little) between its messages, which always get their turn
+  @impl true
+  def handle_info(:timeout, state) do
+    state =
+      case :gen_tcp.accept(state.listen, @accept_wait) do
+        {:ok, socket} ->
+          serve(socket, state)
+
+        {:error, :timeout} ->
+          state
+
+        {:error, reason} when reason in [:emfile, :enfile] ->
+          # no descriptor left: the spare one serves this connection
+          accept_on_spare(state)
+
+        {:error, reason} ->
+          Logger.warning("dashboard: E-stop port accept failed: #{inspect(reason)}")
+          Process.sleep(50)
+          state
+      end
+
+    {:noreply, state, 0}
+  end
+
+  def handle_info({:DOWN, ref, :process, _, _}, state),
+    do: {:noreply, %{state | open: Map.delete(state.open, ref)}, 0}
+
+  def handle_info(_other, state), do: {:noreply, state, 0}
+
+  defp spare do
+    case File.open("/dev/null", [:read]) do
+      {:ok, file} -> file
+      {:error, _} -> nil
+    end
+  end
+
+  defp accept_on_spare(%{spare: nil} = state) do
+    Process.sleep(50)
+    %{state | spare: spare()}
+  end
+
+  defp accept_on_spare(state) do
+    File.close(state.spare)
+
+    # served here, not in a process of its own: descriptors are short
+    with {:ok, socket} <- :gen_tcp.accept(state.listen, @accept_wait), do: handle(socket)
+    %{state | spare: spare()}
+  end
+
+  defp serve(socket, state) do
+    state = forget_ended(state)
+
+    if map_size(state.open) >= @max_open do
+      reply(socket, 503, "busy: too many connections to the E-stop port, try again\n")
+      state
+    else
+      {pid, ref} = spawn_monitor(fn -> receive(do: (:go -> handle(socket))) end)
+
+      case :gen_tcp.controlling_process(socket, pid) do
+        :ok ->
+          send(pid, :go)
+          %{state | open: Map.put(state.open, ref, pid)}
+
+        {:error, _} ->
+          Process.exit(pid, :kill)
+          :gen_tcp.close(socket)
+          state
+      end
+    end
+  end
+
+  # the connections that ended while the listener waited in accept
+  defp forget_ended(state) do
+    receive do
+      {:DOWN, ref, :process, _, _} -> forget_ended(%{state | open: Map.delete(state.open, ref)})
+    after
+      0 -> state
+    end
+  end
+
+  defp handle(socket) do
+    deadline = System.monotonic_time(:millisecond) + @read_timeout
+
+    case read_request(socket, deadline) do
+      {:ok, method, path} -> respond(socket, method, path)
+      {:error, :bad_request} -> reply(socket, 400, "bad request\n")
+      {:error, _closed_or_slow} -> :gen_tcp.close(socket)
+    end
+  end
+
+  defp read_request(socket, deadline) do
+    case recv(socket, deadline) do
+      {:ok, {:http_request, method, {:abs_path, path}, _version}} ->
+        with :ok <- skip_headers(socket, deadline, @max_headers), do: {:ok, method, path}
+
+      {:ok, _other} ->
+        {:error, :bad_request}
+
+      error ->
+        error
+    end
+  end
+
+  defp skip_headers(_socket, _deadline, 0), do: {:error, :bad_request}
+
+  defp skip_headers(socket, deadline, left) do
+    case recv(socket, deadline) do
+      {:ok, :http_eoh} -> :ok
+      {:ok, {:http_header, _, _, _, _}} -> skip_headers(socket, deadline, left - 1)
+      {:ok, _other} -> {:error, :bad_request}
+      error -> error
+    end
+  end
+
+  defp recv(socket, deadline) do
+    case deadline - System.monotonic_time(:millisecond) do
+      left when left > 0 -> :gen_tcp.recv(socket, 0, left)
+      _ -> {:error, :timeout}
+    end
+  end
+
+  defp respond(socket, :POST, "/estop"), do: engage(socket, Control.robots())
+
+  defp respond(socket, :POST, "/estop/" <> name) do
+    case Control.robot(name) do
+      {:ok, robot} -> engage(socket, [robot])
+      {:error, message} -> reply(socket, 404, message <> "\n")
+    end
+  end
+
+  defp respond(socket, _method, "/estop" <> _),
+    do: reply(socket, 405, "POST /estop (every robot) or POST /estop/NAME (one robot)\n")
+
+  defp respond(socket, _method, _path),
+    do: reply(socket, 404, "this port only engages E-stops: POST /estop or /estop/NAME\n")
+
+  defp engage(socket, []), do: reply(socket, 404, "no robot is running here\n")
+
+  defp engage(socket, robots) do
+    Enum.each(robots, &Control.estop(&1, :estop_port))
+    Logger.warning("dashboard: E-stop engaged on the E-stop port for #{inspect(robots)}")
+    reply(socket, 200, "E-stop engaged: #{Enum.join(robots, ", ")}\n")
+  end
+
+  defp reply(socket, status, body) do
+    reason = %{200 => "OK", 400 => "Bad Request", 404 => "Not Found", 405 => "Method Not Allowed"}
+
+    _ =
+      :gen_tcp.send(socket, [
+        "HTTP/1.1 #{status} #{Map.get(reason, status, "Service Unavailable")}\r\n",
+        "content-type: text/plain\r\ncontent-length: #{byte_size(body)}\r\n",
+        "connection: close\r\n\r\n",
+        body
+      ])
+
+    :gen_tcp.close(socket)
+  end
+end
