@@ -24,7 +24,10 @@ defmodule ThinkingCap.Umbrella.MixProject do
           tc_robot: :permanent,
           tc_sim: :permanent,
           tc_cognition: :permanent,
-          tc_dashboard: :permanent
+          tc_dashboard: :permanent,
+          # loaded, not started: the dashboard starts it when an ADF wants
+          # it (apps/tc_dashboard/mix.exs puts it on the code path)
+          yaws: :load
         ],
         include_executables_for: [:unix],
         rel_templates_path: "rel",

@@ -1,6 +1,28 @@
-# Debian's yaws lives outside OTP's library directory: put its ebin on the
-# code path so the compiler (and `mix`) know its modules.
-for ebin <- Path.wildcard("/usr/lib/yaws-*/ebin"), do: Code.prepend_path(ebin)
+# Debian's yaws lives outside OTP's library directory (/usr/lib/yaws-*).
+# A copy of it under _build/vendor goes on the code path, so the compiler,
+# mix and the tests know its modules, and `mix release` takes it into the
+# release (taken from /usr/lib, the release's boot script would get OTP's
+# own paths wrong: /usr/lib would be their common root).
+vendor = Path.expand("../../_build/vendor", __DIR__)
+
+for source <- Path.wildcard("/usr/lib/yaws-*") do
+  target = Path.join(vendor, Path.basename(source))
+
+  unless File.exists?(Path.join(target, "ebin/yaws.app")) do
+    partial = target <> ".partial"
+    File.rm_rf!(partial)
+    File.mkdir_p!(partial)
+
+    for sub <- ["ebin", "priv", "include"],
+        File.dir?(Path.join(source, sub)),
+        do: File.cp_r!(Path.join(source, sub), Path.join(partial, sub))
+
+    File.rm_rf!(target)
+    File.rename!(partial, target)
+  end
+
+  Code.prepend_path(Path.join(target, "ebin"))
+end
 
 defmodule ThinkingCap.Dashboard.MixProject do
   use Mix.Project

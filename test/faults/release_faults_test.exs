@@ -37,6 +37,20 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
       {"TC_INTERFACE", "127.0.0.1"}
     ]
 
+    # a weak cookie or an interface that is not this host's is refused
+    # at start, saying which
+    for {bad, message} <- [
+          {[{"RELEASE_COOKIE", "short"}], "at least 20"},
+          {[{"RELEASE_COOKIE", String.duplicate(" ", 24)}], "blanks"},
+          {[{"TC_INTERFACE", "1.2.3"}], "must be an IPv4 address"},
+          {[{"TC_INTERFACE", "203.0.113.77"}], "not an address of this host"}
+        ] do
+      env = [{"RELEASE_NODE", "tc_refused_#{id}@127.0.0.1"} | bad ++ env]
+      env = Enum.uniq_by(env, &elem(&1, 0))
+      assert {out, 1} = System.cmd(rel, ["daemon"], env: env, stderr_to_stdout: true)
+      assert out =~ message
+    end
+
     # whatever happens, no daemon outlives the test
     on_exit(fn -> System.cmd("pkill", ["-9", "-f", "tc_(base|brain)_#{id}@"]) end)
     observe(cookie, [base, brain])
@@ -58,6 +72,11 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
         assert schedulers != [] and Enum.all?(schedulers, &(&1 == :fifo)), inspect(policies)
       end
     end
+
+    # the dashboard runs in a release too (yaws is part of it)
+    await("the dashboard on the base node", 30_000, fn ->
+      match?(%{port: port} when is_integer(port), call(base, ThinkingCap.Dashboard, :info, []))
+    end)
 
     await("the robot under autonomy", 60_000, fn -> match?(%{mode: :autonomy}, control(base)) end)
     recorder = record_control(base)
