@@ -296,6 +296,28 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
       assert grid["header"]["frame_id"] == "map"
       assert 100 in grid["data"] and 0 in grid["data"]
     end
+
+    test "maps sent are bounded per node: a burst of re-subscribes gets status errors" do
+      s = open(world: Path.join(@examples, "office.wdf"))
+      # past the current second's sends, whoever made them
+      Process.sleep(1_000 - rem(System.monotonic_time(:millisecond), 1_000))
+
+      {sent, refused} =
+        Enum.reduce(1..30, {0, 0}, fn i, {sent, refused} ->
+          message = %{op: "subscribe", id: "m#{i}", topic: "/map"}
+          {frames, _s} = send_msg(s, message)
+
+          cond do
+            published(frames, "/map") != [] -> {sent + 1, refused}
+            Enum.any?(frames, &(&1["msg"] =~ "too many map requests")) -> {sent, refused + 1}
+          end
+        end)
+
+      assert sent >= 1 and sent <= 10
+      assert sent + refused == 30
+      # the next test starts with this node's budget back
+      Process.sleep(1_000 - rem(System.monotonic_time(:millisecond), 1_000))
+    end
   end
 
   describe "cmd_vel" do
@@ -399,6 +421,10 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
              }, "no robot"},
             {%{op: "publish", topic: "/#{robot}/cmd_vel", msg: %{linear: %{x: "1"}}},
              "linear.x must be a number"},
+            {%{op: "publish", topic: "/#{robot}/cmd_vel", msg: %{angular: %{z: -1.0e300}}},
+             "angular.z must be a number from -100"},
+            {%{op: "publish", topic: "/#{robot}/cmd_vel", msg: %{linear: %{x: 10 ** 5000}}},
+             "linear.x must be a number from -100"},
             {%{op: "publish", topic: "/#{robot}/cmd_vel", msg: [0.1, 0.0]}, "is an object"},
             {%{op: "publish", topic: "/#{robot}/cmd_vel"}, "is an object"},
             {%{op: "advertise", topic: "/#{robot}/cmd_vel", type: "std_msgs/String"},

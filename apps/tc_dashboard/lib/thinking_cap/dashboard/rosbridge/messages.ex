@@ -166,8 +166,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
 
   @doc """
   The planar velocity of a geometry_msgs/Twist (decoded JSON): `linear.x`
-  and `angular.z`; missing fields are 0 (as ROS fills them), anything else
-  is refused.
+  and `angular.z`, each within ±100; missing fields are 0 (as ROS fills
+  them), anything else is refused.
   """
   @spec from_twist(term()) :: {:ok, {float(), float()}} | {:error, String.t()}
   def from_twist(msg) when is_map(msg) do
@@ -256,9 +256,12 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
     end
   end
 
+  # a velocity of a robot: at most 100 (m/s or rad/s) either way; a
+  # 5,000-digit integer is refused here, not by the arithmetic further on
   defp component(vector, name, key) do
     case Map.get(vector, key, 0) do
-      x when is_number(x) -> {:ok, x * 1.0}
+      x when is_number(x) and abs(x) <= 100 -> {:ok, x * 1.0}
+      x when is_number(x) -> {:error, "#{name}.#{key} must be a number from -100 to 100"}
       other -> {:error, "#{name}.#{key} must be a number, not #{short(other)}"}
     end
   end

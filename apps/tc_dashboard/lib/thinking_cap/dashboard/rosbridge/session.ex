@@ -411,28 +411,13 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
   ## messages of the topics
 
   # what a subscription sends at once: the topics' latest values
-  # the map a robot learned (ThinkingCap.Navigation.Mapper), else the world's
   defp initial(%{kind: :map, robot: only} = topic, state) do
-    learned =
-      for {:map, id, %OccupancyGrid{} = map} <- Blackboard.rd_all({:map, :_, :_}),
-          robot = to_string(id),
-          only == nil or only == robot,
-          message <- messages(topic, :map, robot, map, state),
-          do: message
+    # a request that has no map to send (or only an error) costs nothing
+    nothing = state.world == nil and Blackboard.rdp({:map, :_, :_}) == :none
 
-    case {learned, only} do
-      {[_ | _], _} ->
-        {:ok, learned, state}
-
-      {[], nil} ->
-        case WorldMap.cells(state.world) do
-          {:ok, cells} -> {:ok, [{nil, Messages.occupancy_grid(cells)}], state}
-          {:error, reason} -> {:error, reason}
-        end
-
-      {[], _robot} ->
-        {:ok, [], state}
-    end
+    if nothing or WorldMap.allow_send?(),
+      do: initial_map(topic, only, state),
+      else: {:error, "too many map requests on this node just now: try again in a second"}
   end
 
   defp initial(%{kind: :tf, robot: only} = topic, state) do
@@ -470,6 +455,30 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
           do: message
 
     {:ok, messages, state}
+  end
+
+  # the map a robot learned (ThinkingCap.Navigation.Mapper), else the world's
+  defp initial_map(topic, only, state) do
+    learned =
+      for {:map, id, %OccupancyGrid{} = map} <- Blackboard.rd_all({:map, :_, :_}),
+          robot = to_string(id),
+          only == nil or only == robot,
+          message <- messages(topic, :map, robot, map, state),
+          do: message
+
+    case {learned, only} do
+      {[_ | _], _} ->
+        {:ok, learned, state}
+
+      {[], nil} ->
+        case WorldMap.cells(state.world) do
+          {:ok, cells} -> {:ok, [{nil, Messages.occupancy_grid(cells)}], state}
+          {:error, reason} -> {:error, reason}
+        end
+
+      {[], _robot} ->
+        {:ok, [], state}
+    end
   end
 
   defp prime_latest(topic, state) do
@@ -638,7 +647,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
   defp with_id(map, id), do: Map.put(map, :id, id)
 
   defp id_of(%{"id" => id}) when is_binary(id) and byte_size(id) <= 256, do: id
-  defp id_of(%{"id" => id}) when is_integer(id), do: id
+  defp id_of(%{"id" => id}) when is_integer(id) and abs(id) < 1_000_000_000_000_000_000, do: id
   defp id_of(_), do: nil
 
   defp short(term), do: inspect(term, limit: 5, printable_limit: 60)

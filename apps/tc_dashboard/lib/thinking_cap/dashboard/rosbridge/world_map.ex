@@ -6,6 +6,10 @@ defmodule ThinkingCap.Dashboard.Rosbridge.WorldMap do
   # obstacles and closed doors are rasterized at 5 cm
   # (ThinkingCap.Navigation.Maps.grid_from_wdf/2: 100 blocked, 0 free). The
   # doors are drawn as the WDF states them, not as they are now.
+  #
+  # The cells are made once per world (a WDF file: until it changes) and
+  # kept, so clients subscribing to /map again and again cost nothing but
+  # the sending; `allow_send?/0` bounds that too, for the whole node.
 
   alias ThinkingCap.Config
   alias ThinkingCap.Config.{RosMap, WDF}
@@ -24,9 +28,68 @@ defmodule ThinkingCap.Dashboard.Rosbridge.WorldMap do
   def cells(nil), do: {:error, "the dashboard has no world: no /map"}
 
   def cells(path) when is_binary(path) do
+    key =
+      case File.stat(path, time: :posix) do
+        {:ok, stat} -> {path, stat.mtime, stat.size}
+        {:error, _} -> {path, nil, nil}
+      end
+
+    cached(key, fn -> read_cells(path) end)
+  end
+
+  def cells(%WDF{} = wdf), do: cached(:erlang.phash2(wdf), fn -> make_cells(wdf) end)
+
+  def cells(_other), do: {:error, "the dashboard's world is not a WDF"}
+
+  @cache {__MODULE__, :cells}
+
+  # one world at a time (a node has one dashboard)
+  defp cached(key, make) do
+    case :persistent_term.get(@cache, nil) do
+      {^key, cells} ->
+        cells
+
+      _other ->
+        cells = make.()
+        if match?({:ok, _}, cells), do: :persistent_term.put(@cache, {key, cells})
+        cells
+    end
+  end
+
+  @sends {__MODULE__, :sends}
+  @sends_per_second 10
+
+  @doc """
+  Whether a map may be sent now: at most #{@sends_per_second} a second on
+  this node, whoever asks (a map is the largest message there is).
+  """
+  @spec allow_send?() :: boolean()
+  def allow_send? do
+    counters =
+      case :persistent_term.get(@sends, nil) do
+        nil ->
+          counters = :atomics.new(2, signed: true)
+          :persistent_term.put(@sends, counters)
+          counters
+
+        counters ->
+          counters
+      end
+
+    second = System.monotonic_time(:second)
+
+    if :atomics.get(counters, 1) != second do
+      :atomics.put(counters, 1, second)
+      :atomics.put(counters, 2, 0)
+    end
+
+    :atomics.add_get(counters, 2, 1) <= @sends_per_second
+  end
+
+  defp read_cells(path) do
     case Config.read(path) do
       {:ok, %WDF{} = wdf} ->
-        cells(wdf)
+        make_cells(wdf)
 
       {:ok, _other} ->
         {:error, "#{path} is not a WDF"}
@@ -36,7 +99,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.WorldMap do
     end
   end
 
-  def cells(%WDF{grid: %RosMap{} = map}) do
+  defp make_cells(%WDF{grid: %RosMap{} = map}) do
     {:ok,
      %{
        width: map.width,
@@ -47,7 +110,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.WorldMap do
      }}
   end
 
-  def cells(%WDF{} = wdf) do
+  defp make_cells(%WDF{} = wdf) do
     grid = Maps.grid_from_wdf(wdf)
     {ox, oy} = grid.origin
     data = for <<c <- grid.cells>>, into: <<>>, do: if(c == 0, do: <<0>>, else: <<100>>)
@@ -63,6 +126,4 @@ defmodule ThinkingCap.Dashboard.Rosbridge.WorldMap do
   rescue
     e in ArgumentError -> {:error, "the world could not be rasterized: #{Exception.message(e)}"}
   end
-
-  def cells(_other), do: {:error, "the dashboard's world is not a WDF"}
 end
