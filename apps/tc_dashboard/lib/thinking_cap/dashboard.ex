@@ -27,8 +27,10 @@ defmodule ThinkingCap.Dashboard do
   compared in constant time and never written to a log: yaws' access log
   is off, and its own logs go to a directory of mode 0700 of the
   dashboard's (`$XDG_RUNTIME_DIR` or the system's temporary directory),
-  removed when the dashboard stops. Without it the page is refused, unless `public_view: true` lets
-  viewers watch (never control). Engaging an E-stop needs no token: anyone
+  removed when the dashboard stops. Without it the page's socket (all
+  data and actions) is refused, unless `public_view: true` lets viewers
+  watch (never control); the page's static files hold nothing of the
+  robot and are served to anyone. Engaging an E-stop needs no token: anyone
   who sees the robot may stop it. Browsers must come from the dashboard's
   own origin or one listed in `origins`.
 

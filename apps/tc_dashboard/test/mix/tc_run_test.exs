@@ -11,7 +11,9 @@ defmodule Mix.Tasks.Tc.RunTest do
     assert File.exists?(Path.join(root, "priv/examples/office_sim.adf"))
 
     {output, status} =
-      System.cmd("mix", ["tc.run", "--seconds", "4", "--port", "0", "--rosbridge-port", "0"],
+      System.cmd(
+        "mix",
+        ["tc.run", "--seconds", "4", "--port", "0", "--rosbridge-port", "0", "--estop-port", "0"],
         cd: root,
         env: [
           {"MIX_ENV", "test"},
@@ -25,6 +27,8 @@ defmodule Mix.Tasks.Tc.RunTest do
     assert output =~ "base (ThinkingCap.Sim.Robot)"
     # the dashboard's URL, with its access token, for the user to open
     assert output =~ ~r"dashboard: http://127\.0\.0\.1:\d+/\?token=[\w-]{16,}"
+    # and the port that only engages E-stops
+    assert output =~ ~r"E-stop: curl -X POST http://127\.0\.0\.1:\d+/estop"
 
     poses =
       for [x, y] <-

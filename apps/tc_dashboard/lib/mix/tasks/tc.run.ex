@@ -11,10 +11,10 @@ defmodule Mix.Tasks.Tc.Run do
   dashboard: its URL, with the access token, is printed at start; open it
   to watch the robot and drive it by hand.
 
-      mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P]
+      mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P] [--estop-port P]
                  [--token-file PATH]
 
-  `--port` and `--rosbridge-port` override the ADF's dashboard ports (0:
+  `--port`, `--rosbridge-port` and `--estop-port` override the ADF's dashboard ports (0:
   any free port); `--token-file` gives the access token (a file its owner
   alone may read) instead of a new one.
 
@@ -33,6 +33,7 @@ defmodule Mix.Tasks.Tc.Run do
           adf: :string,
           port: :integer,
           rosbridge_port: :integer,
+          estop_port: :integer,
           token_file: :string
         ]
       )
@@ -67,6 +68,9 @@ defmodule Mix.Tasks.Tc.Run do
             do:
               IO.puts("rosbridge: ws://#{info.host}:#{info.rosbridge_port}/?token=#{info.token}")
 
+          if info.estop_port,
+            do: IO.puts("E-stop: curl -X POST http://#{info.host}:#{info.estop_port}/estop")
+
         {:error, :timeout} ->
           IO.puts("dashboard: did not start (see the log)")
       end
@@ -78,7 +82,7 @@ defmodule Mix.Tasks.Tc.Run do
   defp dashboard_ports(adf, opts) do
     overrides =
       opts
-      |> Keyword.take([:port, :rosbridge_port, :token_file])
+      |> Keyword.take([:port, :rosbridge_port, :estop_port, :token_file])
       |> Keyword.update(:token_file, nil, &Path.expand/1)
       |> Enum.reject(fn {_key, value} -> value == nil end)
 
