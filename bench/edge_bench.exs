@@ -107,6 +107,7 @@ defmodule ThinkingCap.Bench.Edge do
       {"TC_EDGE_MODULES", Enum.map_join(modules_before, ",", &Atom.to_string/1)}
     ]
 
+    per_module_before = per_module_fallbacks()
     fallbacks_before = fallbacks()
     started = System.monotonic_time(:millisecond)
     probe = Cyclictest.start(600)
@@ -130,6 +131,12 @@ defmodule ThinkingCap.Bench.Edge do
     abuse_ms = System.monotonic_time(:millisecond) - started
     machine_abuse = Cyclictest.stop(probe)
     fallbacks_abuse = fallbacks() - fallbacks_before
+    per_module_abuse = per_module_fallbacks()
+
+    abuse_by_module =
+      for {name, n} <- per_module_abuse,
+          n > Map.get(per_module_before, name, 0),
+          do: "#{inspect(name)} #{n - Map.get(per_module_before, name, 0)}"
 
     # the same length of driving, untouched
     idle_before = fallbacks()
@@ -142,8 +149,8 @@ defmodule ThinkingCap.Bench.Edge do
     token_files = token_files(info.token, [System.tmp_dir!(), runtime_dir, @root])
 
     IO.puts(
-      "  fallbacks: #{fallbacks_abuse} under abuse, #{fallbacks_idle} idle over " <>
-        "#{Float.round(abuse_ms / 1000, 1)} s each"
+      "  fallbacks: #{fallbacks_abuse} under abuse (#{Enum.join(abuse_by_module, ", ")}), " <>
+        "#{fallbacks_idle} idle, over #{Float.round(abuse_ms / 1000, 1)} s each"
     )
 
     IO.puts(
@@ -249,9 +256,10 @@ defmodule ThinkingCap.Bench.Edge do
 
   defp running_modules, do: Runtime.which_modules() |> Enum.map(& &1.name) |> Enum.sort()
 
-  defp fallbacks do
-    Runtime.timing() |> Map.values() |> Enum.map(&Map.get(&1, :fallbacks, 0)) |> Enum.sum()
-  end
+  defp fallbacks, do: per_module_fallbacks() |> Map.values() |> Enum.sum()
+
+  defp per_module_fallbacks,
+    do: Map.new(Runtime.timing(), fn {name, t} -> {name, Map.get(t, :fallbacks, 0)} end)
 
   defp control(robot) do
     case Blackboard.rdp({:control, robot, :_}) do

@@ -94,6 +94,20 @@ defmodule ThinkingCap.Dashboard.EdgeTest do
 
     assert {:error, :closed} = :gen_tcp.recv(extra, 0, 2_000)
 
+    # a flood beyond the cap is closed connection by connection, and the
+    # log says so once, not once per connection
+    log =
+      ExUnit.CaptureLog.capture_log(fn ->
+        for _ <- 1..30 do
+          {:ok, s} =
+            :gen_tcp.connect({127, 0, 0, 1}, ctx.dashboard.port, [:binary, active: false], 1_000)
+
+          {:error, :closed} = :gen_tcp.recv(s, 0, 2_000)
+        end
+      end)
+
+    assert length(String.split(log, "Max connections reached")) <= 2
+
     # once they go, the page is served again
     Enum.each(held, &:gen_tcp.close/1)
     Process.sleep(200)
