@@ -108,7 +108,6 @@ defmodule ThinkingCap.Bench.Edge do
     ]
 
     per_module_before = per_module_fallbacks()
-    fallbacks_before = fallbacks()
     started = System.monotonic_time(:millisecond)
     probe = Cyclictest.start(600)
 
@@ -130,20 +129,18 @@ defmodule ThinkingCap.Bench.Edge do
 
     abuse_ms = System.monotonic_time(:millisecond) - started
     machine_abuse = Cyclictest.stop(probe)
-    fallbacks_abuse = fallbacks() - fallbacks_before
-    per_module_abuse = per_module_fallbacks()
-
-    abuse_by_module =
-      for {name, n} <- per_module_abuse,
-          n > Map.get(per_module_before, name, 0),
-          do: "#{inspect(name)} #{n - Map.get(per_module_before, name, 0)}"
+    added = added_fallbacks(per_module_before, per_module_fallbacks())
+    fallbacks_abuse = added |> Map.values() |> Enum.sum()
+    abuse_by_module = for {name, n} <- added, n > 0, do: "#{inspect(name)} #{n}"
 
     # the same length of driving, untouched
-    idle_before = fallbacks()
+    idle_before = per_module_fallbacks()
     probe = Cyclictest.start(600)
     Process.sleep(abuse_ms)
     machine_idle = Cyclictest.stop(probe)
-    fallbacks_idle = fallbacks() - idle_before
+
+    fallbacks_idle =
+      idle_before |> added_fallbacks(per_module_fallbacks()) |> Map.values() |> Enum.sum()
 
     log_mb = (:counters.get(counter, 1) + dir_bytes(runtime_dir) - dir_before) / 1_048_576
     token_files = token_files(info.token, [System.tmp_dir!(), runtime_dir, @root])
@@ -256,7 +253,14 @@ defmodule ThinkingCap.Bench.Edge do
 
   defp running_modules, do: Runtime.which_modules() |> Enum.map(& &1.name) |> Enum.sort()
 
-  defp fallbacks, do: per_module_fallbacks() |> Map.values() |> Enum.sum()
+  # fallbacks since `before`, per activity; one restarted meanwhile (a
+  # restart request) counts from 0 again
+  defp added_fallbacks(before, now) do
+    Map.new(now, fn {name, n} ->
+      b = Map.get(before, name, 0)
+      {name, if(n >= b, do: n - b, else: n)}
+    end)
+  end
 
   defp per_module_fallbacks,
     do: Map.new(Runtime.timing(), fn {name, t} -> {name, Map.get(t, :fallbacks, 0)} end)
