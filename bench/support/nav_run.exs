@@ -142,12 +142,13 @@ defmodule ThinkingCap.Bench.NavRun do
     goal = pair.goal
 
     modules = Keyword.fetch!(opts, :modules).(pair)
+    rdf = Keyword.get(opts, :rdf, rdf())
 
     :ok =
       Sim.add_robot(sim, :nav,
-        rdf: rdf(),
+        rdf: rdf,
         at: {sx, sy, sth},
-        controller: {LockstepController, modules: modules, rdf: rdf(), wdf: robot_wdf}
+        controller: {LockstepController, modules: modules, rdf: rdf, wdf: robot_wdf}
       )
 
     for walker <- Keyword.get(opts, :walkers, []),
@@ -207,7 +208,8 @@ defmodule ThinkingCap.Bench.NavRun do
           acc
       end
 
-    if Process.get(:trace) and rem(step, 5) == 0, do: trace(time, {x, y}, plan, cstate.lock)
+    if Process.get(:trace) == true and rem(step, 5) == 0,
+      do: trace(time, {x, y}, plan, cstate.lock)
 
     case plan do
       {:plan, _, %{state: s}} when s in [:done, :failed] -> {time, acc}

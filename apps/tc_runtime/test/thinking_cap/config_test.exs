@@ -245,6 +245,29 @@ defmodule ThinkingCap.ConfigTest do
              ]
     end
 
+    test "docking: is optional; given, it is filled with defaults and checked", %{tmp_dir: dir} do
+      base =
+        ~s(name: "r", footprint: [radius: 0.2], kinematics: [type: :tricycle, wheelbase: 1.0, max_steering: 1.0])
+
+      assert {:ok, %RDF{docking: nil}} = Config.read(write(dir, "plain.rdf", "[#{base}]"))
+
+      assert {:ok, %RDF{docking: docking}} =
+               Config.read(write(dir, "dock.rdf", "[#{base}, docking: [direction: :reverse]]"))
+
+      assert docking == %{
+               position_tolerance: 0.1,
+               heading_tolerance: 0.1,
+               direction: :reverse,
+               approach: 1.5,
+               speed: 0.2
+             }
+
+      path = write(dir, "bad.rdf", "[#{base}, docking: [direction: :sideways, speed: 0]]")
+      assert [direction, speed] = errors(path)
+      assert direction =~ "docking.direction: expected one of :forward, :reverse, got :sideways"
+      assert speed =~ "docking.speed: expected a positive number, got 0"
+    end
+
     test "a sensor's link: needs a urdf:; crosstalk: is a boolean", %{tmp_dir: dir} do
       source = """
       [

@@ -27,6 +27,11 @@ defmodule ThinkingCap.Control.Blender do
     * `{:drive, robot, %{command: {:velocity, v, w}}}` (key `{:drive, robot}`);
     * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`).
 
+  A car-like robot (tricycle, Ackermann in the RDF) cannot turn on the
+  spot: a blended twist sharper than its steering allows is made one it
+  can drive (`ThinkingCap.Control.Steering.feasible/4`: creep along the
+  tightest arc, forwards or in reverse, where the LPS is clear).
+
   It stops (`{:velocity, 0.0, 0.0}`, every activation 0) until it has an
   LPS, a pose and a plan, and while the plan's state is one of
   `stop_states` or the plan has neither a goal nor a path.
@@ -63,7 +68,7 @@ defmodule ThinkingCap.Control.Blender do
   """
   use ThinkingCap.Module
 
-  alias ThinkingCap.Control.Blend
+  alias ThinkingCap.Control.{Blend, Steering}
 
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
@@ -85,7 +90,7 @@ defmodule ThinkingCap.Control.Blender do
   def init(params, context) do
     params = if is_map(params), do: Map.to_list(params), else: params || []
     robot = context.robot
-    {limits, radius} = robot_limits(params, context)
+    {limits, radius, curvature} = robot_limits(params, context)
 
     unless_map = Map.merge(@default_unless, Map.new(Keyword.get(params, :unless, %{})))
     specs = params |> Keyword.get(:behaviours, @default_behaviours) |> Enum.map(&spec/1)
@@ -102,6 +107,7 @@ defmodule ThinkingCap.Control.Blender do
       blend: Blend.init(behaviours: specs),
       limits: limits,
       radius: radius,
+      curvature: curvature,
       stop_states: Keyword.get(params, :stop_states, @stop_states),
       lps: nil,
       pose: nil,
@@ -123,7 +129,7 @@ defmodule ThinkingCap.Control.Blender do
         limits = Kinematics.limits(description.kinematics)
 
         {%{max_speed: limits.max_speed * 1.0, max_turn_rate: limits.max_turn_rate * 1.0},
-         description.footprint.radius * 1.0}
+         description.footprint.radius * 1.0, Steering.max_curvature(description.kinematics)}
 
       {:error, message} ->
         raise ArgumentError, "#{inspect(context[:name])}: rdf: #{message}"
@@ -134,7 +140,7 @@ defmodule ThinkingCap.Control.Blender do
     {%{
        max_speed: Keyword.get(params, :max_speed, 0.5) * 1.0,
        max_turn_rate: Keyword.get(params, :max_turn_rate, 1.5) * 1.0
-     }, Keyword.get(params, :radius, 0.2) * 1.0}
+     }, Keyword.get(params, :radius, 0.2) * 1.0, :infinity}
   end
 
   defp spec(name) when is_map_key(@named, name), do: {name, @named[name], [], []}
@@ -180,6 +186,7 @@ defmodule ThinkingCap.Control.Blender do
 
         inputs ->
           %{command: {v, w}, activations: activations} = Blend.run(state.blend, inputs)
+          {v, w} = Steering.feasible({v, w}, state.curvature, state.lps, radius: state.radius)
           {{:velocity, v, w}, activations}
       end
 

@@ -37,6 +37,12 @@ defmodule ThinkingCap.Planner.Monitor do
   `:done` and, with `save_to: path`, the map builder is asked to save the
   map there (`{:save_map, robot, %{path: path}}`).
 
+  **Docking.** A waypoint with a heading (`at: {x, y, theta}`) is a dock
+  for a robot whose RDF has a `docking:` section: it is reached only
+  within the RDF's `position_tolerance` and `heading_tolerance` (the
+  control module, `ThinkingCap.Control.VehicleDrive` for a car-like robot,
+  drives the final leg into it).
+
   **Monitoring**, every cycle: a waypoint within `tolerance` is reached
   and the next one taken; a robot that makes no progress for
   `stuck_after` seconds gets a new plan, and after `max_replans` the
@@ -50,8 +56,10 @@ defmodule ThinkingCap.Planner.Monitor do
   replan.
 
   **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:,
-  path:, door:, closed_doors:, replans:, reached:, given_up:, reason:,
-  source:, planning:, planned_at:}}` (latest value): `state` is `:waiting` (no pose or
+  heading:, docking:, path:, door:, closed_doors:, replans:, reached:,
+  given_up:, reason:, source:, planning:, planned_at:}}` (latest value):
+  `heading` is the waypoint's heading (or nil), `docking` the RDF's
+  docking tolerances (or nil); `state` is `:waiting` (no pose or
   no map yet), `:moving`, `:blocked`, `:unreachable`, `:done` (every
   waypoint reached), `:failed` (the task ended with waypoints given up,
   or was refused) or `:idle`; `path` the rest of the metric path (world
@@ -134,7 +142,8 @@ defmodule ThinkingCap.Planner.Monitor do
       progress: nil,
       blocked_at: nil,
       planned_at: nil,
-      waiting_since: nil
+      waiting_since: nil,
+      docking: robot_docking(context)
     }
 
     state =
@@ -395,7 +404,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp monitor(state, distance, to_go) do
     cond do
-      distance <= state.params[:tolerance] ->
+      reached?(state, distance) ->
         state = %{state | reached: [state.target | state.reached], target: nil, plan: nil}
         step(state)
 
@@ -629,6 +638,43 @@ defmodule ThinkingCap.Planner.Monitor do
   defp initially_closed(nil), do: MapSet.new()
   defp initially_closed(wdf), do: wdf.doors |> Enum.reject(& &1.open) |> MapSet.new(& &1.name)
 
+  ## Docking
+
+  # at a waypoint with a heading, a robot whose RDF has docking: must stop
+  # within its docking tolerances
+  defp reached?(state, distance) do
+    case {state.docking, target_heading(state, state.target)} do
+      {%{position_tolerance: p, heading_tolerance: h}, heading} when is_number(heading) ->
+        {_, _, th} = state.pose
+        d = :math.fmod(th - heading + 3 * :math.pi(), 2 * :math.pi()) - :math.pi()
+        distance <= p and abs(d) <= h
+
+      _ ->
+        distance <= state.params[:tolerance]
+    end
+  end
+
+  defp target_heading(%{wdf: %WDF{} = wdf}, name) when is_atom(name) do
+    case Enum.find(wdf.waypoints, &(&1.name == name)) do
+      %{at: {_, _, th}} -> th * 1.0
+      _ -> nil
+    end
+  end
+
+  defp target_heading(_state, _target), do: nil
+
+  defp robot_docking(%{rdf: rdf}) when is_binary(rdf) do
+    case Description.load(rdf) do
+      {:ok, %{docking: %{} = docking}} ->
+        Map.take(docking, [:position_tolerance, :heading_tolerance])
+
+      _ ->
+        nil
+    end
+  end
+
+  defp robot_docking(_context), do: nil
+
   ## Goals
 
   defp goal(_state, {x, y}) when is_number(x) and is_number(y), do: {:ok, {x * 1.0, y * 1.0}}
@@ -756,6 +802,8 @@ defmodule ThinkingCap.Planner.Monitor do
       state: state.status,
       waypoint: state.target,
       goal: goal_point(state),
+      heading: state.target && target_heading(state, state.target),
+      docking: state.docking,
       path: remaining_path(state),
       door: door_to_cross(state),
       closed_doors: MapSet.to_list(state.closed),

@@ -233,4 +233,47 @@ defmodule ThinkingCap.Control.BlenderTest do
     assert {:drive, :r1, %{command: {:velocity, +0.0, +0.0}}} =
              Lockstep.latest(lock, {:drive, :r1, :_})
   end
+
+  describe "a car-like robot" do
+    @tricycle """
+    [
+      name: "blender-tricycle",
+      footprint: [radius: 0.25],
+      kinematics: [type: :tricycle, wheelbase: 0.5, max_steering: 0.8,
+                   max_speed: 0.6, max_turn_rate: 1.8, max_acceleration: 1.0]
+    ]
+    """
+
+    # the regression of the freeze: a goal behind made the blend ask for
+    # {0, w}, which a car's steering limit cuts to {0, 0}
+    @tag :tmp_dir
+    test "with the goal behind it, creeps along its tightest arc instead of standing still",
+         %{tmp_dir: dir} do
+      rdf = Path.join(dir, "tricycle.rdf")
+      File.write!(rdf, @tricycle)
+      {_, state} = Blender.init([], context(rdf))
+      k = :math.tan(0.8) / 0.5
+      plan = {:plan, :r1, %{goal: {-3.0, 0.5}, state: :moving}}
+
+      {{:velocity, v, w}, _} = cycle(feed(state, [{:lps, :r1, LPS.empty()}, @pose, plan]))
+      assert v > 0.05
+      assert w > 0 and abs(w) <= v * k + 1.0e-9
+
+      # a wall ahead: it backs up, turning the same way round
+      {{:velocity, v, w}, _} = cycle(feed(state, [{:lps, :r1, wall_ahead()}, @pose, plan]))
+      assert v < -0.05
+      assert w > 0 and abs(w) <= abs(v) * k + 1.0e-9
+
+      # hemmed in front and back: it stops
+      boxed =
+        LPS.from_points(for i <- 0..12, y <- [-0.3 + i * 0.05], x <- [0.4, -0.4], do: {x, y})
+
+      assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [{:lps, :r1, boxed}, @pose, plan]))
+
+      # a differential robot in the same place turns on the spot
+      {{:velocity, v, w}, _} = cycle(feed(start(), [{:lps, :r1, LPS.empty()}, @pose, plan]))
+
+      assert abs(v) < 0.05 and w > 0.5
+    end
+  end
 end

@@ -12,9 +12,15 @@ defmodule ThinkingCap.Robot.Description do
       `wheel_separation` from the URDF (`ThinkingCap.Robot.URDF.wheels/1`)
       unless the RDF gives them (the RDF wins);
     * `odometry_error` - the RDF's map, for `ThinkingCap.Robot.OdometryError.new/3`;
+    * `docking` - the RDF's docking map (tolerances, direction, final leg),
+      or `nil` when the RDF has no `docking:` section;
     * `sensors` - the RDF's sensor maps; a sensor with `link:` gets its
       `pose` `{x, y, yaw}` from that URDF link's pose in `base_link`
-      (projected on the ground plane), replacing the RDF's `pose`.
+      (projected on the ground plane), replacing the RDF's `pose`;
+    * `circles` - discs `{x, y, r}` in the robot frame that together
+      cover the footprint (one disc for a round robot; for a polygon, a row
+      of discs along its longer side), for collision checks tighter than
+      the circumscribed disc (`circles/1`).
 
   `urdf` is the loaded `ThinkingCap.Robot.URDF` (or `nil`), `file` the RDF.
   """
@@ -23,7 +29,17 @@ defmodule ThinkingCap.Robot.Description do
   alias ThinkingCap.Config.RDF
   alias ThinkingCap.Robot.{Kinematics, URDF}
 
-  defstruct [:file, :name, :footprint, :kinematics, :odometry_error, :urdf, sensors: []]
+  defstruct [
+    :file,
+    :name,
+    :footprint,
+    :kinematics,
+    :odometry_error,
+    :docking,
+    :urdf,
+    sensors: [],
+    circles: []
+  ]
 
   @type t :: %__MODULE__{
           file: Path.t() | nil,
@@ -31,6 +47,8 @@ defmodule ThinkingCap.Robot.Description do
           footprint: %{radius: float(), polygon: [{float(), float()}] | nil},
           kinematics: Kinematics.model(),
           odometry_error: map(),
+          docking: map() | nil,
+          circles: [{float(), float(), float()}],
           urdf: URDF.t() | nil,
           sensors: [map()]
         }
@@ -83,13 +101,40 @@ defmodule ThinkingCap.Robot.Description do
          file: rdf.file,
          name: rdf.name,
          footprint: footprint(rdf.footprint),
+         circles: rdf.footprint |> footprint() |> circles(),
          kinematics: kinematics,
          odometry_error: rdf.odometry_error,
+         docking: rdf.docking,
          urdf: urdf,
          sensors: sensors
        }}
     end
   end
+
+  @doc """
+  Discs `{x, y, r}` covering a footprint: the disc of a round one; for a
+  polygon, its bounding box (in the robot frame) cut along its longer side
+  into squares or nearly, each covered by the disc through its corners.
+  """
+  @spec circles(%{radius: float(), polygon: [{float(), float()}] | nil}) ::
+          [{float(), float(), float()}]
+  def circles(%{polygon: [_ | _] = polygon}) do
+    {xs, ys} = Enum.unzip(polygon)
+    {x0, x1, y0, y1} = {Enum.min(xs), Enum.max(xs), Enum.min(ys), Enum.max(ys)}
+    along_x = x1 - x0 >= y1 - y0
+    {long, short} = if along_x, do: {x1 - x0, y1 - y0}, else: {y1 - y0, x1 - x0}
+    n = max(ceil(long / max(short, 1.0e-6)), 1)
+    step = long / n
+    r = :math.sqrt((short / 2) ** 2 + (step / 2) ** 2)
+
+    for i <- 0..(n - 1) do
+      if along_x,
+        do: {x0 + step * (i + 0.5), (y0 + y1) / 2, r},
+        else: {(x0 + x1) / 2, y0 + step * (i + 0.5), r}
+    end
+  end
+
+  def circles(%{radius: r}), do: [{0.0, 0.0, r * 1.0}]
 
   defp load_urdf(%RDF{urdf: nil}), do: {:ok, nil}
 

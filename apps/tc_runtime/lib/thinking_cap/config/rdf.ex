@@ -19,6 +19,18 @@ defmodule ThinkingCap.Config.RDF do
     max_acceleration: {:pos_number, default: 1.0, doc: "m/s²"}
   ]
 
+  @docking_fields [
+    position_tolerance:
+      {:pos_number, default: 0.1, doc: "how near the dock's point the robot must stop, m"},
+    heading_tolerance:
+      {:pos_number, default: 0.1, doc: "how near the dock's heading the robot must stop, rad"},
+    direction:
+      {{:one_of, [:forward, :reverse]},
+       default: :forward, doc: "driving into the dock forwards or in reverse (forks first)"},
+    approach: {:pos_number, default: 1.5, doc: "the straight final leg into the dock, m"},
+    speed: {:pos_number, default: 0.2, doc: "speed on the final leg, m/s"}
+  ]
+
   @odometry_fields [
     wheel_diameter_ratio:
       {:pos_number, default: 1.0, doc: "right/left wheel diameter (systematic error)"},
@@ -83,6 +95,9 @@ defmodule ThinkingCap.Config.RDF do
     kinematics: {{:keyword, @kinematics_fields}, required: true, doc: "drive and limits (below)"},
     odometry_error:
       {{:keyword, @odometry_fields}, default: [], doc: "odometry error model (below)"},
+    docking:
+      {{:keyword, @docking_fields},
+       doc: "how it docks at waypoints with a heading (below); none: position only"},
     sensors: {{:list, {:keyword, @sensor_fields}}, default: [], doc: "each sensor (below)"}
   ]
 
@@ -103,6 +118,10 @@ defmodule ThinkingCap.Config.RDF do
 
   #{ThinkingCap.Config.Schema.describe(@kinematics_fields)}
 
+  ## Docking keys
+
+  #{ThinkingCap.Config.Schema.describe(@docking_fields)}
+
   ## Odometry error keys
 
   #{ThinkingCap.Config.Schema.describe(@odometry_fields)}
@@ -122,7 +141,16 @@ defmodule ThinkingCap.Config.RDF do
 
   alias ThinkingCap.Config.Schema
 
-  defstruct [:file, :name, :urdf, :footprint, :kinematics, :odometry_error, sensors: []]
+  defstruct [
+    :file,
+    :name,
+    :urdf,
+    :footprint,
+    :kinematics,
+    :odometry_error,
+    :docking,
+    sensors: []
+  ]
 
   @type t :: %__MODULE__{
           file: Path.t(),
@@ -131,6 +159,7 @@ defmodule ThinkingCap.Config.RDF do
           footprint: map(),
           kinematics: map(),
           odometry_error: map(),
+          docking: map() | nil,
           sensors: [map()]
         }
 
@@ -165,6 +194,7 @@ defmodule ThinkingCap.Config.RDF do
            footprint: value.footprint,
            kinematics: value.kinematics,
            odometry_error: value.odometry_error,
+           docking: value[:docking],
            sensors: value.sensors
          }}
 

@@ -32,6 +32,8 @@ defmodule ThinkingCap.Sim.Core.Body do
       spec: spec,
       model: d.kinematics,
       radius: d.footprint.radius * 1.0,
+      # discs covering the footprint, {x, y, r} in the robot frame
+      circles: (Map.get(d, :circles) || []) |> covering(d.footprint.radius),
       pose: spec.pose,
       odom: {0.0, 0.0, 0.0},
       odom_twist: {0.0, 0.0},
@@ -55,11 +57,21 @@ defmodule ThinkingCap.Sim.Core.Body do
     wanted = twist(body.model, body.command)
     twist = Kinematics.limit(body.model, wanted, body.twist, dt)
     {true_twist, odom_twist, err} = OdometryError.step(body.err, twist, dt)
-    {x, y, _} = pose = Kinematics.integrate(body.pose, true_twist, dt)
+    pose = Kinematics.integrate(body.pose, true_twist, dt)
 
-    clearance = clearance(world, body, x, y)
+    # each disc of the footprint clear, or at least no nearer an obstacle
+    # than it was (so a robot that touches may back away)
+    discs =
+      for {cx, cy, r} <- body.circles do
+        {clearance(world, body, at(pose, cx, cy)), r, {cx, cy}}
+      end
 
-    if clearance >= body.radius or clearance >= clearance(world, body, body.pose) do
+    free? =
+      Enum.all?(discs, fn {c, r, {cx, cy}} ->
+        c >= r or c >= clearance(world, body, at(body.pose, cx, cy))
+      end)
+
+    if free? do
       %{
         body
         | pose: pose,
@@ -67,7 +79,7 @@ defmodule ThinkingCap.Sim.Core.Body do
           odom_twist: odom_twist,
           twist: twist,
           err: err,
-          bumped: clearance < body.radius
+          bumped: Enum.any?(discs, fn {c, r, _} -> c < r end)
       }
     else
       # blocked: the bumper closes and the robot stops where it is
@@ -75,9 +87,16 @@ defmodule ThinkingCap.Sim.Core.Body do
     end
   end
 
-  defp clearance(world, body, {x, y, _}), do: clearance(world, body, x, y)
+  defp covering([], radius), do: [{0.0, 0.0, radius * 1.0}]
+  defp covering(circles, _radius), do: circles
 
-  defp clearance(world, body, x, y),
+  # a point of the robot frame in the world
+  defp at({x, y, theta}, cx, cy) do
+    {c, s} = {:math.cos(theta), :math.sin(theta)}
+    {x + c * cx - s * cy, y + s * cx + c * cy}
+  end
+
+  defp clearance(world, body, {x, y}),
     do: ThinkingCap.Sim.Raycast.clearance(world.raycast, x, y, body.index, body.radius * 2)
 
   @doc """
