@@ -76,6 +76,7 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   alias ThinkingCap.Config.WDF
   alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid}
+  alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Navigation.Maps.{Rooms, SensedGrid, Segments}
   alias ThinkingCap.Robot.Description
 
@@ -100,7 +101,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   @impl true
   def init(params, context) do
     params = Keyword.merge(@defaults, Enum.to_list(params || []))
-    rdf = describe!(context)
+    rdf = ModuleContext.describe!(context, "the map builder")
     sensors = range_sensors(rdf)
 
     if sensors == %{} do
@@ -111,7 +112,7 @@ defmodule ThinkingCap.Navigation.Mapper do
 
     odometry = Description.sensor_name(rdf, :odometry, :odom)
     params = Keyword.put(params, :sonar, sonar_degrees(sensors, params))
-    grid = new_grid(read_wdf(context), params)
+    grid = new_grid(ModuleContext.read_wdf(context), params)
 
     state = %{
       robot: context.robot,
@@ -347,31 +348,6 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   defp point({x, y}), do: {x * 1.0, y * 1.0}
   defp point({x, y, _}), do: {x * 1.0, y * 1.0}
-
-  defp describe!(%{rdf: rdf} = context) when is_binary(rdf) do
-    case Description.load(rdf) do
-      {:ok, d} -> d
-      {:error, message} -> raise ArgumentError, "#{inspect(context.name)}: #{message}"
-    end
-  end
-
-  defp describe!(context),
-    do: raise(ArgumentError, "#{inspect(context.name)}: the map builder needs the ADF's rdf:")
-
-  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
-    case ThinkingCap.Config.read(path) do
-      {:ok, %WDF{} = wdf} ->
-        wdf
-
-      {:ok, _} ->
-        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
-
-      {:error, errors} ->
-        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
-    end
-  end
-
-  defp read_wdf(_context), do: nil
 
   defp range_sensors(description) do
     for %{type: type} = s <- description.sensors, type in [:laser, :sonar], into: %{} do

@@ -79,6 +79,7 @@ defmodule ThinkingCap.Navigation.MCL do
 
   alias ThinkingCap.Config.WDF
   alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, ParticleFilter}
+  alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Robot.Description
 
   @defaults [
@@ -107,8 +108,8 @@ defmodule ThinkingCap.Navigation.MCL do
   @impl true
   def init(params, context) do
     params = Keyword.merge(@defaults, Enum.to_list(params || []))
-    rdf = describe!(context)
-    wdf = read_wdf(context)
+    rdf = ModuleContext.describe!(context, "laser localization")
+    wdf = ModuleContext.read_wdf(context)
     lasers = for %{type: :laser} = s <- rdf.sensors, into: %{}, do: {s.name, s}
 
     if lasers == %{} do
@@ -484,29 +485,4 @@ defmodule ThinkingCap.Navigation.MCL do
         initial_pose(at, wdf)
     end
   end
-
-  defp describe!(%{rdf: rdf} = context) when is_binary(rdf) do
-    case Description.load(rdf) do
-      {:ok, d} -> d
-      {:error, message} -> raise ArgumentError, "#{inspect(context.name)}: #{message}"
-    end
-  end
-
-  defp describe!(context),
-    do: raise(ArgumentError, "#{inspect(context.name)}: laser localization needs the ADF's rdf:")
-
-  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
-    case ThinkingCap.Config.read(path) do
-      {:ok, %WDF{} = wdf} ->
-        wdf
-
-      {:ok, _} ->
-        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
-
-      {:error, errors} ->
-        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
-    end
-  end
-
-  defp read_wdf(_context), do: nil
 end

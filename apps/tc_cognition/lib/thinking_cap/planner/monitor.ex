@@ -86,6 +86,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
   alias ThinkingCap.Config.WDF
   alias ThinkingCap.Navigation.{Frontiers, Maps, OccupancyGrid, PathPlanner, Topology}
+  alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
 
@@ -106,7 +107,7 @@ defmodule ThinkingCap.Planner.Monitor do
   @impl true
   def init(params, context) do
     params = Keyword.merge(@defaults, if(is_map(params), do: Map.to_list(params), else: params))
-    wdf = read_wdf(context)
+    wdf = ModuleContext.read_wdf(context)
     radius = robot_radius(context, params)
 
     planner =
@@ -859,21 +860,6 @@ defmodule ThinkingCap.Planner.Monitor do
   end
 
   ## Context
-
-  defp read_wdf(%{wdf: path} = context) when is_binary(path) do
-    case ThinkingCap.Config.read(path) do
-      {:ok, %WDF{} = wdf} ->
-        wdf
-
-      {:ok, _} ->
-        raise ArgumentError, "#{inspect(context.name)}: #{path} is not a world description"
-
-      {:error, errors} ->
-        raise ArgumentError, ThinkingCap.Config.format_errors(errors)
-    end
-  end
-
-  defp read_wdf(_context), do: nil
 
   defp robot_radius(%{rdf: rdf}, params) when is_binary(rdf) do
     case Description.load(rdf) do
