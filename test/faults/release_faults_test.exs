@@ -132,6 +132,35 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
 
     resumed = sim_position(base)
     await("the robot moving again", 60_000, fn -> distance(sim_position(base), resumed) > 0.2 end)
+
+    # every port the base node listens on (distribution, the dashboard) is
+    # on TC_INTERFACE, none on all interfaces
+    base_pid = os_pid(base)
+
+    if System.find_executable("ss") do
+      {listening, 0} = System.cmd("ss", ["-ltnpH"])
+      mine = for line <- String.split(listening, "\n"), line =~ "pid=#{base_pid},", do: line
+      assert mine != []
+      assert Enum.all?(mine, &(&1 =~ " 127.0.0.1:")), Enum.join(mine, "\n")
+    end
+
+    # the release's stop: the node gone within 5 s
+    env = [
+      {"RELEASE_NODE", Atom.to_string(base)},
+      {"RELEASE_TMP", Path.join(dir, "base_tmp")} | env
+    ]
+
+    stop_at = System.monotonic_time(:millisecond)
+    {_, 0} = System.cmd(rel, ["stop"], env: env, stderr_to_stdout: true)
+
+    gone_at =
+      Enum.find_value(1..140, fn _ ->
+        Process.sleep(50)
+        {_, status} = System.cmd("kill", ["-0", base_pid], stderr_to_stdout: true)
+        if status != 0, do: System.monotonic_time(:millisecond)
+      end)
+
+    assert gone_at && gone_at - stop_at <= 5_000, "the base node still runs 5 s after stop"
     Tally.survived()
   end
 

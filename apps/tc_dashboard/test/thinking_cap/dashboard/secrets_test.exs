@@ -46,6 +46,23 @@ defmodule ThinkingCap.Dashboard.SecretsTest do
     assert files_holding(System.tmp_dir!(), secret) == []
   end
 
+  test "a flood of wrong-token requests writes nothing", %{dashboard: info} do
+    dir = RuntimeDir.path()
+
+    size = fn ->
+      dir |> Path.join("**/*") |> Path.wildcard() |> Enum.map(&File.stat!(&1).size) |> Enum.sum()
+    end
+
+    before = size.()
+
+    for i <- 1..300 do
+      assert get(info.port, "/ws?token=wrong-#{i}") in [400, 401, 403]
+    end
+
+    # no access log, no line per refused request
+    assert size.() - before < 4_096
+  end
+
   test "stopping the dashboard removes its runtime files" do
     dir = RuntimeDir.path()
     assert File.dir?(dir)
