@@ -190,6 +190,15 @@ defmodule ThinkingCap.Sim do
   @spec controller_state(sim(), robot()) :: {:ok, term()} | {:error, :no_robot}
   def controller_state(sim, id), do: GenServer.call(sim, {:get, id, :cstate})
 
+  @doc """
+  Changes the state of a robot's in-process controller with `fun` (tests
+  use it to hand a `ThinkingCap.Sim.LockstepController` a tuple, such as a
+  new task, between steps).
+  """
+  @spec update_controller(sim(), robot(), (term() -> term())) :: :ok | {:error, :no_robot}
+  def update_controller(sim, id, fun) when is_function(fun, 1),
+    do: GenServer.call(sim, {:update_cstate, id, fun})
+
   @doc "The robots and their true poses."
   @spec robots(sim()) :: %{robot() => {float(), float(), float()}}
   def robots(sim), do: GenServer.call(sim, :robots)

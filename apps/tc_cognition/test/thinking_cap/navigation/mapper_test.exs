@@ -114,6 +114,33 @@ defmodule ThinkingCap.Navigation.MapperTest do
     assert Enum.sum(along) > 10
   end
 
+  test "a task may name a room of the learned map: \"go to room N\"", %{tmp_dir: dir} do
+    # the map built from nothing on a patrol names the lab (north west)
+    {sim, lock} = patrol(dir, nil, 120)
+    {:topology, :r, topology} = Lockstep.latest(lock, {:topology, :r, :_})
+    lab = Topology.place_of(topology, {3.5, 7.0})
+    assert "#{lab}" =~ ~r/^room_\d+$/
+
+    # then told to go there by that name, as a dashboard goal would
+    task = {:task, :r, %{task: {:go_to, lab}}}
+    :ok = Sim.update_controller(sim, :r, &%{&1 | lock: Lockstep.deliver(&1.lock, task)})
+
+    plan =
+      Enum.find_value(1..120, fn _ ->
+        :ok = Sim.run_for(sim, 1.0)
+        {:ok, c} = Sim.controller_state(sim, :r)
+        {:plan, :r, plan} = Lockstep.latest(c.lock, {:plan, :r, :_})
+        if plan.task == {:go_to, lab} and plan.state in [:done, :failed], do: plan
+      end)
+
+    assert %{state: :done, reached: [^lab]} = plan
+    {:ok, {x, y, _}} = Sim.pose(sim, :r)
+    {:ok, c} = Sim.controller_state(sim, :r)
+    {:topology, :r, topology} = Lockstep.latest(c.lock, {:topology, :r, :_})
+    assert Topology.place_of(topology, {x, y}) == lab
+    assert Sim.status(sim).blocked == 0
+  end
+
   test "a map given a WDF learns the box it was not told about", %{tmp_dir: dir} do
     # the simulator's office has a box in the hall; the robot's does not
     box = [name: :box, polygon: [{5.0, 0.8}, {5.6, 0.8}, {5.6, 1.4}, {5.0, 1.4}]]

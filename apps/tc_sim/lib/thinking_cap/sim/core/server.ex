@@ -459,6 +459,16 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_call(:time, _from, state), do: {:reply, state.step * state.dt, state}
 
+  def handle_call({:update_cstate, id, fun}, _from, state) do
+    case state.robots do
+      %{^id => {_index, shard}} ->
+        {:reply, GenServer.call(shard, {:update_cstate, id, fun}), state}
+
+      _ ->
+        {:reply, {:error, :no_robot}, state}
+    end
+  end
+
   def handle_call({:get, id, key}, _from, state) do
     case state.robots do
       %{^id => {_index, shard}} -> {:reply, GenServer.call(shard, {:get, id, key}), state}

@@ -55,6 +55,16 @@ defmodule ThinkingCap.Sim.Core.Shard do
     end
   end
 
+  def handle_call({:update_cstate, id, fun}, _from, state) do
+    case state.bodies do
+      %{^id => body} ->
+        {:reply, :ok, put_in(state.bodies[id], %{body | cstate: fun.(body.cstate)})}
+
+      _ ->
+        {:reply, {:error, :no_robot}, state}
+    end
+  end
+
   def handle_call({:get, id, key}, _from, state) do
     case state.bodies do
       %{^id => body} -> {:reply, {:ok, Map.fetch!(body, key)}, state}
