@@ -110,7 +110,7 @@ defmodule ThinkingCap.Navigation.Maps.SensedGridTest do
     prior = %{OccupancyGrid.new(100, 80, resolution: 0.05, origin: {-0.5, -0.5}) | version: 0}
     # a wall drawn where there is none: across the room at x = 2
     data =
-      for r <- 0..79, c <- 0..99, into: <<>> do
+      for _r <- 0..79, c <- 0..99, into: <<>> do
         <<if(c == 50, do: 100, else: 0)::signed-8>>
       end
 
