@@ -18,6 +18,11 @@ defmodule ThinkingCap.Bench.Explore do
   `seconds`, the simulated time taken (mean).
 
   Ends with `explore: runs=N coverage_pct=C accuracy_pct=A seconds=S`.
+
+  For tuning: `TC_TRACE=1` prints the estimate's error every second
+  (every 0.1 s in the first 10 s); `TC_MCL` and `TC_MAPPER` hold keyword
+  lists (Elixir terms) added to the localizer's and the map builder's
+  params; `TC_KEEP=1` keeps the saved maps.
   """
 
   alias ThinkingCap.Bench.NavRun
@@ -112,8 +117,13 @@ defmodule ThinkingCap.Bench.Explore do
     modules = [
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
-        {ThinkingCap.Navigation.MCL, [initial: start, initial_sigma: {0.05, 0.02}, seed: seed]},
-      mapper: {ThinkingCap.Navigation.Mapper, [initial: {sx, sy}, size: {size, size}]},
+        {ThinkingCap.Navigation.MCL,
+         [initial: start, initial_sigma: {0.05, 0.02}, seed: seed] ++
+           elem(Code.eval_string(System.get_env("TC_MCL") || "[]"), 0)},
+      mapper:
+        {ThinkingCap.Navigation.Mapper,
+         [initial: {sx, sy}, size: {size, size}] ++
+           elem(Code.eval_string(System.get_env("TC_MAPPER") || "[]"), 0)},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner: {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved], period: 0.5}
     ]
@@ -140,7 +150,7 @@ defmodule ThinkingCap.Bench.Explore do
 
   # 10 s at a time until the exploration is done (or gave up) or time is up
   defp drive(sim, t) do
-    :ok = Sim.run_for(sim, 10.0)
+    :ok = trace_or_run(sim, t)
     t = t + 10.0
     {:ok, c} = Sim.controller_state(sim, :explorer)
     saved = Lockstep.latest(c.lock, {:map_saved, :explorer, :_})
@@ -149,6 +159,35 @@ defmodule ThinkingCap.Bench.Explore do
       {:plan, _, %{state: s}} when s in [:done, :failed] and saved != nil -> {t, s}
       {:plan, _, %{state: s}} when t >= @limit -> {t, s}
       _ -> drive(sim, t)
+    end
+  end
+
+  # TC_TRACE=1: the true pose and the estimate every second
+  defp trace_or_run(sim, t) do
+    if System.get_env("TC_TRACE") do
+      dt = if t < 10, do: 0.1, else: 1.0
+
+      Enum.each(1..round(10 / dt), fn i ->
+        :ok = Sim.run_for(sim, dt)
+        {:ok, {x, y, th}} = Sim.pose(sim, :explorer)
+        {:ok, c} = Sim.controller_state(sim, :explorer)
+
+        case Lockstep.latest(c.lock, {:pose, :explorer, :_}) do
+          {:pose, _, %{pose: {ex, ey, eth}} = p} ->
+            e = :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
+            dth = ThinkingCap.Navigation.EKF.normalize(eth - th)
+
+            IO.puts(
+              "    t=#{NavRun.fmt(t + i * dt)} th=#{NavRun.fmt(th)} err=#{NavRun.fmt(e)} dth=#{NavRun.fmt(dth)} " <>
+                "#{p[:status]} conf=#{NavRun.fmt(p[:confidence] || 0.0)}"
+            )
+
+          _ ->
+            :ok
+        end
+      end)
+    else
+      Sim.run_for(sim, 10.0)
     end
   end
 

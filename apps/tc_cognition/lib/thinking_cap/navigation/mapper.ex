@@ -21,6 +21,8 @@ defmodule ThinkingCap.Navigation.Mapper do
   estimate moved on by the odometry between the estimate's stamp and the
   reading's, so that a scan taken while turning lands where it was taken.
   Readings before the first estimate wait for none: they are dropped.
+  With each reading, the ground under the robot's footprint (the RDF's)
+  is marked empty: the robot stands there.
 
   ## Published (latest values)
 
@@ -61,9 +63,11 @@ defmodule ThinkingCap.Navigation.Mapper do
       default 0.6; nil: every scan) are left out: they land smeared;
     * `fade`, `lambda`, `known`, `laser`, `sonar` - the fuzzy grid's
       (`ThinkingCap.Navigation.Maps.SensedGrid.new/3`); on a robot with
-      a laser, sonars add only echoes closer than 2 m by default
-      (`sonar: [k_empty: 0.0, k_occupied: 0.2, trust: 2.0]`): their wide
-      cones and specular walls would empty walls the laser sees;
+      a laser, sonars add only echoes closer than 1 m, weakly, by default
+      (`sonar: [k_empty: 0.0, k_occupied: 0.1, trust: 1.0]`): their wide
+      cones and specular walls would empty walls the laser sees, and their
+      arcs round a pillar stay where the laser cannot clear them (in its
+      shadow);
     * `door_width`, `min_area` - the room segmentation's
       (`ThinkingCap.Navigation.Maps.Rooms.from_occupancy/2`).
 
@@ -112,12 +116,14 @@ defmodule ThinkingCap.Navigation.Mapper do
 
     odometry = Description.sensor_name(rdf, :odometry, :odom)
     params = Keyword.put(params, :sonar, sonar_degrees(sensors, params))
+    footprint = Description.circles(rdf.footprint)
     grid = new_grid(ModuleContext.read_wdf(context), params)
 
     state = %{
       robot: context.robot,
       params: params,
       sensors: sensors,
+      footprint: footprint,
       odometry: odometry,
       grid: grid,
       history: :queue.new(),
@@ -186,6 +192,7 @@ defmodule ThinkingCap.Navigation.Mapper do
 
       true ->
         add(state.grid, Map.fetch!(state.sensors, tag), reading, pose)
+        SensedGrid.add_footprint(state.grid, pose, state.footprint)
         stamp = Map.get(reading, :stamp) || state.stamp
         due(%{state | changed: true, stamp: stamp})
     end
@@ -342,7 +349,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   # specular walls make its empty evidence wrong where the laser is right.
   defp sonar_degrees(sensors, params) do
     laser? = Enum.any?(sensors, fn {_, s} -> s.type == :laser end)
-    base = if laser?, do: [k_empty: 0.0, k_occupied: 0.2, trust: 2.0], else: []
+    base = if laser?, do: [k_empty: 0.0, k_occupied: 0.1, trust: 1.0], else: []
     Keyword.merge(base, Enum.to_list(Keyword.get(params, :sonar, [])))
   end
 

@@ -69,7 +69,12 @@ defmodule ThinkingCap.Navigation.MCL do
       0.9, 0.1); `alphas` - the motion model (default from the RDF's
       `odometry_error`: generous multiples of its slips);
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
-      `publish_period` (0.1 s), `map_every` (5 s);
+      `publish_period` (0.1 s), `map_every` (2 s);
+    * `slam_wall` - in simultaneous localization and mapping, the
+      occupancy (0-100) from which a cell of the map being built counts as
+      a wall (default 30: a wall seen once, from afar, is already one;
+      beams that end near it would otherwise weigh less than beams that
+      end in unknown space, and pull the estimate off);
     * `lost_through` (0.2), `lost_after` (3), `search_step` (0.2 m),
       `search_headings` (72).
   """
@@ -95,7 +100,8 @@ defmodule ThinkingCap.Navigation.MCL do
     update_distance: 0.05,
     update_angle: 0.05,
     publish_period: 0.1,
-    map_every: 5.0,
+    map_every: 2.0,
+    slam_wall: 30,
     lost_through: 0.2,
     lost_after: 3,
     search_step: 0.2,
@@ -148,6 +154,8 @@ defmodule ThinkingCap.Navigation.MCL do
       map_at: nil,
       pending_map: nil,
       last_odometry: nil,
+      odometry_at: nil,
+      held: nil,
       moved: {0.0, 0.0},
       fit: nil,
       poor: 0,
@@ -212,15 +220,17 @@ defmodule ThinkingCap.Navigation.MCL do
 
     case s.last_odometry do
       nil ->
-        {[], %{s | last_odometry: odom}}
+        {[], %{s | last_odometry: odom, odometry_at: stamp}}
 
       previous ->
         {dx, dy, dth} = delta = EKF.relative(previous, odom)
         filter = ParticleFilter.move(s.filter, delta)
         {d, a} = s.moved
         moved = {d + :math.sqrt(dx * dx + dy * dy), a + abs(dth)}
-        s = %{s | filter: filter, last_odometry: odom, moved: moved}
-        if due?(s, stamp), do: publish(s, stamp), else: {[], s}
+        s = %{s | filter: filter, last_odometry: odom, odometry_at: stamp, moved: moved}
+        {actions, s} = if due?(s, stamp), do: publish(s, stamp), else: {[], s}
+        {more, s} = release_held(s)
+        {actions ++ more, s}
     end
   end
 
@@ -231,6 +241,33 @@ defmodule ThinkingCap.Navigation.MCL do
 
   def handle_tuple({tag, robot, %{ranges: ranges} = scan}, %{robot: robot} = state)
       when is_map_key(state.lasers, tag) and is_list(ranges) do
+    if ahead?(Map.get(scan, :stamp), state.odometry_at) do
+      # taken after the odometry so far: weighed once the odometry of its
+      # time has moved the particles there (a scan held before is weighed
+      # now, with the odometry there is)
+      {actions, state} = release_held(%{state | held: nil}, state.held)
+      {actions, %{state | held: {tag, scan}}}
+    else
+      scan(state, tag, scan)
+    end
+  end
+
+  def handle_tuple(_tuple, state), do: {[], state}
+
+  defp ahead?(stamp, odometry_at),
+    do: is_number(stamp) and is_number(odometry_at) and stamp > odometry_at + 1.0e-9
+
+  defp release_held(%{held: held} = state), do: release_held(state, held)
+
+  defp release_held(state, nil), do: {[], state}
+
+  defp release_held(state, {tag, scan} = held) do
+    if ahead?(Map.get(scan, :stamp), state.odometry_at) and state.held == held,
+      do: {[], state},
+      else: scan(%{state | held: nil}, tag, scan)
+  end
+
+  defp scan(state, tag, scan) do
     stamp = Map.get(scan, :stamp)
     state = take_map(state, stamp)
     {d, a} = state.moved
@@ -260,8 +297,6 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
-  def handle_tuple(_tuple, state), do: {[], state}
-
   ## the filter
 
   # the map builder's map, at most every map_every seconds
@@ -269,7 +304,9 @@ defmodule ThinkingCap.Navigation.MCL do
 
   defp take_map(%{pending_map: map} = state, stamp) do
     if state.map_at == nil or stamp == nil or stamp - state.map_at >= state.params[:map_every] do
-      filter = ParticleFilter.set_map(state.filter, map, state.params[:seed])
+      filter =
+        ParticleFilter.set_map(state.filter, map, state.params[:seed], state.params[:slam_wall])
+
       status = if state.status == :dead_reckoning, do: :tracking, else: state.status
       %{state | filter: filter, source: :sensed, map_at: stamp, pending_map: nil, status: status}
     else

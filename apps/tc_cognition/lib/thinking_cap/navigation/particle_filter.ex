@@ -87,15 +87,23 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   @doc """
   Takes a map: the likelihood field is built from its cells of occupancy
-  at least 50, and a few thousand poses in its known free space are drawn
+  at least `threshold` (default 50), and a few thousand poses in its known free space are drawn
   (with `seed`) for the particles augmented MCL brings in.
   """
-  @spec set_map(t(), OccupancyGrid.t(), integer()) :: t()
-  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1) do
+  @spec set_map(t(), OccupancyGrid.t(), integer(), 1..100) :: t()
+  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1, threshold \\ 50) do
     {ox, oy} = map.origin
 
     field =
-      GridNif.field_new(map.data, map.width, map.height, map.resolution, ox * 1.0, oy * 1.0, 50)
+      GridNif.field_new(
+        map.data,
+        map.width,
+        map.height,
+        map.resolution,
+        ox * 1.0,
+        oy * 1.0,
+        threshold
+      )
 
     %{pf | field: field, map: map, free_poses: free_poses(map, 4000, seed)}
   end

@@ -112,8 +112,48 @@ defmodule ThinkingCap.Navigation.MCLTest do
     }
 
     {_actions, state} = MCL.handle_tuple({:laser, :r, scan}, state)
+    # taken after the last odometry (0.2): it waits for the odometry of its time
+    assert state.source == nil
+    {_actions, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.5, 0.0, 0.0}, stamp: 0.3}}, state)
     assert state.source == :sensed
     assert state.status != :dead_reckoning
+  end
+
+  test "a scan is weighed where the robot was when it was taken, whatever came first" do
+    context = %{name: :localization, robot: :r, rdf: @rdf, wdf: @office}
+    {_subscriptions, state} = MCL.init([initial: {1.0, 1.0, 0.0}], context)
+    {_, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.0, 0.0, 0.0}, stamp: 0.0}}, state)
+
+    scan = fn t ->
+      %{
+        ranges: List.duplicate(2.0, 181),
+        angle_min: -1.57,
+        angle_increment: 0.0174,
+        range_max: 8.0,
+        stamp: t
+      }
+    end
+
+    # the scan of 0.1 before the odometry of 0.1: held, not weighed
+    {[], state} = MCL.handle_tuple({:laser, :r, scan.(0.1)}, state)
+    assert state.checked == nil
+
+    {_actions, state} =
+      MCL.handle_tuple({:odom, :r, %{pose: {0.02, 0.0, 0.0}, stamp: 0.1}}, state)
+
+    assert state.checked == 0.1
+
+    assert state.held == nil
+
+    # a second scan ahead while one waits: the first is taken at once, the
+    # second waits, and the odometry of its time releases it
+    {_, state} = MCL.handle_tuple({:laser, :r, scan.(0.2)}, state)
+    assert {:laser, %{stamp: 0.2}} = state.held
+    {_, state} = MCL.handle_tuple({:laser, :r, scan.(0.3)}, state)
+    assert {:laser, %{stamp: 0.3}} = state.held
+    {_, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.2, 0.0, 0.0}, stamp: 0.4}}, state)
+    assert state.held == nil
+    assert state.checked == 0.3
   end
 
   test "garbage tuples are ignored" do

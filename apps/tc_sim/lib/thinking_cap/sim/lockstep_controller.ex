@@ -4,7 +4,8 @@ defmodule ThinkingCap.Sim.LockstepController do
   modules of an ADF) as an in-process controller of a simulated robot
   (`ThinkingCap.Sim.Controller`), run in lockstep with the simulation
   clock by `ThinkingCap.Testing.Lockstep`: each step's readings are
-  delivered as `{sensor, robot, payload}` tuples, periodic modules are
+  delivered as `{sensor, robot, payload}` tuples (odometry first, so that
+  a scan of the step finds the robot's motion up to it), periodic modules are
   released as simulated time passes, and the latest
   `{:drive, robot, %{command: ...}}` is the robot's command. Deterministic
   for a seed, and as fast as the machine: for benchmarks and tests of
@@ -35,7 +36,9 @@ defmodule ThinkingCap.Sim.LockstepController do
     time = readings |> Map.values() |> Enum.map(&Map.get(&1, :stamp, state.time)) |> Enum.max()
 
     lock =
-      Enum.reduce(readings, Lockstep.clear_outs(state.lock), fn {sensor, payload}, lock ->
+      readings
+      |> Enum.sort_by(fn {_sensor, payload} -> not is_map_key(payload, :pose) end)
+      |> Enum.reduce(Lockstep.clear_outs(state.lock), fn {sensor, payload}, lock ->
         Lockstep.deliver(lock, {sensor, robot, payload})
       end)
       |> Lockstep.advance(time)

@@ -198,6 +198,32 @@ defmodule ThinkingCap.Navigation.Maps.SensedGrid do
     end)
   end
 
+  @doc """
+  Marks the ground under the robot as empty: the robot stands there, so
+  nothing else does. `discs` are `{x, y, r}` in the robot frame (as
+  `ThinkingCap.Robot.Description.circles/1` gives them), each emptied
+  over 80 % of its radius with degree `k_empty` (default 0.3), from 24
+  rays out of its centre. A robot started in unknown space thus stands
+  in known free space from its first reading on.
+  """
+  @spec add_footprint(t(), pose(), [{number(), number(), number()}], float()) :: t()
+  def add_footprint(%__MODULE__{} = map, {x, y, th}, discs, k_empty \\ 0.3) do
+    {c, s} = {:math.cos(th), :math.sin(th)}
+
+    Enum.reduce(discs, map, fn {dx, dy, r}, map ->
+      reach = 0.8 * r
+      centre = {x + c * dx - s * dy, y + s * dx + c * dy}
+
+      rays =
+        for i <- 0..23,
+            do:
+              <<i * :math.pi() / 12::float-native, reach::float-native, k_empty::float-native,
+                0.0::float-native>>
+
+      integrate(map, centre, rays, reach + 1.0e-6)
+    end)
+  end
+
   defp integrate(map, {x, y}, rays, range_max) do
     _changed =
       GridNif.fmap_integrate(
