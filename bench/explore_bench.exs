@@ -20,7 +20,8 @@ defmodule ThinkingCap.Bench.Explore do
   Ends with `explore: runs=N coverage_pct=C accuracy_pct=A seconds=S`.
 
   For tuning: `TC_TRACE=1` prints the estimate's error every second
-  (every 0.1 s in the first 10 s); `TC_MCL` and `TC_MAPPER` hold keyword
+  (every 0.1 s in the first 10 s); `TC_LIMIT` cuts runs short (s);
+  `TC_MCL` and `TC_MAPPER` hold keyword
   lists (Elixir terms) added to the localizer's and the map builder's
   params; `TC_KEEP=1` keeps the saved maps.
   """
@@ -155,12 +156,16 @@ defmodule ThinkingCap.Bench.Explore do
     {:ok, c} = Sim.controller_state(sim, :explorer)
     saved = Lockstep.latest(c.lock, {:map_saved, :explorer, :_})
 
+    limit = min(@limit, limit())
+
     case Lockstep.latest(c.lock, {:plan, :explorer, :_}) do
       {:plan, _, %{state: s}} when s in [:done, :failed] and saved != nil -> {t, s}
-      {:plan, _, %{state: s}} when t >= @limit -> {t, s}
+      {:plan, _, %{state: s}} when t >= limit -> {t, s}
       _ -> drive(sim, t)
     end
   end
+
+  defp limit, do: String.to_integer(System.get_env("TC_LIMIT") || "1800")
 
   # TC_TRACE=1: the true pose and the estimate every second
   defp trace_or_run(sim, t) do

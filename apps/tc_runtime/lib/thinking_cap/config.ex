@@ -14,15 +14,23 @@ defmodule ThinkingCap.Config do
   `Code.string_to_quoted/2` and **never evaluated**: anything but literal
   data (numbers, atoms, strings, lists, tuples, maps, module names) is
   refused. Every problem is reported as `file:line:column: message`, all of
-  a file's problems at once; unknown keys are errors, with a "did you mean"
-  when a known key is close. Each kind's module documents its keys and
+  a file's problems at once (at most 50, then how many more); unknown keys
+  are errors, with a "did you mean" when a known key is close.
+
+  Any byte sequence gets an answer in time and memory bounded by its size:
+  a file is refused unread above 4 MB, and before it is parsed when it is
+  not UTF-8 or its brackets nest deeper than 64; parsing makes at most
+  2,000 new atoms per file (the names of waypoints, sensors and the like),
+  and refuses the file past that. Each kind's module documents its keys and
   defaults, in one table per section.
 
       {:ok, %ThinkingCap.Config.ADF{}} = ThinkingCap.Config.read("priv/examples/office.adf")
       {:error, [%ThinkingCap.Config.Error{} | _]} = ThinkingCap.Config.read("broken.rdf")
   """
 
-  alias ThinkingCap.Config.{ADF, Error, Literal, RDF, WDF}
+  alias ThinkingCap.Config.{ADF, Error, Literal, RDF, Source, WDF}
+
+  @max_errors 50
 
   @kinds %{".adf" => ADF, ".rdf" => RDF, ".wdf" => WDF}
 
@@ -32,9 +40,24 @@ defmodule ThinkingCap.Config do
   @spec read(Path.t()) :: {:ok, description()} | {:error, [Error.t()]}
   def read(path) do
     with {:ok, kind} <- kind(path),
-         {:ok, source} <- read_file(path),
-         {:ok, data, positions} <- Literal.parse(source, path) do
-      kind.from_data(data, path, positions)
+         {:ok, source} <- Source.read(path),
+         {:ok, data, positions} <- Literal.parse(source, path),
+         {:ok, description} <- kind.from_data(data, path, positions) do
+      {:ok, description}
+    else
+      {:error, errors} -> {:error, bounded(errors)}
+    end
+  end
+
+  # at most @max_errors errors, then one that says how many more there are
+  defp bounded(errors) do
+    case Enum.split(errors, @max_errors) do
+      {some, []} ->
+        some
+
+      {some, [first | _] = rest} ->
+        some ++
+          [Error.new(first.file, {first.line, first.column}, "and #{length(rest)} more errors")]
     end
   end
 
@@ -79,16 +102,6 @@ defmodule ThinkingCap.Config do
              "unknown kind of description file: expected a .adf, .rdf or .wdf file"
            )
          ]}
-    end
-  end
-
-  defp read_file(path) do
-    case File.read(path) do
-      {:ok, source} ->
-        {:ok, source}
-
-      {:error, reason} ->
-        {:error, [Error.new(path, {0, 0}, "cannot read the file: #{:file.format_error(reason)}")]}
     end
   end
 end

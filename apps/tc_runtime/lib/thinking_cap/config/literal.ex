@@ -13,13 +13,24 @@ defmodule ThinkingCap.Config.Literal do
   @type path :: [term()]
   @type positions :: %{optional(path() | {:key, path()}) => {pos_integer(), pos_integer()}}
 
+  # Input is bounded before it is parsed (ThinkingCap.Config.Source: size,
+  # UTF-8, nesting), and the parser makes no atom it is not allowed to:
+  # a name that is not an atom yet (a waypoint's, a sensor's; a variable's,
+  # which is then refused) is made one only while the file has made fewer
+  # than @new_atoms of them.
+  @new_atoms 2_000
+
   @doc false
   @spec parse(String.t(), Path.t()) :: {:ok, term(), positions()} | {:error, [Error.t()]}
   def parse(source, file) do
+    budget = :counters.new(1, [])
+
     opts = [
       file: file,
       columns: true,
       token_metadata: true,
+      existing_atoms_only: true,
+      static_atoms_encoder: &encode_atom(&1, &2, budget),
       literal_encoder: &{:ok, {:__block__, &2, [&1]}}
     ]
 
@@ -41,6 +52,24 @@ defmodule ThinkingCap.Config.Literal do
          ]}
     end
   end
+
+  defp encode_atom(name, _meta, _budget) when byte_size(name) > 255,
+    do: {:error, "a name longer than 255 bytes: "}
+
+  defp encode_atom(name, _meta, budget) do
+    {:ok, String.to_existing_atom(name)}
+  rescue
+    ArgumentError ->
+      if :counters.get(budget, 1) < @new_atoms do
+        :counters.add(budget, 1, 1)
+        {:ok, String.to_atom(name)}
+      else
+        {:error, "more than #{@new_atoms} distinct new names in one file, at "}
+      end
+  end
+
+  defp syntax_message("unsafe atom does not exist: ", token),
+    do: "unknown name #{token}: write an atom as :#{token} or a string in quotes"
 
   defp syntax_message(message, token) when is_binary(message), do: String.trim(message <> token)
   defp syntax_message({prefix, suffix}, token), do: String.trim("#{prefix}#{token}#{suffix}")

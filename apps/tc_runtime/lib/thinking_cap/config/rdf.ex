@@ -255,18 +255,20 @@ defmodule ThinkingCap.Config.RDF do
       |> Enum.with_index()
       |> Enum.reduce({st, MapSet.new()}, fn {s, i}, {st, seen} ->
         path = [:sensors, i]
+        # a name that failed its own check is reported already
+        name = Map.get(s, :name)
 
         st =
-          if MapSet.member?(seen, s.name),
+          if name != nil and MapSet.member?(seen, name),
             do:
               Schema.error(
                 st,
                 path ++ [:name],
-                "sensors[#{i}].name: #{inspect(s.name)} is used by another sensor"
+                "sensors[#{i}].name: #{inspect(name)} is used by another sensor"
               ),
             else: st
 
-        {st |> check_sensor(path, s) |> check_link(path, s, urdf), MapSet.put(seen, s.name)}
+        {st |> check_sensor(path, s) |> check_link(path, s, urdf), MapSet.put(seen, name)}
       end)
 
     st
@@ -296,7 +298,7 @@ defmodule ThinkingCap.Config.RDF do
       Schema.error(
         st,
         path ++ [:link],
-        "#{Schema.path_string(path ++ [:link])}: sensor #{inspect(s.name)} takes its pose from URDF link #{inspect(link)}, but the robot has no urdf: file"
+        "#{Schema.path_string(path ++ [:link])}: sensor #{inspect(Map.get(s, :name))} takes its pose from URDF link #{inspect(link)}, but the robot has no urdf: file"
       )
 
   defp check_link(st, _path, _s, _urdf), do: st
