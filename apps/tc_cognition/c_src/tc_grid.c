@@ -886,6 +886,7 @@ static ErlNifFunc funcs[] = {
     {"pf_sample", 2, tc_nif_pf_sample, 0},
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},
+    {"dsl_sync", 3, tc_nif_dsl_sync, 0},
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
 };

@@ -61,6 +61,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_sync(_dsl, _cells, _max), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_move_start(_dsl, _cell), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end
