@@ -506,26 +506,15 @@ ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     return dsl_update_now(env, argc, argv);
 }
 
-/* the number of bytes where a and b differ, up to limit + 1 */
-static size_t count_diff(const uint8_t *a, const uint8_t *b, size_t n, size_t limit)
-{
-    size_t count = 0, i = 0;
-    for (; i + 8 <= n; i += 8) {
-        uint64_t x, y;
-        memcpy(&x, a + i, 8);
-        memcpy(&y, b + i, 8);
-        if (x == y) continue;
-        for (size_t j = i; j < i + 8; j++) count += a[j] != b[j];
-        if (count > limit) return count;
-    }
-    for (; i < n; i++) count += a[i] != b[i];
-    return count;
-}
+/* grids are compared in blocks: memcmp skips equal ones at memory speed */
+#define BLOCK 256
 
 /* dsl_sync(dsl, cells, max) -> {:ok, changed} | {:too_many, changed}:
  * the search's grid made `cells` (same size), the changed cells repaired
  * as dsl_update does; more than max changed cells leave the search as it
- * was (a new search is then cheaper), `changed` counting up to max + 1. */
+ * was (a new search is then cheaper), `changed` counting up to max + 1.
+ * One pass over the grids lists the differing cells, then they are set
+ * and repaired. */
 static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
@@ -537,29 +526,35 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         return enif_make_badarg(env);
     size_t n = (size_t)d->w * d->h;
     if (b.size != n) return enif_make_badarg(env);
+    size_t cap = 256, m = 0;
+    int32_t *changed = malloc(cap * sizeof(int32_t));
+    if (!changed) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     enif_mutex_lock(d->lock);
-    size_t count = count_diff(d->cells, b.data, n, (size_t)max);
-    if (count > (size_t)max) {
+    for (size_t i = 0; i < n && m <= (size_t)max; i += BLOCK) {
+        size_t len = n - i < BLOCK ? n - i : BLOCK;
+        if (!memcmp(d->cells + i, b.data + i, len)) continue;
+        for (size_t j = i; j < i + len && m <= (size_t)max; j++) {
+            if (d->cells[j] == (b.data[j] ? 1 : 0)) continue;
+            if (m == cap) {
+                int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
+                if (!more) {
+                    enif_mutex_unlock(d->lock);
+                    free(changed);
+                    return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+                }
+                changed = more;
+                cap *= 2;
+            }
+            changed[m++] = (int32_t)j;
+        }
+    }
+    if (m > (size_t)max) {
         enif_mutex_unlock(d->lock);
-        return enif_make_tuple2(env, enif_make_atom(env, "too_many"),
-                                enif_make_long(env, (long)count));
+        free(changed);
+        return enif_make_tuple2(env, enif_make_atom(env, "too_many"), enif_make_long(env, (long)m));
     }
-    int32_t *changed = malloc((count + 1) * sizeof(int32_t));
-    if (!changed) {
-        enif_mutex_unlock(d->lock);
-        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    }
-    size_t m = 0;
-    for (size_t i = 0; i + 8 <= n && m < count; i += 8) {
-        uint64_t x, y;
-        memcpy(&x, d->cells + i, 8);
-        memcpy(&y, b.data + i, 8);
-        if (x == y) continue;
-        for (size_t j = i; j < i + 8; j++)
-            if (set_cell(d, (int32_t)j, b.data[j])) changed[m++] = (int32_t)j;
-    }
-    for (size_t j = n - n % 8; j < n; j++)
-        if (set_cell(d, (int32_t)j, b.data[j])) changed[m++] = (int32_t)j;
+    /* the cells first, so every rhs repaired sees the new grid */
+    for (size_t k = 0; k < m; k++) set_cell(d, changed[k], b.data[changed[k]]);
     long looked = repair_rhs(d, changed, m);
     enif_mutex_unlock(d->lock);
     free(changed);
