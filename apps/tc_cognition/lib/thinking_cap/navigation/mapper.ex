@@ -22,13 +22,6 @@ defmodule ThinkingCap.Navigation.Mapper do
   reading's, so that a scan taken while turning lands where it was taken.
   Readings before the first estimate wait for none: they are dropped.
 
-  **Lost robots draw no map.** While the localizer says it does not know
-  where the robot is (the estimate's `status` is one of `skip_while`,
-  by default `:lost` and `:relocalizing`), readings are left out: placed
-  at a wrong pose, they would draw walls across free space (across the
-  goal, say) and wipe real ones, and the map would mislead the planner
-  and the localizer long after the robot is found again.
-
   ## Published (latest values)
 
     * `{:map, robot, %ThinkingCap.Navigation.OccupancyGrid{}}` (key
@@ -66,8 +59,6 @@ defmodule ThinkingCap.Navigation.Mapper do
     * `save`, `save_every` (default 30 s);
     * `max_turn_rate` - scans taken while the robot turns faster (rad/s,
       default 0.6; nil: every scan) are left out: they land smeared;
-    * `skip_while` - the estimate's statuses during which readings are
-      left out (default `[:lost, :relocalizing]`; `[]`: none);
     * `fade`, `lambda`, `known`, `laser`, `sonar` - the fuzzy grid's
       (`ThinkingCap.Navigation.Maps.SensedGrid.new/3`); on a robot with
       a laser, sonars add only echoes closer than 2 m by default
@@ -100,8 +91,7 @@ defmodule ThinkingCap.Navigation.Mapper do
     save_every: 30.0,
     door_width: 1.2,
     min_area: 1.5,
-    max_turn_rate: 0.6,
-    skip_while: [:lost, :relocalizing]
+    max_turn_rate: 0.6
   ]
 
   @grid_opts [:fade, :lambda, :known, :laser, :sonar]
@@ -132,7 +122,6 @@ defmodule ThinkingCap.Navigation.Mapper do
       grid: grid,
       history: :queue.new(),
       estimate: nil,
-      status: nil,
       stamp: nil,
       changed: false,
       version: 0,
@@ -175,8 +164,7 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose} = p}, %{robot: robot} = state) do
     stamp = Map.get(p, :stamp)
-
-    {[], %{state | estimate: {pose, odometry_at(state, stamp)}, status: Map.get(p, :status)}}
+    {[], %{state | estimate: {pose, odometry_at(state, stamp)}}}
   end
 
   def handle_tuple({:save_map, robot, %{path: path}}, %{robot: robot} = state)
@@ -189,10 +177,6 @@ defmodule ThinkingCap.Navigation.Mapper do
 
     cond do
       pose == nil ->
-        {[], state}
-
-      # placed at a pose the localizer does not believe: left out
-      state.status in state.params[:skip_while] ->
         {[], state}
 
       # a scan taken while turning fast lands smeared (the pose a sweep was

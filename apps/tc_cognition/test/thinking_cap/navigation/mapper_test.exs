@@ -220,36 +220,4 @@ defmodule ThinkingCap.Navigation.MapperTest do
       Mapper.init([], %{name: :mapper, robot: :r, rdf: rdf, wdf: nil})
     end
   end
-
-  test "readings taken while the localizer is lost or relocalizing draw nothing", %{
-    tmp_dir: dir
-  } do
-    context = %{robot: :r, name: :mapper, rdf: @rdf, wdf: T.wdf!(dir, [])}
-    {_subscriptions, state} = Mapper.init([initial: {0.0, 0.0}, size: {10, 10}], context)
-
-    # a wall 2 m ahead, seen by the front laser
-    scan = %{
-      ranges: List.duplicate(1.98, 61),
-      angle_min: -0.5,
-      angle_increment: 1.0 / 60,
-      range_max: 8.0,
-      stamp: 1.0
-    }
-
-    seen = fn state, status ->
-      pose = {:pose, :r, %{pose: {0.0, 0.0, 0.0}, stamp: 1.0, status: status}}
-      {[], state} = Mapper.handle_tuple(pose, state)
-      {actions, state} = Mapper.handle_tuple({:laser, :r, scan}, state)
-      maps = for {:out, {{:map, :r, map}, _}} <- actions, do: map
-      {maps, state}
-    end
-
-    for status <- [:lost, :relocalizing] do
-      assert {[], %{changed: false, version: 0}} = seen.(state, status)
-    end
-
-    {[map], _state} = seen.(state, :tracking)
-    assert OccupancyGrid.value(map, OccupancyGrid.cell_of(map, {2.025, 0.0})) >= 30
-    assert OccupancyGrid.value(map, OccupancyGrid.cell_of(map, {1.0, 0.0})) in 0..49
-  end
 end
