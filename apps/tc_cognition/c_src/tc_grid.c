@@ -539,6 +539,22 @@ static ERL_NIF_TERM nif_diff(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     return enif_make_tuple2(env, enif_make_long(env, count), list);
 }
 
+/* overlay(data, mask, value) -> a copy of data with `value` (0..255)
+ * wherever mask is non-zero (both the same size) */
+static ERL_NIF_TERM nif_overlay(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary d, m;
+    int value;
+    if (!enif_inspect_binary(env, argv[0], &d) || !enif_inspect_binary(env, argv[1], &m) ||
+        d.size != m.size || !enif_get_int(env, argv[2], &value) || value < 0 || value > 255)
+        return enif_make_badarg(env);
+    ERL_NIF_TERM out;
+    unsigned char *p = enif_make_new_binary(env, d.size, &out);
+    for (size_t i = 0; i < d.size; i++) p[i] = m.data[i] ? (unsigned char)value : d.data[i];
+    return out;
+}
+
 /* blocked(occupancy, threshold, unknown) -> 1 where the signed byte is
  * >= threshold, `unknown` (0 or 1) where it is -1, else 0 */
 static ERL_NIF_TERM nif_blocked(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -866,6 +882,7 @@ static ErlNifFunc funcs[] = {
     {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"overlay", 3, nif_overlay, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"downsample", 4, nif_downsample, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"patch", 2, nif_patch, 0},
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
@@ -886,6 +903,7 @@ static ErlNifFunc funcs[] = {
     {"pf_sample", 2, tc_nif_pf_sample, 0},
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},
+    {"dsl_sync", 3, tc_nif_dsl_sync, 0},
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
 };

@@ -388,30 +388,29 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return t;
 }
 
-/* dsl_update(dsl, changes): changes is a binary of native int32 pairs
- * {index, blocked}. Returns the number of vertices whose rhs was looked
- * at. Only blocking changes next to a vertex whose rhs is infinite
- * (unexplored) leave it alone: its rhs cannot fall. */
-static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+/* Sets cell i blocked or free; returns 1 if that changed it. */
+static int set_cell(Dsl *d, int32_t i, int blocked)
 {
-    (void)argc;
-    Dsl *d;
-    ErlNifBinary b;
-    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
-        !enif_inspect_binary(env, argv[1], &b) || b.size % 8 != 0)
-        return enif_make_badarg(env);
-    const int32_t *ch = (const int32_t *)b.data;
-    size_t m = b.size / 8;
-    long n = (long)d->w * d->h, looked = 0;
-    int ok = 1;
-    enif_mutex_lock(d->lock);
-    /* the cells first, so every rhs below sees the new grid */
-    for (size_t k = 0; k < m; k++)
-        if (ch[2 * k] >= 0 && ch[2 * k] < n) d->cells[ch[2 * k]] = ch[2 * k + 1] ? 1 : 0;
-    for (size_t k = 0; k < m && ok; k++) {
-        int32_t i = ch[2 * k];
-        if (i < 0 || i >= n) continue;
-        int freed = !ch[2 * k + 1];
+    uint8_t v = blocked ? 1 : 0;
+    if (d->cells[i] == v) return 0;
+    d->cells[i] = v;
+    return 1;
+}
+
+/* After cells changed (their new values already in d->cells, so every
+ * rhs below sees the new grid): the rhs of each changed cell and of its
+ * 8 neighbours (the vertices whose outgoing edges changed) is looked at
+ * again, and queued if that made it inconsistent. Only blocking changes
+ * next to a vertex whose rhs is infinite (unexplored) leave it alone: its
+ * rhs cannot fall. A vertex next to several changed cells is looked at
+ * once per change (cheap: changes come in small patches). Returns the
+ * number of vertices looked at, or -1 out of memory. */
+static long repair_rhs(Dsl *d, const int32_t *changed, size_t m)
+{
+    long looked = 0;
+    for (size_t k = 0; k < m; k++) {
+        int32_t i = changed[k];
+        int freed = !d->cells[i];
         int c = i % d->w, r = i / d->w;
         for (int dr = -1; dr <= 1; dr++)
             for (int dc = -1; dc <= 1; dc++) {
@@ -425,24 +424,152 @@ static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
                 int64_t v = best_rhs(d, u);
                 if (v != old) {
                     SET_RHS(d, u, v);
-                    ok = update_vertex(d, u) && ok;
+                    if (!update_vertex(d, u)) return -1;
                 }
             }
     }
     d->work += looked;
+    return looked;
+}
+
+/* dsl_update(dsl, changes): changes is a list of {{col, row}, blocked?}
+ * (cells outside the grid and cells already so are skipped; a later
+ * change of a cell wins). Returns {applied, cells}: the number of
+ * changes that changed a cell and, if any did, a copy of the search's
+ * grid as it is now (nil if none did). A malformed list changes nothing. */
+static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    unsigned len;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
+        !enif_get_list_length(env, argv[1], &len))
+        return enif_make_badarg(env);
+    /* read and check the whole list before anything changes */
+    int32_t *index = malloc(((size_t)len + 1) * sizeof(int32_t));
+    uint8_t *value = malloc((size_t)len + 1);
+    if (!index || !value) {
+        free(index);
+        free(value);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    size_t k = 0;
+    ERL_NIF_TERM list = argv[1], head;
+    while (enif_get_list_cell(env, list, &head, &list)) {
+        int arity, arity2, c, r;
+        const ERL_NIF_TERM *e, *cell;
+        char atom[6];
+        if (!enif_get_tuple(env, head, &arity, &e) || arity != 2 ||
+            !enif_get_tuple(env, e[0], &arity2, &cell) || arity2 != 2 ||
+            !enif_get_int(env, cell[0], &c) || !enif_get_int(env, cell[1], &r) ||
+            !enif_get_atom(env, e[1], atom, sizeof(atom), ERL_NIF_LATIN1) ||
+            (strcmp(atom, "true") && strcmp(atom, "false"))) {
+            free(index);
+            free(value);
+            return enif_make_badarg(env);
+        }
+        if (c < 0 || r < 0 || c >= d->w || r >= d->h) continue;
+        index[k] = r * d->w + c;
+        value[k++] = atom[0] == 't';
+    }
+    enif_mutex_lock(d->lock);
+    /* the cells first, so every rhs repaired sees the new grid */
+    size_t m = 0;
+    for (size_t j = 0; j < k; j++)
+        if (set_cell(d, index[j], value[j])) index[m++] = index[j];
+    long looked = repair_rhs(d, index, m);
+    ERL_NIF_TERM result;
+    if (looked < 0) {
+        result = enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    } else if (m == 0) {
+        result = enif_make_tuple2(env, enif_make_long(env, 0), enif_make_atom(env, "nil"));
+    } else {
+        ERL_NIF_TERM cells;
+        size_t n = (size_t)d->w * d->h;
+        unsigned char *p = enif_make_new_binary(env, n, &cells);
+        memcpy(p, d->cells, n);
+        result = enif_make_tuple2(env, enif_make_long(env, (long)m), cells);
+    }
     enif_mutex_unlock(d->lock);
-    if (!ok) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    return enif_make_long(env, looked);
+    free(index);
+    free(value);
+    return result;
 }
 
 /* small updates run on the calling scheduler; big ones on a dirty one */
 ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    ErlNifBinary b;
-    if (argc == 2 && enif_inspect_binary(env, argv[1], &b) && b.size / 8 > SMALL_UPDATE)
+    unsigned len;
+    if (argc == 2 && enif_get_list_length(env, argv[1], &len) && len > SMALL_UPDATE)
         return enif_schedule_nif(env, "dsl_update", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_update_now,
                                  argc, argv);
     return dsl_update_now(env, argc, argv);
+}
+
+/* grids are compared in blocks: memcmp skips equal ones at memory speed */
+#define BLOCK 256
+
+/* dsl_sync(dsl, cells, max) -> {:ok, changed} | {:too_many, changed}:
+ * the search's grid made `cells` (same size), the changed cells repaired
+ * as dsl_update does; more than max changed cells leave the search as it
+ * was (a new search is then cheaper), `changed` counting up to max + 1.
+ * One pass over the grids lists the differing cells, then they are set
+ * and repaired. */
+static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    ErlNifBinary b;
+    long max;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
+        !enif_inspect_binary(env, argv[1], &b) || !enif_get_long(env, argv[2], &max) || max < 0)
+        return enif_make_badarg(env);
+    size_t n = (size_t)d->w * d->h;
+    if (b.size != n) return enif_make_badarg(env);
+    size_t cap = 256, m = 0;
+    int32_t *changed = malloc(cap * sizeof(int32_t));
+    if (!changed) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    enif_mutex_lock(d->lock);
+    for (size_t i = 0; i < n && m <= (size_t)max; i += BLOCK) {
+        size_t len = n - i < BLOCK ? n - i : BLOCK;
+        if (!memcmp(d->cells + i, b.data + i, len)) continue;
+        for (size_t j = i; j < i + len && m <= (size_t)max; j++) {
+            if (d->cells[j] == (b.data[j] ? 1 : 0)) continue;
+            if (m == cap) {
+                int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
+                if (!more) {
+                    enif_mutex_unlock(d->lock);
+                    free(changed);
+                    return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+                }
+                changed = more;
+                cap *= 2;
+            }
+            changed[m++] = (int32_t)j;
+        }
+    }
+    if (m > (size_t)max) {
+        enif_mutex_unlock(d->lock);
+        free(changed);
+        return enif_make_tuple2(env, enif_make_atom(env, "too_many"), enif_make_long(env, (long)m));
+    }
+    /* the cells first, so every rhs repaired sees the new grid */
+    for (size_t k = 0; k < m; k++) set_cell(d, changed[k], b.data[changed[k]]);
+    long looked = repair_rhs(d, changed, m);
+    enif_mutex_unlock(d->lock);
+    free(changed);
+    if (looked < 0) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    return enif_make_tuple2(env, A_OK, enif_make_long(env, (long)m));
+}
+
+/* a scan of a big grid, or many changes, runs on a dirty scheduler */
+ERL_NIF_TERM tc_nif_dsl_sync(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary b;
+    if (argc == 3 && enif_inspect_binary(env, argv[1], &b) && b.size > (1u << 22))
+        return enif_schedule_nif(env, "dsl_sync", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_sync_now,
+                                 argc, argv);
+    return dsl_sync_now(env, argc, argv);
 }
 
 /* dsl_move_start(dsl, cell) */

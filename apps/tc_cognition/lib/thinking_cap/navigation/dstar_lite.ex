@@ -90,35 +90,52 @@ defmodule ThinkingCap.Navigation.DStarLite do
   @doc """
   Cells change: each `{cell, blocked?}` blocks (`true`) or frees (`false`)
   a cell (cells outside the grid and cells that already are so are
-  ignored). The vertices whose outgoing edges changed (the cells and their
-  8 neighbours) get their rhs-values recomputed and are queued if that
-  made them inconsistent; the next `plan/1` repairs the path from there.
+  ignored; a later change of the same cell wins). The vertices whose
+  outgoing edges changed (the cells and their 8 neighbours) get their
+  rhs-values recomputed and are queued if that made them inconsistent;
+  the next `plan/1` repairs the path from there. The NIF reads, filters
+  and applies the list in one call.
   """
   @spec update_cells(t(), [{Grid.cell(), boolean()}]) :: t()
-  def update_cells(%__MODULE__{} = state, changes) do
+  def update_cells(%__MODULE__{} = state, changes) when is_list(changes) do
     state = next_version(state)
-    %{grid: %Grid{width: w} = grid} = state
 
-    changed =
-      for {cell, blocked?} <- changes,
-          Grid.inside?(grid, cell),
-          Grid.passable?(grid, cell) == blocked?,
-          into: %{},
-          do: {cell, blocked?}
-
-    if changed == %{} do
-      state
-    else
-      packed =
-        for {{col, row}, blocked?} <- changed,
-            into: <<>>,
-            do:
-              <<row * w + col::signed-32-native, if(blocked?, do: 1, else: 0)::signed-32-native>>
-
-      _looked = GridNif.dsl_update(elem(state.store, 0), packed)
-      %{state | grid: Grid.update(grid, Map.to_list(changed))}
+    case GridNif.dsl_update(elem(state.store, 0), changes) do
+      {0, nil} -> state
+      {_n, cells} -> %{state | grid: %{state.grid | cells: cells}}
     end
   end
+
+  @doc """
+  The grid is now `grid` (the same size, origin and resolution): the
+  search finds the cells that differ from its own copy and repairs them
+  as `update_cells/2` does, all in C, without a list of changes. Returns
+  `{:ok, state, changed}` with the number of cells that changed, or
+  `{:too_many, changed, state}` when more than `max_changes` did: the
+  search is then left on its old grid (a search from scratch is cheaper
+  than such a repair), and `changed` counts up to `max_changes + 1`.
+  """
+  @spec update_grid(t(), Grid.t(), non_neg_integer() | :infinity) ::
+          {:ok, t(), non_neg_integer()} | {:too_many, pos_integer(), t()}
+  def update_grid(state, grid, max_changes \\ :infinity)
+
+  def update_grid(%__MODULE__{grid: %Grid{width: w, height: h}} = state, %Grid{} = grid, max)
+      when grid.width == w and grid.height == h do
+    state = next_version(state)
+    max = if max == :infinity, do: w * h, else: max
+
+    case GridNif.dsl_sync(elem(state.store, 0), grid.cells, max) do
+      {:ok, n} -> {:ok, %{state | grid: grid}, n}
+      {:too_many, n} -> {:too_many, n, state}
+    end
+  end
+
+  def update_grid(%__MODULE__{grid: old}, %Grid{} = grid, _max),
+    do:
+      raise(
+        ArgumentError,
+        "grid of #{grid.width}×#{grid.height} for a search on #{old.width}×#{old.height}"
+      )
 
   @doc """
   The robot is now at `start` (a cell inside the grid, usually the next

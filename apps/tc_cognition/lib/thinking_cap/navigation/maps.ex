@@ -34,6 +34,7 @@ defmodule ThinkingCap.Navigation.Maps do
 
   alias ThinkingCap.Config.{RosMap, WDF}
   alias ThinkingCap.Navigation.{Grid, OccupancyGrid}
+  alias ThinkingCap.Navigation.Core.GridNif
   alias ThinkingCap.Navigation.Maps.Raster
 
   @eps 1.0e-9
@@ -173,22 +174,14 @@ defmodule ThinkingCap.Navigation.Maps do
   def prior(%WDF{} = wdf, %Grid{width: w, height: h} = grid) do
     {ox, oy} = grid.origin
     raw = base_rows(wdf.grid, {ox, oy, grid.resolution, w, h}, fill: 255, lut: :raw)
-
-    data =
-      raw
-      |> Enum.with_index()
-      |> Enum.map(fn {row, r} ->
-        blocked = binary_part(grid.cells, r * w, w)
-
-        Enum.zip_with(:binary.bin_to_list(row), :binary.bin_to_list(blocked), fn v, b ->
-          if b == 1, do: 100, else: v
-        end)
-      end)
+    # the grid's blocked cells over the raw map, in C: a warehouse map
+    # has 1.7 million cells (seconds cell by cell in Elixir)
+    data = GridNif.overlay(IO.iodata_to_binary(raw), grid.cells, 100)
 
     %OccupancyGrid{
       width: w,
       height: h,
-      data: IO.iodata_to_binary(data),
+      data: data,
       resolution: grid.resolution,
       origin: grid.origin
     }

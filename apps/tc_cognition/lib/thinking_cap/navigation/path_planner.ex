@@ -16,14 +16,18 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   obstacle if any of its cells is).
 
   **Repairs.** A new map in the same frame changes only the cells whose
-  blocked state differs; they are handed to D* Lite, and the next `plan/3`
-  to the same goal repairs the last search. A new frame (the map grew), a
-  new goal, or more than `max_changes` changed cells start a new search.
+  blocked state differs. The next `plan/3` to the same goal repairs the
+  last search: D* Lite finds those cells itself, in C, by comparing the
+  new cost map with its own copy (`DStarLite.update_grid/3`), and
+  repairs the path from there. A new frame (the map grew), a new goal,
+  or more than `max_changes` changed cells start a new search.
 
   Every `plan/3` records what it did in `last`: `%{kind: :initial |
-  :repair, us: microseconds, expanded: vertices, changed: cells}`; with
-  `compare: true` also `astar_us`, the time A* takes from scratch on the
-  same grid (for benchmarks: it costs that much more).
+  :repair, us: microseconds, expanded: vertices, changed: cells}` (`us`
+  covers the robot's move, finding and repairing the changed cells, and
+  the search); with `compare: true` also `astar_us`, the time A* takes
+  from scratch on the same grid (for benchmarks: it costs that much
+  more).
   """
 
   alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, OccupancyGrid}
@@ -36,7 +40,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
             compare: false,
             grid: nil,
             version: nil,
-            pending: [],
+            pending: :reset,
             search: nil,
             goal: nil,
             last: nil
@@ -50,7 +54,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           compare: boolean(),
           grid: Grid.t() | nil,
           version: term(),
-          pending: [{Grid.cell(), boolean()}] | :reset,
+          pending: :none | :changed | :reset,
           search: DStarLite.t() | nil,
           goal: Grid.cell() | nil,
           last: map() | nil
@@ -101,24 +105,22 @@ defmodule ThinkingCap.Navigation.PathPlanner do
     Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin)
   end
 
-  # the cells that changed since the last grid, or :reset for a new frame
+  # whether the search must start anew (:reset: a new frame), may have
+  # cells to repair (:changed) or has nothing new (:none)
   defp changes(%{grid: nil}, _grid), do: :reset
   defp changes(%{pending: :reset}, _grid), do: :reset
 
   defp changes(%{grid: old} = planner, grid) do
-    if {old.width, old.height, old.origin, old.resolution} !=
-         {grid.width, grid.height, grid.origin, grid.resolution} do
-      :reset
-    else
-      case GridNif.diff(old.cells, grid.cells, planner.max_changes) do
-        {n, _} when n > planner.max_changes ->
-          :reset
+    cond do
+      {old.width, old.height, old.origin, old.resolution} !=
+          {grid.width, grid.height, grid.origin, grid.resolution} ->
+        :reset
 
-        {_n, indices} ->
-          w = grid.width
-          fresh = for i <- indices, do: {{rem(i, w), div(i, w)}, :binary.at(grid.cells, i) == 1}
-          planner.pending ++ fresh
-      end
+      old.cells == grid.cells ->
+        planner.pending
+
+      true ->
+        :changed
     end
   end
 
@@ -188,7 +190,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
         do: Map.put(last, :astar_us, astar_us(planner.grid, start, target)),
         else: last
 
-    planner = %{planner | search: dstar, goal: target, pending: [], last: last}
+    planner = %{planner | search: dstar, goal: target, pending: :none, last: last}
 
     case result do
       {:ok, cells, _} -> {:ok, Enum.map(cells, &Grid.centre(planner.grid, &1)), planner}
@@ -196,10 +198,27 @@ defmodule ThinkingCap.Navigation.PathPlanner do
     end
   end
 
-  defp prepare(%{search: %DStarLite{}, goal: target, pending: pending} = planner, start, target)
-       when is_list(pending) do
-    dstar = planner.search |> DStarLite.move_start(start) |> DStarLite.update_cells(pending)
-    {:repair, dstar, length(pending)}
+  # a repair of the last search to the same goal in the same frame: the
+  # robot's move, then the cells that differ between the search's grid
+  # and the planner's (found and repaired in C); a new search when there
+  # is none to repair, or when so many cells changed that searching
+  # anew is cheaper
+  defp prepare(
+         %{search: %DStarLite{} = search, goal: target, pending: pending} = planner,
+         start,
+         target
+       )
+       when pending != :reset do
+    search = DStarLite.move_start(search, start)
+
+    if pending == :none do
+      {:repair, search, 0}
+    else
+      case DStarLite.update_grid(search, planner.grid, planner.max_changes) do
+        {:ok, search, changed} -> {:repair, search, changed}
+        {:too_many, _changed, _search} -> prepare(%{planner | search: nil}, start, target)
+      end
+    end
   end
 
   defp prepare(planner, start, target),

@@ -158,4 +158,83 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
     state = DStarLite.new(Grid.new(4, 4), {0, 0}, {3, 0})
     assert_raise ArgumentError, fn -> DStarLite.move_start(state, {-1, 0}) end
   end
+
+  test "update_cells takes many changes at once: outside, unchanged and repeated cells" do
+    grid = Grid.new(30, 20)
+    {:ok, _path, state} = DStarLite.new(grid, {1, 10}, {28, 10}) |> DStarLite.plan()
+
+    # a wall across the room with a gap, given cell by cell, with cells
+    # outside the grid, cells already free and a cell set twice (the last wins)
+    wall = for row <- 0..19, row != 3, do: {{15, row}, true}
+    noise = [{{-1, 4}, true}, {{30, 0}, true}, {{2, 2}, false}, {{15, 5}, false}, {{15, 5}, true}]
+    changes = wall ++ noise
+    state = DStarLite.update_cells(state, changes)
+
+    expected = Grid.update(grid, wall)
+    assert state.grid == expected
+    {path, state} = check_against_astar(state, "wall with a gap")
+    assert {15, 3} in path
+
+    # changes that change nothing keep the grid
+    same = DStarLite.update_cells(state, [{{15, 0}, true}, {{0, 0}, false}])
+    assert same.grid == expected
+
+    # a malformed change is refused and changes nothing
+    assert_raise ArgumentError, fn -> DStarLite.update_cells(same, [{{15, 3}, :maybe}]) end
+  end
+
+  test "update_grid finds and repairs the cells that differ, as A* from scratch (100 seeds)" do
+    for seed <- 1..100 do
+      :rand.seed(:exsss, {seed, 5, 11})
+      {w, h} = {10 + :rand.uniform(20), 8 + :rand.uniform(20)}
+
+      random_grid = fn density ->
+        cells =
+          for _ <- 1..(w * h), into: <<>>, do: <<if(:rand.uniform() < density, do: 1, else: 0)>>
+
+        Grid.new(w, h, cells: cells)
+      end
+
+      random_cell = fn -> {:rand.uniform(w) - 1, :rand.uniform(h) - 1} end
+      state = DStarLite.new(random_grid.(0.2), random_cell.(), random_cell.())
+      {_path, state} = check_against_astar(state, "seed #{seed}, initial")
+
+      Enum.reduce(1..5, state, fn step, state ->
+        # some cells flip
+        flips = for _ <- 1..:rand.uniform(12), do: {random_cell.(), :rand.uniform() < 0.5}
+
+        grid = Grid.update(state.grid, flips)
+        differ = count_differences(state.grid.cells, grid.cells)
+
+        state =
+          if :rand.uniform(2) == 1, do: DStarLite.move_start(state, random_cell.()), else: state
+
+        assert {:ok, state, ^differ} = DStarLite.update_grid(state, grid)
+        assert state.grid == grid
+        {_path, state} = check_against_astar(state, "seed #{seed}, step #{step}")
+        state
+      end)
+    end
+  end
+
+  test "update_grid leaves the search as it was when more cells changed than allowed" do
+    grid = Grid.new(20, 10)
+    {:ok, path, state} = DStarLite.new(grid, {0, 5}, {19, 5}) |> DStarLite.plan()
+    wall = Grid.put(grid, for(row <- 0..8, do: {10, row}), true)
+
+    assert {:too_many, 4, state} = DStarLite.update_grid(state, wall, 3)
+    assert state.grid == grid
+    assert {:ok, ^path, state} = DStarLite.plan(state)
+
+    assert {:ok, state, 9} = DStarLite.update_grid(state, wall, 9)
+    {new_path, _state} = check_against_astar(state, "wall")
+    assert {10, 9} in new_path
+
+    assert_raise ArgumentError, fn -> DStarLite.update_grid(state, Grid.new(10, 10)) end
+  end
+
+  defp count_differences(a, b),
+    do:
+      Enum.zip(:binary.bin_to_list(a), :binary.bin_to_list(b))
+      |> Enum.count(fn {x, y} -> x != y end)
 end

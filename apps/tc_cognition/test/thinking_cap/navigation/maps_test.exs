@@ -256,6 +256,30 @@ defmodule ThinkingCap.Navigation.MapsTest do
     ) != nil
   end
 
+  describe "prior/2" do
+    @tag :tmp_dir
+    test "the map's cells as it has them, the grid's blocked cells occupied", %{tmp_dir: dir} do
+      File.write!(Path.join(dir, "map.pgm"), ["P5\n3 2\n255\n", <<0, 254, 254, 205, 254, 0>>])
+
+      File.write!(
+        Path.join(dir, "map.yaml"),
+        "image: map.pgm\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\n"
+      )
+
+      File.write!(Path.join(dir, "w.wdf"), ~s([name: "m", map: [yaml: "map.yaml"]]))
+      wdf = ThinkingCap.Config.read!(Path.join(dir, "w.wdf"))
+      grid = Maps.grid_from_wdf(wdf, unknown: :free)
+
+      # the map alone (no blocked cell), then with blocked cells where the
+      # map is free and unknown (as a box would be)
+      raw = Maps.prior(wdf, %{grid | cells: <<0, 0, 0, 0, 0, 0>>}).data
+      assert raw == <<255, 0, 100, 100, 0, 0>>
+      prior = Maps.prior(wdf, %{grid | cells: <<1, 1, 0, 1, 0, 1>>})
+      assert prior.data == <<100, 100, 100, 100, 0, 100>>
+      assert {prior.width, prior.height, prior.resolution} == {3, 2, 0.1}
+    end
+  end
+
   describe "inflate/2" do
     test "a single blocked cell becomes a disc of the robot's radius" do
       grid = Grid.new(21, 21, resolution: 0.05) |> Grid.put([{10, 10}], true)

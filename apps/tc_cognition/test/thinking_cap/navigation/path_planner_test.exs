@@ -119,4 +119,34 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert {:ok, path, _} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
     assert_in_delta length_of(path), 8.0, 0.2
   end
+
+  test "a repair counts the cells that changed; too many of them start a new search" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+    before = planner.grid
+
+    boxed = PathPlanner.set_map(planner, room(2, [{4.5, 2.0, 5.5, 4.5}]))
+    {:ok, path, boxed} = PathPlanner.plan(boxed, {1.5, 3.0}, {9.0, 3.0})
+    differ = count_differences(before.cells, boxed.grid.cells)
+    assert differ > 100
+    assert boxed.last.kind == :repair and boxed.last.changed == differ
+
+    # the same, allowed fewer changes than that: searched from scratch
+    # (and the same path)
+    few = PathPlanner.new(radius: 0.3, max_changes: differ - 1) |> PathPlanner.set_map(room(1))
+    {:ok, _path, few} = PathPlanner.plan(few, {1.0, 3.0}, {9.0, 3.0})
+    few = PathPlanner.set_map(few, room(2, [{4.5, 2.0, 5.5, 4.5}]))
+    assert {:ok, ^path, few} = PathPlanner.plan(few, {1.5, 3.0}, {9.0, 3.0})
+    assert few.last.kind == :initial
+
+    # the box gone again: repaired back
+    clear = PathPlanner.set_map(boxed, room(3))
+    assert {:ok, _path, clear} = PathPlanner.plan(clear, {1.5, 3.0}, {9.0, 3.0})
+    assert clear.last.kind == :repair and clear.last.changed == differ
+  end
+
+  defp count_differences(a, b),
+    do:
+      Enum.zip(:binary.bin_to_list(a), :binary.bin_to_list(b))
+      |> Enum.count(fn {x, y} -> x != y end)
 end

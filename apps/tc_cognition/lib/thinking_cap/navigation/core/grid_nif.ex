@@ -29,6 +29,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def inflate(_cells, _w, _h, _radius), do: :erlang.nif_error(:nif_not_loaded)
   def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
   def blocked(_occupancy, _threshold, _unknown), do: :erlang.nif_error(:nif_not_loaded)
+  def overlay(_data, _mask, _value), do: :erlang.nif_error(:nif_not_loaded)
   def downsample(_cells, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
   def patch(_cells, _changes), do: :erlang.nif_error(:nif_not_loaded)
 
@@ -61,6 +62,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_sync(_dsl, _cells, _max), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_move_start(_dsl, _cell), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end
