@@ -333,7 +333,9 @@ defmodule ThinkingCap.Sim.Core.Server do
       }
 
       shard = elem(state.shards, rem(index, tuple_size(state.shards)))
-      :ok = GenServer.call(shard, {:add, spec})
+      # the shard starts the robot's controller (a lock-step module stack may
+      # build its maps first): within add_robot/3's own 30 s
+      :ok = GenServer.call(shard, {:add, spec}, 28_000)
       {x, y, _} = pose
       bodies = Map.put(state.bodies, index, {x, y, description.footprint.radius * 1.0})
       set_bodies(state.world, bodies, state.next_index)
