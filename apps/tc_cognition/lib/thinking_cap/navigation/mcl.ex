@@ -97,6 +97,7 @@ defmodule ThinkingCap.Navigation.MCL do
     publish_period: 0.1,
     map_every: 5.0,
     lost_through: 0.2,
+    lost_hits: 0.6,
     lost_after: 3,
     search_step: 0.2,
     search_headings: 72
@@ -133,7 +134,9 @@ defmodule ThinkingCap.Navigation.MCL do
       )
 
     filter =
-      if map = wdf_map(wdf), do: ParticleFilter.set_map(filter, map, params[:seed]), else: filter
+      if map = wdf_map(wdf),
+        do: ParticleFilter.set_map(filter, map, params[:seed], strict: true),
+        else: filter
 
     state = %{
       robot: context.robot,
@@ -150,6 +153,8 @@ defmodule ThinkingCap.Navigation.MCL do
       last_odometry: nil,
       moved: {0.0, 0.0},
       fit: nil,
+      hits: nil,
+      baseline: nil,
       poor: 0,
       updates: 0,
       spread: 0,
@@ -182,7 +187,12 @@ defmodule ThinkingCap.Navigation.MCL do
     filter = ParticleFilter.new(pose, sigma, particle_opts(state))
 
     filter =
-      if state.filter.map, do: ParticleFilter.set_map(filter, state.filter.map), else: filter
+      if state.filter.map,
+        do:
+          ParticleFilter.set_map(filter, state.filter.map, state.params[:seed],
+            strict: state.filter.strict
+          ),
+        else: filter
 
     %{state | filter: filter, last_odometry: h.last_odometry}
   end
@@ -279,15 +289,17 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # an initial pose known only roughly: the scan sought round it first
   defp first_fix(%{fit: nil, filter: %{map: %OccupancyGrid{}}} = state, many) do
-    {s_xy, _} = state.params[:initial_sigma]
+    {s_xy, s_th} = state.params[:initial_sigma]
 
     if s_xy > 0.15 do
-      {{x, y, _}, _} = ParticleFilter.estimate(state.filter)
+      {{x, y, th}, _} = ParticleFilter.estimate(state.filter)
       radius = min(3 * s_xy, 3.0)
 
+      # the heading as roughly as it was given: a scan in a symmetric place
+      # fits as well turned round
       {filter, _found} =
         ParticleFilter.relocalize(state.filter, many.(),
-          around: {{x, y}, radius},
+          around: {{x, y}, radius, {th, min(3 * s_th, :math.pi())}},
           step: state.params[:search_step] / 2,
           headings: state.params[:search_headings],
           seed: state.params[:seed]
@@ -325,43 +337,94 @@ defmodule ThinkingCap.Navigation.MCL do
         state
 
       {{fit, _known}, contradiction} ->
-        # beams seen through walls say the pose is wrong; a good scan now
-        # and then takes one poor one back, not all of them
+        # beams seen through walls say the pose is wrong, and so do beams
+        # ending far from what the map holds, many more than usual; a good
+        # scan now and then takes one poor one back, not all of them
         limit = state.params[:lost_through]
+        hits = ParticleFilter.hits(filter, beams, best)
+        misfit = misfit?(state, hits)
 
         poor =
           case contradiction do
             {share, judged} when judged >= 10 and share > limit -> state.poor + 1
+            _ when misfit -> state.poor + 1
             _ -> max(state.poor - 1, 0)
           end
+
+        state = %{state | hits: hits, baseline: baseline(state, hits, misfit)}
 
         # a cloud that stays spread wide has no place either
         {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(filter)
         spread = if :math.sqrt(max(sxx, syy)) > 0.5, do: state.spread + 1, else: 0
         state = %{state | fit: fit, poor: poor, spread: spread}
 
-        if not state.slam and
-             (poor >= state.params[:lost_after] or spread >= 2 * @settling) and
-             state.updates > @settling,
-           do: relocalize(state, many.()),
-           else: settle(state)
+        cond do
+          state.slam or state.updates <= @settling -> settle(state)
+          poor >= state.params[:lost_after] -> relocalize(state, many.())
+          spread >= 2 * @settling -> relocalize(state, many.(), around(filter))
+          true -> settle(state)
+        end
     end
   end
 
-  # the whole map (the estimate staying a candidate): a robot carried
-  # away, a wrong initial pose
-  defp relocalize(state, beams) do
-    Logger.info("#{inspect(state.robot)}: lost (the scan fits the map poorly); searching the map")
+  # a scan whose beams end on the map far less often than they did while
+  # tracking (by the best particle)
+  defp misfit?(_state, nil), do: false
+  defp misfit?(_state, {_share, judged}) when judged < 10, do: false
+
+  defp misfit?(state, {share, _judged}),
+    do: share < state.params[:lost_hits] * max(state.baseline || 1.0, 0.6)
+
+  # what share of the beams end on the map while tracking, from the scans
+  # that fit: learnt quickly upwards, slowly downwards (a wrong pose that
+  # still passes must not teach it to expect little)
+  defp baseline(%{status: :tracking, baseline: b}, {share, judged}, false) when judged >= 10 do
+    cond do
+      b == nil -> share
+      share > b -> b + 0.1 * (share - b)
+      true -> b + 0.01 * (share - b)
+    end
+  end
+
+  defp baseline(state, _hits, _misfit), do: state.baseline
+
+  # a cloud spread wide while the scan fits: the places round it (a scan
+  # that fits says the robot was not carried away)
+  defp around(filter) do
+    {{x, y, th}, [[sxx | _], [_, syy | _], [_, _, stt]]} = ParticleFilter.estimate(filter)
+    radius = min(max(3 * :math.sqrt(max(sxx, syy)), 1.0), 3.0)
+    {{x, y}, radius, {th, min(3 * :math.sqrt(max(stt, 0.0)) + 0.2, :math.pi())}}
+  end
+
+  # the whole map, or the places `around` the estimate (the estimate
+  # staying a candidate): a robot carried away, a wrong initial pose
+  defp relocalize(state, beams, around \\ nil) do
+    Logger.info(
+      "#{inspect(state.robot)}: lost (the scan fits the map poorly: #{describe_fit(state)}); " <>
+        "searching #{if around, do: "round the estimate", else: "the map"}"
+    )
 
     {filter, found} =
       ParticleFilter.relocalize(state.filter, beams,
         step: state.params[:search_step],
         headings: state.params[:search_headings],
-        seed: state.params[:seed]
+        seed: state.params[:seed],
+        around: around
       )
 
     if found, do: Logger.info("#{inspect(state.robot)}: best fit at #{inspect(found)}")
     %{state | filter: filter, poor: 0, spread: 0, status: :relocalizing, updates: 0}
+  end
+
+  defp describe_fit(state) do
+    hits =
+      case state.hits do
+        {share, judged} -> "#{round(share * 100)}% of #{judged} beams on the map"
+        nil -> "no beam on the map"
+      end
+
+    usual = if state.baseline, do: ", usually #{round(state.baseline * 100)}%", else: ""
+    "#{hits}#{usual}, spread #{state.spread}"
   end
 
   defp settle(state) do
@@ -378,8 +441,10 @@ defmodule ThinkingCap.Navigation.MCL do
     %{state | status: status}
   end
 
-  # at most `n` beams with an echo, evenly spread: {x, y, angle, range}
-  # in the robot frame
+  # about `n` beams, evenly spread: {x, y, angle, range} in the robot
+  # frame; a beam without echo (reading the scan's range_max) gets a range
+  # beyond any laser's, 1.0e6: weighing skips it, judging asks whether the
+  # map has a wall in its way
   defp beams(scan, laser, n) do
     {px, py, pth} = Map.get(laser, :pose, {0.0, 0.0, 0.0})
     range_min = Map.get(scan, :range_min, 0.0)
@@ -389,11 +454,10 @@ defmodule ThinkingCap.Navigation.MCL do
 
     scan.ranges
     |> Enum.with_index()
-    |> Enum.filter(fn {r, i} ->
-      rem(i, every) == 0 and is_number(r) and r >= range_min and r < range_max
-    end)
+    |> Enum.filter(fn {r, i} -> rem(i, every) == 0 and is_number(r) and r >= range_min end)
     |> Enum.map(fn {r, i} ->
       a = pth + scan.angle_min + i * scan.angle_increment
+      r = if r < range_max, do: r, else: 1.0e6
 
       <<px * 1.0::float-native, py * 1.0::float-native, a * 1.0::float-native,
         r * 1.0::float-native>>

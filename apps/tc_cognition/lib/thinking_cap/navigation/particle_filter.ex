@@ -18,9 +18,12 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   Sensor model (Probabilistic Robotics 6.4): a beam ending `d` metres from
   the nearest obstacle of the map scores `z_hit · exp(−d²/2σ²) + z_rand /
   range_max` (defaults σ 0.1 m, z_hit 0.9, z_rand 0.1); a beam without
-  echo is skipped, one ending in unknown space or off the map says nothing
-  (the map may still be being built), and a particle off the map, in
-  unknown space or inside an obstacle scores as noise.
+  echo is skipped, and a particle off the map, in unknown space or inside
+  an obstacle scores as noise. A beam ending in unknown space or off the
+  map says nothing in a map still being built; in a map given whole
+  (`set_map/4` with `strict: true`) it is scored by its distance to the
+  nearest obstacle, and off the map as noise: a laser stops only at what
+  the map holds.
 
   Motion model (table 5.6, sample_motion_model_odometry): a move is a
   turn, a straight line and a turn, each with noise of variance
@@ -37,6 +40,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     :set,
     :field,
     :map,
+    strict: false,
     count: 500,
     model: {0.1, 0.9, 0.1, 8.0},
     alphas: {0.1, 0.02, 0.05, 0.01},
@@ -88,16 +92,28 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   @doc """
   Takes a map: the likelihood field is built from its cells of occupancy
   at least 50, and a few thousand poses in its known free space are drawn
-  (with `seed`) for the particles augmented MCL brings in.
+  (with `seed`) for the particles augmented MCL brings in. Option
+  `strict` (default false): the map is given whole, so a beam ending in
+  its unknown space or off it is scored, not passed over.
   """
-  @spec set_map(t(), OccupancyGrid.t(), integer()) :: t()
-  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1) do
+  @spec set_map(t(), OccupancyGrid.t(), integer(), keyword()) :: t()
+  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1, opts \\ []) do
     {ox, oy} = map.origin
+    strict = Keyword.get(opts, :strict, false)
 
     field =
-      GridNif.field_new(map.data, map.width, map.height, map.resolution, ox * 1.0, oy * 1.0, 50)
+      GridNif.field_new(
+        map.data,
+        map.width,
+        map.height,
+        map.resolution,
+        ox * 1.0,
+        oy * 1.0,
+        50,
+        if(strict, do: 1, else: 0)
+      )
 
-    %{pf | field: field, map: map, free_poses: free_poses(map, 4000, seed)}
+    %{pf | field: field, map: map, strict: strict, free_poses: free_poses(map, 4000, seed)}
   end
 
   defp free_poses(%OccupancyGrid{} = map, n, seed) do
@@ -198,6 +214,27 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   @doc """
+  The share of a scan's beams that end on the map from `pose`: within
+  `tolerance` metres (default 0.25) of an occupied cell. Judged are the
+  beams with an echo (in a map not given whole, only those ending on
+  known map) and the beams without one (range at least `range_max`)
+  that pass an occupied cell of the map 0.5 m or more short of the
+  range. Returns `{share, judged}`, or nil without a map or a beam to
+  judge by. A beam ending in the open, in unknown space of a map given
+  whole, or missing a wall in its range is a misfit.
+  """
+  @spec hits(t(), binary(), pose(), float()) :: {float(), non_neg_integer()} | nil
+  def hits(pf, beams, pose, tolerance \\ 0.25)
+  def hits(%__MODULE__{field: nil}, _beams, _pose, _tolerance), do: nil
+
+  def hits(%__MODULE__{} = pf, beams, pose, tolerance) do
+    case GridNif.field_fit(pf.field, beams, pf.model, pose, tolerance * 1.0) do
+      {_near, 0} -> nil
+      {near, judged} -> {near / judged, judged}
+    end
+  end
+
+  @doc """
   How much a scan contradicts the map from `pose`: the share of its beams
   (those with an echo, over known map) that pass through a wall of the
   map more than 0.25 m short of their end, in [0, 1], with the number of
@@ -224,7 +261,8 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   @doc """
   Searches the map for the scan (the whole map, or with `around: {{x,
-  y}, r}` a square of half-side r round a point): the `top` poses
+  y}, r}` a square of half-side r round a point, and with `around: {{x,
+  y}, r, {θ, half}}` only the headings within half of θ): the `top` poses
   (default 60) of a lattice over the known free space (`step` metres, default 0.2, and
   `headings` headings, default 72) that fit it best, each refined on a
   finer lattice round it, and with the estimate as it was (a robot that
@@ -298,6 +336,9 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   defp box(_pf, {{x, y}, r}), do: {x - r, y - r, x + r, y + r}
+
+  defp box(_pf, {{x, y}, r, {th, half}}),
+    do: {x - r, y - r, x + r, y + r, th * 1.0, max(half, 0.0) * 1.0}
 
   # the best pose of a small lattice round a found one (a third of the
   # search's steps)
