@@ -173,26 +173,23 @@ defmodule ThinkingCap.Navigation.Maps do
   def prior(%WDF{} = wdf, %Grid{width: w, height: h} = grid) do
     {ox, oy} = grid.origin
     raw = base_rows(wdf.grid, {ox, oy, grid.resolution, w, h}, fill: 255, lut: :raw)
-
-    data =
-      raw
-      |> Enum.with_index()
-      |> Enum.map(fn {row, r} ->
-        blocked = binary_part(grid.cells, r * w, w)
-
-        Enum.zip_with(:binary.bin_to_list(row), :binary.bin_to_list(blocked), fn v, b ->
-          if b == 1, do: 100, else: v
-        end)
-      end)
+    data = overlay(IO.iodata_to_binary(raw), grid.cells, <<>>)
 
     %OccupancyGrid{
       width: w,
       height: h,
-      data: IO.iodata_to_binary(data),
+      data: data,
       resolution: grid.resolution,
       origin: grid.origin
     }
   end
+
+  # the map's cells, occupied (100) where the grid is blocked (a byte at a
+  # time: a map of millions of cells as lists took seconds)
+  defp overlay(<<v, raw::binary>>, <<b, cells::binary>>, acc),
+    do: overlay(raw, cells, <<acc::binary, if(b == 1, do: 100, else: v)>>)
+
+  defp overlay(<<>>, <<>>, acc), do: acc
 
   @doc "The number of blocked cells of a grid."
   @spec blocked_count(Grid.t()) :: non_neg_integer()
