@@ -91,8 +91,9 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   @doc """
   Takes a map: the likelihood field is built from its cells of occupancy
-  at least 50, and a few thousand poses in its known free space are drawn
-  (with `seed`) for the particles augmented MCL brings in. Option
+  at least 50, and, when `max_injection` is above 0, a few thousand poses
+  in its known free space are drawn (with `seed`) for the particles
+  augmented MCL brings in. Option
   `strict` (default false): the map is given whole, so a beam ending in
   its unknown space or off it is scored, not passed over.
   """
@@ -113,7 +114,10 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         if(strict, do: 1, else: 0)
       )
 
-    %{pf | field: field, map: map, strict: strict, free_poses: free_poses(map, 4000, seed)}
+    # (drawn only when augmented MCL may throw particles in: a large map
+    # has millions of free cells)
+    poses = if pf.max_injection > 0, do: free_poses(map, 4000, seed), else: <<>>
+    %{pf | field: field, map: map, strict: strict, free_poses: poses}
   end
 
   defp free_poses(%OccupancyGrid{} = map, n, seed) do
@@ -286,11 +290,35 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     {{x, y, th} = here, _} = estimate(pf)
     {ll, _} = GridNif.field_score(pf.field, beams, pf.model, here)
 
+    # the lattice scored with a wider sensor model: the pose nearest the
+    # true one may be a half step and a half heading off it, and far beams
+    # miss by more than sigma_hit; then the best of each place (others
+    # within 0.5 m and 0.35 rad dropped), refined with the true model
+    {sigma, z_hit, z_rand, range_max} = pf.model
+    coarse = {max(sigma, 1.5 * step) * 1.0, z_hit, z_rand, range_max}
+    turn = :math.pi() / headings
+
     found =
       pf.field
-      |> GridNif.field_search(beams, pf.model, step * 1.0, headings, top, box(pf, opts[:around]))
+      |> GridNif.field_search(
+        beams,
+        coarse,
+        step * 1.0,
+        headings,
+        5 * top,
+        box(pf, opts[:around])
+      )
+      |> distinct(top)
+      |> Enum.map(fn {_, x, y, th} ->
+        {l, _} = GridNif.field_score(pf.field, beams, pf.model, {x, y, th})
+        {l, x, y, th}
+      end)
       |> List.insert_at(0, {ll, x, y, th})
-      |> Enum.map(&refine(pf, beams, &1, step / 2, :math.pi() / headings))
+      |> Enum.map(fn c ->
+        c
+        |> then(&refine(pf, beams, &1, step / 2, turn))
+        |> then(&refine(pf, beams, &1, step / 6, turn / 3))
+      end)
       |> Enum.sort_by(&(-elem(&1, 0)))
 
     case found do
@@ -327,6 +355,23 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         set = GridNif.pf_new(IO.iodata_to_binary(poses), Keyword.get(opts, :seed, 1))
         {%{pf | set: set, w_slow: nil, w_fast: nil}, {bx, by, bth}}
     end
+  end
+
+  # the best `n` poses of a list best first, none within 0.5 m and 0.35 rad
+  # of a better one
+  defp distinct(found, n) do
+    found
+    |> Enum.reduce([], fn {_, x, y, th} = c, kept ->
+      near =
+        length(kept) >= n or
+          Enum.any?(kept, fn {_, kx, ky, kth} ->
+            (kx - x) ** 2 + (ky - y) ** 2 < 0.25 and
+              abs(:math.atan2(:math.sin(kth - th), :math.cos(kth - th))) < 0.35
+          end)
+
+      if near, do: kept, else: [c | kept]
+    end)
+    |> Enum.reverse()
   end
 
   # the lattice's box: the whole map, or a square round a point
