@@ -319,7 +319,7 @@ defmodule ThinkingCap.Navigation.MCL do
   defp weigh(state, beams, many) do
     # after a search, hypotheses the scan cannot tell apart live on until
     # the moves to come do
-    temper = if state.status == :relocalizing and state.updates < 40, do: 0.25, else: 1.0
+    temper = if state.status == :relocalizing and state.updates <= 40, do: 0.25, else: 1.0
     {filter, _mean} = ParticleFilter.sense(state.filter, beams, temper)
     judge(%{state | filter: filter, updates: state.updates + 1}, beams, many)
   end
@@ -359,10 +359,17 @@ defmodule ThinkingCap.Navigation.MCL do
         state = %{state | fit: fit, poor: poor, spread: spread}
 
         cond do
-          state.slam or state.updates <= @settling -> settle(state)
-          poor >= state.params[:lost_after] -> relocalize(state, many.())
-          spread >= 2 * @settling -> relocalize(state, many.(), around(filter))
-          true -> settle(state)
+          state.slam or state.updates <= @settling ->
+            settle(state)
+
+          poor >= state.params[:lost_after] ->
+            relocalize(state, many.())
+
+          spread >= 2 * @settling and searched?(state) ->
+            relocalize(state, many.(), around(state))
+
+          true ->
+            settle(state)
         end
     end
   end
@@ -388,10 +395,15 @@ defmodule ThinkingCap.Navigation.MCL do
 
   defp baseline(state, _hits, _misfit), do: state.baseline
 
-  # a cloud spread wide while the scan fits: the places round it (a scan
-  # that fits says the robot was not carried away)
-  defp around(filter) do
-    {{x, y, th}, [[sxx | _], [_, syy | _], [_, _, stt]]} = ParticleFilter.estimate(filter)
+  # a cloud split between the places a search found is left to the moves
+  # to come while it is weighed tempered
+  defp searched?(state), do: state.status != :relocalizing or state.updates > 40
+
+  # a cloud spread wide while the scan fits: the places round its best
+  # particle (a scan that fits says the robot was not carried away)
+  defp around(state) do
+    {x, y, th} = ParticleFilter.best(state.filter)
+    {_, [[sxx | _], [_, syy | _], [_, _, stt]]} = ParticleFilter.estimate(state.filter)
     radius = min(max(3 * :math.sqrt(max(sxx, syy)), 1.0), 3.0)
     {{x, y}, radius, {th, min(3 * :math.sqrt(max(stt, 0.0)) + 0.2, :math.pi())}}
   end

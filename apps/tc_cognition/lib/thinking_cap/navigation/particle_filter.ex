@@ -268,8 +268,9 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   y}, r}` a square of half-side r round a point, and with `around: {{x,
   y}, r, {θ, half}}` only the headings within half of θ): the `top` poses
   (default 60) of a lattice over the known free space (`step` metres, default 0.2, and
-  `headings` headings, default 72) that fit it best, each refined on a
-  finer lattice round it, and with the estimate as it was (a robot that
+  `headings` headings, default 72) that fit it best, scored with a
+  wider sensor model and at most one per place, each refined on finer
+  lattices round it while they find better, and with the estimate as it was (a robot that
   was not moved keeps its place if it fits best), and spreads the
   particles around them
   (`{σ_xy, σ_θ}` default `{0.1, 0.05}`), the better poses with more. Returns the filter and the best pose, or nil without a
@@ -316,8 +317,8 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
       |> List.insert_at(0, {ll, x, y, th})
       |> Enum.map(fn c ->
         c
-        |> then(&refine(pf, beams, &1, step / 2, turn))
-        |> then(&refine(pf, beams, &1, step / 6, turn / 3))
+        |> then(&climb(pf, beams, &1, step / 2, turn, 4))
+        |> then(&climb(pf, beams, &1, step / 6, turn / 3, 4))
       end)
       |> Enum.sort_by(&(-elem(&1, 0)))
 
@@ -384,6 +385,16 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   defp box(_pf, {{x, y}, r, {th, half}}),
     do: {x - r, y - r, x + r, y + r, th * 1.0, max(half, 0.0) * 1.0}
+
+  # the small lattice round a pose again and again while it finds better
+  # (at most n more times): a pose beside a wall is pushed off it
+  defp climb(pf, beams, candidate, half_step, half_turn, n) do
+    better = refine(pf, beams, candidate, half_step, half_turn)
+
+    if n == 0 or better == candidate,
+      do: better,
+      else: climb(pf, beams, better, half_step, half_turn, n - 1)
+  end
 
   # the best pose of a small lattice round a found one (a third of the
   # search's steps)
