@@ -25,25 +25,42 @@ defmodule ThinkingCap.Navigation.MCL do
   `beams` of its beams, evenly spread. A robot standing still is not
   weighed again, but its scan is still judged twice a second (below).
 
+  **The map's unknown space.** A WDF's map is given whole: a beam ending
+  in its unknown space is scored by its distance to the nearest
+  obstacle, and one ending off the map as noise (a laser stops only at
+  what the map holds). In a map being built they say nothing.
+
   **Lost and found.** Each scan is judged from the best particle (the
-  mean of a cloud still split between places stands nowhere): a laser
-  does not see through walls, so beams that pass through a wall of the
-  map well short of their end contradict the pose, while beams that end
-  short of one (a box, a person the map does not hold) contradict
-  nothing. The robot is taken to be lost (carried away, or started from a
-  wrong pose) when more than `lost_through` of the judged beams
-  contradict it, `lost_after` times more often than not, or when the
-  particles stay spread wider than 0.5 m for twenty weighings, once a
-  fresh cloud had ten weighings to settle. Then the whole map is searched
-  for the scan (the estimate staying a candidate), the particles spread
-  round the poses that fit it best (`relocalizing`), and the scans after
-  are weighed tempered for a while, so that places one scan cannot tell
-  apart live on until the moves to come do. Not in simultaneous
-  localization and mapping (no map to start from): a map half built has
-  not the places to search. An initial pose given roughly
-  (`initial_sigma` wider than 0.15 m) is sought round itself at the
-  first scan. The fit of the scan (the mean per-beam likelihood over the
-  best possible, in [0, 1]) gives the confidence.
+  mean of a cloud still split between places stands nowhere), two ways.
+  A laser does not see through walls: beams that pass through a wall of
+  the map well short of their end contradict the pose, while beams that
+  end short of one (a box, a person the map does not hold) contradict
+  nothing. And a scan should end on the map: the share of its beams that
+  end within 0.25 m of an obstacle of the map (a beam without echo
+  counting as a miss where the map has a wall in its range; in a WDF's
+  map, a beam ending in unknown space too) is set against what it
+  usually is while tracking (learnt quickly upwards, slowly downwards,
+  taken as at least 0.6). A scan is poor when more than `lost_through`
+  of its judged beams contradict the pose, or when its share falls under
+  `lost_hits` of the usual. The robot is taken to be lost (carried away,
+  or started from a wrong pose) when its scans are poor `lost_after`
+  times more often than not, once a fresh cloud had ten weighings to
+  settle. Then the whole map is searched for the scan (the estimate
+  staying a candidate; the lattice scored with a wider sensor model, the
+  best pose of each of up to 60 places refined), the particles spread
+  round those poses (`relocalizing`), and the scans after are weighed
+  tempered (at most forty times, until the cloud gathers), so that
+  places one scan cannot tell apart live on until the moves to come do.
+  Scans poor again once the new cloud had its ten weighings search
+  again. Particles that stay spread wider than 0.5 m for twenty
+  weighings while the scans fit (and not while a search's places are
+  weighed tempered) are searched for round the best particle only. Not
+  in simultaneous localization and mapping (no map to start from): a map
+  half built has not the places to search. An initial pose given
+  roughly (`initial_sigma` wider than 0.15 m) is sought round itself at
+  the first scan, within three of its standard deviations in position
+  and heading. The fit of the scan (the mean per-beam likelihood over
+  the best possible, in [0, 1]) gives the confidence.
 
   ## Published
 
@@ -70,8 +87,8 @@ defmodule ThinkingCap.Navigation.MCL do
       `odometry_error`: generous multiples of its slips);
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
       `publish_period` (0.1 s), `map_every` (5 s);
-    * `lost_through` (0.2), `lost_after` (3), `search_step` (0.2 m),
-      `search_headings` (72).
+    * `lost_through` (0.2), `lost_hits` (0.6), `lost_after` (3),
+      `search_step` (0.2 m), `search_headings` (72).
   """
 
   use ThinkingCap.Module
