@@ -149,15 +149,18 @@ defmodule ThinkingCap.Bench.Localize do
         {:ok, c} = Sim.controller_state(sim, :loc)
         {:pose, _, %{pose: {ex, ey, _}} = p} = Lockstep.latest(c.lock, {:pose, :loc, :_})
 
-        if Process.get(:trace) and t >= plan.kidnap_at - 1 and t <= plan.kidnap_at + 30 and
-             rem(step, 5) == 0 do
+        error = :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
+        near_kidnap = t >= plan.kidnap_at - 1 and t <= plan.kidnap_at + 30
+
+        # --trace: round the kidnapping, and wherever the estimate is off
+        if Process.get(:trace) and (near_kidnap or error > 0.3) and rem(step, 5) == 0 do
           IO.puts(
             "    t=#{NavRun.fmt(t)} true (#{NavRun.fmt(x)}, #{NavRun.fmt(y)}) estimate " <>
               "(#{NavRun.fmt(ex)}, #{NavRun.fmt(ey)}) #{p.status} #{p.confidence}"
           )
         end
 
-        {{t, :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)}, kidnapped}
+        {{t, error}, kidnapped}
       end)
 
     blocked = Sim.status(sim).blocked

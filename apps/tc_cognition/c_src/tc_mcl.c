@@ -7,9 +7,12 @@
  * occupied cell (exact distance transform), and whether the cell is
  * unknown. A beam's endpoint scores
  *     z_hit * exp(-d^2 / 2 sigma^2) + z_rand / range_max
- * where d is that distance; an endpoint off the map or in unknown space
- * says nothing (it scores like the average of a free beam, so a map still
- * being built does not pull the particles towards what is known).
+ * where d is that distance. In a map still being built, an endpoint off
+ * the map or in unknown space says nothing (it scores like the average
+ * of a free beam, so the particles are not pulled towards what is
+ * known). In a map given whole (`strict`), an endpoint in unknown space
+ * is scored by its distance like any other, and one off the map as noise:
+ * the laser stops only at what the map holds.
  *
  * A particle set: poses and log-weights, with its own random generator
  * (xoshiro256**, seeded by the caller: runs are deterministic), moved by
@@ -36,6 +39,7 @@ typedef struct {
     double res, ox, oy;
     float *dist;      /* metres to the nearest occupied cell */
     uint8_t *unknown; /* 1 where the map does not know */
+    int strict;       /* a map given whole: unknown endpoints are scored */
 } Field;
 
 typedef struct {
@@ -157,24 +161,24 @@ static void dt1(const double *f, double *d, int n, int *v, double *z)
     }
 }
 
-/* field_new(occupancy, w, h, resolution, ox, oy, threshold) */
+/* field_new(occupancy, w, h, resolution, ox, oy, threshold, strict) */
 ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
     ErlNifBinary b;
-    int w, h, threshold;
+    int w, h, threshold, strict;
     double res, ox, oy;
     if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
         !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
         b.size != (size_t)w * h || !num(env, argv[3], &res) || res <= 0 ||
         !num(env, argv[4], &ox) || !num(env, argv[5], &oy) ||
-        !enif_get_int(env, argv[6], &threshold))
+        !enif_get_int(env, argv[6], &threshold) || !enif_get_int(env, argv[7], &strict))
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;
     int m = w > h ? w : h;
     Field *f = enif_alloc_resource(FIELD_TYPE, sizeof(Field));
     memset(f, 0, sizeof(Field));
-    f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy;
+    f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy, f->strict = strict != 0;
     f->dist = malloc(n * sizeof(float));
     f->unknown = malloc(n);
     double *g = malloc(n * sizeof(double));
@@ -256,17 +260,17 @@ static double score(const Field *f, const Beams *bs, const Model *m, double x, d
         double ex = sx + r * cos(th + q[2]), ey = sy + r * sin(th + q[2]);
         long col = (long)floor((ex - f->ox) / f->res), row = (long)floor((ey - f->oy) / f->res);
         if (col < 0 || row < 0 || col >= f->w || row >= f->h) {
-            sum += neutral;
+            sum += f->strict ? log(rand_p) : neutral;
             continue;
         }
         size_t cell = (size_t)row * f->w + col;
-        if (f->unknown[cell]) {
+        if (f->unknown[cell] && !f->strict) {
             sum += neutral;
             continue;
         }
         double dd = f->dist[cell];
         sum += log(m->z_hit * exp(-dd * dd / two_s2) + rand_p);
-        k++;
+        if (!f->unknown[cell]) k++;
     }
     *known = k;
     return sum;
@@ -310,6 +314,62 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         return enif_make_badarg(env);
     double l = score(f, &bs, &m, x, y, th, &known);
     return enif_make_tuple2(env, enif_make_double(env, l), enif_make_int(env, known));
+}
+
+/* field_fit(field, beams, model, {x, y, th}, tolerance) -> {near, judged}:
+ * of the beams with an echo (`judged`; in a map not given whole, those
+ * ending on known map), those that end within `tolerance` metres of an
+ * occupied cell (`near`). In a map given whole, a beam ending in unknown
+ * space or off the map is judged and is not near. A beam without echo is
+ * judged (and not near) when the map has an occupied cell on its way,
+ * 0.5 m or more short of the range: the laser would have seen it. */
+ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Field *f;
+    Beams bs;
+    Model m;
+    int arity;
+    const ERL_NIF_TERM *e;
+    double x, y, th, tol;
+    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
+        !get_model(env, argv[2], &m) || !enif_get_tuple(env, argv[3], &arity, &e) || arity != 3 ||
+        !num(env, e[0], &x) || !num(env, e[1], &y) || !num(env, e[2], &th) ||
+        !num(env, argv[4], &tol))
+        return enif_make_badarg(env);
+    double c = cos(th), s = sin(th);
+    int near = 0, judged = 0;
+    for (int i = 0; i < bs.n; i++) {
+        const double *q = bs.b + 4 * i;
+        double r = q[3];
+        double sx = x + c * q[0] - s * q[1], sy = y + s * q[0] + c * q[1];
+        if (!(r < m.range_max)) {
+            double dx = cos(th + q[2]), dy = sin(th + q[2]), step = f->res / 2;
+            for (double t = 0; t < m.range_max - 0.5; t += step) {
+                long col = (long)floor((sx + t * dx - f->ox) / f->res);
+                long row = (long)floor((sy + t * dy - f->oy) / f->res);
+                if (col < 0 || row < 0 || col >= f->w || row >= f->h) break;
+                size_t cell = (size_t)row * f->w + col;
+                if (f->unknown[cell] && !f->strict) break;
+                if (!f->unknown[cell] && f->dist[cell] <= 0.0f) {
+                    judged++;
+                    break;
+                }
+            }
+            continue;
+        }
+        double ex = sx + r * cos(th + q[2]), ey = sy + r * sin(th + q[2]);
+        long col = (long)floor((ex - f->ox) / f->res), row = (long)floor((ey - f->oy) / f->res);
+        if (col < 0 || row < 0 || col >= f->w || row >= f->h) {
+            if (f->strict) judged++;
+            continue;
+        }
+        size_t cell = (size_t)row * f->w + col;
+        if (f->unknown[cell] && !f->strict) continue;
+        judged++;
+        if (!f->unknown[cell] && f->dist[cell] <= tol) near++;
+    }
+    return enif_make_tuple2(env, enif_make_int(env, near), enif_make_int(env, judged));
 }
 
 /* field_through(field, beams, model, {x, y, th}) -> {through, judged}: of
@@ -365,24 +425,27 @@ ERL_NIF_TERM tc_nif_field_through(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
 }
 
 /* field_search(field, beams, model, step, heading_steps, top, {x0, y0, x1,
- * y1}) -> [{ll, x, y, th}]: the best `top` poses of a lattice over the
- * field's free known cells within the box (every `step` metres,
- * `heading_steps` headings), best first */
+ * y1} | {x0, y0, x1, y1, th, half}) -> [{ll, x, y, th}]: the best `top`
+ * poses of a lattice over the field's free known cells within the box
+ * (every `step` metres, `heading_steps` headings; with th and half only
+ * the headings within half of th), best first */
 ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
     Field *f;
     Beams bs;
     Model m;
-    double step, bx0, by0, bx1, by1;
+    double step, bx0, by0, bx1, by1, bth = 0.0, bhalf = 4.0;
     int headings, top, arity;
     const ERL_NIF_TERM *box;
     if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
         !get_model(env, argv[2], &m) || !num(env, argv[3], &step) || step <= 0 ||
         !enif_get_int(env, argv[4], &headings) || headings < 1 || headings > 720 ||
         !enif_get_int(env, argv[5], &top) || top < 1 || top > 10000 ||
-        !enif_get_tuple(env, argv[6], &arity, &box) || arity != 4 || !num(env, box[0], &bx0) ||
-        !num(env, box[1], &by0) || !num(env, box[2], &bx1) || !num(env, box[3], &by1))
+        !enif_get_tuple(env, argv[6], &arity, &box) || (arity != 4 && arity != 6) ||
+        !num(env, box[0], &bx0) || !num(env, box[1], &by0) || !num(env, box[2], &bx1) ||
+        !num(env, box[3], &by1) ||
+        (arity == 6 && (!num(env, box[4], &bth) || !num(env, box[5], &bhalf))))
         return enif_make_badarg(env);
     int c0 = (int)fmax(0.0, floor((bx0 - f->ox) / f->res)), r0 = (int)fmax(0.0, floor((by0 - f->oy) / f->res));
     int c1 = (int)fmin(f->w - 1.0, floor((bx1 - f->ox) / f->res));
@@ -402,6 +465,7 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
             double x = f->ox + (c + 0.5) * f->res, y = f->oy + (r + 0.5) * f->res;
             for (int k = 0; k < headings; k++) {
                 double th = -M_PI + TWO_PI * k / headings;
+                if (fabs(wrap(th - bth)) > bhalf) continue;
                 int known;
                 double l = score(f, &bs, &m, x, y, th, &known);
                 if (kept < top || l > best_l[kept - 1]) {

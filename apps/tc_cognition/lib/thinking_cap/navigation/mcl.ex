@@ -25,25 +25,42 @@ defmodule ThinkingCap.Navigation.MCL do
   `beams` of its beams, evenly spread. A robot standing still is not
   weighed again, but its scan is still judged twice a second (below).
 
+  **The map's unknown space.** A WDF's map is given whole: a beam ending
+  in its unknown space is scored by its distance to the nearest
+  obstacle, and one ending off the map as noise (a laser stops only at
+  what the map holds). In a map being built they say nothing.
+
   **Lost and found.** Each scan is judged from the best particle (the
-  mean of a cloud still split between places stands nowhere): a laser
-  does not see through walls, so beams that pass through a wall of the
-  map well short of their end contradict the pose, while beams that end
-  short of one (a box, a person the map does not hold) contradict
-  nothing. The robot is taken to be lost (carried away, or started from a
-  wrong pose) when more than `lost_through` of the judged beams
-  contradict it, `lost_after` times more often than not, or when the
-  particles stay spread wider than 0.5 m for twenty weighings, once a
-  fresh cloud had ten weighings to settle. Then the whole map is searched
-  for the scan (the estimate staying a candidate), the particles spread
-  round the poses that fit it best (`relocalizing`), and the scans after
-  are weighed tempered for a while, so that places one scan cannot tell
-  apart live on until the moves to come do. Not in simultaneous
-  localization and mapping (no map to start from): a map half built has
-  not the places to search. An initial pose given roughly
-  (`initial_sigma` wider than 0.15 m) is sought round itself at the
-  first scan. The fit of the scan (the mean per-beam likelihood over the
-  best possible, in [0, 1]) gives the confidence.
+  mean of a cloud still split between places stands nowhere), two ways.
+  A laser does not see through walls: beams that pass through a wall of
+  the map well short of their end contradict the pose, while beams that
+  end short of one (a box, a person the map does not hold) contradict
+  nothing. And a scan should end on the map: the share of its beams that
+  end within 0.25 m of an obstacle of the map (a beam without echo
+  counting as a miss where the map has a wall in its range; in a WDF's
+  map, a beam ending in unknown space too) is set against what it
+  usually is while tracking (learnt quickly upwards, slowly downwards,
+  taken as at least 0.6). A scan is poor when more than `lost_through`
+  of its judged beams contradict the pose, or when its share falls under
+  `lost_hits` of the usual. The robot is taken to be lost (carried away,
+  or started from a wrong pose) when its scans are poor `lost_after`
+  times more often than not, once a fresh cloud had ten weighings to
+  settle. Then the whole map is searched for the scan (the estimate
+  staying a candidate; the lattice scored with a wider sensor model, the
+  best pose of each of up to 60 places refined), the particles spread
+  round those poses (`relocalizing`), and the scans after are weighed
+  tempered (at most forty times, until the cloud gathers), so that
+  places one scan cannot tell apart live on until the moves to come do.
+  Scans poor again once the new cloud had its ten weighings search
+  again. Particles that stay spread wider than 0.5 m for twenty
+  weighings while the scans fit (and not while a search's places are
+  weighed tempered) are searched for round the best particle only. Not
+  in simultaneous localization and mapping (no map to start from): a map
+  half built has not the places to search. An initial pose given
+  roughly (`initial_sigma` wider than 0.15 m) is sought round itself at
+  the first scan, within three of its standard deviations in position
+  and heading. The fit of the scan (the mean per-beam likelihood over
+  the best possible, in [0, 1]) gives the confidence.
 
   ## Published
 
@@ -75,8 +92,8 @@ defmodule ThinkingCap.Navigation.MCL do
       a wall (default 30: a wall seen once, from afar, is already one;
       beams that end near it would otherwise weigh less than beams that
       end in unknown space, and pull the estimate off);
-    * `lost_through` (0.2), `lost_after` (3), `search_step` (0.2 m),
-      `search_headings` (72).
+    * `lost_through` (0.2), `lost_hits` (0.6), `lost_after` (3),
+      `search_step` (0.2 m), `search_headings` (72).
   """
 
   use ThinkingCap.Module
@@ -103,6 +120,7 @@ defmodule ThinkingCap.Navigation.MCL do
     map_every: 2.0,
     slam_wall: 30,
     lost_through: 0.2,
+    lost_hits: 0.6,
     lost_after: 3,
     search_step: 0.2,
     search_headings: 72
@@ -139,7 +157,9 @@ defmodule ThinkingCap.Navigation.MCL do
       )
 
     filter =
-      if map = wdf_map(wdf), do: ParticleFilter.set_map(filter, map, params[:seed]), else: filter
+      if map = wdf_map(wdf),
+        do: ParticleFilter.set_map(filter, map, params[:seed], strict: true),
+        else: filter
 
     state = %{
       robot: context.robot,
@@ -158,6 +178,8 @@ defmodule ThinkingCap.Navigation.MCL do
       held: nil,
       moved: {0.0, 0.0},
       fit: nil,
+      hits: nil,
+      baseline: nil,
       poor: 0,
       updates: 0,
       spread: 0,
@@ -190,7 +212,13 @@ defmodule ThinkingCap.Navigation.MCL do
     filter = ParticleFilter.new(pose, sigma, particle_opts(state))
 
     filter =
-      if state.filter.map, do: ParticleFilter.set_map(filter, state.filter.map), else: filter
+      if state.filter.map,
+        do:
+          ParticleFilter.set_map(filter, state.filter.map, state.params[:seed],
+            strict: state.filter.strict,
+            threshold: if(state.slam, do: state.params[:slam_wall], else: 50)
+          ),
+        else: filter
 
     %{state | filter: filter, last_odometry: h.last_odometry}
   end
@@ -305,7 +333,9 @@ defmodule ThinkingCap.Navigation.MCL do
   defp take_map(%{pending_map: map} = state, stamp) do
     if state.map_at == nil or stamp == nil or stamp - state.map_at >= state.params[:map_every] do
       filter =
-        ParticleFilter.set_map(state.filter, map, state.params[:seed], state.params[:slam_wall])
+        ParticleFilter.set_map(state.filter, map, state.params[:seed],
+          threshold: state.params[:slam_wall]
+        )
 
       status = if state.status == :dead_reckoning, do: :tracking, else: state.status
       %{state | filter: filter, source: :sensed, map_at: stamp, pending_map: nil, status: status}
@@ -316,15 +346,17 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # an initial pose known only roughly: the scan sought round it first
   defp first_fix(%{fit: nil, filter: %{map: %OccupancyGrid{}}} = state, many) do
-    {s_xy, _} = state.params[:initial_sigma]
+    {s_xy, s_th} = state.params[:initial_sigma]
 
     if s_xy > 0.15 do
-      {{x, y, _}, _} = ParticleFilter.estimate(state.filter)
+      {{x, y, th}, _} = ParticleFilter.estimate(state.filter)
       radius = min(3 * s_xy, 3.0)
 
+      # the heading as roughly as it was given: a scan in a symmetric place
+      # fits as well turned round
       {filter, _found} =
         ParticleFilter.relocalize(state.filter, many.(),
-          around: {{x, y}, radius},
+          around: {{x, y}, radius, {th, min(3 * s_th, :math.pi())}},
           step: state.params[:search_step] / 2,
           headings: state.params[:search_headings],
           seed: state.params[:seed]
@@ -344,7 +376,7 @@ defmodule ThinkingCap.Navigation.MCL do
   defp weigh(state, beams, many) do
     # after a search, hypotheses the scan cannot tell apart live on until
     # the moves to come do
-    temper = if state.status == :relocalizing and state.updates < 40, do: 0.25, else: 1.0
+    temper = if state.status == :relocalizing and state.updates <= 40, do: 0.25, else: 1.0
     {filter, _mean} = ParticleFilter.sense(state.filter, beams, temper)
     judge(%{state | filter: filter, updates: state.updates + 1}, beams, many)
   end
@@ -362,43 +394,106 @@ defmodule ThinkingCap.Navigation.MCL do
         state
 
       {{fit, _known}, contradiction} ->
-        # beams seen through walls say the pose is wrong; a good scan now
-        # and then takes one poor one back, not all of them
+        # beams seen through walls say the pose is wrong, and so do beams
+        # ending far from what the map holds, many more than usual; a good
+        # scan now and then takes one poor one back, not all of them
         limit = state.params[:lost_through]
+        hits = ParticleFilter.hits(filter, beams, best)
+        misfit = misfit?(state, hits)
 
         poor =
           case contradiction do
             {share, judged} when judged >= 10 and share > limit -> state.poor + 1
+            _ when misfit -> state.poor + 1
             _ -> max(state.poor - 1, 0)
           end
+
+        state = %{state | hits: hits, baseline: baseline(state, hits, misfit)}
 
         # a cloud that stays spread wide has no place either
         {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(filter)
         spread = if :math.sqrt(max(sxx, syy)) > 0.5, do: state.spread + 1, else: 0
         state = %{state | fit: fit, poor: poor, spread: spread}
 
-        if not state.slam and
-             (poor >= state.params[:lost_after] or spread >= 2 * @settling) and
-             state.updates > @settling,
-           do: relocalize(state, many.()),
-           else: settle(state)
+        cond do
+          state.slam or state.updates <= @settling ->
+            settle(state)
+
+          poor >= state.params[:lost_after] ->
+            relocalize(state, many.())
+
+          spread >= 2 * @settling and searched?(state) ->
+            relocalize(state, many.(), around(state))
+
+          true ->
+            settle(state)
+        end
     end
   end
 
-  # the whole map (the estimate staying a candidate): a robot carried
-  # away, a wrong initial pose
-  defp relocalize(state, beams) do
-    Logger.info("#{inspect(state.robot)}: lost (the scan fits the map poorly); searching the map")
+  # a scan whose beams end on the map far less often than they did while
+  # tracking (by the best particle)
+  defp misfit?(_state, nil), do: false
+  defp misfit?(_state, {_share, judged}) when judged < 10, do: false
+
+  defp misfit?(state, {share, _judged}),
+    do: share < state.params[:lost_hits] * max(state.baseline || 1.0, 0.6)
+
+  # what share of the beams end on the map while tracking, from the scans
+  # that fit: learnt quickly upwards, slowly downwards (a wrong pose that
+  # still passes must not teach it to expect little)
+  defp baseline(%{status: :tracking, baseline: b}, {share, judged}, false) when judged >= 10 do
+    cond do
+      b == nil -> share
+      share > b -> b + 0.1 * (share - b)
+      true -> b + 0.01 * (share - b)
+    end
+  end
+
+  defp baseline(state, _hits, _misfit), do: state.baseline
+
+  # a cloud split between the places a search found is left to the moves
+  # to come while it is weighed tempered
+  defp searched?(state), do: state.status != :relocalizing or state.updates > 40
+
+  # a cloud spread wide while the scan fits: the places round its best
+  # particle (a scan that fits says the robot was not carried away)
+  defp around(state) do
+    {x, y, th} = ParticleFilter.best(state.filter)
+    {_, [[sxx | _], [_, syy | _], [_, _, stt]]} = ParticleFilter.estimate(state.filter)
+    radius = min(max(3 * :math.sqrt(max(sxx, syy)), 1.0), 3.0)
+    {{x, y}, radius, {th, min(3 * :math.sqrt(max(stt, 0.0)) + 0.2, :math.pi())}}
+  end
+
+  # the whole map, or the places `around` the estimate (the estimate
+  # staying a candidate): a robot carried away, a wrong initial pose
+  defp relocalize(state, beams, around \\ nil) do
+    Logger.info(
+      "#{inspect(state.robot)}: lost (the scan fits the map poorly: #{describe_fit(state)}); " <>
+        "searching #{if around, do: "round the estimate", else: "the map"}"
+    )
 
     {filter, found} =
       ParticleFilter.relocalize(state.filter, beams,
         step: state.params[:search_step],
         headings: state.params[:search_headings],
-        seed: state.params[:seed]
+        seed: state.params[:seed],
+        around: around
       )
 
     if found, do: Logger.info("#{inspect(state.robot)}: best fit at #{inspect(found)}")
     %{state | filter: filter, poor: 0, spread: 0, status: :relocalizing, updates: 0}
+  end
+
+  defp describe_fit(state) do
+    hits =
+      case state.hits do
+        {share, judged} -> "#{round(share * 100)}% of #{judged} beams on the map"
+        nil -> "no beam on the map"
+      end
+
+    usual = if state.baseline, do: ", usually #{round(state.baseline * 100)}%", else: ""
+    "#{hits}#{usual}, spread #{state.spread}"
   end
 
   defp settle(state) do
@@ -415,8 +510,10 @@ defmodule ThinkingCap.Navigation.MCL do
     %{state | status: status}
   end
 
-  # at most `n` beams with an echo, evenly spread: {x, y, angle, range}
-  # in the robot frame
+  # about `n` beams, evenly spread: {x, y, angle, range} in the robot
+  # frame; a beam without echo (reading the scan's range_max) gets a range
+  # beyond any laser's, 1.0e6: weighing skips it, judging asks whether the
+  # map has a wall in its way
   defp beams(scan, laser, n) do
     {px, py, pth} = Map.get(laser, :pose, {0.0, 0.0, 0.0})
     range_min = Map.get(scan, :range_min, 0.0)
@@ -426,11 +523,10 @@ defmodule ThinkingCap.Navigation.MCL do
 
     scan.ranges
     |> Enum.with_index()
-    |> Enum.filter(fn {r, i} ->
-      rem(i, every) == 0 and is_number(r) and r >= range_min and r < range_max
-    end)
+    |> Enum.filter(fn {r, i} -> rem(i, every) == 0 and is_number(r) and r >= range_min end)
     |> Enum.map(fn {r, i} ->
       a = pth + scan.angle_min + i * scan.angle_increment
+      r = if r < range_max, do: r, else: 1.0e6
 
       <<px * 1.0::float-native, py * 1.0::float-native, a * 1.0::float-native,
         r * 1.0::float-native>>

@@ -18,9 +18,12 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   Sensor model (Probabilistic Robotics 6.4): a beam ending `d` metres from
   the nearest obstacle of the map scores `z_hit · exp(−d²/2σ²) + z_rand /
   range_max` (defaults σ 0.1 m, z_hit 0.9, z_rand 0.1); a beam without
-  echo is skipped, one ending in unknown space or off the map says nothing
-  (the map may still be being built), and a particle off the map, in
-  unknown space or inside an obstacle scores as noise.
+  echo is skipped, and a particle off the map, in unknown space or inside
+  an obstacle scores as noise. A beam ending in unknown space or off the
+  map says nothing in a map still being built; in a map given whole
+  (`set_map/4` with `strict: true`) it is scored by its distance to the
+  nearest obstacle, and off the map as noise: a laser stops only at what
+  the map holds.
 
   Motion model (table 5.6, sample_motion_model_odometry): a move is a
   turn, a straight line and a turn, each with noise of variance
@@ -37,6 +40,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     :set,
     :field,
     :map,
+    strict: false,
     count: 500,
     model: {0.1, 0.9, 0.1, 8.0},
     alphas: {0.1, 0.02, 0.05, 0.01},
@@ -87,12 +91,16 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   @doc """
   Takes a map: the likelihood field is built from its cells of occupancy
-  at least `threshold` (default 50), and a few thousand poses in its known free space are drawn
-  (with `seed`) for the particles augmented MCL brings in.
+  at least `threshold` (option, default 50), and, when `max_injection` is
+  above 0, a few thousand poses in its known free space are drawn (with
+  `seed`) for the particles augmented MCL brings in. Option `strict`
+  (default false): the map is given whole, so a beam ending in its
+  unknown space or off it is scored, not passed over.
   """
-  @spec set_map(t(), OccupancyGrid.t(), integer(), 1..100) :: t()
-  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1, threshold \\ 50) do
+  @spec set_map(t(), OccupancyGrid.t(), integer(), keyword()) :: t()
+  def set_map(%__MODULE__{} = pf, %OccupancyGrid{} = map, seed \\ 1, opts \\ []) do
     {ox, oy} = map.origin
+    strict = Keyword.get(opts, :strict, false)
 
     field =
       GridNif.field_new(
@@ -102,10 +110,14 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         map.resolution,
         ox * 1.0,
         oy * 1.0,
-        threshold
+        Keyword.get(opts, :threshold, 50),
+        if(strict, do: 1, else: 0)
       )
 
-    %{pf | field: field, map: map, free_poses: free_poses(map, 4000, seed)}
+    # (drawn only when augmented MCL may throw particles in: a large map
+    # has millions of free cells)
+    poses = if pf.max_injection > 0, do: free_poses(map, 4000, seed), else: <<>>
+    %{pf | field: field, map: map, strict: strict, free_poses: poses}
   end
 
   defp free_poses(%OccupancyGrid{} = map, n, seed) do
@@ -206,6 +218,27 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   @doc """
+  The share of a scan's beams that end on the map from `pose`: within
+  `tolerance` metres (default 0.25) of an occupied cell. Judged are the
+  beams with an echo (in a map not given whole, only those ending on
+  known map) and the beams without one (range at least `range_max`)
+  that pass an occupied cell of the map 0.5 m or more short of the
+  range. Returns `{share, judged}`, or nil without a map or a beam to
+  judge by. A beam ending in the open, in unknown space of a map given
+  whole, or missing a wall in its range is a misfit.
+  """
+  @spec hits(t(), binary(), pose(), float()) :: {float(), non_neg_integer()} | nil
+  def hits(pf, beams, pose, tolerance \\ 0.25)
+  def hits(%__MODULE__{field: nil}, _beams, _pose, _tolerance), do: nil
+
+  def hits(%__MODULE__{} = pf, beams, pose, tolerance) do
+    case GridNif.field_fit(pf.field, beams, pf.model, pose, tolerance * 1.0) do
+      {_near, 0} -> nil
+      {near, judged} -> {near / judged, judged}
+    end
+  end
+
+  @doc """
   How much a scan contradicts the map from `pose`: the share of its beams
   (those with an echo, over known map) that pass through a wall of the
   map more than 0.25 m short of their end, in [0, 1], with the number of
@@ -232,10 +265,12 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   @doc """
   Searches the map for the scan (the whole map, or with `around: {{x,
-  y}, r}` a square of half-side r round a point): the `top` poses
+  y}, r}` a square of half-side r round a point, and with `around: {{x,
+  y}, r, {θ, half}}` only the headings within half of θ): the `top` poses
   (default 60) of a lattice over the known free space (`step` metres, default 0.2, and
-  `headings` headings, default 72) that fit it best, each refined on a
-  finer lattice round it, and with the estimate as it was (a robot that
+  `headings` headings, default 72) that fit it best, scored with a
+  wider sensor model and at most one per place, each refined on finer
+  lattices round it while they find better, and with the estimate as it was (a robot that
   was not moved keeps its place if it fits best), and spreads the
   particles around them
   (`{σ_xy, σ_θ}` default `{0.1, 0.05}`), the better poses with more. Returns the filter and the best pose, or nil without a
@@ -256,11 +291,35 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     {{x, y, th} = here, _} = estimate(pf)
     {ll, _} = GridNif.field_score(pf.field, beams, pf.model, here)
 
+    # the lattice scored with a wider sensor model: the pose nearest the
+    # true one may be a half step and a half heading off it, and far beams
+    # miss by more than sigma_hit; then the best of each place (others
+    # within 0.5 m and 0.35 rad dropped), refined with the true model
+    {sigma, z_hit, z_rand, range_max} = pf.model
+    coarse = {max(sigma, 1.5 * step) * 1.0, z_hit, z_rand, range_max}
+    turn = :math.pi() / headings
+
     found =
       pf.field
-      |> GridNif.field_search(beams, pf.model, step * 1.0, headings, top, box(pf, opts[:around]))
+      |> GridNif.field_search(
+        beams,
+        coarse,
+        step * 1.0,
+        headings,
+        5 * top,
+        box(pf, opts[:around])
+      )
+      |> distinct(top)
+      |> Enum.map(fn {_, x, y, th} ->
+        {l, _} = GridNif.field_score(pf.field, beams, pf.model, {x, y, th})
+        {l, x, y, th}
+      end)
       |> List.insert_at(0, {ll, x, y, th})
-      |> Enum.map(&refine(pf, beams, &1, step / 2, :math.pi() / headings))
+      |> Enum.map(fn c ->
+        c
+        |> then(&climb(pf, beams, &1, step / 2, turn, 4))
+        |> then(&climb(pf, beams, &1, step / 6, turn / 3, 4))
+      end)
       |> Enum.sort_by(&(-elem(&1, 0)))
 
     case found do
@@ -299,6 +358,23 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     end
   end
 
+  # the best `n` poses of a list best first, none within 0.5 m and 0.35 rad
+  # of a better one
+  defp distinct(found, n) do
+    found
+    |> Enum.reduce([], fn {_, x, y, th} = c, kept ->
+      near =
+        length(kept) >= n or
+          Enum.any?(kept, fn {_, kx, ky, kth} ->
+            (kx - x) ** 2 + (ky - y) ** 2 < 0.25 and
+              abs(:math.atan2(:math.sin(kth - th), :math.cos(kth - th))) < 0.35
+          end)
+
+      if near, do: kept, else: [c | kept]
+    end)
+    |> Enum.reverse()
+  end
+
   # the lattice's box: the whole map, or a square round a point
   defp box(%{map: map}, nil) do
     {ox, oy} = map.origin
@@ -306,6 +382,19 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   defp box(_pf, {{x, y}, r}), do: {x - r, y - r, x + r, y + r}
+
+  defp box(_pf, {{x, y}, r, {th, half}}),
+    do: {x - r, y - r, x + r, y + r, th * 1.0, max(half, 0.0) * 1.0}
+
+  # the small lattice round a pose again and again while it finds better
+  # (at most n more times): a pose beside a wall is pushed off it
+  defp climb(pf, beams, candidate, half_step, half_turn, n) do
+    better = refine(pf, beams, candidate, half_step, half_turn)
+
+    if n == 0 or better == candidate,
+      do: better,
+      else: climb(pf, beams, better, half_step, half_turn, n - 1)
+  end
 
   # the best pose of a small lattice round a found one (a third of the
   # search's steps)

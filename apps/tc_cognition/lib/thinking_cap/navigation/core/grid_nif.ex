@@ -41,12 +41,14 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def rooms(_occupancy, _w, _h, _free_below, _half_door, _min_core),
     do: :erlang.nif_error(:nif_not_loaded)
 
-  def field_new(_occupancy, _w, _h, _res, _ox, _oy, _threshold),
+  def field_new(_occupancy, _w, _h, _res, _ox, _oy, _threshold, _strict),
     do: :erlang.nif_error(:nif_not_loaded)
 
   def field_score(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
 
   def field_through(_field, _beams, _model, _pose), do: :erlang.nif_error(:nif_not_loaded)
+
+  def field_fit(_field, _beams, _model, _pose, _tolerance), do: :erlang.nif_error(:nif_not_loaded)
 
   def field_search(_field, _beams, _model, _step, _headings, _top, _box),
     do: :erlang.nif_error(:nif_not_loaded)

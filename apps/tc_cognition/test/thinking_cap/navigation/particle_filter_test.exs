@@ -1,0 +1,68 @@
+defmodule ThinkingCap.Navigation.ParticleFilterTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{OccupancyGrid, ParticleFilter}
+
+  # 4 x 4 m of 0.1 m cells: a wall along x = 3.0, the strip x < 1 unknown
+  defp map do
+    data =
+      for r <- 0..39, c <- 0..39, into: <<>> do
+        _ = r
+
+        cond do
+          c == 30 -> <<100::signed-8>>
+          c < 10 -> <<-1::signed-8>>
+          true -> <<0::signed-8>>
+        end
+      end
+
+    %{OccupancyGrid.new(40, 40, resolution: 0.1) | data: data}
+  end
+
+  defp beams(list) do
+    for {a, r} <- list,
+        into: <<>>,
+        do: <<0.0::float-native, 0.0::float-native, a::float-native, r::float-native>>
+  end
+
+  defp filter(strict) do
+    ParticleFilter.new({1.5, 2.0, 0.0}, {0.1, 0.1}, range_max: 8.0)
+    |> ParticleFilter.set_map(map(), 1, strict: strict)
+  end
+
+  test "beams ending on the wall fit; beams ending in the open do not" do
+    pf = filter(true)
+    pose = {1.5, 2.0, 0.0}
+    # 1.5 m ahead is the wall; 0.5 m ahead is open floor 1 m from it
+    assert {1.0, 10} = ParticleFilter.hits(pf, beams(List.duplicate({0.0, 1.5}, 10)), pose)
+    assert {0.0, 10} = ParticleFilter.hits(pf, beams(List.duplicate({0.0, 0.5}, 10)), pose)
+  end
+
+  test "a beam without echo misfits where the map has a wall in its range" do
+    pf = filter(true)
+    pose = {1.5, 2.0, 0.0}
+    # no echo towards the wall 1.5 m ahead: the laser would have seen it
+    assert {0.0, 1} = ParticleFilter.hits(pf, beams([{0.0, 1.0e6}]), pose)
+    # no echo towards the map's edge behind: nothing to judge by
+    assert nil == ParticleFilter.hits(pf, beams([{:math.pi(), 1.0e6}]), pose)
+  end
+
+  test "a beam ending in unknown space misfits in a map given whole, says nothing in one being built" do
+    beam = beams([{:math.pi(), 1.0}])
+    pose = {1.5, 2.0, 0.0}
+    assert {0.0, 1} = ParticleFilter.hits(filter(true), beam, pose)
+    assert nil == ParticleFilter.hits(filter(false), beam, pose)
+  end
+
+  test "a search of the map finds the pose a scan was taken from, its heading within a window" do
+    pf = filter(true)
+    # a scan from {2.0, 2.0, 0}: the wall 1 m ahead, fanned over ±0.6 rad
+    scan = beams(for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)})
+
+    {_pf, {x, _y, th}} =
+      ParticleFilter.relocalize(pf, scan, around: {{2.0, 2.0}, 0.6, {0.0, 0.3}})
+
+    assert_in_delta x, 2.0, 0.1
+    assert_in_delta th, 0.0, 0.1
+  end
+end
