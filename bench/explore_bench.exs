@@ -120,11 +120,10 @@ defmodule ThinkingCap.Bench.Explore do
       localization:
         {ThinkingCap.Navigation.MCL,
          [initial: start, initial_sigma: {0.05, 0.02}, seed: seed] ++
-           elem(Code.eval_string(System.get_env("TC_MCL") || "[]"), 0)},
+           NavRun.env_params("TC_MCL")},
       mapper:
         {ThinkingCap.Navigation.Mapper,
-         [initial: {sx, sy}, size: {size, size}] ++
-           elem(Code.eval_string(System.get_env("TC_MAPPER") || "[]"), 0)},
+         [initial: {sx, sy}, size: {size, size}] ++ NavRun.env_params("TC_MAPPER")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner: {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved], period: 0.5}
     ]

@@ -79,8 +79,9 @@ defmodule ThinkingCap.Bench.NavUnknown do
     [
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
-        {ThinkingCap.Navigation.MCL, [initial: pair.start, initial_sigma: {0.1, 0.05}]},
-      mapper: {ThinkingCap.Navigation.Mapper, []},
+        {ThinkingCap.Navigation.MCL,
+         [initial: pair.start, initial_sigma: {0.1, 0.05}] ++ NavRun.env_params("TC_MCL")},
+      mapper: {ThinkingCap.Navigation.Mapper, NavRun.env_params("TC_MAPPER")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner:
         {ThinkingCap.Planner.Monitor, [task: {:go_to, pair.goal}, compare: true], period: 0.5}

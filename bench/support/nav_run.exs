@@ -259,6 +259,17 @@ defmodule ThinkingCap.Bench.NavRun do
     }
   end
 
+  @doc """
+  Extra params for a module, for tuning: the keyword list (an Elixir term)
+  in the environment variable `name` (`TC_MCL`, `TC_MAPPER`), or `[]`.
+  """
+  def env_params(name) do
+    case System.get_env(name) do
+      nil -> []
+      term -> elem(Code.eval_string(term), 0)
+    end
+  end
+
   def mean([]), do: 0.0
   def mean(xs), do: Enum.sum(xs) / length(xs)
 

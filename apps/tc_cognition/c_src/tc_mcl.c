@@ -298,6 +298,17 @@ static int get_beams(ErlNifEnv *env, ERL_NIF_TERM t, Beams *bs)
     return 1;
 }
 
+/* the arguments the field functions share: field, beams, model, {x, y, th} */
+static int get_field_pose(ErlNifEnv *env, const ERL_NIF_TERM argv[], Field **f, Beams *bs,
+                          Model *m, double *x, double *y, double *th)
+{
+    int arity;
+    const ERL_NIF_TERM *e;
+    return enif_get_resource(env, argv[0], FIELD_TYPE, (void **)f) && get_beams(env, argv[1], bs) &&
+           get_model(env, argv[2], m) && enif_get_tuple(env, argv[3], &arity, &e) && arity == 3 &&
+           num(env, e[0], x) && num(env, e[1], y) && num(env, e[2], th);
+}
+
 /* field_score(field, beams, model, {x, y, th}) -> {log_likelihood, known} */
 ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -305,22 +316,19 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     Field *f;
     Beams bs;
     Model m;
-    int arity, known;
-    const ERL_NIF_TERM *e;
+    int known;
     double x, y, th;
-    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
-        !get_model(env, argv[2], &m) || !enif_get_tuple(env, argv[3], &arity, &e) || arity != 3 ||
-        !num(env, e[0], &x) || !num(env, e[1], &y) || !num(env, e[2], &th))
-        return enif_make_badarg(env);
+    if (!get_field_pose(env, argv, &f, &bs, &m, &x, &y, &th)) return enif_make_badarg(env);
     double l = score(f, &bs, &m, x, y, th, &known);
     return enif_make_tuple2(env, enif_make_double(env, l), enif_make_int(env, known));
 }
 
 /* field_fit(field, beams, model, {x, y, th}, tolerance) -> {near, judged}:
- * of the beams with an echo (`judged`; in a map not given whole, those
- * ending on known map), those that end within `tolerance` metres of an
- * occupied cell (`near`). In a map given whole, a beam ending in unknown
- * space or off the map is judged and is not near. A beam without echo is
+ * of the beams with an echo (`judged`: those ending within `tolerance`
+ * metres of an occupied cell, and in a map given whole those ending in
+ * unknown space or off the map), those that end near an occupied cell
+ * (`near`). A beam ending in known free space far from any wall is not
+ * judged: something the map does not hold (a box, a person) stopped it. A beam without echo is
  * judged (and not near) when the map has an occupied cell on its way,
  * 0.5 m or more short of the range: the laser would have seen it. */
 ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -329,13 +337,8 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     Field *f;
     Beams bs;
     Model m;
-    int arity;
-    const ERL_NIF_TERM *e;
     double x, y, th, tol;
-    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
-        !get_model(env, argv[2], &m) || !enif_get_tuple(env, argv[3], &arity, &e) || arity != 3 ||
-        !num(env, e[0], &x) || !num(env, e[1], &y) || !num(env, e[2], &th) ||
-        !num(env, argv[4], &tol))
+    if (!get_field_pose(env, argv, &f, &bs, &m, &x, &y, &th) || !num(env, argv[4], &tol))
         return enif_make_badarg(env);
     double c = cos(th), s = sin(th);
     int near = 0, judged = 0;
@@ -366,8 +369,11 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
         size_t cell = (size_t)row * f->w + col;
         if (f->unknown[cell] && !f->strict) continue;
+        /* ending in known free space, short of any wall: a box or a person
+         * the map does not hold, not a sign of a wrong pose */
+        if (!f->unknown[cell] && f->dist[cell] > tol) continue;
         judged++;
-        if (!f->unknown[cell] && f->dist[cell] <= tol) near++;
+        if (!f->unknown[cell]) near++;
     }
     return enif_make_tuple2(env, enif_make_int(env, near), enif_make_int(env, judged));
 }
@@ -384,13 +390,8 @@ ERL_NIF_TERM tc_nif_field_through(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     Field *f;
     Beams bs;
     Model m;
-    int arity;
-    const ERL_NIF_TERM *e;
     double x, y, th;
-    if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
-        !get_model(env, argv[2], &m) || !enif_get_tuple(env, argv[3], &arity, &e) || arity != 3 ||
-        !num(env, e[0], &x) || !num(env, e[1], &y) || !num(env, e[2], &th))
-        return enif_make_badarg(env);
+    if (!get_field_pose(env, argv, &f, &bs, &m, &x, &y, &th)) return enif_make_badarg(env);
     double c = cos(th), s = sin(th);
     int through = 0, judged = 0;
     for (int i = 0; i < bs.n; i++) {
