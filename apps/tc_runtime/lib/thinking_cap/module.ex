@@ -64,6 +64,21 @@ defmodule ThinkingCap.Module do
   not given, and `:handoff`, below) and returns `{:ok, state}` or
   `{actions, state}`.
 
+  **Declared params.** A module may implement `params/0`, the schema of
+  its params (`ThinkingCap.Config.Schema` fields: type, default, doc):
+  the ADF reader then checks the module's `params` against it, so that a
+  misspelt key is an error with a "did you mean", a value out of range an
+  error with the range, and a `:place` a name the run's WDF must hold,
+  each at its file:line. `mix tc.check --explain MODULE` prints it.
+
+      @impl true
+      def params do
+        [
+          max_speed: {{:number_range, 0.0, 2.0}, default: 0.3, doc: "m/s"},
+          goal: {:place, required: true, doc: "where to go"}
+        ]
+      end
+
   **Handoff.** A module deployed with standby nodes may implement
   `handoff/1`: every `handoff_every` seconds (ADF, default 1) the framework
   calls it and sends what it returns to the deployments of the other
@@ -106,8 +121,9 @@ defmodule ThinkingCap.Module do
   @callback handle_swap(old_module :: module(), old_state :: term(), context()) :: {:ok, term()}
   @callback terminate(reason :: term(), state :: term()) :: term()
   @callback handoff(state :: term()) :: term()
+  @callback params() :: ThinkingCap.Config.Schema.fields()
 
-  @optional_callbacks handle_swap: 3, handoff: 1
+  @optional_callbacks handle_swap: 3, handoff: 1, params: 0
 
   defmacro __using__(_opts) do
     quote do

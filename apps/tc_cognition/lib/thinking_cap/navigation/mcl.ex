@@ -105,27 +105,38 @@ defmodule ThinkingCap.Navigation.MCL do
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Robot.Description
 
-  @defaults [
-    initial: {0.0, 0.0, 0.0},
-    initial_sigma: {0.2, 0.1},
-    particles: 500,
-    beams: 40,
-    seed: 1,
-    sigma_hit: 0.1,
-    z_hit: 0.9,
-    z_rand: 0.1,
-    alphas: nil,
-    update_distance: 0.05,
-    update_angle: 0.05,
-    publish_period: 0.1,
-    map_every: 2.0,
-    slam_wall: 30,
-    lost_through: 0.2,
-    lost_hits: 0.6,
-    lost_after: 3,
-    search_step: 0.2,
-    search_headings: 72
+  @pair {:tuple, [:non_neg_number, :non_neg_number]}
+  @params [
+    initial:
+      {{:or, [:point_or_pose, :place]},
+       default: {0.0, 0.0, 0.0}, doc: "the start pose, or a waypoint's name"},
+    initial_sigma: {@pair, default: {0.2, 0.1}, doc: "{σ_xy m, σ_θ rad} of the start pose"},
+    particles: {{:int_range, 10, 100_000}, default: 500, doc: "particles"},
+    beams: {{:int_range, 1, 4096}, default: 40, doc: "beams of a scan weighed"},
+    seed: {:integer, default: 1, doc: "random seed"},
+    sigma_hit: {:pos_number, default: 0.1, doc: "sensor model σ, m"},
+    z_hit: {:probability, default: 0.9, doc: "sensor model: share of hits"},
+    z_rand: {:probability, default: 0.1, doc: "sensor model: share of noise"},
+    alphas:
+      {{:tuple, List.duplicate(:non_neg_number, 4)},
+       default: nil, doc: "motion model {α1..α4} (default from the RDF's odometry_error)"},
+    update_distance: {:non_neg_number, default: 0.05, doc: "m moved between weighings"},
+    update_angle: {:non_neg_number, default: 0.05, doc: "rad turned between weighings"},
+    publish_period: {:pos_number, default: 0.1, doc: "s between estimates from odometry"},
+    map_every: {:pos_number, default: 2.0, doc: "s between maps taken in SLAM"},
+    slam_wall: {{:int_range, 1, 100}, default: 30, doc: "occupancy of a wall in SLAM"},
+    lost_through: {:probability, default: 0.2, doc: "share of beams through walls: poor"},
+    lost_hits: {:probability, default: 0.6, doc: "share of the usual hits below which: poor"},
+    lost_after: {:pos_integer, default: 3, doc: "poor scans before lost"},
+    search_step: {:pos_number, default: 0.2, doc: "m between poses of a map search"},
+    search_headings: {{:int_range, 1, 720}, default: 72, doc: "headings of a map search"}
   ]
+  @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
+
+  @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
+  @impl true
+  @spec params() :: keyword()
+  def params, do: @params
 
   # weighings a fresh cloud of particles gets before it may be judged lost
   @settling 10

@@ -168,6 +168,7 @@ defmodule ThinkingCap.Config.ADF do
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
     {value, st} = Schema.start(data, @fields, file, positions)
+    st = Map.put(st, :places, places(value[:wdf], file))
     modules = for {name, spec} <- value[:modules] || [], do: Map.put(spec, :name, name)
     nodes = value[:nodes] || []
 
@@ -234,7 +235,52 @@ defmodule ThinkingCap.Config.ADF do
         end)
       end)
       |> check_timing(path, m)
+      |> check_params(path, m)
     end)
+  end
+
+  # the module's params against the schema it declares (`c:ThinkingCap.Module.params/0`)
+  defp check_params(st, path, %{module: module, params: params}) when is_atom(module) do
+    case declared_params(module) do
+      nil ->
+        st
+
+      fields ->
+        {_value, st} = Schema.check_at(st, {:keyword, fields}, params, path ++ [:params])
+        st
+    end
+  end
+
+  defp check_params(st, _path, _module), do: st
+
+  @doc """
+  The params schema a module declares (`c:ThinkingCap.Module.params/0`),
+  or nil when it declares none (or is not loaded).
+  """
+  @spec declared_params(module()) :: Schema.fields() | nil
+  def declared_params(module) do
+    if Code.ensure_loaded?(module) and function_exported?(module, :params, 0),
+      do: module.params()
+  end
+
+  # the names of the WDF's places, for params of type :place (nil when the
+  # ADF names no WDF or it cannot be read: its own check reports that)
+  defp places(nil, _file), do: nil
+
+  defp places(wdf, file) do
+    case ThinkingCap.Config.read(resolve(file, wdf)) do
+      {:ok, %ThinkingCap.Config.WDF{} = w} ->
+        names =
+          for key <- [:waypoints, :rooms, :corridors, :doors, :areas, :obstacles],
+              item <- Map.get(w, key) || [],
+              is_map(item),
+              do: Map.get(item, :name)
+
+        MapSet.new(names)
+
+      _ ->
+        nil
+    end
   end
 
   defp check_node(st, path, node, declared) do

@@ -11,7 +11,12 @@ defmodule ThinkingCap.Config.Schema do
     * scalars: `:atom`, `:string`, `:boolean`, `:module`, `:number`,
       `:pos_number`, `:non_neg_number`, `:probability` (0..1), `:integer`,
       `:pos_integer`, `:non_neg_integer`, `:port`, `{:int_range, min, max}`,
-      `{:one_of, values}`, `:any`;
+      `{:number_range, min, max}`, `{:one_of, values}`, `:any`;
+    * `:place`: the name (an atom) of a waypoint, room, corridor or door
+      of the run's WDF, when the WDF is known (`check_at/4` with the
+      names in the state's `places`);
+    * `{:tuple, types}` (a tuple of those types, in order) and
+      `{:or, types}` (the first type that takes the value);
     * geometry: `:point` `{x, y}`, `:pose` `{x, y, theta}`,
       `:point_or_pose`, `:segment` `{{x1, y1}, {x2, y2}}`, `:range`
       `{min, max}` with min < max;
@@ -53,6 +58,15 @@ defmodule ThinkingCap.Config.Schema do
     {value, errors} = validate(data, {:keyword, fields}, file, positions)
     {value, %{file: file, positions: positions, errors: Enum.reverse(errors)}}
   end
+
+  @doc """
+  Validates `value` at `path` of a file being checked (a module's params,
+  say) against `type`, adding its errors to the checking state. With
+  `places` (a MapSet of names) in the state, `:place` values must be
+  among them.
+  """
+  @spec check_at(state(), type(), term(), list()) :: {term(), state()}
+  def check_at(st, type, value, path), do: check(type, value, path, st)
 
   @doc "The errors of a checking state, in order."
   @spec errors(state()) :: [Error.t()]
@@ -174,6 +188,49 @@ defmodule ThinkingCap.Config.Schema do
 
   defp check(:port, value, path, st), do: check({:int_range, 1, 65_535}, value, path, st)
 
+  defp check({:number_range, min, max}, value, path, st) do
+    if is_number(value) and value >= min and value <= max,
+      do: {value / 1, st},
+      else: {value, expected(st, path, "a number from #{min} to #{max}", value)}
+  end
+
+  defp check({:tuple, types}, value, path, st)
+       when is_tuple(value) and tuple_size(value) == length(types) do
+    {values, st} =
+      types
+      |> Enum.zip(Tuple.to_list(value))
+      |> Enum.with_index()
+      |> Enum.map_reduce(st, fn {{type, v}, i}, st -> check(type, v, path ++ [i], st) end)
+
+    {List.to_tuple(values), st}
+  end
+
+  defp check({:tuple, types}, value, path, st),
+    do:
+      {value, expected(st, path, "a tuple {#{Enum.map_join(types, ", ", &type_name/1)}}", value)}
+
+  # a name where a place may stand: said as a place that is not there
+  defp check({:or, types}, value, path, st) do
+    if is_atom(value) and value not in [nil, true, false] and :place in types,
+      do: check(:place, value, path, st),
+      else: check_either(types, value, path, st)
+  end
+
+  defp check(:place, value, path, st) when is_atom(value) and value not in [nil, true, false] do
+    case Map.get(st, :places) do
+      nil ->
+        {value, st}
+
+      places ->
+        if MapSet.member?(places, value),
+          do: {value, st},
+          else: {value, error(st, path, "#{path_string(path)}: #{unknown_place(value, places)}")}
+    end
+  end
+
+  defp check(:place, value, path, st),
+    do: {value, expected(st, path, "the name of a waypoint, room or door, like :dock", value)}
+
   defp check(:point, value, path, st) do
     case value do
       {x, y} when is_number(x) and is_number(y) -> {{x / 1, y / 1}, st}
@@ -241,6 +298,17 @@ defmodule ThinkingCap.Config.Schema do
     if ok,
       do: {normalize(scalar, value), st},
       else: {value, expected(st, path, expectation, value)}
+  end
+
+  # the first of `types` that takes the value
+  defp check_either(types, value, path, st) do
+    Enum.find_value(types, fn type ->
+      case check(type, value, path, %{st | errors: []}) do
+        {v, %{errors: []}} -> {v, st}
+        _ -> nil
+      end
+    end) ||
+      {value, expected(st, path, Enum.map_join(types, " or ", &type_name/1), value)}
   end
 
   # a nested keyword default is expanded with its own fields' defaults
@@ -318,6 +386,13 @@ defmodule ThinkingCap.Config.Schema do
     st
   end
 
+  defp unknown_place(name, places) do
+    known = Enum.sort(places)
+
+    "#{inspect(name)} is not a waypoint, room, corridor or door of the WDF#{did_you_mean(name, known)}" <>
+      if known == [], do: " (it names none)", else: ""
+  end
+
   defp did_you_mean(key, known) do
     case Enum.max_by(known, &String.jaro_distance(to_string(&1), to_string(key)), fn -> nil end) do
       nil ->
@@ -343,5 +418,9 @@ defmodule ThinkingCap.Config.Schema do
   defp type_name({:list, type}), do: "list of #{type_name(type)}"
   defp type_name({:one_of, values}), do: Enum.map_join(values, " \\| ", &"`#{inspect(&1)}`")
   defp type_name({:int_range, a, b}), do: "integer #{a}..#{b}"
+  defp type_name({:number_range, a, b}), do: "number #{a}..#{b}"
+  defp type_name({:tuple, types}), do: "{#{Enum.map_join(types, ", ", &type_name/1)}}"
+  defp type_name({:or, types}), do: Enum.map_join(types, " or ", &type_name/1)
+  defp type_name(:place), do: "waypoint, room or door name"
   defp type_name(type), do: "#{type}"
 end
