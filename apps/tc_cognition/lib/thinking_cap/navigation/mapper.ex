@@ -84,19 +84,34 @@ defmodule ThinkingCap.Navigation.Mapper do
   alias ThinkingCap.Navigation.Maps.{Rooms, SensedGrid, Segments}
   alias ThinkingCap.Robot.Description
 
-  @defaults [
-    resolution: 0.05,
-    size: {60.0, 60.0},
-    initial: {0.0, 0.0},
-    prior: 0.7,
-    publish_every: 1.0,
-    topology_every: 5.0,
-    save: nil,
-    save_every: 30.0,
-    door_width: 1.2,
-    min_area: 1.5,
-    max_turn_rate: 0.6
+  @pair {:tuple, [:pos_number, :pos_number]}
+  @degrees {:keyword_of, :non_neg_number}
+  @params [
+    resolution: {:pos_number, default: 0.05, doc: "cell size, m (with a WDF map: the map's)"},
+    size: {@pair, default: {60.0, 60.0}, doc: "{width, height} m of a map started from nothing"},
+    initial: {:point_or_pose, default: {0.0, 0.0}, doc: "where that map is centred"},
+    prior: {:probability, default: 0.7, doc: "degree given to the WDF's cells"},
+    publish_every: {:pos_number, default: 1.0, doc: "s between maps published"},
+    topology_every: {:pos_number, default: 5.0, doc: "s between topologies published"},
+    save: {:string, default: nil, doc: "where to save the map (map_server YAML)"},
+    save_every: {:pos_number, default: 30.0, doc: "s between saves"},
+    door_width: {:pos_number, default: 1.2, doc: "widest gap taken for a door, m"},
+    min_area: {:pos_number, default: 1.5, doc: "smallest room, m²"},
+    max_turn_rate:
+      {{:or, [:non_neg_number, {:one_of, [nil]}]},
+       default: 0.6, doc: "rad/s: scans taken turning faster are left out (nil: none)"},
+    fade: {:probability, default: nil, doc: "the fuzzy grid's fade (SensedGrid)"},
+    lambda: {{:tuple, [:probability, :probability]}, default: nil, doc: "fading {λe, λo}"},
+    known: {:probability, default: nil, doc: "degree below which a cell is unknown"},
+    laser: {@degrees, default: nil, doc: "laser degrees: k_empty, k_occupied, range"},
+    sonar: {@degrees, default: nil, doc: "sonar degrees: k_empty, k_occupied, trust"}
   ]
+  @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
+
+  @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
+  @impl true
+  @spec params() :: keyword()
+  def params, do: @params
 
   @grid_opts [:fade, :lambda, :known, :laser, :sonar]
   # odometry readings kept to place readings between estimates
@@ -342,7 +357,9 @@ defmodule ThinkingCap.Navigation.Mapper do
     SensedGrid.seeded(Maps.prior(wdf, grid), params[:prior], grid_opts(params))
   end
 
-  defp grid_opts(params), do: Keyword.take(params, @grid_opts)
+  # the grid's own defaults stand for the options not given
+  defp grid_opts(params),
+    do: params |> Keyword.take(@grid_opts) |> Enum.reject(fn {_key, v} -> v == nil end)
 
   # Beside a laser, a sonar only adds obstacles close by (what the laser
   # cannot see: behind the robot, glass, low things): its wide cone and
@@ -350,7 +367,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   defp sonar_degrees(sensors, params) do
     laser? = Enum.any?(sensors, fn {_, s} -> s.type == :laser end)
     base = if laser?, do: [k_empty: 0.0, k_occupied: 0.1, trust: 1.0], else: []
-    Keyword.merge(base, Enum.to_list(Keyword.get(params, :sonar, [])))
+    Keyword.merge(base, Enum.to_list(params[:sonar] || []))
   end
 
   defp point({x, y}), do: {x * 1.0, y * 1.0}
