@@ -324,11 +324,10 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
 }
 
 /* field_fit(field, beams, model, {x, y, th}, tolerance) -> {near, judged}:
- * of the beams with an echo (`judged`: those ending within `tolerance`
- * metres of an occupied cell, and in a map given whole those ending in
- * unknown space or off the map), those that end near an occupied cell
- * (`near`). A beam ending in known free space far from any wall is not
- * judged: something the map does not hold (a box, a person) stopped it. A beam without echo is
+ * of the beams with an echo (`judged`; in a map not given whole, those
+ * ending on known map), those that end within `tolerance` metres of an
+ * occupied cell (`near`). In a map given whole, a beam ending in unknown
+ * space or off the map is judged and is not near. A beam without echo is
  * judged (and not near) when the map has an occupied cell on its way,
  * 0.5 m or more short of the range: the laser would have seen it. */
 ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -369,11 +368,8 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
         size_t cell = (size_t)row * f->w + col;
         if (f->unknown[cell] && !f->strict) continue;
-        /* ending in known free space, short of any wall: a box or a person
-         * the map does not hold, not a sign of a wrong pose */
-        if (!f->unknown[cell] && f->dist[cell] > tol) continue;
         judged++;
-        if (!f->unknown[cell]) near++;
+        if (!f->unknown[cell] && f->dist[cell] <= tol) near++;
     }
     return enif_make_tuple2(env, enif_make_int(env, near), enif_make_int(env, judged));
 }

@@ -38,8 +38,7 @@ defmodule ThinkingCap.Navigation.MCL do
   nothing. And a scan should end on the map: the share of its beams that
   end within 0.25 m of an obstacle of the map (a beam without echo
   counting as a miss where the map has a wall in its range; in a WDF's
-  map, a beam ending in unknown space too; a beam ending in the open, at
-  something the map does not hold, not counting) is set against what it
+  map, a beam ending in unknown space too) is set against what it
   usually is while tracking (learnt quickly upwards, slowly downwards,
   taken as at least 0.6). A scan is poor when more than `lost_through`
   of its judged beams contradict the pose, or when its share falls under

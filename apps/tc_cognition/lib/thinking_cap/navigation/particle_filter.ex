@@ -220,14 +220,12 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   @doc """
   The share of a scan's beams that end on the map from `pose`: within
   `tolerance` metres (default 0.25) of an occupied cell. Judged are the
-  beams with an echo that end near an occupied cell or, in a map given
-  whole, in unknown space or off the map, and the beams without one
-  (range at least `range_max`) that pass an occupied cell of the map
-  0.5 m or more short of the range. A beam ending in known free space
-  far from any wall is not judged: a box or a person the map does not
-  hold stopped it. Returns `{share, judged}`, or nil without a map or a
-  beam to judge by. A beam ending in unknown space of a map given whole,
-  or missing a wall in its range, is a misfit.
+  beams with an echo (in a map not given whole, only those ending on
+  known map) and the beams without one (range at least `range_max`)
+  that pass an occupied cell of the map 0.5 m or more short of the
+  range. Returns `{share, judged}`, or nil without a map or a beam to
+  judge by. A beam ending in the open, in unknown space of a map given
+  whole, or missing a wall in its range is a misfit.
   """
   @spec hits(t(), binary(), pose(), float()) :: {float(), non_neg_integer()} | nil
   def hits(pf, beams, pose, tolerance \\ 0.25)
