@@ -35,6 +35,23 @@ defmodule Mix.Tasks.Tc.CheckTest do
   end
 
   test "refuses to run without files" do
-    assert_raise Mix.Error, "usage: mix tc.check FILE...", fn -> Mix.Tasks.Tc.Check.run([]) end
+    assert_raise Mix.Error, "usage: mix tc.check FILE... | mix tc.check --explain MODULE", fn ->
+      Mix.Tasks.Tc.Check.run([])
+    end
+  end
+
+  defmodule Cruise do
+    @moduledoc false
+    def params, do: [speed: {{:number_range, 0.0, 1.0}, default: 0.3, doc: "m/s"}]
+  end
+
+  test "--explain prints the params a module declares, and refuses one that declares none" do
+    Mix.Tasks.Tc.Check.run(["--explain", inspect(Cruise)])
+    assert_received {:mix_shell, :info, [output]}
+    assert output =~ "| `speed` | number 0.0..1.0 | `0.3` | m/s |"
+
+    assert_raise Mix.Error, ~r/String declares no params/, fn ->
+      Mix.Tasks.Tc.Check.run(["--explain", "String"])
+    end
   end
 end
