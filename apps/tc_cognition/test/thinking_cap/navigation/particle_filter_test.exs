@@ -54,6 +54,24 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
     assert nil == ParticleFilter.hits(filter(false), beam, pose)
   end
 
+  test "a wall seen once (occupancy under 50) counts from the threshold given" do
+    # the wall along x = 3.0 at occupancy 40, as a first faint echo leaves it
+    faint = %{map() | data: :binary.replace(map().data, <<100>>, <<40>>, [:global])}
+    beam = beams([{0.0, 1.5}])
+    pose = {1.5, 2.0, 0.0}
+
+    pf = ParticleFilter.new(pose, {0.1, 0.1}, range_max: 8.0)
+    # at the default 50 it is no wall: the beam ending on it misses
+    assert {0.0, 1} = ParticleFilter.hits(ParticleFilter.set_map(pf, faint, 1), beam, pose)
+
+    assert {1.0, 1} =
+             ParticleFilter.hits(
+               ParticleFilter.set_map(pf, faint, 1, threshold: 30),
+               beam,
+               pose
+             )
+  end
+
   test "a search of the map finds the pose a scan was taken from, its heading within a window" do
     pf = filter(true)
     # a scan from {2.0, 2.0, 0}: the wall 1 m ahead, fanned over ±0.6 rad

@@ -168,8 +168,8 @@ defmodule ThinkingCap.Config.ADF do
           {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def from_data(data, file, positions) do
     {value, st} = Schema.start(data, @fields, file, positions)
-    st = Map.put(st, :places, places(value[:wdf], file))
     modules = for {name, spec} <- value[:modules] || [], do: Map.put(spec, :name, name)
+    st = Map.put(st, :places, places(modules, value[:wdf], file))
     nodes = value[:nodes] || []
 
     st =
@@ -263,23 +263,21 @@ defmodule ThinkingCap.Config.ADF do
       do: module.params()
   end
 
-  # the names of the WDF's places, for params of type :place (nil when the
-  # ADF names no WDF or it cannot be read: its own check reports that)
-  defp places(nil, _file), do: nil
+  # the names of the WDF's places, for params of type :place: read only
+  # when a module declares params (nil when the ADF names no WDF or it
+  # cannot be read: its own check reports that)
+  defp places(_modules, nil, _file), do: nil
 
-  defp places(wdf, file) do
-    case ThinkingCap.Config.read(resolve(file, wdf)) do
-      {:ok, %ThinkingCap.Config.WDF{} = w} ->
-        names =
-          for key <- [:waypoints, :rooms, :corridors, :doors, :areas, :obstacles],
-              item <- Map.get(w, key) || [],
-              is_map(item),
-              do: Map.get(item, :name)
-
-        MapSet.new(names)
-
-      _ ->
-        nil
+  defp places(modules, wdf, file) do
+    with true <- Enum.any?(modules, &(is_atom(&1[:module]) and declared_params(&1.module))),
+         {:ok, %ThinkingCap.Config.WDF{} = w} <- ThinkingCap.Config.read(resolve(file, wdf)) do
+      MapSet.new(
+        for key <- [:waypoints, :rooms, :corridors, :doors],
+            item <- Map.get(w, key),
+            do: item.name
+      )
+    else
+      _ -> nil
     end
   end
 

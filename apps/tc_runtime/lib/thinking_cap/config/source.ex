@@ -22,14 +22,6 @@ defmodule ThinkingCap.Config.Source do
     end
   end
 
-  @doc false
-  @spec max_bytes() :: pos_integer()
-  def max_bytes, do: @max_bytes
-
-  @doc false
-  @spec max_depth() :: pos_integer()
-  def max_depth, do: @max_depth
-
   defp size(path) do
     case File.stat(path) do
       {:ok, %File.Stat{type: :regular, size: size}} ->

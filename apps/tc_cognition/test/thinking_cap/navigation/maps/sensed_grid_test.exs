@@ -125,6 +125,17 @@ defmodule ThinkingCap.Navigation.Maps.SensedGridTest do
     assert SensedGrid.occupied(map, wall) < 0.2
   end
 
+  test "the ground under the robot's footprint is empty, and nothing beyond it" do
+    map = SensedGrid.new(40, 40, resolution: 0.05)
+    # a round robot of radius 0.2 at {1.0, 1.0}: its cell (20, 20)
+    assert SensedGrid.degrees(map, {20, 20}) == {0.0, 0.0}
+    SensedGrid.add_footprint(map, {1.0, 1.0, 0.0}, [{0.0, 0.0, 0.2}])
+    {e, o} = SensedGrid.degrees(map, {20, 20})
+    assert e > 0.25 and o == 0.0
+    # 0.3 m away: outside the footprint, still unknown
+    assert SensedGrid.degrees(map, {26, 20}) == {0.0, 0.0}
+  end
+
   test "a sonar cone empties its inside and marks an arc at its echo" do
     map = room_map()
     ring = %{pose: {0.0, 0.0, 0.0}, ring_radius: 0.0, fov: 0.3}
