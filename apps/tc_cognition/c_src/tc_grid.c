@@ -31,6 +31,7 @@
 #include <math.h>
 
 #include "tc_mcl.h"
+#include "tc_slam.h"
 #include "tc_plan.h"
 #include <stdint.h>
 #include <stdlib.h>
@@ -902,6 +903,9 @@ static ErlNifFunc funcs[] = {
     {"pf_estimate", 1, tc_nif_pf_estimate, 0},
     {"pf_best", 1, tc_nif_pf_best, 0},
     {"pf_sample", 2, tc_nif_pf_sample, 0},
+    {"pf_transform", 3, tc_nif_pf_transform, 0},
+    {"slam_match", 6, tc_nif_slam_match, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"slam_optimize", 3, tc_nif_slam_optimize, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},
     {"dsl_sync", 3, tc_nif_dsl_sync, 0},

@@ -557,6 +557,33 @@ ERL_NIF_TERM tc_nif_pf_spread(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     return M_OK;
 }
 
+/* pf_transform(pf, {x, y, th}, {x', y', th'}): every particle carried by
+ * the rigid motion that takes the first pose to the second (a map
+ * corrected under the robot: its frame moved) */
+ERL_NIF_TERM tc_nif_pf_transform(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    int a1, a2;
+    const ERL_NIF_TERM *e1, *e2;
+    double fx, fy, fth, tx, ty, tth;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &fx) ||
+        !num(env, e1[1], &fy) || !num(env, e1[2], &fth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        a2 != 3 || !num(env, e2[0], &tx) || !num(env, e2[1], &ty) || !num(env, e2[2], &tth))
+        return enif_make_badarg(env);
+    double d = tth - fth, c = cos(d), s = sin(d);
+    enif_mutex_lock(p->lock);
+    for (int i = 0; i < p->n; i++) {
+        double rx = p->x[i] - fx, ry = p->y[i] - fy;
+        p->x[i] = tx + c * rx - s * ry;
+        p->y[i] = ty + s * rx + c * ry;
+        p->th[i] = wrap(p->th[i] + d);
+    }
+    enif_mutex_unlock(p->lock);
+    return M_OK;
+}
+
 /* pf_move(pf, {dx, dy, dth}, {a1, a2, a3, a4}): the odometry motion model
  * (rot1, trans, rot2 with noise from the alphas) */
 ERL_NIF_TERM tc_nif_pf_move(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])

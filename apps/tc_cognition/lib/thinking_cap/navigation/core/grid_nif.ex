@@ -61,6 +61,12 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def pf_estimate(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_best(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_sample(_pf, _k), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_transform(_pf, _from, _to), do: :erlang.nif_error(:nif_not_loaded)
+
+  def slam_match(_ref, _query, _guess, _window, _res, _sigma),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  def slam_optimize(_nodes, _edges, _iterations), do: :erlang.nif_error(:nif_not_loaded)
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)

@@ -1,0 +1,492 @@
+/*
+ * tc_slam: the two numerical parts of pose-graph SLAM for the grid NIF
+ * (see tc_grid.c; ThinkingCap.Navigation.Maps.PoseGraph wraps them).
+ *
+ * slam_match: correlative scan matching (Olson, "Real-time correlative
+ * scan matching", ICRA 2009). The reference points (a submap, in the
+ * world) are drawn into a likelihood grid: exp(-d^2 / 2 sigma^2), d the
+ * exact distance to the nearest point (Felzenszwalb and Huttenlocher's
+ * separable transform). The query scan (points in the robot's frame) is
+ * scored at every pose of a window round a guess: every heading step
+ * small enough to move the farthest point by at most a cell, every whole
+ * cell offset. The best pose is then refined by hill climbing on the
+ * bilinear likelihood, and the spread of the scores round it gives the
+ * match's covariance (a wide spread along a corridor says the match
+ * does not fix that direction).
+ *
+ * slam_optimize: Gauss-Newton on a 2-D pose graph (Grisetti et al., "A
+ * tutorial on graph-based SLAM", 2010): each edge says where node j
+ * lies seen from node i, with an information matrix; node 0 is held.
+ * The sparse normal equations are solved by conjugate gradients with a
+ * block-Jacobi preconditioner. Returns the poses and every edge's
+ * chi-square, so that the caller can drop an edge that does not fit.
+ */
+#include "tc_slam.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_POINTS 100000
+#define MAX_CELLS (8 * 1024 * 1024)
+#define MAX_NODES 200000
+#define INF 1e20
+
+static double wrap(double a)
+{
+    a = fmod(a + M_PI, 2 * M_PI);
+    if (a < 0) a += 2 * M_PI;
+    return a - M_PI;
+}
+
+static int num(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
+{
+    long l;
+    if (enif_get_double(env, t, out)) return isfinite(*out);
+    if (enif_get_long(env, t, &l)) {
+        *out = (double)l;
+        return 1;
+    }
+    return 0;
+}
+
+static int triple(ErlNifEnv *env, ERL_NIF_TERM t, double out[3])
+{
+    int a;
+    const ERL_NIF_TERM *e;
+    return enif_get_tuple(env, t, &a, &e) && a == 3 && num(env, e[0], &out[0]) &&
+           num(env, e[1], &out[1]) && num(env, e[2], &out[2]);
+}
+
+static int pair(ErlNifEnv *env, ERL_NIF_TERM t, double out[2])
+{
+    int a;
+    const ERL_NIF_TERM *e;
+    return enif_get_tuple(env, t, &a, &e) && a == 2 && num(env, e[0], &out[0]) &&
+           num(env, e[1], &out[1]);
+}
+
+/* a binary of native doubles, k per item, all finite */
+static int doubles(ErlNifEnv *env, ERL_NIF_TERM t, int k, int max, const double **out, int *n)
+{
+    ErlNifBinary b;
+    if (!enif_inspect_binary(env, t, &b) || b.size % (k * sizeof(double)) != 0) return 0;
+    size_t items = b.size / (k * sizeof(double));
+    if (items > (size_t)max) return 0;
+    const double *d = (const double *)b.data;
+    for (size_t i = 0; i < items * k; i++)
+        if (!isfinite(d[i])) return 0;
+    *out = d;
+    *n = (int)items;
+    return 1;
+}
+
+/* ---- the likelihood grid ---- */
+
+/* one row of the squared distance transform, in place (f: costs, n long) */
+static void edt1(double *f, int n, double *d, int *v, double *z)
+{
+    int k = 0;
+    v[0] = 0;
+    z[0] = -INF;
+    z[1] = INF;
+    for (int q = 1; q < n; q++) {
+        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * q - 2.0 * v[k]);
+        while (s <= z[k]) {
+            k--;
+            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * q - 2.0 * v[k]);
+        }
+        k++;
+        v[k] = q;
+        z[k] = s;
+        z[k + 1] = INF;
+    }
+    k = 0;
+    for (int q = 0; q < n; q++) {
+        while (z[k + 1] < q) k++;
+        double dq = q - v[k];
+        d[q] = dq * dq + f[v[k]];
+    }
+    memcpy(f, d, n * sizeof(double));
+}
+
+typedef struct {
+    int w, h;
+    double res, ox, oy;
+    float *l; /* likelihood per cell */
+} Lgrid;
+
+static int lgrid_build(Lgrid *g, const double *pts, int n, double margin, double res, double sigma)
+{
+    double x0 = INF, y0 = INF, x1 = -INF, y1 = -INF;
+    for (int i = 0; i < n; i++) {
+        x0 = fmin(x0, pts[2 * i]);
+        x1 = fmax(x1, pts[2 * i]);
+        y0 = fmin(y0, pts[2 * i + 1]);
+        y1 = fmax(y1, pts[2 * i + 1]);
+    }
+    g->res = res;
+    g->ox = x0 - margin;
+    g->oy = y0 - margin;
+    g->w = (int)ceil((x1 - x0 + 2 * margin) / res) + 1;
+    g->h = (int)ceil((y1 - y0 + 2 * margin) / res) + 1;
+    if ((double)g->w * g->h > MAX_CELLS) return 0;
+    int w = g->w, h = g->h, m = w > h ? w : h;
+    double *f = malloc(sizeof(double) * w * h);
+    double *row = malloc(sizeof(double) * m), *d = malloc(sizeof(double) * m);
+    double *z = malloc(sizeof(double) * (m + 1));
+    int *v = malloc(sizeof(int) * m);
+    g->l = malloc(sizeof(float) * w * h);
+    if (!f || !row || !d || !z || !v || !g->l) {
+        free(f), free(row), free(d), free(z), free(v), free(g->l);
+        return 0;
+    }
+    for (int i = 0; i < w * h; i++) f[i] = INF;
+    for (int i = 0; i < n; i++) {
+        int c = (int)floor((pts[2 * i] - g->ox) / res), r = (int)floor((pts[2 * i + 1] - g->oy) / res);
+        if (c >= 0 && r >= 0 && c < w && r < h) f[r * w + c] = 0.0;
+    }
+    for (int r = 0; r < h; r++) edt1(f + (size_t)r * w, w, d, v, z);
+    for (int c = 0; c < w; c++) {
+        for (int r = 0; r < h; r++) row[r] = f[(size_t)r * w + c];
+        edt1(row, h, d, v, z);
+        for (int r = 0; r < h; r++) f[(size_t)r * w + c] = row[r];
+    }
+    double k = res * res / (2 * sigma * sigma);
+    for (int i = 0; i < w * h; i++) g->l[i] = (float)exp(-f[i] * k);
+    free(f), free(row), free(d), free(z), free(v);
+    return 1;
+}
+
+/* the likelihood at a world point, bilinear */
+static double lgrid_at(const Lgrid *g, double x, double y)
+{
+    double fc = (x - g->ox) / g->res - 0.5, fr = (y - g->oy) / g->res - 0.5;
+    int c = (int)floor(fc), r = (int)floor(fr);
+    if (c < 0 || r < 0 || c + 1 >= g->w || r + 1 >= g->h) return 0.0;
+    double a = fc - c, b = fr - r;
+    const float *p = g->l + (size_t)r * g->w + c;
+    return (1 - a) * (1 - b) * p[0] + a * (1 - b) * p[1] + (1 - a) * b * p[g->w] + a * b * p[g->w + 1];
+}
+
+static double score_at(const Lgrid *g, const double *q, int n, double x, double y, double th)
+{
+    double c = cos(th), s = sin(th), sum = 0.0;
+    for (int i = 0; i < n; i++)
+        sum += lgrid_at(g, x + c * q[2 * i] - s * q[2 * i + 1], y + s * q[2 * i] + c * q[2 * i + 1]);
+    return sum;
+}
+
+/* slam_match(ref, query, {x, y, th}, {window_m, window_rad}, res, sigma)
+ *   -> {{x, y, th}, score, {cxx, cxy, cxt, cyy, cyt, ctt}} | :none */
+ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    const double *ref, *q;
+    int nr, nq;
+    double guess[3], win[2], res, sigma;
+    if (!doubles(env, argv[0], 2, MAX_POINTS, &ref, &nr) ||
+        !doubles(env, argv[1], 2, MAX_POINTS, &q, &nq) || !triple(env, argv[2], guess) ||
+        !pair(env, argv[3], win) || !num(env, argv[4], &res) || !num(env, argv[5], &sigma) ||
+        res <= 0.005 || sigma <= 0 || win[0] < 0 || win[1] < 0 || win[0] > 5.0 || win[1] > M_PI)
+        return enif_make_badarg(env);
+    if (nr == 0 || nq == 0) return enif_make_atom(env, "none");
+
+    double rmax = 0.0;
+    for (int i = 0; i < nq; i++) rmax = fmax(rmax, hypot(q[2 * i], q[2 * i + 1]));
+    /* the query must land on the grid anywhere in the window */
+    Lgrid g;
+    /* the likelihood at half the search's step: a point's place is known
+     * to a quarter of a cell */
+    if (!lgrid_build(&g, ref, nr, win[0] + 3 * sigma + res, res / 2, sigma))
+        return enif_make_atom(env, "none");
+
+    double dth = rmax > res ? res / rmax : 0.05;
+    if (win[1] > 0 && dth > win[1]) dth = win[1];
+    int K = win[1] > 0 ? (int)ceil(win[1] / dth) : 0;
+    int U = (int)ceil(win[0] / res);
+    int side = 2 * U + 1;
+    size_t nposes = (size_t)(2 * K + 1) * side * side;
+    float *scores = malloc(sizeof(float) * nposes);
+    int *cells = malloc(sizeof(int) * 2 * nq);
+    if (!scores || !cells) {
+        free(scores), free(cells), free(g.l);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    double best = -1.0;
+    int bk = 0, bu = 0, bv = 0;
+    for (int k = -K; k <= K; k++) {
+        double th = guess[2] + k * dth, c = cos(th), s = sin(th);
+        for (int i = 0; i < nq; i++) {
+            double x = guess[0] + c * q[2 * i] - s * q[2 * i + 1];
+            double y = guess[1] + s * q[2 * i] + c * q[2 * i + 1];
+            cells[2 * i] = (int)floor((x - g.ox) / g.res);
+            cells[2 * i + 1] = (int)floor((y - g.oy) / g.res);
+        }
+        for (int v = -U; v <= U; v++)
+            for (int u = -U; u <= U; u++) {
+                double sum = 0.0;
+                for (int i = 0; i < nq; i++) {
+                    int cc = cells[2 * i] + 2 * u, rr = cells[2 * i + 1] + 2 * v;
+                    if (cc >= 0 && rr >= 0 && cc < g.w && rr < g.h) sum += g.l[(size_t)rr * g.w + cc];
+                }
+                scores[((size_t)(k + K) * side + (v + U)) * side + (u + U)] = (float)sum;
+                if (sum > best) best = sum, bk = k, bu = u, bv = v;
+            }
+    }
+
+    /* the spread of the scores round the best: weights exp(beta (s - best)),
+     * beta from the beams' count (neighbouring beams are not independent) */
+    double beta = 4.0 / fmax(1.0, nq / 20.0);
+    double sw = 0, mx = 0, my = 0, mt = 0, sxx = 0, sxy = 0, sxt = 0, syy = 0, syt = 0, stt = 0;
+    for (int k = -K; k <= K; k++)
+        for (int v = -U; v <= U; v++)
+            for (int u = -U; u <= U; u++) {
+                double s = scores[((size_t)(k + K) * side + (v + U)) * side + (u + U)];
+                double wgt = exp(beta * (s - best));
+                if (wgt < 1e-6) continue;
+                double x = (u - bu) * res, y = (v - bv) * res, t = (k - bk) * dth;
+                sw += wgt;
+                mx += wgt * x, my += wgt * y, mt += wgt * t;
+                sxx += wgt * x * x, sxy += wgt * x * y, sxt += wgt * x * t;
+                syy += wgt * y * y, syt += wgt * y * t, stt += wgt * t * t;
+            }
+    free(scores);
+    free(cells);
+    mx /= sw, my /= sw, mt /= sw;
+    double cxx = sxx / sw - mx * mx + res * res / 12, cxy = sxy / sw - mx * my;
+    double cxt = sxt / sw - mx * mt, cyy = syy / sw - my * my + res * res / 12;
+    double cyt = syt / sw - my * mt, ctt = stt / sw - mt * mt + dth * dth / 12;
+
+    /* refine: hill climbing on the bilinear likelihood */
+    double x = guess[0] + bu * res, y = guess[1] + bv * res, th = guess[2] + bk * dth;
+    double cur = score_at(&g, q, nq, x, y, th), sl = res / 2, sa = dth / 2;
+    while (sl > res / 16) {
+        int moved = 0;
+        double cand[6][3] = {{x + sl, y, th}, {x - sl, y, th}, {x, y + sl, th},
+                             {x, y - sl, th}, {x, y, th + sa}, {x, y, th - sa}};
+        for (int i = 0; i < 6; i++) {
+            double s = score_at(&g, q, nq, cand[i][0], cand[i][1], cand[i][2]);
+            if (s > cur) cur = s, x = cand[i][0], y = cand[i][1], th = cand[i][2], moved = 1;
+        }
+        if (!moved) sl /= 2, sa /= 2;
+    }
+    free(g.l);
+    ERL_NIF_TERM cov[6] = {enif_make_double(env, cxx), enif_make_double(env, cxy),
+                           enif_make_double(env, cxt), enif_make_double(env, cyy),
+                           enif_make_double(env, cyt), enif_make_double(env, ctt)};
+    return enif_make_tuple3(
+        env,
+        enif_make_tuple3(env, enif_make_double(env, x), enif_make_double(env, y),
+                         enif_make_double(env, wrap(th))),
+        enif_make_double(env, cur / nq), enif_make_tuple_from_array(env, cov, 6));
+}
+
+/* ---- the pose graph ---- */
+
+typedef struct {
+    int i, j;
+    double z[3];
+    double om[9]; /* information, row-major, symmetric */
+} Edge;
+
+/* y = A x for 3x3 row-major */
+static void mv3(const double *a, const double *x, double *y)
+{
+    for (int r = 0; r < 3; r++) y[r] = a[3 * r] * x[0] + a[3 * r + 1] * x[1] + a[3 * r + 2] * x[2];
+}
+
+/* an edge's error and its Jacobians A (wrt node i) and B (wrt node j) */
+static void edge_error(const double *xi, const double *xj, const Edge *e, double err[3], double A[9],
+                       double B[9])
+{
+    double ci = cos(xi[2]), si = sin(xi[2]), cz = cos(e->z[2]), sz = sin(e->z[2]);
+    double dx = xj[0] - xi[0], dy = xj[1] - xi[1];
+    /* Ri^T (tj - ti) */
+    double lx = ci * dx + si * dy, ly = -si * dx + ci * dy;
+    double ex = lx - e->z[0], ey = ly - e->z[1];
+    err[0] = cz * ex + sz * ey;
+    err[1] = -sz * ex + cz * ey;
+    err[2] = wrap(xj[2] - xi[2] - e->z[2]);
+    /* d(Ri^T d)/d thi = [-si dx + ci dy; -ci dx - si dy] */
+    double gx = -si * dx + ci * dy, gy = -ci * dx - si * dy;
+    /* RzT RiT */
+    double m00 = cz * ci - sz * si, m01 = cz * si + sz * ci; /* row 0 of RzT RiT */
+    double m10 = -sz * ci - cz * si, m11 = -sz * si + cz * ci;
+    A[0] = -m00, A[1] = -m01, A[2] = cz * gx + sz * gy;
+    A[3] = -m10, A[4] = -m11, A[5] = -sz * gx + cz * gy;
+    A[6] = 0, A[7] = 0, A[8] = -1;
+    B[0] = m00, B[1] = m01, B[2] = 0;
+    B[3] = m10, B[4] = m11, B[5] = 0;
+    B[6] = 0, B[7] = 0, B[8] = 1;
+}
+
+/* C += P^T Q R (all 3x3) */
+static void add_ptqr(double *C, const double *P, const double *Q, const double *R)
+{
+    double t[9];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) {
+            double s = 0;
+            for (int k = 0; k < 3; k++) s += Q[3 * a + k] * R[3 * k + b];
+            t[3 * a + b] = s;
+        }
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) {
+            double s = 0;
+            for (int k = 0; k < 3; k++) s += P[3 * k + a] * t[3 * k + b];
+            C[3 * a + b] += s;
+        }
+}
+
+static int inv3(const double *m, double *o)
+{
+    double d = m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) +
+               m[2] * (m[3] * m[7] - m[4] * m[6]);
+    if (fabs(d) < 1e-300) return 0;
+    o[0] = (m[4] * m[8] - m[5] * m[7]) / d;
+    o[1] = (m[2] * m[7] - m[1] * m[8]) / d;
+    o[2] = (m[1] * m[5] - m[2] * m[4]) / d;
+    o[3] = (m[5] * m[6] - m[3] * m[8]) / d;
+    o[4] = (m[0] * m[8] - m[2] * m[6]) / d;
+    o[5] = (m[2] * m[3] - m[0] * m[5]) / d;
+    o[6] = (m[3] * m[7] - m[4] * m[6]) / d;
+    o[7] = (m[1] * m[6] - m[0] * m[7]) / d;
+    o[8] = (m[0] * m[4] - m[1] * m[3]) / d;
+    return 1;
+}
+
+/* y = H x, H given by diagonal blocks D (n) and one off-diagonal block per
+ * edge (O, the (i, j) block; (j, i) is its transpose) */
+static void hmul(int n, const double *D, int m, const Edge *es, const double *O, const double *x,
+                 double *y)
+{
+    for (int i = 0; i < n; i++) mv3(D + 9 * i, x + 3 * i, y + 3 * i);
+    for (int k = 0; k < m; k++) {
+        const double *o = O + 9 * k;
+        const double *xi = x + 3 * es[k].i, *xj = x + 3 * es[k].j;
+        double *yi = y + 3 * es[k].i, *yj = y + 3 * es[k].j;
+        for (int r = 0; r < 3; r++) {
+            yi[r] += o[3 * r] * xj[0] + o[3 * r + 1] * xj[1] + o[3 * r + 2] * xj[2];
+            yj[r] += o[r] * xi[0] + o[3 + r] * xi[1] + o[6 + r] * xi[2];
+        }
+    }
+}
+
+static double dot(const double *a, const double *b, int n)
+{
+    double s = 0;
+    for (int i = 0; i < n; i++) s += a[i] * b[i];
+    return s;
+}
+
+/* one Gauss-Newton step; returns the largest change, or -1 on failure */
+static double gn_step(int n, double *x, int m, const Edge *es)
+{
+    int N = 3 * n;
+    double *D = calloc((size_t)9 * n, sizeof(double)), *O = calloc((size_t)9 * m, sizeof(double));
+    double *b = calloc(N, sizeof(double)), *P = malloc(sizeof(double) * 9 * n);
+    double *dx = calloc(N, sizeof(double)), *r = malloc(sizeof(double) * N);
+    double *z = malloc(sizeof(double) * N), *p = malloc(sizeof(double) * N);
+    double *hp = malloc(sizeof(double) * N);
+    double result = -1;
+    if (!D || !O || !b || !P || !dx || !r || !z || !p || !hp) goto done;
+    for (int k = 0; k < m; k++) {
+        const Edge *e = es + k;
+        double err[3], A[9], B[9], oe[3];
+        edge_error(x + 3 * e->i, x + 3 * e->j, e, err, A, B);
+        add_ptqr(D + 9 * e->i, A, e->om, A);
+        add_ptqr(D + 9 * e->j, B, e->om, B);
+        add_ptqr(O + 9 * k, A, e->om, B);
+        mv3(e->om, err, oe);
+        for (int a = 0; a < 3; a++) {
+            b[3 * e->i + a] += A[a] * oe[0] + A[3 + a] * oe[1] + A[6 + a] * oe[2];
+            b[3 * e->j + a] += B[a] * oe[0] + B[3 + a] * oe[1] + B[6 + a] * oe[2];
+        }
+    }
+    /* node 0 held: a stiff prior */
+    for (int a = 0; a < 3; a++) D[4 * a] += 1e9;
+    for (int i = 0; i < n; i++) {
+        double reg[9];
+        memcpy(reg, D + 9 * i, sizeof(reg));
+        for (int a = 0; a < 3; a++) reg[4 * a] += 1e-9;
+        if (!inv3(reg, P + 9 * i)) goto done;
+    }
+    /* solve H dx = -b */
+    for (int i = 0; i < N; i++) r[i] = -b[i];
+    for (int i = 0; i < n; i++) mv3(P + 9 * i, r + 3 * i, z + 3 * i);
+    memcpy(p, z, sizeof(double) * N);
+    double rz = dot(r, z, N), r0 = sqrt(dot(r, r, N));
+    int maxit = N < 300 ? 300 : N;
+    for (int it = 0; it < maxit && sqrt(dot(r, r, N)) > 1e-9 * (r0 + 1e-30); it++) {
+        hmul(n, D, m, es, O, p, hp);
+        double php = dot(p, hp, N);
+        if (php <= 0) break;
+        double alpha = rz / php;
+        for (int i = 0; i < N; i++) dx[i] += alpha * p[i], r[i] -= alpha * hp[i];
+        for (int i = 0; i < n; i++) mv3(P + 9 * i, r + 3 * i, z + 3 * i);
+        double rz2 = dot(r, z, N);
+        for (int i = 0; i < N; i++) p[i] = z[i] + (rz2 / rz) * p[i];
+        rz = rz2;
+    }
+    result = 0;
+    for (int i = 0; i < n; i++) {
+        x[3 * i] += dx[3 * i];
+        x[3 * i + 1] += dx[3 * i + 1];
+        x[3 * i + 2] = wrap(x[3 * i + 2] + dx[3 * i + 2]);
+        for (int a = 0; a < 3; a++) result = fmax(result, fabs(dx[3 * i + a]));
+    }
+done:
+    free(D), free(O), free(b), free(P), free(dx), free(r), free(z), free(p), free(hp);
+    return result;
+}
+
+/* slam_optimize(nodes, edges, iterations) -> {nodes', chi2s}
+ *   nodes: doubles {x, y, th} per node; edges: doubles {i, j, zx, zy, zth,
+ *   ixx, ixy, ixt, iyy, iyt, itt} per edge (the information's upper half) */
+ERL_NIF_TERM tc_nif_slam_optimize(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    const double *nd, *ed;
+    int n, m, iters;
+    if (!doubles(env, argv[0], 3, MAX_NODES, &nd, &n) ||
+        !doubles(env, argv[1], 11, 4 * MAX_NODES, &ed, &m) || !enif_get_int(env, argv[2], &iters) ||
+        iters < 0 || iters > 100 || n == 0)
+        return enif_make_badarg(env);
+    Edge *es = malloc(sizeof(Edge) * (m ? m : 1));
+    if (!es) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    for (int k = 0; k < m; k++) {
+        const double *d = ed + 11 * k;
+        if (d[0] < 0 || d[1] < 0 || d[0] >= n || d[1] >= n || d[0] == d[1]) {
+            free(es);
+            return enif_make_badarg(env);
+        }
+        es[k].i = (int)d[0];
+        es[k].j = (int)d[1];
+        memcpy(es[k].z, d + 2, sizeof(double) * 3);
+        double *o = es[k].om;
+        o[0] = d[5], o[1] = d[6], o[2] = d[7];
+        o[3] = d[6], o[4] = d[8], o[5] = d[9];
+        o[6] = d[7], o[7] = d[9], o[8] = d[10];
+    }
+    ERL_NIF_TERM out, chis;
+    double *x = (double *)enif_make_new_binary(env, sizeof(double) * 3 * n, &out);
+    memcpy(x, nd, sizeof(double) * 3 * n);
+    for (int it = 0; it < iters; it++) {
+        double change = gn_step(n, x, m, es);
+        if (change < 0) {
+            free(es);
+            return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+        }
+        if (change < 1e-6) break;
+    }
+    double *c = (double *)enif_make_new_binary(env, sizeof(double) * (m ? m : 0), &chis);
+    for (int k = 0; k < m; k++) {
+        double err[3], A[9], B[9], oe[3];
+        edge_error(x + 3 * es[k].i, x + 3 * es[k].j, es + k, err, A, B);
+        mv3(es[k].om, err, oe);
+        c[k] = dot(err, oe, 3);
+    }
+    free(es);
+    return enif_make_tuple2(env, out, chis);
+}

@@ -1,0 +1,347 @@
+defmodule ThinkingCap.Navigation.Maps.PoseGraph do
+  @moduledoc """
+  Pose-graph SLAM's back end: the loop closure that keeps a map built
+  from nothing true to itself when the robot comes back to where it was.
+
+  The map builder adds a **node** every `node_distance` metres or
+  `node_angle` radians the robot moves: its estimated pose, its odometry
+  and its laser scan as points in the robot's frame. Each node is tied to
+  the one before by an **edge**: where it lies seen from there (the
+  localizer's estimate; the odometry's where the two disagree, a jump),
+  with an information matrix that grows looser with the distance.
+
+  Then the new node's scan is matched (`ThinkingCap.Navigation.Core.GridNif`'s
+  correlative `slam_match`) against the scans of the old nodes near it:
+  nodes at least `loop_gap` nodes back, within `loop_radius` metres. A
+  match that scores at least `min_score` (the mean likelihood of its
+  points) and fixes the pose sharply (σ at most `max_sigma` m and
+  `max_sigma_angle` rad: a corridor's length is not fixed by a scan
+  inside it) is a **loop closure**: an edge from the old node. The graph
+  is then optimized (Gauss-Newton, `slam_optimize`), and a loop edge that
+  does not fit the rest afterwards (χ² above `max_chi2`) is dropped and
+  the graph optimized again.
+
+  All poses are `{x, y, θ}` in the map's frame. Node ids count from 0;
+  node 0 is held where it is.
+  """
+
+  alias ThinkingCap.Navigation.Core.GridNif
+  alias ThinkingCap.Navigation.EKF
+
+  defstruct nodes: %{},
+            odometry: %{},
+            points: %{},
+            edges: [],
+            next: 0,
+            params: %{}
+
+  @type pose :: {float(), float(), float()}
+  @type edge :: %{
+          from: non_neg_integer(),
+          to: non_neg_integer(),
+          z: pose(),
+          info: {float(), float(), float(), float(), float(), float()},
+          kind: :sequence | :odometry | :loop
+        }
+  @type t :: %__MODULE__{
+          nodes: %{non_neg_integer() => pose()},
+          odometry: %{non_neg_integer() => pose() | nil},
+          points: %{non_neg_integer() => binary()},
+          edges: [edge()],
+          next: non_neg_integer(),
+          params: map()
+        }
+
+  @defaults %{
+    node_distance: 0.3,
+    node_angle: 0.35,
+    loop_gap: 30,
+    loop_radius: 4.0,
+    window: 0.5,
+    window_angle: 0.2,
+    min_score: 0.45,
+    max_sigma: 0.08,
+    max_sigma_angle: 0.03,
+    max_chi2: 16.0,
+    resolution: 0.05
+  }
+
+  @doc """
+  An empty graph. Options (defaults in brackets): `node_distance` [0.3],
+  `node_angle` [0.35], `loop_gap` [30], `loop_radius` [4.0], `window`
+  [0.5 m] and `window_angle` [0.2 rad] (how far from the estimate a loop
+  match is sought), `min_score` [0.45], `max_sigma` [0.08],
+  `max_sigma_angle` [0.03], `max_chi2` [16], `resolution` [0.05].
+  """
+  @spec new(keyword()) :: t()
+  def new(opts \\ []), do: %__MODULE__{params: Map.merge(@defaults, Map.new(opts))}
+
+  @doc "The number of nodes."
+  @spec size(t()) :: non_neg_integer()
+  def size(%__MODULE__{next: n}), do: n
+
+  @doc "The latest node's id, or nil."
+  @spec last(t()) :: non_neg_integer() | nil
+  def last(%__MODULE__{next: 0}), do: nil
+  def last(%__MODULE__{next: n}), do: n - 1
+
+  @doc "A node's pose."
+  @spec pose(t(), non_neg_integer()) :: pose()
+  def pose(%__MODULE__{nodes: nodes}, id), do: Map.fetch!(nodes, id)
+
+  @doc """
+  Whether the robot at `pose` is far enough from the latest node for a
+  new one.
+  """
+  @spec due?(t(), pose()) :: boolean()
+  def due?(%__MODULE__{next: 0}, _pose), do: true
+
+  def due?(%__MODULE__{params: p} = g, {x, y, th}) do
+    {lx, ly, lth} = pose(g, last(g))
+
+    :math.sqrt((x - lx) ** 2 + (y - ly) ** 2) >= p.node_distance or
+      abs(EKF.normalize(th - lth)) >= p.node_angle
+  end
+
+  @doc """
+  Adds a node at `pose` (the localizer's estimate) with the `odometry`
+  reading of the same instant (or nil) and its scan `points` (native
+  doubles `{x, y}` in the robot's frame), tied to the node before.
+  Returns the new node's id and the graph.
+  """
+  @spec add_node(t(), pose(), pose() | nil, binary()) :: {non_neg_integer(), t()}
+  def add_node(%__MODULE__{next: id} = g, pose, odometry, points) when is_binary(points) do
+    g = %{
+      g
+      | nodes: Map.put(g.nodes, id, pose),
+        odometry: Map.put(g.odometry, id, odometry),
+        points: Map.put(g.points, id, points),
+        next: id + 1
+    }
+
+    g = if id > 0, do: %{g | edges: [sequence_edge(g, id - 1, id) | g.edges]}, else: g
+    {id, g}
+  end
+
+  # the estimate's step, unless it jumped away from the odometry's
+  defp sequence_edge(g, i, j) do
+    z = EKF.relative(pose(g, i), pose(g, j))
+    {zx, zy, zth} = z
+    d = :math.sqrt(zx * zx + zy * zy)
+
+    case odometry_step(g, i, j) do
+      {_, _, oth} = o ->
+        if jumped?(z, o, d),
+          do: edge(i, j, o, 0.03 + 0.1 * d, 0.02 + 0.1 * abs(oth) + 0.05 * d, :odometry),
+          else: edge(i, j, z, 0.01 + 0.03 * d, 0.005 + 0.03 * abs(zth) + 0.01 * d, :sequence)
+
+      nil ->
+        edge(i, j, z, 0.01 + 0.03 * d, 0.005 + 0.03 * abs(zth) + 0.01 * d, :sequence)
+    end
+  end
+
+  defp odometry_step(g, i, j) do
+    case {g.odometry[i], g.odometry[j]} do
+      {a, b} when is_tuple(a) and is_tuple(b) -> EKF.relative(a, b)
+      _ -> nil
+    end
+  end
+
+  defp jumped?({zx, zy, zth}, {ox, oy, oth}, d) do
+    :math.sqrt((zx - ox) ** 2 + (zy - oy) ** 2) > 0.1 + 0.1 * d or
+      abs(EKF.normalize(zth - oth)) > 0.05 + 0.1 * abs(oth)
+  end
+
+  defp edge(i, j, z, s_xy, s_th, kind) do
+    a = 1.0 / (s_xy * s_xy)
+    %{from: i, to: j, z: z, info: {a, 0.0, 0.0, a, 0.0, 1.0 / (s_th * s_th)}, kind: kind}
+  end
+
+  @doc """
+  Seeks a loop closure for node `id` (normally the latest): matches its
+  scan against the old nodes near it, and when a match holds, adds the
+  loop edge and optimizes the graph. Returns `{:closed, graph, from, to}`
+  with the latest node's pose before and after, or `{:none, graph}`.
+  """
+  @spec close_loop(t(), non_neg_integer()) ::
+          {:closed, t(), pose(), pose()} | {:none, t()}
+  def close_loop(%__MODULE__{} = g, id) do
+    with {:ok, anchor, ref} <- submap(g, id),
+         {:ok, matched, cov} <- match(g, id, ref),
+         {:ok, edge} <- loop_edge(g, anchor, id, matched, cov) do
+      before = pose(g, last(g))
+      g = optimize(%{g | edges: [edge | g.edges]})
+
+      if Enum.any?(g.edges, &(&1 == edge)),
+        do: {:closed, g, before, pose(g, last(g))},
+        else: {:none, g}
+    else
+      _ -> {:none, g}
+    end
+  end
+
+  # the old nodes near `id`: the nearest is the anchor; the submap is the
+  # points of the nodes round it, in the map's frame
+  defp submap(%__MODULE__{params: p} = g, id) do
+    {x, y, _} = pose(g, id)
+
+    near =
+      for {j, {jx, jy, _}} <- g.nodes,
+          j <= id - p.loop_gap,
+          d = :math.sqrt((jx - x) ** 2 + (jy - y) ** 2),
+          d <= p.loop_radius,
+          do: {d, j}
+
+    case near do
+      [] ->
+        :none
+
+      _ ->
+        {_, anchor} = Enum.min(near)
+        around = for {_d, j} <- near, abs(j - anchor) <= 15, do: j
+        ref = IO.iodata_to_binary(Enum.map(around, &world_points(g, &1)))
+        {:ok, anchor, ref}
+    end
+  end
+
+  defp world_points(g, j) do
+    {x, y, th} = pose(g, j)
+    {c, s} = {:math.cos(th), :math.sin(th)}
+
+    for <<px::float-native, py::float-native <- Map.fetch!(g.points, j)>>,
+      into: <<>>,
+      do: <<x + c * px - s * py::float-native, y + s * px + c * py::float-native>>
+  end
+
+  defp match(%__MODULE__{params: p} = g, id, ref) do
+    query = Map.fetch!(g.points, id)
+
+    if byte_size(query) < 16 * 20 do
+      :none
+    else
+      case GridNif.slam_match(
+             ref,
+             query,
+             pose(g, id),
+             {p.window, p.window_angle},
+             p.resolution,
+             p.resolution
+           ) do
+        {matched, score, cov} when score >= p.min_score -> sharp(p, matched, cov)
+        _ -> :none
+      end
+    end
+  end
+
+  defp sharp(p, matched, {cxx, _cxy, _cxt, cyy, _cyt, ctt} = cov) do
+    if :math.sqrt(max(cxx, cyy)) <= p.max_sigma and :math.sqrt(ctt) <= p.max_sigma_angle,
+      do: {:ok, matched, cov},
+      else: :none
+  end
+
+  defp loop_edge(g, anchor, id, matched, {cxx, cxy, cxt, cyy, cyt, ctt}) do
+    # the match's covariance, in the anchor's frame, with a floor
+    {_, _, th} = pose(g, anchor)
+    {c, s} = {:math.cos(th), :math.sin(th)}
+    # R^T C R for the position block
+    rxx = c * c * cxx + 2 * c * s * cxy + s * s * cyy
+    ryy = s * s * cxx - 2 * c * s * cxy + c * c * cyy
+    rxy = (c * c - s * s) * cxy + c * s * (cyy - cxx)
+    rxt = c * cxt + s * cyt
+    ryt = -s * cxt + c * cyt
+    cov = {rxx + 0.02 ** 2, rxy, rxt, ryy + 0.02 ** 2, ryt, ctt + 0.005 ** 2}
+
+    case invert(cov) do
+      nil ->
+        :none
+
+      info ->
+        {:ok,
+         %{
+           from: anchor,
+           to: id,
+           z: EKF.relative(pose(g, anchor), matched),
+           info: info,
+           kind: :loop
+         }}
+    end
+  end
+
+  # the inverse of a symmetric 3x3 given by its upper half
+  defp invert({a, b, c, d, e, f}) do
+    det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
+
+    if abs(det) < 1.0e-18 do
+      nil
+    else
+      {(d * f - e * e) / det, (c * e - b * f) / det, (b * e - c * d) / det, (a * f - c * c) / det,
+       (b * c - a * e) / det, (a * d - b * b) / det}
+    end
+  end
+
+  @doc """
+  Optimizes every node's pose to fit the edges best; a loop edge whose χ²
+  stays above `max_chi2` afterwards is dropped (the worst one at a time,
+  at most three), and the graph optimized again.
+  """
+  @spec optimize(t(), non_neg_integer()) :: t()
+  def optimize(%__MODULE__{} = g, rounds \\ 3) do
+    edges = Enum.reverse(g.edges)
+    nodes = for id <- 0..(g.next - 1)//1, into: <<>>, do: pose_bin(pose(g, id))
+
+    edge_bin =
+      for %{from: i, to: j, z: {zx, zy, zth}, info: {a, b, c, d, e, f}} <- edges, into: <<>> do
+        for v <- [i, j, zx, zy, zth, a, b, c, d, e, f], into: <<>>, do: <<v * 1.0::float-native>>
+      end
+
+    {out, chis} = GridNif.slam_optimize(nodes, edge_bin, 10)
+    chi2 = for <<v::float-native <- chis>>, do: v
+
+    poses =
+      for {<<x::float-native, y::float-native, th::float-native>>, id} <-
+            Enum.with_index(chunks(out)),
+          into: %{},
+          do: {id, {x, y, th}}
+
+    worst =
+      edges
+      |> Enum.zip(chi2)
+      |> Enum.filter(fn {e, chi} -> e.kind == :loop and chi > g.params.max_chi2 end)
+      |> Enum.max_by(fn {_e, chi} -> chi end, fn -> nil end)
+
+    case worst do
+      {bad, _chi} when rounds > 0 ->
+        optimize(%{g | edges: List.delete(g.edges, bad)}, rounds - 1)
+
+      _ ->
+        %{g | nodes: poses}
+    end
+  end
+
+  defp chunks(<<>>), do: []
+  defp chunks(<<p::binary-size(24), rest::binary>>), do: [p | chunks(rest)]
+
+  defp pose_bin({x, y, th}),
+    do: <<x * 1.0::float-native, y * 1.0::float-native, th * 1.0::float-native>>
+
+  @doc """
+  A laser scan's endpoints as points in the robot's frame (native doubles
+  `{x, y}`), for `add_node/4`: the sensor at `sensor` on the robot, every
+  `step`-th beam that has an echo.
+  """
+  @spec scan_points(map(), pose(), pos_integer()) :: binary()
+  def scan_points(scan, {sx, sy, sth}, step \\ 1) do
+    range_min = Map.get(scan, :range_min, 0.0)
+
+    scan.ranges
+    |> Enum.with_index()
+    |> Enum.filter(fn {r, i} ->
+      rem(i, step) == 0 and is_number(r) and r >= range_min and r < scan.range_max
+    end)
+    |> Enum.map(fn {r, i} ->
+      a = sth + scan.angle_min + i * scan.angle_increment
+      <<sx + r * :math.cos(a)::float-native, sy + r * :math.sin(a)::float-native>>
+    end)
+    |> IO.iodata_to_binary()
+  end
+end

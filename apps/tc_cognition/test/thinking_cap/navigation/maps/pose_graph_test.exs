@@ -1,0 +1,217 @@
+defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.Core.GridNif
+  alias ThinkingCap.Navigation.EKF
+  alias ThinkingCap.Navigation.Maps.PoseGraph
+
+  # the walls of a room, x in 0..w, y in 0..h, with a pillar so that no
+  # symmetry makes two poses fit alike, as points every 5 cm
+  defp room(w, h) do
+    walls = [
+      {{0.0, 0.0}, {w, 0.0}},
+      {{w, 0.0}, {w, h}},
+      {{w, h}, {0.0, h}},
+      {{0.0, h}, {0.0, 0.0}},
+      {{1.5, 1.0}, {2.0, 1.0}},
+      {{2.0, 1.0}, {2.0, 1.8}}
+    ]
+
+    for {{x0, y0}, {x1, y1}} <- walls,
+        n = max(1, round(:math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2) / 0.05)),
+        k <- 0..n,
+        do: {x0 + (x1 - x0) * k / n, y0 + (y1 - y0) * k / n}
+  end
+
+  defp bin(points),
+    do: for({x, y} <- points, into: <<>>, do: <<x::float-native, y::float-native>>)
+
+  # the points as seen from a pose (in its frame), those within 8 m
+  defp seen(points, {x, y, th}) do
+    {c, s} = {:math.cos(th), :math.sin(th)}
+
+    points
+    |> Enum.map(fn {px, py} -> {c * (px - x) + s * (py - y), -s * (px - x) + c * (py - y)} end)
+    |> Enum.filter(fn {a, b} -> a * a + b * b < 64 end)
+    |> Enum.take_every(3)
+  end
+
+  describe "slam_match (correlative scan matching)" do
+    test "finds the true pose from a guess 0.25 m and 0.1 rad off" do
+      walls = room(6.0, 4.0)
+      truth = {3.1, 2.2, 0.4}
+      query = bin(seen(walls, truth))
+
+      {{x, y, th}, score, {cxx, _, _, cyy, _, ctt}} =
+        GridNif.slam_match(bin(walls), query, {3.3, 2.05, 0.5}, {0.5, 0.2}, 0.05, 0.05)
+
+      assert_in_delta x, 3.1, 0.02
+      assert_in_delta y, 2.2, 0.02
+      assert_in_delta th, 0.4, 0.01
+      assert score > 0.8
+      assert :math.sqrt(max(cxx, cyy)) < 0.05 and :math.sqrt(ctt) < 0.02
+    end
+
+    test "a corridor's length is not fixed: the spread along it is wide" do
+      walls = for k <- 0..400, y <- [0.0, 1.5], do: {k * 0.05, y}
+
+      query = bin(seen(walls, {10.0, 0.75, 0.0}))
+
+      {_pose, _score, {cxx, _, _, cyy, _, _}} =
+        GridNif.slam_match(bin(walls), query, {10.2, 0.75, 0.0}, {0.5, 0.1}, 0.05, 0.05)
+
+      assert :math.sqrt(cxx) > 0.1
+      assert :math.sqrt(cyy) < 0.05
+    end
+
+    test "nothing to match against says so; bad arguments are refused" do
+      assert GridNif.slam_match(<<>>, bin([{1.0, 0.0}]), {0.0, 0.0, 0.0}, {0.5, 0.1}, 0.05, 0.05) ==
+               :none
+
+      assert_raise ArgumentError, fn ->
+        GridNif.slam_match(<<1, 2, 3>>, <<>>, {0.0, 0.0, 0.0}, {0.5, 0.1}, 0.05, 0.05)
+      end
+    end
+  end
+
+  describe "optimize/1" do
+    # a square of side 4 m driven with a heading bias of 0.02 rad a node
+    defp drifting_square do
+      truth =
+        for side <- 0..3, k <- 0..7 do
+          th = side * :math.pi() / 2
+          {sx, sy} = Enum.at([{0.0, 0.0}, {4.0, 0.0}, {4.0, 4.0}, {0.0, 4.0}], side)
+          {sx + k * 0.5 * :math.cos(th), sy + k * 0.5 * :math.sin(th), th}
+        end
+
+      steps =
+        Enum.chunk_every(truth, 2, 1, :discard) |> Enum.map(fn [a, b] -> EKF.relative(a, b) end)
+
+      estimates =
+        Enum.scan(steps, hd(truth), fn {dx, dy, dth}, pose ->
+          EKF.motion(pose, {dx, dy, dth + 0.02})
+        end)
+
+      {truth, [hd(truth) | estimates]}
+    end
+
+    test "a loop edge pulls a drifted square back into shape" do
+      {truth, estimates} = drifting_square()
+
+      g =
+        Enum.reduce(estimates, PoseGraph.new(), fn pose, g ->
+          {_id, g} = PoseGraph.add_node(g, pose, nil, <<>>)
+          g
+        end)
+
+      last = PoseGraph.last(g)
+      err_before = distance(PoseGraph.pose(g, last), List.last(truth))
+      assert err_before > 0.5
+
+      # where the last node truly lies seen from the first
+      z = EKF.relative(hd(truth), List.last(truth))
+
+      loop = %{
+        from: 0,
+        to: last,
+        z: z,
+        info: {2500.0, 0.0, 0.0, 2500.0, 0.0, 10_000.0},
+        kind: :loop
+      }
+
+      g = PoseGraph.optimize(%{g | edges: [loop | g.edges]})
+
+      assert distance(PoseGraph.pose(g, last), List.last(truth)) < 0.1
+      {x0, y0, _} = PoseGraph.pose(g, 0)
+      assert abs(x0) + abs(y0) < 1.0e-9
+    end
+
+    test "a loop edge that contradicts the rest is dropped" do
+      {_truth, estimates} = drifting_square()
+
+      g =
+        Enum.reduce(estimates, PoseGraph.new(), fn pose, g ->
+          {_id, g} = PoseGraph.add_node(g, pose, nil, <<>>)
+          g
+        end)
+
+      last = PoseGraph.last(g)
+
+      wrong = %{
+        from: 0,
+        to: last,
+        z: {9.0, -7.0, 2.0},
+        info: {1.0e4, 0.0, 0.0, 1.0e4, 0.0, 1.0e4},
+        kind: :loop
+      }
+
+      g = PoseGraph.optimize(%{g | edges: [wrong | g.edges]})
+
+      refute Enum.any?(g.edges, &(&1.kind == :loop))
+      assert_in_delta elem(PoseGraph.pose(g, last), 0), elem(List.last(estimates), 0), 1.0e-6
+    end
+  end
+
+  describe "close_loop/2" do
+    test "coming back into a room seen before closes the loop and undoes the drift" do
+      walls = room(8.0, 6.0)
+
+      # round the room's centre on a circle of 2 m, heading along it,
+      # the estimate turning 0.01 rad a node too far
+      truth =
+        for k <- 0..40 do
+          a = k * 2 * :math.pi() / 36
+          {4.0 + 2.0 * :math.cos(a), 3.0 + 2.0 * :math.sin(a), EKF.normalize(a + :math.pi() / 2)}
+        end
+
+      steps =
+        Enum.chunk_every(truth, 2, 1, :discard) |> Enum.map(fn [a, b] -> EKF.relative(a, b) end)
+
+      estimates =
+        Enum.scan(steps, hd(truth), fn {dx, dy, dth}, pose ->
+          EKF.motion(pose, {dx, dy, dth + 0.01})
+        end)
+
+      g0 = PoseGraph.new(loop_gap: 20)
+
+      # a closed loop moves the map's frame under the robot: the localizer's
+      # later estimates are carried along (as ThinkingCap.Navigation.MCL does)
+      {g, closed, _} =
+        Enum.zip(truth, [hd(truth) | estimates])
+        |> Enum.reduce({g0, [], []}, fn {true_pose, estimate}, {g, closed, moves} ->
+          estimate =
+            Enum.reduce(moves, estimate, fn {from, to}, p ->
+              EKF.motion(to, EKF.relative(from, p))
+            end)
+
+          {id, g} = PoseGraph.add_node(g, estimate, nil, bin(seen(walls, true_pose)))
+
+          case PoseGraph.close_loop(g, id) do
+            {:closed, g, from, to} -> {g, [id | closed], moves ++ [{from, to}]}
+            {:none, g} -> {g, closed, moves}
+          end
+        end)
+
+      assert closed != []
+      last = PoseGraph.last(g)
+      drifted = distance(List.last([hd(truth) | estimates]), List.last(truth))
+      assert drifted > 0.3
+
+      for id <- 0..last do
+        assert distance(PoseGraph.pose(g, id), Enum.at(truth, id)) < 0.08
+      end
+    end
+  end
+
+  test "scan_points/3: the endpoints with an echo, in the robot's frame" do
+    scan = %{ranges: [1.0, 8.0, 2.0], angle_min: -0.5, angle_increment: 0.5, range_max: 8.0}
+    points = PoseGraph.scan_points(scan, {0.1, 0.0, 0.0})
+    assert [{x1, y1}, {x2, y2}] = for(<<x::float-native, y::float-native <- points>>, do: {x, y})
+    assert_in_delta x1, 0.1 + :math.cos(-0.5), 1.0e-9
+    assert_in_delta y1, :math.sin(-0.5), 1.0e-9
+    assert_in_delta x2, 0.1 + 2 * :math.cos(0.5), 1.0e-9
+    assert_in_delta y2, 2 * :math.sin(0.5), 1.0e-9
+  end
+
+  defp distance({x1, y1, _}, {x2, y2, _}), do: :math.sqrt((x1 - x2) ** 2 + (y1 - y2) ** 2)
+end
