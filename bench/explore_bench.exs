@@ -137,6 +137,7 @@ defmodule ThinkingCap.Bench.Explore do
 
     {time, state} = drive(sim, 0.0)
     blocked = Sim.status(sim).blocked
+    unless File.exists?(saved), do: save_unfinished(sim, saved)
     GenServer.stop(sim)
 
     {coverage, accuracy} =
@@ -146,6 +147,15 @@ defmodule ThinkingCap.Bench.Explore do
       end
 
     %{time: time, state: state, coverage: coverage, accuracy: accuracy, blocked: blocked}
+  end
+
+  # a run cut short by the time limit is scored on the map built so far
+  defp save_unfinished(sim, path) do
+    {:ok, c} = Sim.controller_state(sim, :explorer)
+    mapper = Lockstep.state(c.lock, :mapper)
+
+    :ok =
+      ThinkingCap.Navigation.Maps.SensedGrid.occupancy(mapper.grid) |> OccupancyGrid.save(path)
   end
 
   # 10 s at a time until the exploration is done (or gave up) or time is up

@@ -213,34 +213,13 @@ static int trace(FMap *m, double x0, double y0, double x1, double y1, double k_e
                : contribute(m, (int)c, (int)r, k_e * f, 0.0);
 }
 
-/* fmap_integrate(map, sx, sy, rays, range_max, fade, {le, lo}, margin): rays
- * packs native doubles {angle, range, k_empty, k_occupied} per ray; a ray
- * with k_occupied > 0 and a range below range_max ends in an echo
- * (occupied), otherwise in free space. Returns the number of cells whose
- * degrees changed. */
-static ERL_NIF_TERM nif_fmap_integrate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+/* one reading's rays (a, range, k_e, k_o per ray) from (sx, sy), fused
+ * into the map; the caller holds the lock. Returns the cells changed. */
+static long integrate_rays(FMap *m, double sx, double sy, const double *ray, size_t n,
+                           double range_max, double fade, double le, double lo, double margin,
+                           int *okp)
 {
-    (void)argc;
-    FMap *m;
-    ErlNifBinary rays;
-    double sx, sy, range_max, fade, le, lo, margin;
-    int arity;
-    const ERL_NIF_TERM *lambdas;
-    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
-        !get_number(env, argv[1], &sx) || !get_number(env, argv[2], &sy) ||
-        !enif_inspect_binary(env, argv[3], &rays) || rays.size % (4 * sizeof(double)) != 0 ||
-        rays.size / (4 * sizeof(double)) > MAX_RAYS || !get_number(env, argv[4], &range_max) ||
-        range_max <= 0 || range_max / m->res > MAX_STEPS || !get_number(env, argv[5], &fade) ||
-        !enif_get_tuple(env, argv[6], &arity, &lambdas) || arity != 2 ||
-        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
-        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
-        !get_number(env, argv[7], &margin) || margin < 0)
-        return enif_make_badarg(env);
-
-    size_t n = rays.size / (4 * sizeof(double));
-    const double *ray = (const double *)rays.data;
     int ok = 1;
-    enif_mutex_lock(m->lock);
     m->ntouched = 0;
     for (size_t i = 0; i < n && ok; i++) {
         double a = ray[4 * i], range = ray[4 * i + 1], k_e = ray[4 * i + 2], k_o = ray[4 * i + 3];
@@ -270,7 +249,98 @@ static ERL_NIF_TERM nif_fmap_integrate(ErlNifEnv *env, int argc, const ERL_NIF_T
         widen(m, (int)(i % m->w), (int)(i / m->w));
     }
     m->ntouched = 0;
+    *okp = ok;
+    return changed;
+}
+
+/* fmap_integrate(map, sx, sy, rays, range_max, fade, {le, lo}, margin): rays
+ * packs native doubles {angle, range, k_empty, k_occupied} per ray; a ray
+ * with k_occupied > 0 and a range below range_max ends in an echo
+ * (occupied), otherwise in free space. Returns the number of cells whose
+ * degrees changed. */
+static ERL_NIF_TERM nif_fmap_integrate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    ErlNifBinary rays;
+    double sx, sy, range_max, fade, le, lo, margin;
+    int arity;
+    const ERL_NIF_TERM *lambdas;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !get_number(env, argv[1], &sx) || !get_number(env, argv[2], &sy) ||
+        !enif_inspect_binary(env, argv[3], &rays) || rays.size % (4 * sizeof(double)) != 0 ||
+        rays.size / (4 * sizeof(double)) > MAX_RAYS || !get_number(env, argv[4], &range_max) ||
+        range_max <= 0 || range_max / m->res > MAX_STEPS || !get_number(env, argv[5], &fade) ||
+        !enif_get_tuple(env, argv[6], &arity, &lambdas) || arity != 2 ||
+        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
+        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
+        !get_number(env, argv[7], &margin) || margin < 0)
+        return enif_make_badarg(env);
+
+    size_t n = rays.size / (4 * sizeof(double));
+    int ok = 1;
+    enif_mutex_lock(m->lock);
+    long changed = integrate_rays(m, sx, sy, (const double *)rays.data, n, range_max, fade, le, lo,
+                                  margin, &ok);
     enif_mutex_unlock(m->lock);
+    if (!ok) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    return enif_make_long(env, changed);
+}
+
+/* fmap_replay(map, poses, ranges, beams, {angle_min, angle_increment,
+ * range_min, range_max}, {k_e, k_o}, fade, {le, lo}, margin): laser scans
+ * drawn again, in order: poses the sensor's {x, y, th} per scan (native
+ * doubles), ranges `beams` 32-bit floats per scan (below range_min: no
+ * reading). Returns the cells changed. */
+static ERL_NIF_TERM nif_fmap_replay(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    FMap *m;
+    ErlNifBinary poses, ranges;
+    int beams, a1, a2, a3;
+    const ERL_NIF_TERM *meta, *ks, *lambdas;
+    double amin, ainc, rmin, rmax, k_e, k_o, fade, le, lo, margin;
+    if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
+        !enif_inspect_binary(env, argv[1], &poses) || poses.size % (3 * sizeof(double)) != 0 ||
+        !enif_inspect_binary(env, argv[2], &ranges) || !enif_get_int(env, argv[3], &beams) ||
+        beams <= 0 || beams > MAX_RAYS ||
+        ranges.size != poses.size / (3 * sizeof(double)) * beams * sizeof(float) ||
+        !enif_get_tuple(env, argv[4], &a1, &meta) || a1 != 4 || !get_number(env, meta[0], &amin) ||
+        !get_number(env, meta[1], &ainc) || !get_number(env, meta[2], &rmin) ||
+        !get_number(env, meta[3], &rmax) || rmax <= 0 || rmax / m->res > MAX_STEPS ||
+        !enif_get_tuple(env, argv[5], &a2, &ks) || a2 != 2 || !get_number(env, ks[0], &k_e) ||
+        !get_number(env, ks[1], &k_o) || !get_number(env, argv[6], &fade) ||
+        !enif_get_tuple(env, argv[7], &a3, &lambdas) || a3 != 2 ||
+        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
+        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
+        !get_number(env, argv[8], &margin) || margin < 0)
+        return enif_make_badarg(env);
+    size_t scans = poses.size / (3 * sizeof(double));
+    const double *p = (const double *)poses.data;
+    const float *r = (const float *)ranges.data;
+    double *ray = malloc(sizeof(double) * 4 * beams);
+    if (!ray) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    long changed = 0;
+    int ok = 1;
+    enif_mutex_lock(m->lock);
+    for (size_t s = 0; s < scans && ok; s++) {
+        double x = p[3 * s], y = p[3 * s + 1], th = p[3 * s + 2];
+        if (!isfinite(x) || !isfinite(y) || !isfinite(th)) continue;
+        size_t n = 0;
+        for (int b = 0; b < beams; b++) {
+            double range = r[s * beams + b];
+            if (!isfinite(range) || range < rmin) continue;
+            int echo = range < rmax;
+            ray[4 * n] = th + amin + b * ainc;
+            ray[4 * n + 1] = echo ? range : rmax;
+            ray[4 * n + 2] = k_e;
+            ray[4 * n + 3] = echo ? k_o : 0.0;
+            n++;
+        }
+        changed += integrate_rays(m, x, y, ray, n, rmax, fade, le, lo, margin, &ok);
+    }
+    enif_mutex_unlock(m->lock);
+    free(ray);
     if (!ok) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     return enif_make_long(env, changed);
 }
@@ -873,6 +943,7 @@ static ERL_NIF_TERM nif_shrink(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
 static ErlNifFunc funcs[] = {
     {"fmap_new", 5, nif_fmap_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_integrate", 8, nif_fmap_integrate, 0},
+    {"fmap_replay", 9, nif_fmap_replay, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_occupancy", 6, nif_fmap_occupancy, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"fmap_bbox", 1, nif_fmap_bbox, 0},
     {"fmap_degrees", 3, nif_fmap_degrees, 0},

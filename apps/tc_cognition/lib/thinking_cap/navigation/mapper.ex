@@ -69,7 +69,32 @@ defmodule ThinkingCap.Navigation.Mapper do
       arcs round a pillar stay where the laser cannot clear them (in its
       shadow);
     * `door_width`, `min_area` - the room segmentation's
-      (`ThinkingCap.Navigation.Maps.Rooms.from_occupancy/2`).
+      (`ThinkingCap.Navigation.Maps.Rooms.from_occupancy/2`);
+    * `loop_closure` - in a map started from nothing, close loops
+      (default true; see below).
+
+  ## Loop closure
+
+  A map built from nothing at the laser localizer's estimates
+  (`ThinkingCap.Navigation.MCL` in SLAM) drifts with the odometry's slips:
+  walls seen twice land twice, doors close up. With `loop_closure` the
+  map builder keeps its laser scans and a pose graph of where they were
+  taken (`ThinkingCap.Navigation.Maps.Loops`,
+  `ThinkingCap.Navigation.Maps.PoseGraph`); when the robot comes back
+  where it was and its scan matches the old ones sharply, the graph is
+  optimized and the map drawn again from the scans at their corrected
+  poses (sonar readings are not kept: they are not drawn again). It then
+  publishes, with the new map,
+
+    * `{:map_correction, robot, %{from: pose, to: pose, frame: n, map: map, stamp: t}}`
+      (key `{:map_correction, robot}`): the map's frame moved so that
+      the robot's pose `from` is now `to`; the localizer carries its
+      estimate along and takes the new map at once. Its estimates say
+      which frame they are in (`frame` in `{:pose, robot, _}`): one of
+      the frame before is carried along here too.
+
+  A localizer whose estimates carry no `frame` (beacons, a known world)
+  holds the map to its own frame: then no loops are closed.
 
   A robot with no range sensor cannot build a map: `init/2` refuses it
   with an error naming the RDF.
@@ -81,7 +106,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   alias ThinkingCap.Config.WDF
   alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid}
   alias ThinkingCap.Navigation.Core.ModuleContext
-  alias ThinkingCap.Navigation.Maps.{Rooms, SensedGrid, Segments}
+  alias ThinkingCap.Navigation.Maps.{Loops, Rooms, SensedGrid, Segments}
   alias ThinkingCap.Robot.Description
 
   @pair {:tuple, [:pos_number, :pos_number]}
@@ -104,7 +129,9 @@ defmodule ThinkingCap.Navigation.Mapper do
     lambda: {{:tuple, [:probability, :probability]}, default: nil, doc: "fading {λe, λo}"},
     known: {:probability, default: nil, doc: "degree below which a cell is unknown"},
     laser: {@degrees, default: nil, doc: "laser degrees: k_empty, k_occupied, range"},
-    sonar: {@degrees, default: nil, doc: "sonar degrees: k_empty, k_occupied, trust"}
+    sonar: {@degrees, default: nil, doc: "sonar degrees: k_empty, k_occupied, trust"},
+    loop_closure:
+      {:boolean, default: true, doc: "close loops in a map built from nothing (pose-graph SLAM)"}
   ]
   @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
 
@@ -132,7 +159,8 @@ defmodule ThinkingCap.Navigation.Mapper do
     odometry = Description.sensor_name(rdf, :odometry, :odom)
     params = Keyword.put(params, :sonar, sonar_degrees(sensors, params))
     footprint = Description.circles(rdf.footprint)
-    grid = new_grid(ModuleContext.read_wdf(context), params)
+    {grid, blank} = new_grid(ModuleContext.read_wdf(context), params)
+    lasers = for {tag, %{type: :laser, pose: mount}} <- sensors, into: %{}, do: {tag, mount}
 
     state = %{
       robot: context.robot,
@@ -150,7 +178,9 @@ defmodule ThinkingCap.Navigation.Mapper do
       topology: nil,
       topology_at: nil,
       saved_at: nil,
-      last_map: nil
+      last_map: nil,
+      lasers: lasers,
+      loops: if(blank and params[:loop_closure] and lasers != %{}, do: Loops.new())
     }
 
     subscriptions =
@@ -185,7 +215,14 @@ defmodule ThinkingCap.Navigation.Mapper do
 
   def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose} = p}, %{robot: robot} = state) do
     stamp = Map.get(p, :stamp)
-    {[], %{state | estimate: {pose, odometry_at(state, stamp)}}}
+    # a localizer that does not follow the map's frame (beacons, an EKF on
+    # a known world) holds the map to itself: no loops to close
+    state = if Map.has_key?(p, :frame), do: state, else: %{state | loops: nil}
+
+    case in_frame(state, pose, Map.get(p, :frame, 0)) do
+      nil -> {[], state}
+      pose -> {[], %{state | estimate: {pose, odometry_at(state, stamp)}}}
+    end
   end
 
   def handle_tuple({:save_map, robot, %{path: path}}, %{robot: robot} = state)
@@ -209,7 +246,12 @@ defmodule ThinkingCap.Navigation.Mapper do
         add(state.grid, Map.fetch!(state.sensors, tag), reading, pose)
         SensedGrid.add_footprint(state.grid, pose, state.footprint)
         stamp = Map.get(reading, :stamp) || state.stamp
-        due(%{state | changed: true, stamp: stamp})
+        state = %{state | changed: true, stamp: stamp}
+
+        case record(state, tag, reading, pose) do
+          {:closed, from, to, state} -> redraw(state, from, to)
+          {:none, state} -> due(state)
+        end
     end
   end
 
@@ -233,6 +275,69 @@ defmodule ThinkingCap.Navigation.Mapper do
   def terminate(_reason, %{params: params} = state) do
     if params[:save], do: save(state, params[:save])
     :ok
+  end
+
+  ## loop closure
+
+  # a pose the localizer estimated in an older frame of the map, carried
+  # into the current one (nil: too old)
+  defp in_frame(%{loops: nil}, pose, _frame), do: pose
+  defp in_frame(%{loops: loops}, pose, frame), do: Loops.carry(loops, pose, frame)
+
+  defp record(%{loops: nil} = state, _tag, _reading, _pose), do: {:none, state}
+
+  defp record(state, tag, reading, pose) do
+    case Map.fetch(state.lasers, tag) do
+      {:ok, mount} ->
+        odometry = odometry_at(state, Map.get(reading, :stamp))
+
+        case Loops.record(state.loops, tag, mount, reading, pose, odometry) do
+          {loops, :none} -> {:none, %{state | loops: loops}}
+          {loops, {:closed, from, to}} -> {:closed, from, to, %{state | loops: loops}}
+        end
+
+      :error ->
+        {:none, state}
+    end
+  end
+
+  # a loop closed: the map drawn again from the kept scans at their
+  # corrected poses, published at once with the move of its frame, so
+  # that the localizer carries its particles along
+  defp redraw(state, from, to) do
+    grid = Loops.redraw(state.loops, blank_grid(state.params), state.lasers, state.footprint)
+
+    estimate =
+      with {pose, odom} <- state.estimate,
+           do: {Loops.carry(state.loops, pose, Loops.frame(state.loops) - 1), odom}
+
+    version = state.version + 1
+    map = SensedGrid.occupancy(grid, version: version, stamp: state.stamp)
+    frame = Loops.frame(state.loops)
+
+    Logger.debug(
+      "#{inspect(state.robot)}: loop closed (frame #{frame}): #{inspect(from)} is #{inspect(to)}"
+    )
+
+    correction = %{from: from, to: to, frame: frame, map: map, stamp: state.stamp}
+
+    state = %{
+      state
+      | grid: grid,
+        estimate: estimate,
+        version: version,
+        published: state.stamp,
+        changed: false,
+        last_map: map
+    }
+
+    {more, state} = publish_topology(state)
+    {more2, state} = save_due(state)
+
+    {[
+       out: {{:map, state.robot, map}, [key: {:map, state.robot}]},
+       out: {{:map_correction, state.robot, correction}, [key: {:map_correction, state.robot}]}
+     ] ++ more ++ more2, state}
   end
 
   ## readings
@@ -337,10 +442,10 @@ defmodule ThinkingCap.Navigation.Mapper do
   ## set-up
 
   defp new_grid(%WDF{} = wdf, params) do
-    if WDF.empty?(wdf), do: blank_grid(params), else: prior_grid(wdf, params)
+    if WDF.empty?(wdf), do: {blank_grid(params), true}, else: {prior_grid(wdf, params), false}
   end
 
-  defp new_grid(nil, params), do: blank_grid(params)
+  defp new_grid(nil, params), do: {blank_grid(params), true}
 
   defp blank_grid(params) do
     {w, h} = params[:size]

@@ -16,7 +16,11 @@ defmodule ThinkingCap.Navigation.MCL do
   the estimates held to the map; until the first map comes the odometry
   alone moves the estimate. (A map being built knows little at first,
   and what it does not know says nothing: with a WDF, its map is the
-  firmer ground.)
+  firmer ground.) When the map builder closes a loop
+  (`{:map_correction, robot, %{from:, to:, frame:, map:}}`), the particles
+  are carried by the move of the map's frame and the new map taken at
+  once; every estimate says the frame it is in (`frame`, the count of
+  those moves).
 
   It subscribes to the robot's odometry and its lasers (the RDF's
   sensors). On odometry the particles move by the motion since the last
@@ -197,11 +201,13 @@ defmodule ThinkingCap.Navigation.MCL do
       checked: nil,
       status: if(filter.map, do: :tracking, else: :dead_reckoning),
       published: nil,
-      particles_at: nil
+      particles_at: nil,
+      frame: 0
     }
 
     subscriptions =
-      for tag <- [odometry, :map | Map.keys(lasers)], do: {:subscribe, {tag, context.robot, :_}}
+      for tag <- [odometry, :map, :map_correction | Map.keys(lasers)],
+          do: {:subscribe, {tag, context.robot, :_}}
 
     {subscriptions, resume(state, Map.get(context, :handoff))}
   end
@@ -277,6 +283,31 @@ defmodule ThinkingCap.Navigation.MCL do
   # built knows little at first, and what it does not know says nothing
   def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot, slam: true} = state),
     do: {[], %{state | pending_map: map}}
+
+  # the map builder closed a loop: its map's frame moved under the robot;
+  # the particles move with it, onto the map drawn in the new frame
+  def handle_tuple(
+        {:map_correction, robot,
+         %{from: from, to: to, frame: frame, map: %OccupancyGrid{} = map}},
+        %{robot: robot, slam: true} = state
+      )
+      when frame > state.frame do
+    filter =
+      state.filter
+      |> ParticleFilter.transform(from, to)
+      |> ParticleFilter.set_map(map, state.params[:seed], threshold: state.params[:slam_wall])
+
+    {[],
+     %{
+       state
+       | filter: filter,
+         frame: frame,
+         source: :sensed,
+         status: if(state.status == :dead_reckoning, do: :tracking, else: state.status),
+         pending_map: nil,
+         map_at: state.published || state.map_at
+     }}
+  end
 
   def handle_tuple({tag, robot, %{ranges: ranges} = scan}, %{robot: robot} = state)
       when is_map_key(state.lasers, tag) and is_list(ranges) do
@@ -562,7 +593,8 @@ defmodule ThinkingCap.Navigation.MCL do
       covariance: covariance,
       stamp: stamp,
       confidence: Float.round(confidence, 3),
-      status: state.status
+      status: state.status,
+      frame: state.frame
     }
 
     out = [out: {{:pose, state.robot, payload}, [key: {:pose, state.robot}]}]

@@ -154,6 +154,18 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   end
 
   @doc """
+  Carries every particle by the rigid motion that takes pose `from` to
+  pose `to`: the map's frame moved under the robot (a loop closed).
+  """
+  @spec transform(t(), pose(), pose()) :: t()
+  def transform(%__MODULE__{} = pf, from, to) do
+    :ok = GridNif.pf_transform(pf.set, floats(from), floats(to))
+    pf
+  end
+
+  defp floats({x, y, th}), do: {x * 1.0, y * 1.0, th * 1.0}
+
+  @doc """
   Weighs the particles by a scan (`beams`: a binary of native doubles
   `{x, y, angle, range}` per beam, the sensor's position and the beam's
   direction in the robot frame) and resamples when the effective number

@@ -33,7 +33,7 @@ defmodule ThinkingCap.Planner.Monitor do
   visits frontiers between known free and unknown space
   (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first), a
   frontier seen from afar is dropped for the next, one out of reach is
-  given up (and not chosen again), and when none is left the task is
+  given up (not chosen again in that round; see `explore_rounds`), and when none is left the task is
   `:done` and, with `save_to: path`, the map builder is asked to save the
   map there (`{:save_map, robot, %{path: path}}`).
 
@@ -79,7 +79,9 @@ defmodule ThinkingCap.Planner.Monitor do
   `radius` (default the RDF's footprint, else 0.2 m), `resolution` (the
   planning cell, default the map's, at least 0.05 m), `reach` (20 m),
   `compare` (time A* beside each plan, for benchmarks; default false),
-  `map_timeout` (10 s), `save_to` (where an exploration's map is saved).
+  `map_timeout` (10 s), `save_to` (where an exploration's map is saved),
+  `explore_rounds` (2: when no frontier is left but some were given up,
+  they are tried again this many times in all, on the map as it is then).
   """
   use ThinkingCap.Module
   require Logger
@@ -101,7 +103,8 @@ defmodule ThinkingCap.Planner.Monitor do
     reach: 20.0,
     compare: false,
     map_timeout: 10.0,
-    save_to: nil
+    save_to: nil,
+    explore_rounds: 2
   ]
 
   @impl true
@@ -139,6 +142,8 @@ defmodule ThinkingCap.Planner.Monitor do
       reason: nil,
       reached: [],
       given_up: [],
+      rounds: 1,
+      explore_rounds: params[:explore_rounds],
       replans: 0,
       progress: nil,
       blocked_at: nil,
@@ -277,6 +282,7 @@ defmodule ThinkingCap.Planner.Monitor do
             plan: nil,
             reached: [],
             given_up: [],
+            rounds: 1,
             replans: 0,
             reason: nil
         }
@@ -362,6 +368,15 @@ defmodule ThinkingCap.Planner.Monitor do
       # the first maps may hold nothing but a few echoes
       nil when not seen_around? ->
         {[], %{state | status: :waiting, reason: "waiting for the map around the robot"}}
+
+      # frontiers given up on a map since drawn again (a loop closed, a
+      # door seen open) may be reachable now: another round tries them
+      nil when state.given_up != [] and state.rounds < state.explore_rounds ->
+        Logger.info(
+          "#{inspect(state.robot)}: trying again #{length(state.given_up)} frontiers given up"
+        )
+
+        step(%{state | given_up: [], rounds: state.rounds + 1})
 
       nil ->
         {[], %{state | status: :done, reason: "explored: no frontier left"}}

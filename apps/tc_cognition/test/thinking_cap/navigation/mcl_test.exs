@@ -203,6 +203,36 @@ defmodule ThinkingCap.Navigation.MCLTest do
     assert state.status != :dead_reckoning
   end
 
+  test "a loop closed by the map builder carries the estimate into the map's new frame", %{
+    tmp_dir: dir
+  } do
+    empty = T.wdf!(dir, [])
+    context = %{name: :localization, robot: :r, rdf: @rdf, wdf: empty}
+    {_subscriptions, state} = MCL.init([initial: {1.0, 1.0, 0.0}], context)
+    {_, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.0, 0.0, 0.0}, stamp: 0.0}}, state)
+    {actions, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.5, 0.0, 0.0}, stamp: 0.2}}, state)
+    assert [{:out, {{:pose, :r, %{pose: before, frame: 0}}, _}} | _] = actions
+
+    map = %{OccupancyGrid.new(80, 60, resolution: 0.1) | data: :binary.copy(<<0>>, 4800)}
+    # the map's frame moved: the robot's pose `before` is 0.3 m on and 0.1 rad round
+    {bx, by, bth} = before
+    after_ = {bx + 0.3, by, bth + 0.1}
+    correction = %{from: before, to: after_, frame: 1, map: map, stamp: 0.2}
+    {[], state} = MCL.handle_tuple({:map_correction, :r, correction}, state)
+    assert state.source == :sensed
+
+    # standing still: the next estimate is where the move put it, in frame 1
+    {actions, state} = MCL.handle_tuple({:odom, :r, %{pose: {0.5, 0.0, 0.0}, stamp: 0.3}}, state)
+    assert [{:out, {{:pose, :r, %{pose: {x, y, th}, frame: 1}}, _}} | _] = actions
+    assert_in_delta x, bx + 0.3, 0.02
+    assert_in_delta y, by, 0.02
+    assert_in_delta th, bth + 0.1, 0.01
+
+    # a correction of a frame it already has is not applied twice
+    {[], state2} = MCL.handle_tuple({:map_correction, :r, correction}, state)
+    assert state2.frame == 1
+  end
+
   test "a scan is weighed where the robot was when it was taken, whatever came first" do
     context = %{name: :localization, robot: :r, rdf: @rdf, wdf: @office}
     {_subscriptions, state} = MCL.init([initial: {1.0, 1.0, 0.0}], context)

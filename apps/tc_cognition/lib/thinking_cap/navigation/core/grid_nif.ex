@@ -61,6 +61,10 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def pf_estimate(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_best(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_sample(_pf, _k), do: :erlang.nif_error(:nif_not_loaded)
+
+  def fmap_replay(_map, _poses, _ranges, _beams, _meta, _ks, _fade, _lambdas, _margin),
+    do: :erlang.nif_error(:nif_not_loaded)
+
   def pf_transform(_pf, _from, _to), do: :erlang.nif_error(:nif_not_loaded)
 
   def slam_match(_ref, _query, _guess, _window, _res, _sigma),

@@ -12,7 +12,8 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
 
   Then the new node's scan is matched (`ThinkingCap.Navigation.Core.GridNif`'s
   correlative `slam_match`) against the scans of the old nodes near it:
-  nodes at least `loop_gap` nodes back, within `loop_radius` metres. A
+  the nearest node at least `loop_gap` nodes back within `loop_radius`
+  metres, and its neighbours in the chain. A
   match that scores at least `min_score` (the mean likelihood of its
   points) and fixes the pose sharply (σ at most `max_sigma` m and
   `max_sigma_angle` rad: a corridor's length is not fixed by a scan
@@ -63,7 +64,8 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     max_sigma: 0.08,
     max_sigma_angle: 0.03,
     max_chi2: 16.0,
-    resolution: 0.05
+    resolution: 0.05,
+    submap_nodes: 5
   }
 
   @doc """
@@ -71,7 +73,10 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   `node_angle` [0.35], `loop_gap` [30], `loop_radius` [4.0], `window`
   [0.5 m] and `window_angle` [0.2 rad] (how far from the estimate a loop
   match is sought), `min_score` [0.45], `max_sigma` [0.08],
-  `max_sigma_angle` [0.03], `max_chi2` [16], `resolution` [0.05].
+  `max_sigma_angle` [0.03], `max_chi2` [16], `resolution` [0.05],
+  `submap_nodes` [5] (the old nodes matched against: those within this
+  many of the nearest; a short stretch of the chain is true to itself,
+  a long one is not).
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []), do: %__MODULE__{params: Map.merge(@defaults, Map.new(opts))}
@@ -198,7 +203,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
 
       _ ->
         {_, anchor} = Enum.min(near)
-        around = for {_d, j} <- near, abs(j - anchor) <= 15, do: j
+        around = for {_d, j} <- near, abs(j - anchor) <= p.submap_nodes, do: j
         ref = IO.iodata_to_binary(Enum.map(around, &world_points(g, &1)))
         {:ok, anchor, ref}
     end

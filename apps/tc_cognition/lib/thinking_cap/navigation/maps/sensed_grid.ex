@@ -155,6 +155,39 @@ defmodule ThinkingCap.Navigation.Maps.SensedGrid do
   end
 
   @doc """
+  Integrates many laser scans of one sensor at once, in order, as
+  `add_laser/3` would one by one: `poses` the sensor's pose in the world
+  for each scan (native doubles `{x, y, θ}`), `ranges` `beams` 32-bit
+  native floats per scan (a range below `range_min` is no reading), and
+  `scan` the sensor's `angle_min`, `angle_increment`, `range_min` and
+  `range_max`. For drawing a map again from kept scans.
+  """
+  @spec replay_lasers(t(), binary(), binary(), pos_integer(), map()) :: t()
+  def replay_lasers(%__MODULE__{} = map, poses, ranges, beams, scan) do
+    %{k_empty: k_e, k_occupied: k_o, range: usable} = map.laser
+    range_max = min(scan.range_max, usable) * 1.0
+
+    meta =
+      {scan.angle_min * 1.0, scan.angle_increment * 1.0, Map.get(scan, :range_min, 0.0) * 1.0,
+       range_max}
+
+    _changed =
+      GridNif.fmap_replay(
+        map.ref,
+        poses,
+        ranges,
+        beams,
+        meta,
+        {k_e * 1.0, k_o * 1.0},
+        map.fade,
+        map.lambda,
+        map.margin
+      )
+
+    map
+  end
+
+  @doc """
   Integrates a sonar ring reading (`%{ranges:, headings:, range_max:}`,
   one range per transducer, headings in the robot frame) of a ring
   described by `ring` (`%{pose: {x, y, θ}, ring_radius: r, fov: f}` as in
