@@ -122,6 +122,9 @@ defmodule ThinkingCap.Module.CoreTest do
       assert {:error, "mode: expected one of :slow, :fast, got :medium"} =
                Params.check(p, Modules.Tunable, :mode, :medium)
 
+      # a number too large to be a float is refused, not crashed on
+      assert {:error, "gain: " <> _} = Params.check(p, Modules.Tunable, :gain, 10 ** 400)
+
       assert {:error, m} = Params.check(p, Modules.Tunable, :seed, 2)
       assert m =~ "seed of ThinkingCap.Test.Modules.Tunable is read-only"
 

@@ -103,6 +103,9 @@ defmodule ThinkingCap.Module.Core.Params do
       {value, %{errors: []}} -> {:ok, value}
       {_value, st} -> {:error, st |> Schema.errors() |> Enum.map_join("; ", & &1.message)}
     end
+  rescue
+    # an integer too large to be a float, given where a number is asked
+    ArithmeticError -> {:error, "#{key}: #{inspect(value, limit: 3)} is too large a number"}
   end
 
   defp did_you_mean(key, known) do
