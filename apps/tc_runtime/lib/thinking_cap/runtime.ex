@@ -7,6 +7,7 @@ defmodule ThinkingCap.Runtime do
       {:ok, started} = ThinkingCap.Runtime.start(adf)
       ThinkingCap.Runtime.which_modules()
       ThinkingCap.Runtime.swap(:control, MyRobot.BetterControl)   # while it runs
+      ThinkingCap.Runtime.set_param(:control, :max_speed, 0.3)    # a live parameter
       ThinkingCap.Runtime.stop(:control)
 
   Each module runs in a process the framework owns
