@@ -9,6 +9,7 @@ import { MapView, LAYERS } from './map.js';
 import { TimingPanel } from './timing.js';
 import { ModulesPanel } from './modules.js';
 import { BlackboardPanel } from './blackboard.js';
+import { ParamsPanel } from './params.js';
 import { Teleop } from './teleop.js';
 import { $, el, fmt, fmtCommand, pose3, setChildren } from './util.js';
 
@@ -82,12 +83,14 @@ const teleop = new Teleop($('#teleop-body'), store, conn, toast);
 const timing = new TimingPanel($('#tab-timing'), store);
 new ModulesPanel($('#tab-modules'), store, conn, toast);
 const bb = new BlackboardPanel($('#tab-blackboard'), store, conn);
+const params = new ParamsPanel($('#tab-params'), store, conn, toast);
 
 const tabs = [...document.querySelectorAll('.tabs button')];
 function showTab(name) {
   for (const b of tabs) b.classList.toggle('on', b.dataset.tab === name);
   for (const p of document.querySelectorAll('.tab-panel')) p.hidden = p.id !== `tab-${name}`;
   timing.setVisible(name === 'timing');
+  params.setVisible(name === 'params');
   try {
     localStorage.setItem('tc.tab', name);
   } catch (e) {
@@ -222,6 +225,8 @@ window.tc = {
     return { command: teleop.command && { ...teleop.command }, robot: teleop.robot, sent: teleop.sent };
   },
   select(id) { store.select(id); },
+  /** shows a tab of the sidebar: "timing" | "modules" | "params" | "blackboard" */
+  showTab(name) { showTab(name); },
 };
 
 renderStatus();

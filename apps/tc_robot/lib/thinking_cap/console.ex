@@ -10,6 +10,8 @@ defmodule ThinkingCap.Console do
       iex> timing()                # the control cycle's figures, every node
       iex> tuples({:pose, :_, :_}) # blackboard tuples by template
       iex> move(:control, :brain)  # move a module (after a failover)
+      iex> params(:control)        # a module's params, their types and values
+      iex> param(:control, :max_speed, 0.3)  # set one while it runs
       iex> release_estop(:r1)
 
   Each prints a table and returns its data, so the result can be worked
@@ -117,6 +119,56 @@ defmodule ThinkingCap.Console do
   @doc "Moves a module to another node of the deployment (`ThinkingCap.Runtime.Deployment.move/2`)."
   @spec move(atom(), atom()) :: :ok | {:error, term()}
   def move(name, node), do: Deployment.move(name, node)
+
+  @doc """
+  The params of running module `name` (or `{robot, name}`): each with its
+  value, type and whether it can be set while the module runs (live
+  parameters, `ThinkingCap.Module`). Returns the values.
+  """
+  @spec params(Runtime.module_ref()) :: map() | {:error, String.t()}
+  def params(name) do
+    case Runtime.describe_params(name) do
+      {:ok, info} ->
+        IO.puts(
+          "#{info.name} (#{inspect(info.module)}, robot #{info.robot})" <>
+            if(info.live, do: "", else: ": takes no live changes")
+        )
+
+        table(
+          ["param", "value", "type", "live", "meaning"],
+          for f <- info.fields do
+            [f.key, inspect(f.value), f.type, if(f.read_only, do: "no", else: "yes"), f.doc]
+          end
+        )
+
+        info.values
+
+      {:error, message} ->
+        IO.puts(message)
+        {:error, message}
+    end
+  end
+
+  @doc """
+  Sets param `key` of running module `name` (or `{robot, name}`) to
+  `value` (`ThinkingCap.Runtime.set_param/4`, `by: :console`): checked
+  against the module's schema, refused with the reason (the range, the
+  type, read-only).
+  """
+  @spec param(Runtime.module_ref(), atom(), term()) :: :ok | {:error, String.t()}
+  def param(name, key, value) do
+    case Runtime.set_param(name, key, value, by: :console) do
+      :ok ->
+        IO.puts("#{format_ref(name)}.#{key} = #{inspect(value)}")
+
+      {:error, message} ->
+        IO.puts("refused: #{message}")
+        {:error, message}
+    end
+  end
+
+  defp format_ref({robot, name}), do: "#{robot}/#{name}"
+  defp format_ref(name), do: to_string(name)
 
   @doc "Prints the tuples matching `template` (all by default), at most `limit`; returns the count."
   @spec tuples(Blackboard.template() | :all, pos_integer()) :: non_neg_integer()

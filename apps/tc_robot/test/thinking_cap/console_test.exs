@@ -77,4 +77,74 @@ defmodule ThinkingCap.ConsoleTest do
     assert capture_io(fn -> send(self(), {:cluster, Console.cluster()}) end) =~ "no deployment"
     assert_received {:cluster, :not_deployed}
   end
+
+  defmodule Cruise do
+    @moduledoc false
+    # a periodic module that takes live changes of its speed
+    use ThinkingCap.Module
+
+    @impl true
+    def params do
+      [
+        max_speed: {{:number_range, 0.0, 1.0}, default: 0.2, doc: "m/s"},
+        seed: {:integer, default: 1, read_only: true, doc: "read at start"}
+      ]
+    end
+
+    @impl true
+    def init(_params, ctx), do: {:ok, ctx.params.max_speed}
+
+    @impl true
+    def handle_cycle(_release, speed), do: {[command: {:velocity, speed, 0.0}], speed}
+
+    @impl true
+    def handle_param(:max_speed, speed, _speed), do: {[], speed}
+  end
+
+  test "params/1 shows a module's params; param/3 sets one within a cycle, or says why not",
+       %{tmp_dir: dir, robot: robot} do
+    name = :"cruise_#{robot}"
+    path = Path.join(dir, "cruise.adf")
+
+    File.write!(path, """
+    [robot: :#{robot}, modules: [#{name}: [module: #{inspect(Cruise)}, activity: :periodic,
+      period: 0.01, deadline: 0.005, params: [max_speed: 0.3]]]]
+    """)
+
+    {:ok, _} = Runtime.start(Config.read!(path))
+    on_exit(fn -> Runtime.stop(name) end)
+
+    output = capture_io(fn -> send(self(), {:params, Console.params(name)}) end)
+    assert_received {:params, %{max_speed: 0.3, seed: 1}}
+    assert output =~ ~r/max_speed\s+0.3\s+number 0.0..1.0\s+yes\s+m\/s/
+    assert output =~ ~r/seed\s+1\s+integer\s+no/
+
+    :ok = ThinkingCap.Cycle.subscribe(name)
+    assert capture_io(fn -> Console.param(name, :max_speed, 0.4) end) =~ "#{name}.max_speed = 0.4"
+    # the cycle in flight may have been computed before; the next one was not
+    flush()
+    _ = ThinkingCap.Testing.Cycle.applied_until(name, &(&1.kind == :fresh))
+
+    assert %{command: {:velocity, 0.4, 0.0}} =
+             ThinkingCap.Testing.Cycle.applied_until(name, &(&1.kind == :fresh))
+
+    assert {:ok, {:param, ^robot, %{module: ^name, key: :max_speed, value: 0.4, by: :console}}} =
+             Blackboard.rdp({:param, robot, :_})
+
+    assert capture_io(fn -> send(self(), {:r, Console.param(name, :max_speed, 4)}) end) =~
+             "refused: max_speed: expected a number from 0.0 to 1.0, got 4"
+
+    assert_received {:r, {:error, _}}
+
+    assert capture_io(fn -> Console.param(name, :seed, 2) end) =~ "read-only"
+    assert capture_io(fn -> Console.params(:no_such_module) end) =~ "no module"
+  end
+
+  defp flush do
+    receive do
+      _ -> flush()
+    after
+      0 -> :ok
+    end
+  end
 end

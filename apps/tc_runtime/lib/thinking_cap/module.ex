@@ -30,9 +30,10 @@ defmodule ThinkingCap.Module do
     * **background** - `handle_background/1` again and again, at low process
       priority: it runs when nothing else does (logging, map saving).
 
-  Actions (a list, or a keyword list):
+  Actions (a list, or a keyword list; `t:action/0`):
 
-    * `{:out, tuple}` / `{:out, {tuple, opts}}` - write to the blackboard;
+    * `{:out, tuple}` / `{:out, {tuple, opts}}` - write to the blackboard
+      (`opts` as in `ThinkingCap.Blackboard.out/2`);
     * `{:command, term}` - the result of the current cycle (periodic only);
     * `{:wire, iodata}` - with `{:command, term}` in `handle_cycle/2`: the
       bytes the timing worker puts on the module's wire when it applies
@@ -47,7 +48,19 @@ defmodule ThinkingCap.Module do
       that cannot be opened is logged, naming it, and the module runs on
       without a wire;
     * `{:detach_wire}` - takes the command path back from the worker;
-    * `{:subscribe, template}` - subscribe to more tuples.
+    * `{:subscribe, template}` - subscribe to more tuples;
+    * `{:set_param, key, value}` - sets one of the module's own declared
+      params (checked against its type; recorded like a live change, below,
+      `by: {:module, name}`; `handle_param/3` is not called for it).
+
+  Anything else (a misspelt `{:outt, tuple}`, an `{:out, 42}`), or a
+  result that is not `{actions, state}`, raises
+  `ThinkingCap.Module.ActionError` naming the module, the callback and the
+  action: the module stops and its supervisor starts it again. A
+  `{:command, _}` or `{:wire, _}` outside `handle_cycle/2`, or a wire
+  action of a module that is not periodic, counts for nothing and is
+  logged. The runtime and `ThinkingCap.Testing.Lockstep` read results with
+  the same code, so a module behaves the same in both.
 
   Every command the timing worker applies for a periodic module, its own
   fresh result or the fallback that replaced a late one, reaches
@@ -61,8 +74,9 @@ defmodule ThinkingCap.Module do
 
   `init/2` gets the ADF's `params` and a context map (`:name`, `:robot`,
   `:node`, `:activity`, the ADF's `:rdf` and `:wdf` paths, `nil` when
-  not given, and `:handoff`, below) and returns `{:ok, state}` or
-  `{actions, state}`.
+  not given, `:handoff`, below, and `:params`, the params as they stand:
+  a declared schema's fields with their defaults) and returns
+  `{:ok, state}` or `{actions, state}`.
 
   **Declared params.** A module may implement `params/0`, the schema of
   its params (`ThinkingCap.Config.Schema` fields: type, default, doc):
@@ -78,6 +92,32 @@ defmodule ThinkingCap.Module do
           goal: {:place, required: true, doc: "where to go"}
         ]
       end
+
+  **Live parameters.** A module's declared params can be read and set
+  while it runs, as ROS 2 nodes' parameters are:
+  `ThinkingCap.Runtime.get_params/1` and `set_param/4`, `params/1` and
+  `param/3` in a remote shell (`ThinkingCap.Console`), the dashboard's
+  Params panel. A change is checked against the schema: an unknown key is
+  refused with a "did you mean", a value out of range with the range, a
+  value of the wrong type with the type, and a field declared
+  `read_only: true` (set in the ADF, read at start: a seed, a particle
+  count) is refused. The module sees an accepted change in
+  `handle_param/3`, between two callbacks (a periodic module's next cycle
+  runs with it), and may still refuse it with `{:error, reason, state}`
+  (a refusal leaves its state as it was):
+
+      @impl true
+      def handle_param(:max_speed, value, state), do: {[], %{state | max_speed: value}}
+
+  `handle_param/3` is optional, and not defined by `use
+  ThinkingCap.Module`: **a module without it takes no live changes** (a
+  change is refused saying so, and the dashboard shows its params
+  read-only), since a change it would not act on must not look accepted.
+  Every accepted change is written to the blackboard as
+  `{:param, robot, %{module: name, key: key, value: value, by: who, at: epoch_ms}}`
+  (key `{:param, robot, name, key}`: the latest per param stays), so it
+  is seen and recorded. A module restarted (after a crash, or
+  `ThinkingCap.Runtime.restart/1`) starts again from the ADF's params.
 
   **Handoff.** A module deployed with standby nodes may implement
   `handoff/1`: every `handoff_every` seconds (ADF, default 1) the framework
@@ -100,6 +140,7 @@ defmodule ThinkingCap.Module do
           | {:attach_wire, Path.t(), iodata()}
           | {:detach_wire}
           | {:subscribe, tuple()}
+          | {:set_param, atom(), term()}
   @type actions :: [action()]
   @type context :: %{
           name: atom(),
@@ -108,7 +149,8 @@ defmodule ThinkingCap.Module do
           activity: :periodic | :event | :background,
           rdf: Path.t() | nil,
           wdf: Path.t() | nil,
-          handoff: term()
+          handoff: term(),
+          params: map()
         }
   @type release :: ThinkingCap.Cycle.release()
 
@@ -122,8 +164,10 @@ defmodule ThinkingCap.Module do
   @callback terminate(reason :: term(), state :: term()) :: term()
   @callback handoff(state :: term()) :: term()
   @callback params() :: ThinkingCap.Config.Schema.fields()
+  @callback handle_param(key :: atom(), value :: term(), state :: term()) ::
+              {actions(), term()} | {:error, reason :: String.t(), term()}
 
-  @optional_callbacks handle_swap: 3, handoff: 1, params: 0
+  @optional_callbacks handle_swap: 3, handoff: 1, params: 0, handle_param: 3
 
   defmacro __using__(_opts) do
     quote do

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Runtime do
       {:ok, started} = ThinkingCap.Runtime.start(adf)
       ThinkingCap.Runtime.which_modules()
       ThinkingCap.Runtime.swap(:control, MyRobot.BetterControl)   # while it runs
+      ThinkingCap.Runtime.set_param(:control, :max_speed, 0.3)    # a live parameter
       ThinkingCap.Runtime.stop(:control)
 
   Each module runs in a process the framework owns
@@ -287,6 +288,73 @@ defmodule ThinkingCap.Runtime do
       end
     end)
     |> Enum.sort_by(& &1.name)
+  end
+
+  @typedoc """
+  A running module's params as a user interface shows them
+  (`describe_params/1`): whether it takes live changes, the current
+  values, and each declared field with its type (`type`, as the ADF's
+  tables name it), the kind of input that sets it (`input`: `:number`,
+  `:integer`, `:boolean`, `:choice`, `:string`, or `:other`, not settable
+  from a form), its bounds (`min`, `max`) or `choices`, `read_only`,
+  `doc`, `default` and `value`.
+  """
+  @type params_info :: %{
+          name: atom(),
+          robot: atom(),
+          module: module(),
+          live: boolean(),
+          values: map(),
+          fields: [map()]
+        }
+
+  @doc """
+  The params of a running module as they stand (live parameters, see
+  `ThinkingCap.Module`): its declared fields with their defaults, and any
+  change made since it started.
+  """
+  @spec get_params(module_ref()) :: {:ok, map()} | {:error, String.t()}
+  def get_params(ref) do
+    with {:ok, info} <- describe_params(ref), do: {:ok, info.values}
+  end
+
+  @doc "A running module's params with their schema, for user interfaces (`t:params_info/0`)."
+  @spec describe_params(module_ref()) :: {:ok, params_info()} | {:error, String.t()}
+  def describe_params(ref), do: call_module(ref, :params)
+
+  @doc """
+  Sets param `key` of running module `ref` to `value` (live parameters,
+  see `ThinkingCap.Module`). The change is checked against the module's
+  declared schema and handed to its `handle_param/3` before this returns,
+  so a periodic module's next cycle runs with it; it is written to the
+  blackboard as `{:param, robot, %{module:, key:, value:, by:, at:}}`.
+  Otherwise `{:error, message}` says why not: no such module or param,
+  the value out of range (the range) or of the wrong type (the type), a
+  read-only param, a module that takes no live changes, or the module's
+  own refusal. Options: `by:` who asks (shown on the blackboard; default
+  `:api`).
+  """
+  @spec set_param(module_ref(), atom(), term(), keyword()) :: :ok | {:error, String.t()}
+  def set_param(ref, key, value, opts \\ []),
+    do: call_module(ref, {:set_param, key, value, Keyword.get(opts, :by, :api)})
+
+  defp call_module(ref, request) do
+    case whereis(ref) do
+      nil ->
+        {:error, "no module #{inspect(ref)} is running"}
+
+      pid ->
+        try do
+          case GenServer.call(pid, request, 5_000) do
+            {:error, message} -> {:error, message}
+            :ok -> :ok
+            info -> {:ok, info}
+          end
+        catch
+          :exit, reason ->
+            {:error, "module #{inspect(ref)} did not answer: #{Exception.format_exit(reason)}"}
+        end
+    end
   end
 
   @doc "Timing statistics of this node's periodic activities (`ThinkingCap.Cycle.timing/0`)."

@@ -119,4 +119,93 @@ defmodule ThinkingCap.Test.Modules do
        ], %{state | n: n}}
     end
   end
+
+  defmodule Tunable do
+    @moduledoc false
+    # declares params and takes live changes of them
+    use ThinkingCap.Module
+
+    @impl true
+    def params do
+      [
+        speed: {{:number_range, 0.0, 1.0}, default: 0.2, doc: "m/s"},
+        gain: {:pos_number, default: 1.0, doc: "refused above 5 by the module"},
+        mode: {{:one_of, [:slow, :fast]}, default: :slow, doc: "a choice"},
+        enabled: {:boolean, default: true, doc: "a flag"},
+        seed: {:integer, default: 1, read_only: true, doc: "read at start"}
+      ]
+    end
+
+    @impl true
+    def init(_params, ctx), do: {:ok, %{robot: ctx.robot, speed: ctx.params.speed, seen: []}}
+
+    @impl true
+    def handle_cycle(release, state), do: {[command: {:vel, state.speed, release.cycle}], state}
+
+    @impl true
+    def handle_param(:gain, gain, state) when gain > 5,
+      do: {:error, "a gain above 5 makes it oscillate", %{state | seen: :spoilt}}
+
+    def handle_param(:speed, speed, state),
+      do:
+        {[out: {{:tuned, state.robot, speed}, [key: {:tuned, state.robot}]}],
+         %{state | speed: speed, seen: [{:speed, speed} | state.seen]}}
+
+    def handle_param(key, value, state), do: {[], %{state | seen: [{key, value} | state.seen]}}
+  end
+
+  defmodule Declared do
+    @moduledoc false
+    # declares params but takes no live changes (no handle_param/3)
+    use ThinkingCap.Module
+
+    @impl true
+    def params, do: [speed: {{:number_range, 0.0, 1.0}, default: 0.2, doc: "m/s"}]
+  end
+
+  defmodule Scripted do
+    @moduledoc false
+    # does what the tuples it is sent say: the same module for the runtime
+    # and the lockstep harness
+    use ThinkingCap.Module
+
+    @impl true
+    def params, do: [level: {{:int_range, 0, 100}, default: 0, doc: "set by itself"}]
+
+    @impl true
+    def init(_params, ctx) do
+      r = ctx.robot
+
+      {[
+         {:subscribe, {:poke, r, :_}},
+         {:subscribe, {:bad, r, :_}},
+         {:out, {{:ready, r, ctx.params.level}, [key: {:ready, r}]}}
+       ], %{robot: r, level: ctx.params.level}}
+    end
+
+    @impl true
+    def handle_tuple({:poke, r, n}, state) do
+      {[
+         {:out, {:poked, r, n}},
+         # counts for nothing outside handle_cycle/2 (a warning)
+         {:command, :ignored},
+         {:subscribe, {:second, r, :_}},
+         {:set_param, :level, n}
+       ], %{state | level: n}}
+    end
+
+    def handle_tuple({:second, r, n}, state),
+      do: {[out: {:second_seen, r, {n, state.level}}], state}
+
+    def handle_tuple({:bad, _r, action}, state), do: {[action], state}
+
+    @impl true
+    def handle_cycle(_release, state), do: {[command: {:level, state.level}], state}
+
+    @impl true
+    def handle_applied(%{kind: :fresh, command: command}, state),
+      do: {[out: {{:applied, state.robot, command}, [key: {:applied, state.robot}]}], state}
+
+    def handle_applied(_applied, state), do: {[], state}
+  end
 end

@@ -62,9 +62,21 @@ defmodule ThinkingCap.Control.Blender do
       (`ThinkingCap.Planner.Monitor`: no task, task done, task failed,
       waiting to retry a blocked route or a goal no path leads to, no pose
       or map yet);
-    * `max_speed`, `max_turn_rate` (defaults 0.5 m/s, 1.5 rad/s), `radius`
-      (0.2 m) - used only without an RDF: with one (`context.rdf`), the
-      limits come from its kinematics and the radius from its footprint.
+    * `max_speed`, `max_turn_rate` - the top speed (m/s) and turn rate
+      (rad/s) the blend commands: with an RDF (`context.rdf`), at most its
+      kinematics' limits, which they default to; without one, defaults 0.5
+      m/s and 1.5 rad/s;
+    * `radius` (0.2 m) - used only without an RDF: with one, the radius
+      comes from its footprint.
+
+  `max_speed` and `max_turn_rate` are **live parameters**
+  (`ThinkingCap.Module`): set while the robot runs
+  (`ThinkingCap.Runtime.set_param(:control, :max_speed, 0.2)`, the
+  dashboard's Params panel), the next cycle blends within the new limit;
+  a value above the RDF's limit is refused, naming it. The others are
+  read-only (read at start). At start the module sets the limits it
+  drives within as its params (`{:set_param, ...}`), so they are shown
+  and recorded even when the RDF gave them.
   """
   use ThinkingCap.Module
 
@@ -86,11 +98,41 @@ defmodule ThinkingCap.Control.Blender do
   @stop {:velocity, 0.0, 0.0}
   @stop_states [:idle, :done, :failed, :blocked, :unreachable, :waiting]
 
+  @params [
+    behaviours:
+      {{:list, :any},
+       default: @default_behaviours, read_only: true, doc: "the behaviours blended (see above)"},
+    unless:
+      {:any, default: nil, read_only: true, doc: "precedence, %{name => [names]} (see above)"},
+    stop_states:
+      {{:list, :atom},
+       default: @stop_states, read_only: true, doc: "plan states in which the robot stands still"},
+    max_speed:
+      {{:number_range, 0.0, 10.0},
+       default: nil, doc: "m/s, the top speed (at most the RDF's, its default; else 0.5)"},
+    max_turn_rate:
+      {{:number_range, 0.0, 20.0},
+       default: nil, doc: "rad/s, the top turn rate (at most the RDF's, its default; else 1.5)"},
+    radius:
+      {:pos_number, default: 0.2, read_only: true, doc: "m, the robot's radius without an RDF"}
+  ]
+
+  @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
+  @impl true
+  @spec params() :: keyword()
+  def params, do: @params
+
   @impl true
   def init(params, context) do
     params = if is_map(params), do: Map.to_list(params), else: params || []
     robot = context.robot
-    {limits, radius, curvature} = robot_limits(params, context)
+    {ceiling, radius, curvature} = robot_limits(params, context)
+
+    # the params bound the RDF's limits, never raise them
+    limits =
+      Map.new(ceiling, fn {key, max} ->
+        {key, min(number(Keyword.get(params, key)) || max, max)}
+      end)
 
     unless_map = Map.merge(@default_unless, Map.new(Keyword.get(params, :unless, %{})))
     specs = params |> Keyword.get(:behaviours, @default_behaviours) |> Enum.map(&spec/1)
@@ -106,6 +148,7 @@ defmodule ThinkingCap.Control.Blender do
       robot: robot,
       blend: Blend.init(behaviours: specs),
       limits: limits,
+      ceiling: if(is_binary(context[:rdf]), do: ceiling),
       radius: radius,
       curvature: curvature,
       stop_states: Keyword.get(params, :stop_states, @stop_states),
@@ -120,7 +163,28 @@ defmodule ThinkingCap.Control.Blender do
       subscribe: {:plan, robot, :_}
     ]
 
-    {subscribe, state}
+    # the limits it drives within, as its params: shown and recorded
+    shown = for {key, value} <- limits, do: {:set_param, key, value}
+    {subscribe ++ Enum.sort(shown), state}
+  end
+
+  defp number(x) when is_number(x), do: x * 1.0
+  defp number(_), do: nil
+
+  @doc """
+  A live change of `max_speed` or `max_turn_rate` (the others are
+  read-only): the next cycle blends within it. Above the RDF's limit it
+  is refused.
+  """
+  @impl true
+  def handle_param(key, value, state) when key in [:max_speed, :max_turn_rate] do
+    case state.ceiling do
+      %{^key => max} when value > max ->
+        {:error, "#{value} is above the robot's #{key} of #{max} (its RDF)", state}
+
+      _ ->
+        {[], %{state | limits: Map.put(state.limits, key, value)}}
+    end
   end
 
   defp robot_limits(_params, %{rdf: rdf} = context) when is_binary(rdf) do
@@ -138,9 +202,9 @@ defmodule ThinkingCap.Control.Blender do
 
   defp robot_limits(params, _context) do
     {%{
-       max_speed: Keyword.get(params, :max_speed, 0.5) * 1.0,
-       max_turn_rate: Keyword.get(params, :max_turn_rate, 1.5) * 1.0
-     }, Keyword.get(params, :radius, 0.2) * 1.0, :infinity}
+       max_speed: number(Keyword.get(params, :max_speed)) || 0.5,
+       max_turn_rate: number(Keyword.get(params, :max_turn_rate)) || 1.5
+     }, (number(Keyword.get(params, :radius)) || 0.2) * 1.0, :infinity}
   end
 
   defp spec(name) when is_map_key(@named, name), do: {name, @named[name], [], []}

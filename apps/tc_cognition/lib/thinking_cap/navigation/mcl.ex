@@ -98,6 +98,13 @@ defmodule ThinkingCap.Navigation.MCL do
       end in unknown space, and pull the estimate off);
     * `lost_through` (0.2), `lost_hits` (0.6), `lost_after` (3),
       `search_step` (0.2 m), `search_headings` (72).
+
+  The params the filter reads as it runs (`beams`, `update_distance`,
+  `update_angle`, `publish_period`, `map_every`, `slam_wall`, `lost_*`,
+  `search_*`) are live parameters (`ThinkingCap.Module`): set while it
+  runs, the next reading uses them. `initial`, `initial_sigma`,
+  `particles`, `seed`, `sigma_hit`, `z_hit`, `z_rand` and `alphas` make
+  the filter at start and are read-only.
   """
 
   use ThinkingCap.Module
@@ -112,17 +119,20 @@ defmodule ThinkingCap.Navigation.MCL do
   @params [
     initial:
       {{:or, [:point_or_pose, :place]},
-       default: {0.0, 0.0, 0.0}, doc: "the start pose, or a waypoint's name"},
-    initial_sigma: {@pair, default: {0.2, 0.1}, doc: "{σ_xy m, σ_θ rad} of the start pose"},
-    particles: {{:int_range, 10, 100_000}, default: 500, doc: "particles"},
+       default: {0.0, 0.0, 0.0}, read_only: true, doc: "the start pose, or a waypoint's name"},
+    initial_sigma:
+      {@pair, default: {0.2, 0.1}, read_only: true, doc: "{σ_xy m, σ_θ rad} of the start pose"},
+    particles: {{:int_range, 10, 100_000}, default: 500, read_only: true, doc: "particles"},
     beams: {{:int_range, 1, 4096}, default: 40, doc: "beams of a scan weighed"},
-    seed: {:integer, default: 1, doc: "random seed"},
-    sigma_hit: {:pos_number, default: 0.1, doc: "sensor model σ, m"},
-    z_hit: {:probability, default: 0.9, doc: "sensor model: share of hits"},
-    z_rand: {:probability, default: 0.1, doc: "sensor model: share of noise"},
+    seed: {:integer, default: 1, read_only: true, doc: "random seed"},
+    sigma_hit: {:pos_number, default: 0.1, read_only: true, doc: "sensor model σ, m"},
+    z_hit: {:probability, default: 0.9, read_only: true, doc: "sensor model: share of hits"},
+    z_rand: {:probability, default: 0.1, read_only: true, doc: "sensor model: share of noise"},
     alphas:
       {{:tuple, List.duplicate(:non_neg_number, 4)},
-       default: nil, doc: "motion model {α1..α4} (default from the RDF's odometry_error)"},
+       default: nil,
+       read_only: true,
+       doc: "motion model {α1..α4} (default from the RDF's odometry_error)"},
     update_distance: {:non_neg_number, default: 0.05, doc: "m moved between weighings"},
     update_angle: {:non_neg_number, default: 0.05, doc: "rad turned between weighings"},
     publish_period: {:pos_number, default: 0.1, doc: "s between estimates from odometry"},
@@ -140,6 +150,17 @@ defmodule ThinkingCap.Navigation.MCL do
   @impl true
   @spec params() :: keyword()
   def params, do: @params
+
+  @doc """
+  A live change of a param the filter reads as it runs (`beams`,
+  `update_distance`, `update_angle`, `publish_period`, `map_every`,
+  `slam_wall`, `lost_*`, `search_*`): the next reading uses it. Those
+  that made the filter at start (`initial`, `particles`, `seed`, the
+  sensor and motion models) are read-only.
+  """
+  @impl true
+  def handle_param(key, value, state),
+    do: {[], %{state | params: Keyword.put(state.params, key, value)}}
 
   # weighings a fresh cloud of particles gets before it may be judged lost
   @settling 10

@@ -57,10 +57,13 @@ defmodule ThinkingCap.Control.BlenderTest do
       File.write!(rdf, @rdf)
       {actions, state} = Blender.init([], context(rdf))
 
+      # the limits it drives within are set as its params, to be shown
       assert actions == [
-               subscribe: {:lps, :r1, :_},
-               subscribe: {:pose, :r1, :_},
-               subscribe: {:plan, :r1, :_}
+               {:subscribe, {:lps, :r1, :_}},
+               {:subscribe, {:pose, :r1, :_}},
+               {:subscribe, {:plan, :r1, :_}},
+               {:set_param, :max_speed, 0.6},
+               {:set_param, :max_turn_rate, 1.8}
              ]
 
       assert state.limits == %{max_speed: 0.6, max_turn_rate: 1.8}
@@ -232,6 +235,52 @@ defmodule ThinkingCap.Control.BlenderTest do
 
     assert {:drive, :r1, %{command: {:velocity, +0.0, +0.0}}} =
              Lockstep.latest(lock, {:drive, :r1, :_})
+  end
+
+  describe "live parameters" do
+    @tag :tmp_dir
+    test "max_speed set while it runs bounds the next cycle; above the RDF's it is refused",
+         %{tmp_dir: dir} do
+      rdf = Path.join(dir, "robot.rdf")
+      File.write!(rdf, @rdf)
+
+      lock =
+        Lockstep.new(robot: :r1, rdf: rdf, modules: [control: {Blender, [], period: 0.1}])
+        |> Lockstep.deliver({:lps, :r1, LPS.empty()})
+        |> Lockstep.deliver(@pose)
+        |> Lockstep.deliver({:plan, :r1, %{goal: {5.0, 0.0}, state: :going}})
+
+      # the RDF's limits, shown as its params
+      assert %{max_speed: 0.6, max_turn_rate: 1.8, radius: 0.2} = Lockstep.params(lock, :control)
+      lock = Lockstep.advance(lock, 0.0)
+
+      assert {:drive, :r1, %{command: {:velocity, v, _}}} =
+               Lockstep.latest(lock, {:drive, :r1, :_})
+
+      assert v > 0.8 * 0.6
+
+      assert {:ok, lock} = Lockstep.set_param(lock, :control, :max_speed, 0.2)
+      lock = Lockstep.advance(lock, 0.1)
+
+      assert {:drive, :r1, %{command: {:velocity, v, _}}} =
+               Lockstep.latest(lock, {:drive, :r1, :_})
+
+      assert v > 0.8 * 0.2 and v <= 0.2
+
+      assert {:param, :r1, %{module: :control, key: :max_speed, value: 0.2}} =
+               Lockstep.latest(lock, {:param, :r1, :_})
+
+      assert {:error,
+              "ThinkingCap.Control.Blender refused max_speed: 0.9 is above the robot's max_speed of 0.6 (its RDF)"} =
+               Lockstep.set_param(lock, :control, :max_speed, 0.9)
+
+      assert {:error, "max_speed: expected a number from 0.0 to 10.0, got -1"} =
+               Lockstep.set_param(lock, :control, :max_speed, -1)
+
+      assert {:error, message} = Lockstep.set_param(lock, :control, :behaviours, [:avoid])
+      assert message =~ "read-only"
+      assert Lockstep.params(lock, :control).max_speed == 0.2
+    end
   end
 
   describe "a car-like robot" do

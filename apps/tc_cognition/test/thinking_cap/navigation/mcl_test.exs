@@ -297,4 +297,37 @@ defmodule ThinkingCap.Navigation.MCLTest do
       MCL.init([initial: :nowhere], %{name: :localization, robot: :r, rdf: @rdf, wdf: @office})
     end
   end
+
+  test "publish_period is a live parameter; the filter's make-up is read-only" do
+    lock =
+      Lockstep.new(
+        robot: :r,
+        rdf: @rdf,
+        wdf: @office,
+        modules: [localization: {MCL, [initial: {1.0, 1.0, 0.0}]}]
+      )
+
+    # odometry alone for a second, every 50 ms: the estimates it publishes
+    odometry = fn lock, from ->
+      lock = Lockstep.clear_outs(lock)
+
+      lock =
+        Enum.reduce(0..19, lock, fn i, lock ->
+          t = from + i * 0.05
+          Lockstep.deliver(lock, {:odom, :r, %{pose: {t * 0.1, 0.0, 0.0}, stamp: t}})
+        end)
+
+      {lock, Enum.count(Lockstep.outs(lock), &match?({:pose, :r, _}, &1))}
+    end
+
+    {lock, every_tenth} = odometry.(lock, 0.0)
+    assert every_tenth >= 9
+
+    assert {:ok, lock} = Lockstep.set_param(lock, :localization, :publish_period, 0.5)
+    {lock, every_half} = odometry.(lock, 1.0)
+    assert every_half in 2..3
+
+    assert {:error, message} = Lockstep.set_param(lock, :localization, :particles, 100)
+    assert message =~ "particles of ThinkingCap.Navigation.MCL is read-only"
+  end
 end

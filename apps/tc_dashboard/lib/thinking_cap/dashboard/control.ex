@@ -10,7 +10,9 @@ defmodule ThinkingCap.Dashboard.Control do
     * `teleop_release/2` hands control back at once;
     * `estop/2` and `estop_release/2` latch and release the E-stop;
     * `goal/2` gives the planner a go-to task;
-    * `restart/1` restarts a module through `ThinkingCap.Runtime`.
+    * `restart/1` restarts a module through `ThinkingCap.Runtime`;
+    * `params/1` and `set_param/5` read and set modules' live parameters
+      (`ThinkingCap.Runtime.set_param/4`), with values from a client's JSON.
 
   Callers check the access rights; these functions check the arguments.
   """
@@ -134,6 +136,75 @@ defmodule ThinkingCap.Dashboard.Control do
          "module #{name} runs for robots #{Enum.map_join(several, ", ", & &1.robot)}: name the robot"}
     end
   end
+
+  @doc """
+  The params of every running module of `robot` that declares some
+  (`ThinkingCap.Runtime.describe_params/1`), by module name.
+  """
+  @spec params(robot()) :: [ThinkingCap.Runtime.params_info()]
+  def params(robot) do
+    for %{robot: ^robot, name: name} <- ThinkingCap.Runtime.which_modules(),
+        {:ok, %{fields: [_ | _]} = info} <- [ThinkingCap.Runtime.describe_params({robot, name})],
+        do: info
+  end
+
+  @doc """
+  Sets param `key` of `robot`'s running module `name` (strings from a
+  client) to `value` as JSON gave it: a choice's name becomes the choice
+  (never a new atom), and params of types a form cannot give (`input:
+  :other`) are refused. Then the runtime checks it against the module's
+  schema (`ThinkingCap.Runtime.set_param/4`, `by:` who): the error says
+  why not (the range, the type, read-only).
+  """
+  @spec set_param(robot(), String.t(), String.t(), term(), term()) :: :ok | {:error, String.t()}
+  def set_param(robot, name, key, value, by \\ nil) do
+    with {:ok, info} <- running(robot, name),
+         {:ok, field} <- field(info, key),
+         {:ok, value} <- from_json(field, value) do
+      ThinkingCap.Runtime.set_param({robot, info.name}, field.key, value, by: by)
+    end
+  end
+
+  defp running(robot, name) do
+    case Enum.find(
+           ThinkingCap.Runtime.which_modules(),
+           &(&1.robot == robot and to_string(&1.name) == name)
+         ) do
+      nil -> {:error, "no module #{inspect(name)} is running for robot #{robot}"}
+      %{name: name} -> ThinkingCap.Runtime.describe_params({robot, name})
+    end
+  end
+
+  defp field(info, key) do
+    case Enum.find(info.fields, &(Atom.to_string(&1.key) == key)) do
+      nil ->
+        known = Enum.map_join(info.fields, ", ", & &1.key)
+        known = if known == "", do: "it declares none", else: "its params: #{known}"
+        {:error, "module #{info.name} has no param #{inspect(key)} (#{known})"}
+
+      field ->
+        {:ok, field}
+    end
+  end
+
+  defp from_json(%{input: :choice, choices: choices} = field, value) when is_binary(value) do
+    case Enum.find(choices, &(to_string(&1) == value)) do
+      nil ->
+        {:error,
+         "#{field.key}: expected one of #{Enum.map_join(choices, ", ", &to_string/1)}, got #{inspect(value, printable_limit: 40)}"}
+
+      choice ->
+        {:ok, choice}
+    end
+  end
+
+  defp from_json(%{input: :other} = field, _value),
+    do: {:error, "#{field.key} (#{field.type}) cannot be set from the dashboard"}
+
+  defp from_json(_field, value) when is_map(value) or is_list(value),
+    do: {:error, "a param's value is a number, a boolean or a string"}
+
+  defp from_json(_field, value), do: {:ok, value}
 
   defp limits(robot) do
     case Blackboard.rdp({:robot, robot, :_}) do

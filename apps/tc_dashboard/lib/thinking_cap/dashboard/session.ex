@@ -198,6 +198,28 @@ defmodule ThinkingCap.Dashboard.Session do
     end
   end
 
+  # a robot's modules' params, with their schemas (anyone who sees the robot)
+  defp handle("params", m, state) do
+    with {:ok, robot} <- robot(m) do
+      modules =
+        for info <- Control.params(robot),
+            do: %{name: info.name, module: info.module, live: info.live, fields: info.fields}
+
+      {:ok, encode(%{op: :params, id: m["id"], robot: robot, modules: modules}), state}
+    end
+  end
+
+  defp handle("set_param", m, state) do
+    with :ok <- may_control(m, state),
+         {:ok, robot} <- robot(m),
+         {:ok, name} <- string(m, "module"),
+         {:ok, key} <- string(m, "key"),
+         {:ok, value} <- param_value(m),
+         :ok <- wrap(m, Control.set_param(robot, name, key, value, state.by)) do
+      {:ok, ok(m), state}
+    end
+  end
+
   defp handle("query", m, state) do
     with {:ok, template} <- template(m) do
       tuples = Blackboard.rd_all(template)
@@ -257,6 +279,15 @@ defmodule ThinkingCap.Dashboard.Session do
          "#{field} must be a number, not #{inspect(other, limit: 5, printable_limit: 40)}"}
     end
   end
+
+  # a param's value: a number, a boolean or a short string
+  defp param_value(%{"value" => v}) when is_number(v) or is_boolean(v), do: {:ok, v}
+  defp param_value(%{"value" => v}) when is_binary(v) and byte_size(v) <= 256, do: {:ok, v}
+
+  defp param_value(m),
+    do:
+      {:error, m["id"],
+       "set_param needs \"value\": a number, true or false, or a string of at most 256 bytes"}
 
   defp string(m, field) do
     case m[field] do

@@ -6,7 +6,9 @@ defmodule ThinkingCap.Config.Schema do
   `ThinkingCap.Config.RDF` and `ThinkingCap.Config.WDF`).
 
   A schema is data. A field is `{type, opts}` with `required: true` or
-  `default: value` and `doc: "..."`. Types:
+  `default: value` and `doc: "..."`; a module's param (`c:ThinkingCap.Module.params/0`)
+  may add `read_only: true`: it is set in the ADF and read when the module
+  starts, never changed while it runs (live parameters refuse it). Types:
 
     * scalars: `:atom`, `:string`, `:boolean`, `:module`, `:number`,
       `:pos_number`, `:non_neg_number`, `:probability` (0..1), `:integer`,
@@ -114,7 +116,8 @@ defmodule ThinkingCap.Config.Schema do
             true -> "optional"
           end
 
-        "| `#{key}` | #{type_name(type)} | #{default} | #{opts[:doc]} |"
+        read_only = if opts[:read_only], do: " (read-only while running)", else: ""
+        "| `#{key}` | #{type_name(type)} | #{default} | #{opts[:doc]}#{read_only} |"
       end
 
     Enum.join(["| key | type | default | meaning |", "|---|---|---|---|" | rows], "\n")
@@ -413,14 +416,16 @@ defmodule ThinkingCap.Config.Schema do
     )
   end
 
-  defp type_name({:keyword, _}), do: "keyword list (below)"
-  defp type_name({:keyword_of, type}), do: "`name: #{type_name(type)}` entries"
-  defp type_name({:list, type}), do: "list of #{type_name(type)}"
-  defp type_name({:one_of, values}), do: Enum.map_join(values, " \\| ", &"`#{inspect(&1)}`")
-  defp type_name({:int_range, a, b}), do: "integer #{a}..#{b}"
-  defp type_name({:number_range, a, b}), do: "number #{a}..#{b}"
-  defp type_name({:tuple, types}), do: "{#{Enum.map_join(types, ", ", &type_name/1)}}"
-  defp type_name({:or, types}), do: Enum.map_join(types, " or ", &type_name/1)
-  defp type_name(:place), do: "waypoint, room or door name"
-  defp type_name(type), do: "#{type}"
+  @doc "A type as the tables of `describe/1` name it: `number 0.0..2.0`, `true or false`..."
+  @spec type_name(type()) :: String.t()
+  def type_name({:keyword, _}), do: "keyword list (below)"
+  def type_name({:keyword_of, type}), do: "`name: #{type_name(type)}` entries"
+  def type_name({:list, type}), do: "list of #{type_name(type)}"
+  def type_name({:one_of, values}), do: Enum.map_join(values, " \\| ", &"`#{inspect(&1)}`")
+  def type_name({:int_range, a, b}), do: "integer #{a}..#{b}"
+  def type_name({:number_range, a, b}), do: "number #{a}..#{b}"
+  def type_name({:tuple, types}), do: "{#{Enum.map_join(types, ", ", &type_name/1)}}"
+  def type_name({:or, types}), do: Enum.map_join(types, " or ", &type_name/1)
+  def type_name(:place), do: "waypoint, room or door name"
+  def type_name(type), do: "#{type}"
 end

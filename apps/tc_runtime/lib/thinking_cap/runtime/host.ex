@@ -8,6 +8,7 @@ defmodule ThinkingCap.Runtime.Host do
   require Logger
 
   alias ThinkingCap.{Blackboard, Cycle}
+  alias ThinkingCap.Module.Core.{Actions, Params}
 
   def start_link(spec), do: GenServer.start_link(__MODULE__, spec)
 
@@ -24,6 +25,8 @@ defmodule ThinkingCap.Runtime.Host do
     Process.flag(:priority, priority(spec.activity))
     Enum.each(groups(spec), &(:ok = :pg.join(ThinkingCap.Runtime.scope(), &1, self())))
 
+    params = Params.init(spec.module, spec.params)
+
     context = %{
       name: spec.name,
       robot: spec.robot,
@@ -31,17 +34,19 @@ defmodule ThinkingCap.Runtime.Host do
       activity: spec.activity,
       rdf: Map.get(spec, :rdf),
       wdf: Map.get(spec, :wdf),
-      handoff: Map.get(spec, :handoff)
+      handoff: Map.get(spec, :handoff),
+      params: params.values
     }
 
-    {actions, module_state} =
-      normalize(spec.module.init(spec.params, context), spec.module, :init)
+    {effects, module_state} =
+      interpret(spec.module.init(spec.params, context), spec.module, :init, spec.activity)
 
     state = %{
       spec: spec,
       module: spec.module,
       mstate: module_state,
       context: context,
+      params: params,
       started: System.system_time(:millisecond)
     }
 
@@ -51,7 +56,7 @@ defmodule ThinkingCap.Runtime.Host do
             do: {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
 
         if handing_off?(spec), do: send(self(), :tc_handoff)
-        {:ok, run(actions, state)}
+        {:ok, run(effects, state)}
 
       {:error, reason} ->
         # the module's init may have opened what its terminate closes; and
@@ -94,11 +99,9 @@ defmodule ThinkingCap.Runtime.Host do
     release = newest_release(name, release)
     started = System.monotonic_time()
 
-    {actions, mstate} =
-      normalize(state.module.handle_cycle(release, state.mstate), state.module, :handle_cycle)
+    {[{:cycle_result, command, wire} | effects], mstate} =
+      callback(state, :handle_cycle, [release, state.mstate])
 
-    {command, actions} = take_last(actions, :command)
-    {wire, actions} = take_last(actions, :wire)
     if wire, do: Cycle.result(release, command, wire), else: Cycle.result(release, command)
 
     Cycle.record_cpu(
@@ -106,32 +109,26 @@ defmodule ThinkingCap.Runtime.Host do
       System.convert_time_unit(System.monotonic_time() - started, :native, :nanosecond)
     )
 
-    {:noreply, run(actions, %{state | mstate: mstate})}
+    {:noreply, run(effects, %{state | mstate: mstate})}
   end
 
   def handle_info({:tc_cycle, :applied, name, event}, %{spec: %{name: name}} = state) do
-    {actions, mstate} =
-      normalize(state.module.handle_applied(event, state.mstate), state.module, :handle_applied)
-
-    {:noreply, run(actions, %{state | mstate: mstate})}
+    {effects, mstate} = callback(state, :handle_applied, [event, state.mstate])
+    {:noreply, run(effects, %{state | mstate: mstate})}
   end
 
   def handle_info({:blackboard, _ref, tuple}, state) do
-    {actions, mstate} =
-      normalize(state.module.handle_tuple(tuple, state.mstate), state.module, :handle_tuple)
-
-    {:noreply, run(actions, %{state | mstate: mstate})}
+    {effects, mstate} = callback(state, :handle_tuple, [tuple, state.mstate])
+    {:noreply, run(effects, %{state | mstate: mstate})}
   end
 
   def handle_info(:tc_background, state) do
-    {actions, mstate} =
-      normalize(state.module.handle_background(state.mstate), state.module, :handle_background)
-
+    {effects, mstate} = callback(state, :handle_background, [state.mstate])
     send(self(), :tc_background)
-    {:noreply, run(actions, %{state | mstate: mstate})}
+    {:noreply, run(effects, %{state | mstate: mstate})}
   end
 
-  def handle_info({:tc_run_actions, actions}, state), do: {:noreply, run(actions, state)}
+  def handle_info({:tc_run_effects, effects}, state), do: {:noreply, run(effects, state)}
 
   # never blocking on a busy or dead link (:noconnect): a handoff lost is
   # replaced by the next one
@@ -154,10 +151,8 @@ defmodule ThinkingCap.Runtime.Host do
     do: {:noreply, state}
 
   def handle_info(message, state) do
-    {actions, mstate} =
-      normalize(state.module.handle_info(message, state.mstate), state.module, :handle_info)
-
-    {:noreply, run(actions, %{state | mstate: mstate})}
+    {effects, mstate} = callback(state, :handle_info, [message, state.mstate])
+    {:noreply, run(effects, %{state | mstate: mstate})}
   end
 
   @impl true
@@ -175,26 +170,67 @@ defmodule ThinkingCap.Runtime.Host do
     {:reply, info, state}
   end
 
+  def handle_call(:params, _from, state) do
+    params = %{
+      name: state.spec.name,
+      robot: state.spec.robot,
+      module: state.module,
+      live: state.params.live,
+      values: state.params.values,
+      fields: Params.describe(state.params)
+    }
+
+    {:reply, params, state}
+  end
+
+  # a live change of a param (ThinkingCap.Runtime.set_param/4): checked,
+  # seen by the module's handle_param/3, recorded on the blackboard; a
+  # release queued meanwhile sees the new value
+  def handle_call({:set_param, key, value, by}, _from, state) do
+    case set_param(state, key, value, by, false) do
+      {:ok, state} -> {:reply, :ok, state}
+      {:error, message, state} -> {:reply, {:error, message}, state}
+    end
+  end
+
   # Replaced in place, between two messages: the activity, its cycle slot
   # and its subscriptions stay, so no release is missed.
   def handle_call({:swap, new_module}, _from, state) do
     mstate =
       if Code.ensure_loaded?(new_module) and function_exported?(new_module, :handle_swap, 3) do
-        {:ok, mstate} = new_module.handle_swap(state.module, state.mstate, state.context)
+        {[], mstate} =
+          new_module.handle_swap(state.module, state.mstate, state.context)
+          |> interpret(new_module, :handle_swap, state.spec.activity)
+
         mstate
       else
-        {actions, mstate} =
-          normalize(new_module.init(state.spec.params, state.context), new_module, :init)
+        {effects, mstate} =
+          new_module.init(state.spec.params, state.context)
+          |> interpret(new_module, :init, state.spec.activity)
 
         # init's actions run below, with the new module in place
-        send(self(), {:tc_run_actions, actions})
+        send(self(), {:tc_run_effects, effects})
         mstate
       end
 
     state.module.terminate(:swapped, state.mstate)
+    # the new module's schema, the values set so far kept where it declares them
+    params = Params.init(new_module, state.spec.params)
+
+    params = %{
+      params
+      | values: Map.merge(params.values, Map.take(state.params.values, Map.keys(params.values)))
+    }
 
     {:reply, :ok,
-     %{state | module: new_module, mstate: mstate, spec: %{state.spec | module: new_module}}}
+     %{
+       state
+       | module: new_module,
+         mstate: mstate,
+         params: params,
+         context: %{state.context | params: params.values},
+         spec: %{state.spec | module: new_module}
+     }}
   end
 
   @impl true
@@ -223,24 +259,53 @@ defmodule ThinkingCap.Runtime.Host do
     end
   end
 
-  defp normalize({:ok, state}, _module, _callback), do: {[], state}
-  defp normalize({actions, state}, _module, _callback) when is_list(actions), do: {actions, state}
+  # a callback's result read by the one core both Host and Lockstep use
+  # (ThinkingCap.Module.Core.Actions); what it cannot read stops the module
+  # with an error naming the module and the callback
+  defp callback(state, name, args),
+    do: interpret(apply(state.module, name, args), state.module, name, state.spec.activity)
 
-  defp normalize(other, module, callback) do
-    raise ArgumentError,
-          "#{inspect(module)}.#{callback} must return {actions, state} (or {:ok, state} from init), got: #{inspect(other, limit: 10)}"
+  defp interpret(result, module, callback, activity) do
+    case Actions.interpret(result, module, callback, activity) do
+      {:ok, effects, mstate} -> {effects, mstate}
+      {:error, error} -> raise error
+    end
   end
 
-  # the last {key, value} action of handle_cycle (nil without one), and the others
-  defp take_last(actions, key) do
-    case Enum.split_with(actions, &match?({^key, _}, &1)) do
-      {[], rest} -> {nil, rest}
-      {taken, rest} -> {taken |> List.last() |> elem(1), rest}
+  defp set_param(state, key, value, by, own) do
+    case Params.set(
+           state.params,
+           state.module,
+           state.mstate,
+           key,
+           value,
+           state.spec.activity,
+           own
+         ) do
+      {:ok, value, effects, mstate, params} ->
+        {tuple, opts} = Params.record(state.spec.robot, state.spec.name, key, value, by)
+        Blackboard.out(tuple, opts)
+
+        state = %{
+          state
+          | mstate: mstate,
+            params: params,
+            context: %{state.context | params: params.values}
+        }
+
+        {:ok, run(effects, state)}
+
+      {:error, message, mstate} ->
+        {:error, message, %{state | mstate: mstate}}
+
+      {:crash, error} ->
+        raise error
     end
   end
 
   # the module keeps running without a wire when its device cannot be opened
-  defp attach_wire(%{spec: %{activity: :periodic, name: name}}, device, fallback) do
+  # (Core.Actions lets :attach_wire through for periodic modules only)
+  defp attach_wire(%{spec: %{name: name}}, device, fallback) do
     case Cycle.attach_wire(name, device, fallback) do
       :ok ->
         :ok
@@ -253,40 +318,41 @@ defmodule ThinkingCap.Runtime.Host do
     end
   end
 
-  defp attach_wire(state, device, _fallback) do
-    Logger.error(
-      "#{inspect(state.spec.name)}: an :attach_wire action (#{inspect(device)}) needs a periodic activity"
-    )
-  end
-
   defp run([], state), do: state
 
-  defp run([action | rest], state) do
-    case action do
-      {:out, {tuple, opts}} when is_tuple(tuple) and is_list(opts) ->
-        Blackboard.out(tuple, opts)
+  defp run([effect | rest], state) do
+    state =
+      case effect do
+        {:out, tuple, opts} ->
+          Blackboard.out(tuple, opts)
+          state
 
-      {:out, tuple} when is_tuple(tuple) ->
-        Blackboard.out(tuple)
+        {:subscribe, template} ->
+          {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
+          state
 
-      {:subscribe, template} ->
-        {:ok, _} = Blackboard.subscribe(template, max_queue: 10_000)
+        {:attach_wire, device, fallback} ->
+          attach_wire(state, device, fallback)
+          state
 
-      {kind, _} when kind in [:command, :wire] ->
-        Logger.warning(
-          "#{inspect(state.spec.name)}: a #{inspect(kind)} action only counts in handle_cycle/2"
-        )
+        :detach_wire ->
+          :ok = Cycle.detach_wire(state.spec.name)
+          state
 
-      {:attach_wire, device, fallback} ->
-        attach_wire(state, device, fallback)
+        {:set_param, key, value} ->
+          case set_param(state, key, value, {:module, state.spec.name}, true) do
+            {:ok, state} ->
+              state
 
-      {:detach_wire} ->
-        if state.spec.activity == :periodic, do: :ok = Cycle.detach_wire(state.spec.name)
+            {:error, message, state} ->
+              Logger.warning("#{inspect(state.spec.name)}: a :set_param action: #{message}")
+              state
+          end
 
-      other ->
-        raise ArgumentError,
-              "#{inspect(state.module)}: unknown action #{inspect(other, limit: 10)}"
-    end
+        {:warning, message} ->
+          Logger.warning("#{inspect(state.spec.name)}: #{message}")
+          state
+      end
 
     run(rest, state)
   end

@@ -28,9 +28,19 @@ defmodule ThinkingCap.Testing.Lockstep do
   handed back to the module as applied (`handle_applied/2`, `:fresh`,
   `wired: false`: there is no timing worker to own a wire, so
   `:attach_wire` actions do nothing and the module drives its device).
+
+  Callback results are read by the same core as the runtime's
+  (`ThinkingCap.Module`'s actions): a module that returns an unknown or
+  malformed action raises `ThinkingCap.Module.ActionError` here as it
+  would stop in the runtime. Live parameters too: `set_param/5` checks a
+  change against the module's declared schema and hands it to its
+  `handle_param/3`, and the accepted change is written as the runtime
+  writes it (`{:param, robot, %{module:, key:, value:, by:, at:}}`).
   """
 
   alias ThinkingCap.Blackboard.Template
+  alias ThinkingCap.Module.ActionError
+  alias ThinkingCap.Module.Core.{Actions, Params}
 
   defstruct robot: nil,
             context: %{},
@@ -56,17 +66,28 @@ defmodule ThinkingCap.Testing.Lockstep do
       period = opts[:period]
       activity = if period, do: :periodic, else: :event
 
+      mparams = Params.init(module, params)
+
       context =
         lock.context
-        |> Map.merge(%{name: name, activity: activity})
+        |> Map.merge(%{name: name, activity: activity, handoff: nil, params: mparams.values})
         |> Map.merge(Map.new(Keyword.take(opts, [:rdf, :wdf])))
 
-      {actions, mstate} = normalize(module.init(params, context))
+      {effects, mstate} = interpret(module.init(params, context), module, :init, activity)
 
-      entry = %{module: module, state: mstate, period: period, next: 0.0, cycle: 0}
+      entry = %{
+        module: module,
+        state: mstate,
+        period: period,
+        next: 0.0,
+        cycle: 0,
+        activity: activity,
+        params: mparams
+      }
+
       lock = %{lock | modules: Map.put(lock.modules, name, entry), order: lock.order ++ [name]}
       subscribe = for t <- Keyword.get(opts, :subscribe, []), do: {:subscribe, t}
-      run(lock, name, subscribe ++ actions)
+      run(lock, name, subscribe ++ effects)
     end)
   end
 
@@ -100,20 +121,20 @@ defmodule ThinkingCap.Testing.Lockstep do
       released_ns: round(time * 1.0e9)
     }
 
-    {actions, s} = normalize(m.handle_cycle(release, s))
-    {commands, actions} = Enum.split_with(actions, &match?({:command, _}, &1))
+    {[{:cycle_result, command, _wire} | effects], s} =
+      interpret(m.handle_cycle(release, s), m, :handle_cycle, :periodic)
 
     lock =
       lock
       |> put_state(name, s)
       |> update_in([Access.key(:modules), name], &%{&1 | cycle: n + 1, next: next + p})
-      |> run(name, actions)
+      |> run(name, effects)
 
-    case List.last(commands) do
+    case command do
       nil ->
         lock
 
-      {:command, command} ->
+      command ->
         %{module: m, state: s} = lock.modules[name]
 
         applied = %{
@@ -125,8 +146,8 @@ defmodule ThinkingCap.Testing.Lockstep do
           applied_ns: release.released_ns
         }
 
-        {actions, s} = normalize(m.handle_applied(applied, s))
-        lock |> put_state(name, s) |> run(name, actions)
+        {effects, s} = interpret(m.handle_applied(applied, s), m, :handle_applied, :periodic)
+        lock |> put_state(name, s) |> run(name, effects)
     end
   end
 
@@ -152,28 +173,74 @@ defmodule ThinkingCap.Testing.Lockstep do
   @spec state(t(), atom()) :: term()
   def state(lock, name), do: lock.modules[name].state
 
+  @doc "A module's params as they stand (its declared fields with their defaults)."
+  @spec params(t(), atom()) :: map()
+  def params(lock, name), do: lock.modules[name].params.values
+
+  @doc """
+  Sets module `name`'s param `key` to `value` while it runs, as
+  `ThinkingCap.Runtime.set_param/4` does: checked against the module's
+  schema, handed to its `handle_param/3`, recorded as a `{:param, ...}`
+  tuple. Options: `by:` who asks (default `:test`).
+  """
+  @spec set_param(t(), atom(), atom(), term(), keyword()) :: {:ok, t()} | {:error, String.t()}
+  def set_param(lock, name, key, value, opts \\ []) do
+    case set(lock, name, key, value, Keyword.get(opts, :by, :test), false) do
+      {:ok, lock} -> {:ok, lock}
+      # a refusal changes nothing
+      {:error, message, _lock} -> {:error, message}
+    end
+  end
+
+  defp set(lock, name, key, value, by, own) do
+    %{module: m, state: s, activity: activity, params: params} = lock.modules[name]
+
+    case Params.set(params, m, s, key, value, activity, own) do
+      {:ok, value, effects, s, params} ->
+        {tuple, opts} = Params.record(lock.robot, name, key, value, by)
+
+        lock =
+          lock
+          |> put_state(name, s)
+          |> then(&put_in(&1.modules[name].params, params))
+          |> publish(tuple, opts)
+          |> run(name, effects)
+
+        {:ok, lock}
+
+      {:error, message, s} ->
+        {:error, message, put_state(lock, name, s)}
+
+      {:crash, error} ->
+        raise error
+    end
+  end
+
   defp run(lock, _name, []), do: lock
 
-  defp run(lock, name, [action | rest]) do
+  defp run(lock, name, [effect | rest]) do
     lock =
-      case action do
-        {:out, {tuple, opts}} when is_tuple(tuple) and is_list(opts) ->
+      case effect do
+        {:out, tuple, opts} ->
           publish(lock, tuple, opts)
-
-        {:out, tuple} when is_tuple(tuple) ->
-          publish(lock, tuple, [])
 
         {:subscribe, template} ->
           %{lock | subs: lock.subs ++ [{name, Template.compile(template)}]}
 
         # no timing worker here: a wire is not attached, its bytes go nowhere
-        {kind, _} when kind in [:command, :wire] ->
-          lock
-
         {:attach_wire, _device, _fallback} ->
           lock
 
-        {:detach_wire} ->
+        :detach_wire ->
+          lock
+
+        {:set_param, key, value} ->
+          case set(lock, name, key, value, {:module, name}, true) do
+            {:ok, lock} -> lock
+            {:error, _message, lock} -> lock
+          end
+
+        {:warning, _message} ->
           lock
       end
 
@@ -188,9 +255,9 @@ defmodule ThinkingCap.Testing.Lockstep do
   defp deliver_to_subscribers(lock, tuple) do
     Enum.reduce(lock.subs, lock, fn {name, template}, lock ->
       if Template.matches?(template, tuple) do
-        %{module: m, state: s} = lock.modules[name]
-        {actions, s} = normalize(m.handle_tuple(tuple, s))
-        lock |> put_state(name, s) |> run(name, actions)
+        %{module: m, state: s, activity: activity} = lock.modules[name]
+        {effects, s} = interpret(m.handle_tuple(tuple, s), m, :handle_tuple, activity)
+        lock |> put_state(name, s) |> run(name, effects)
       else
         lock
       end
@@ -207,6 +274,11 @@ defmodule ThinkingCap.Testing.Lockstep do
 
   defp put_state(lock, name, s), do: put_in(lock.modules[name].state, s)
 
-  defp normalize({:ok, state}), do: {[], state}
-  defp normalize({actions, state}) when is_list(actions), do: {actions, state}
+  # the one reading of a callback's result, the runtime's (Core.Actions)
+  defp interpret(result, module, callback, activity) do
+    case Actions.interpret(result, module, callback, activity) do
+      {:ok, effects, state} -> {effects, state}
+      {:error, %ActionError{} = error} -> raise error
+    end
+  end
 end
