@@ -3,7 +3,7 @@ Code.require_file("../../mix/c_build.exs", __DIR__)
 defmodule Mix.Tasks.Compile.TcGrid do
   @moduledoc false
   # Builds the navigation grid NIF (c_src/tc_grid.c, tc_plan.c and
-  # tc_mcl.c, tc_slam.c -> priv/lib/tc_grid.so).
+  # tc_mcl.c, tc_slam.c, tc_edt.c -> priv/lib/tc_grid.so).
   use Mix.Task.Compiler
 
   # run inside the app's project (cwd), not the umbrella's
@@ -15,7 +15,13 @@ defmodule Mix.Tasks.Compile.TcGrid do
     ThinkingCap.Build.C.compile(
       "tc_grid",
       __DIR__,
-      ["c_src/tc_grid.c", "c_src/tc_plan.c", "c_src/tc_mcl.c", "c_src/tc_slam.c"],
+      [
+        "c_src/tc_grid.c",
+        "c_src/tc_plan.c",
+        "c_src/tc_mcl.c",
+        "c_src/tc_slam.c",
+        "c_src/tc_edt.c"
+      ],
       @target,
       nif: true,
       ldflags: ["-lm"]

@@ -32,6 +32,7 @@
 
 #include "tc_mcl.h"
 #include "tc_slam.h"
+#include "tc_edt.h"
 #include "tc_plan.h"
 #include <stdint.h>
 #include <stdlib.h>
@@ -489,69 +490,6 @@ static int get_grid(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifBinary *b, 
            b->size == (size_t)*w * *h;
 }
 
-/* squared distance transform of one line (Felzenszwalb & Huttenlocher):
- * d[q] = min over p of (q - p)^2 + f[p]; f is 0 at seeds, 1e20 elsewhere */
-static void dt1(const double *f, double *d, int n, int *v, double *z)
-{
-    int k = 0;
-    v[0] = 0;
-    z[0] = -INFINITY;
-    z[1] = INFINITY;
-    for (int q = 1; q < n; q++) {
-        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
-        while (s <= z[k]) {
-            k--;
-            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
-        }
-        k++;
-        v[k] = q;
-        z[k] = s;
-        z[k + 1] = INFINITY;
-    }
-    k = 0;
-    for (int q = 0; q < n; q++) {
-        while (z[k + 1] < q) k++;
-        double dq = q - v[k];
-        d[q] = dq * dq + f[v[k]];
-    }
-}
-
-/* squared distances (cells) from every cell to the nearest cell with a
- * non-zero byte; INFINITY where there is none */
-static double *edt2(const unsigned char *cells, int w, int h)
-{
-    size_t n = (size_t)w * h;
-    int m = w > h ? w : h;
-    double *g = malloc(n * sizeof(double));
-    double *f = calloc(m, sizeof(double)), *d = calloc(m, sizeof(double));
-    double *z = malloc((m + 1) * sizeof(double));
-    int *v = malloc(m * sizeof(int));
-    if (!g || !f || !d || !z || !v) {
-        free(g);
-        free(f);
-        free(d);
-        free(z);
-        free(v);
-        return NULL;
-    }
-    const double big = 1e20;
-    for (int c = 0; c < w; c++) {
-        for (int r = 0; r < h; r++) f[r] = cells[(size_t)r * w + c] ? 0.0 : big;
-        dt1(f, d, h, v, z);
-        for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r];
-    }
-    for (int r = 0; r < h; r++) {
-        for (int c = 0; c < w; c++) f[c] = g[(size_t)r * w + c];
-        dt1(f, d, w, v, z);
-        for (int c = 0; c < w; c++) g[(size_t)r * w + c] = d[c] >= big / 2 ? INFINITY : d[c];
-    }
-    free(f);
-    free(d);
-    free(z);
-    free(v);
-    return g;
-}
-
 /* edt(cells, w, h) -> native float32 distances in cells (centre to
  * centre) to the nearest non-zero cell; a very large value if none */
 static ERL_NIF_TERM nif_edt(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -560,7 +498,7 @@ static ERL_NIF_TERM nif_edt(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     ErlNifBinary b;
     int w, h;
     if (!get_grid(env, argv, &b, &w, &h)) return enif_make_badarg(env);
-    double *g = edt2(b.data, w, h);
+    double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     ERL_NIF_TERM out;
     float *p = (float *)enif_make_new_binary(env, (size_t)w * h * sizeof(float), &out);
@@ -579,7 +517,7 @@ static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     double radius;
     if (!get_grid(env, argv, &b, &w, &h) || !get_number(env, argv[3], &radius) || radius < 0)
         return enif_make_badarg(env);
-    double *g = edt2(b.data, w, h);
+    double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     double r2 = radius * radius + 1e-9;
     ERL_NIF_TERM out;
@@ -716,7 +654,7 @@ static ERL_NIF_TERM nif_rooms(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         int8_t v = (int8_t)b.data[i];
         blocked[i] = !(v >= 0 && v < free_below);
     }
-    double *g = edt2(blocked, w, h);
+    double *g = tc_edt2(blocked, w, h);
     if (!g) {
         free(blocked);
         free(lab);

@@ -22,6 +22,7 @@
  * cell of a coarse lattice and every heading step, for relocalization.
  */
 #include "tc_mcl.h"
+#include "tc_edt.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -135,32 +136,6 @@ static double wrap(double a)
 
 /* ---- the likelihood field ---- */
 
-/* squared distance transform of a line (as tc_grid.c's) */
-static void dt1(const double *f, double *d, int n, int *v, double *z)
-{
-    int k = 0;
-    v[0] = 0;
-    z[0] = -INFINITY;
-    z[1] = INFINITY;
-    for (int q = 1; q < n; q++) {
-        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
-        while (s <= z[k]) {
-            k--;
-            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * (q - v[k]));
-        }
-        k++;
-        v[k] = q;
-        z[k] = s;
-        z[k + 1] = INFINITY;
-    }
-    k = 0;
-    for (int q = 0; q < n; q++) {
-        while (z[k + 1] < q) k++;
-        double dq = q - v[k];
-        d[q] = dq * dq + f[v[k]];
-    }
-}
-
 /* field_new(occupancy, w, h, resolution, ox, oy, threshold, strict) */
 ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -175,40 +150,29 @@ ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         !enif_get_int(env, argv[6], &threshold) || !enif_get_int(env, argv[7], &strict))
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;
-    int m = w > h ? w : h;
     Field *f = enif_alloc_resource(FIELD_TYPE, sizeof(Field));
     memset(f, 0, sizeof(Field));
     f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy, f->strict = strict != 0;
     f->dist = malloc(n * sizeof(float));
     f->unknown = malloc(n);
-    double *g = malloc(n * sizeof(double));
-    double *fl = calloc(m, sizeof(double)), *d = calloc(m, sizeof(double));
-    double *z = malloc((m + 1) * sizeof(double));
-    int *v = malloc(m * sizeof(int));
-    if (!f->dist || !f->unknown || !g || !fl || !d || !z || !v) {
-        free(g), free(fl), free(d), free(z), free(v);
+    unsigned char *walls = malloc(n);
+    if (!f->dist || !f->unknown || !walls) {
+        free(walls);
         enif_release_resource(f);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
-    const double big = 1e20;
-    for (int c = 0; c < w; c++) {
-        for (int r = 0; r < h; r++) {
-            int8_t val = (int8_t)b.data[(size_t)r * w + c];
-            fl[r] = val >= threshold ? 0.0 : big;
-        }
-        dt1(fl, d, h, v, z);
-        for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r];
+    for (size_t i = 0; i < n; i++) walls[i] = (int8_t)b.data[i] >= threshold;
+    double *g = tc_edt2(walls, w, h);
+    free(walls);
+    if (!g) {
+        enif_release_resource(f);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
-    for (int r = 0; r < h; r++) {
-        for (int c = 0; c < w; c++) fl[c] = g[(size_t)r * w + c];
-        dt1(fl, d, w, v, z);
-        for (int c = 0; c < w; c++) {
-            size_t i = (size_t)r * w + c;
-            f->dist[i] = d[c] >= big / 2 ? 1e6f : (float)(sqrt(d[c]) * res);
-            f->unknown[i] = (int8_t)b.data[i] < 0;
-        }
+    for (size_t i = 0; i < n; i++) {
+        f->dist[i] = isinf(g[i]) ? 1e6f : (float)(sqrt(g[i]) * res);
+        f->unknown[i] = (int8_t)b.data[i] < 0;
     }
-    free(g), free(fl), free(d), free(z), free(v);
+    free(g);
     ERL_NIF_TERM t = enif_make_resource(env, f);
     enif_release_resource(f);
     return t;

@@ -17,11 +17,12 @@
  * slam_optimize: Gauss-Newton on a 2-D pose graph (Grisetti et al., "A
  * tutorial on graph-based SLAM", 2010): each edge says where node j
  * lies seen from node i, with an information matrix; node 0 is held.
- * The sparse normal equations are solved by conjugate gradients with a
- * block-Jacobi preconditioner. Returns the poses and every edge's
+ * The sparse normal equations are solved by conjugate gradients,
+ * preconditioned by the graph's chain (see chain_factor). Returns the poses and every edge's
  * chi-square, so that the caller can drop an edge that does not fit.
  */
 #include "tc_slam.h"
+#include "tc_edt.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -83,33 +84,6 @@ static int doubles(ErlNifEnv *env, ERL_NIF_TERM t, int k, int max, const double 
 
 /* ---- the likelihood grid ---- */
 
-/* one row of the squared distance transform, in place (f: costs, n long) */
-static void edt1(double *f, int n, double *d, int *v, double *z)
-{
-    int k = 0;
-    v[0] = 0;
-    z[0] = -INF;
-    z[1] = INF;
-    for (int q = 1; q < n; q++) {
-        double s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * q - 2.0 * v[k]);
-        while (s <= z[k]) {
-            k--;
-            s = ((f[q] + (double)q * q) - (f[v[k]] + (double)v[k] * v[k])) / (2.0 * q - 2.0 * v[k]);
-        }
-        k++;
-        v[k] = q;
-        z[k] = s;
-        z[k + 1] = INF;
-    }
-    k = 0;
-    for (int q = 0; q < n; q++) {
-        while (z[k + 1] < q) k++;
-        double dq = q - v[k];
-        d[q] = dq * dq + f[v[k]];
-    }
-    memcpy(f, d, n * sizeof(double));
-}
-
 typedef struct {
     int w, h;
     double res, ox, oy;
@@ -131,30 +105,26 @@ static int lgrid_build(Lgrid *g, const double *pts, int n, double margin, double
     g->w = (int)ceil((x1 - x0 + 2 * margin) / res) + 1;
     g->h = (int)ceil((y1 - y0 + 2 * margin) / res) + 1;
     if ((double)g->w * g->h > MAX_CELLS) return 0;
-    int w = g->w, h = g->h, m = w > h ? w : h;
-    double *f = malloc(sizeof(double) * w * h);
-    double *row = malloc(sizeof(double) * m), *d = malloc(sizeof(double) * m);
-    double *z = malloc(sizeof(double) * (m + 1));
-    int *v = malloc(sizeof(int) * m);
+    int w = g->w, h = g->h;
+    unsigned char *seeds = calloc((size_t)w * h, 1);
     g->l = malloc(sizeof(float) * w * h);
-    if (!f || !row || !d || !z || !v || !g->l) {
-        free(f), free(row), free(d), free(z), free(v), free(g->l);
+    if (!seeds || !g->l) {
+        free(seeds), free(g->l);
         return 0;
     }
-    for (int i = 0; i < w * h; i++) f[i] = INF;
     for (int i = 0; i < n; i++) {
         int c = (int)floor((pts[2 * i] - g->ox) / res), r = (int)floor((pts[2 * i + 1] - g->oy) / res);
-        if (c >= 0 && r >= 0 && c < w && r < h) f[r * w + c] = 0.0;
+        if (c >= 0 && r >= 0 && c < w && r < h) seeds[(size_t)r * w + c] = 1;
     }
-    for (int r = 0; r < h; r++) edt1(f + (size_t)r * w, w, d, v, z);
-    for (int c = 0; c < w; c++) {
-        for (int r = 0; r < h; r++) row[r] = f[(size_t)r * w + c];
-        edt1(row, h, d, v, z);
-        for (int r = 0; r < h; r++) f[(size_t)r * w + c] = row[r];
+    double *f = tc_edt2(seeds, w, h);
+    free(seeds);
+    if (!f) {
+        free(g->l);
+        return 0;
     }
     double k = res * res / (2 * sigma * sigma);
-    for (int i = 0; i < w * h; i++) g->l[i] = (float)exp(-f[i] * k);
-    free(f), free(row), free(d), free(z), free(v);
+    for (int i = 0; i < w * h; i++) g->l[i] = isinf(f[i]) ? 0.0f : (float)exp(-f[i] * k);
+    free(f);
     return 1;
 }
 
@@ -380,17 +350,82 @@ static double dot(const double *a, const double *b, int n)
     return s;
 }
 
+/* C = A B, or A^T B with ta (3x3, row-major) */
+static void mm3(const double *A, int ta, const double *B, double *C)
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double s = 0;
+            for (int k = 0; k < 3; k++) s += (ta ? A[3 * k + r] : A[3 * r + k]) * B[3 * k + c];
+            C[3 * r + c] = s;
+        }
+}
+
+/* The chain preconditioner (Dellaert et al., subgraph-preconditioned
+ * conjugate gradients, 2010): H's diagonal blocks and its blocks between
+ * consecutive nodes (the graph's chain), factored as block LDL^T. With
+ * it, conjugate gradients need about as many steps as there are loops,
+ * not as there are nodes. U: the (i, i+1) blocks; Si: the pivots'
+ * inverses. Returns 0 if a pivot is singular. */
+static int chain_factor(int n, const double *D, int m, const Edge *es, const double *O, double *U,
+                        double *Si)
+{
+    for (int k = 0; k < m; k++) {
+        int i = es[k].i, j = es[k].j;
+        const double *o = O + 9 * k;
+        if (j == i + 1)
+            for (int a = 0; a < 9; a++) U[9 * i + a] += o[a];
+        else if (i == j + 1)
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++) U[9 * j + 3 * r + c] += o[3 * c + r];
+    }
+    double S[9], T[9], V[9];
+    memcpy(S, D, sizeof(S));
+    for (int i = 0;; i++) {
+        for (int a = 0; a < 3; a++) S[4 * a] += 1e-9;
+        if (!inv3(S, Si + 9 * i)) return 0;
+        if (i == n - 1) return 1;
+        /* S_{i+1} = D_{i+1} - U_i^T Si_i U_i */
+        mm3(Si + 9 * i, 0, U + 9 * i, T);
+        mm3(U + 9 * i, 1, T, V);
+        for (int a = 0; a < 9; a++) S[a] = D[9 * (i + 1) + a] - V[a];
+    }
+}
+
+/* z = M^-1 r for the factored chain */
+static void chain_solve(int n, const double *U, const double *Si, const double *r, double *z)
+{
+    double t[3], u[3];
+    memcpy(z, r, sizeof(double) * 3);
+    for (int i = 1; i < n; i++) {
+        /* y_i = r_i - U_{i-1}^T Si_{i-1} y_{i-1} */
+        mv3(Si + 9 * (i - 1), z + 3 * (i - 1), t);
+        const double *Ub = U + 9 * (i - 1);
+        for (int a = 0; a < 3; a++)
+            z[3 * i + a] = r[3 * i + a] - (Ub[a] * t[0] + Ub[3 + a] * t[1] + Ub[6 + a] * t[2]);
+    }
+    mv3(Si + 9 * (n - 1), z + 3 * (n - 1), t);
+    memcpy(z + 3 * (n - 1), t, sizeof(t));
+    for (int i = n - 2; i >= 0; i--) {
+        /* z_i = Si_i (y_i - U_i z_{i+1}) */
+        mv3(U + 9 * i, z + 3 * (i + 1), u);
+        for (int a = 0; a < 3; a++) u[a] = z[3 * i + a] - u[a];
+        mv3(Si + 9 * i, u, z + 3 * i);
+    }
+}
+
 /* one Gauss-Newton step; returns the largest change, or -1 on failure */
 static double gn_step(int n, double *x, int m, const Edge *es)
 {
     int N = 3 * n;
     double *D = calloc((size_t)9 * n, sizeof(double)), *O = calloc((size_t)9 * m, sizeof(double));
-    double *b = calloc(N, sizeof(double)), *P = malloc(sizeof(double) * 9 * n);
+    double *b = calloc(N, sizeof(double)), *Si = malloc(sizeof(double) * 9 * n);
+    double *U = calloc((size_t)9 * n, sizeof(double));
     double *dx = calloc(N, sizeof(double)), *r = malloc(sizeof(double) * N);
     double *z = malloc(sizeof(double) * N), *p = malloc(sizeof(double) * N);
     double *hp = malloc(sizeof(double) * N);
     double result = -1;
-    if (!D || !O || !b || !P || !dx || !r || !z || !p || !hp) goto done;
+    if (!D || !O || !b || !Si || !U || !dx || !r || !z || !p || !hp) goto done;
     for (int k = 0; k < m; k++) {
         const Edge *e = es + k;
         double err[3], A[9], B[9], oe[3];
@@ -406,15 +441,10 @@ static double gn_step(int n, double *x, int m, const Edge *es)
     }
     /* node 0 held: a stiff prior */
     for (int a = 0; a < 3; a++) D[4 * a] += 1e9;
-    for (int i = 0; i < n; i++) {
-        double reg[9];
-        memcpy(reg, D + 9 * i, sizeof(reg));
-        for (int a = 0; a < 3; a++) reg[4 * a] += 1e-9;
-        if (!inv3(reg, P + 9 * i)) goto done;
-    }
+    if (!chain_factor(n, D, m, es, O, U, Si)) goto done;
     /* solve H dx = -b */
     for (int i = 0; i < N; i++) r[i] = -b[i];
-    for (int i = 0; i < n; i++) mv3(P + 9 * i, r + 3 * i, z + 3 * i);
+    chain_solve(n, U, Si, r, z);
     memcpy(p, z, sizeof(double) * N);
     double rz = dot(r, z, N), r0 = sqrt(dot(r, r, N));
     int maxit = N < 300 ? 300 : N;
@@ -424,7 +454,7 @@ static double gn_step(int n, double *x, int m, const Edge *es)
         if (php <= 0) break;
         double alpha = rz / php;
         for (int i = 0; i < N; i++) dx[i] += alpha * p[i], r[i] -= alpha * hp[i];
-        for (int i = 0; i < n; i++) mv3(P + 9 * i, r + 3 * i, z + 3 * i);
+        chain_solve(n, U, Si, r, z);
         double rz2 = dot(r, z, N);
         for (int i = 0; i < N; i++) p[i] = z[i] + (rz2 / rz) * p[i];
         rz = rz2;
@@ -437,7 +467,7 @@ static double gn_step(int n, double *x, int m, const Edge *es)
         for (int a = 0; a < 3; a++) result = fmax(result, fabs(dx[3 * i + a]));
     }
 done:
-    free(D), free(O), free(b), free(P), free(dx), free(r), free(z), free(p), free(hp);
+    free(D), free(O), free(b), free(Si), free(U), free(dx), free(r), free(z), free(p), free(hp);
     return result;
 }
 
@@ -478,7 +508,7 @@ ERL_NIF_TERM tc_nif_slam_optimize(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
             free(es);
             return enif_raise_exception(env, enif_make_atom(env, "enomem"));
         }
-        if (change < 1e-6) break;
+        if (change < 1e-5) break;
     }
     double *c = (double *)enif_make_new_binary(env, sizeof(double) * (m ? m : 0), &chis);
     for (int k = 0; k < m; k++) {

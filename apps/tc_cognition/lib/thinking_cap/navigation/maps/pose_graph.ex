@@ -174,15 +174,27 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     with {:ok, anchor, ref} <- submap(g, id),
          {:ok, matched, cov} <- match(g, id, ref),
          {:ok, edge} <- loop_edge(g, anchor, id, matched, cov) do
-      before = pose(g, last(g))
-      g = optimize(%{g | edges: [edge | g.edges]})
+      if agrees?(g, edge) do
+        # the graph already says so: kept, nothing to optimize
+        {:none, %{g | edges: [edge | g.edges]}}
+      else
+        before = pose(g, last(g))
+        g = optimize(%{g | edges: [edge | g.edges]})
 
-      if Enum.any?(g.edges, &(&1 == edge)),
-        do: {:closed, g, before, pose(g, last(g))},
-        else: {:none, g}
+        if Enum.any?(g.edges, &(&1 == edge)),
+          do: {:closed, g, before, pose(g, last(g))},
+          else: {:none, g}
+      end
     else
       _ -> {:none, g}
     end
+  end
+
+  # whether a loop edge says what the graph's poses say already (within
+  # 1 cm and 0.2 degrees)
+  defp agrees?(g, %{from: i, to: j, z: {zx, zy, zth}}) do
+    {x, y, th} = EKF.relative(pose(g, i), pose(g, j))
+    :math.sqrt((x - zx) ** 2 + (y - zy) ** 2) < 0.01 and abs(EKF.normalize(th - zth)) < 0.0035
   end
 
   # the old nodes near `id`: the nearest is the anchor; the submap is the
