@@ -3,6 +3,7 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
 
   alias ThinkingCap.Navigation.{EKF, OccupancyGrid}
   alias ThinkingCap.Navigation.Maps.{Loops, SensedGrid}
+  alias ThinkingCap.Test.DriftingCircle
 
   # a room of 8 x 6 m with a pillar: no symmetry makes two poses alike
   @walls [
@@ -56,39 +57,11 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
     end
   end
 
-  # twice round a circle of 2 m about the room's centre, the estimate
-  # turning 0.01 rad too far at each of 36 steps a turn; a closed loop
-  # carries the later estimates along, as the localizer does
+  # twice round the room's centre, the estimate drifting
   defp drive(loops) do
-    truth =
-      for k <- 0..72 do
-        a = k * 2 * :math.pi() / 36
-        {4.0 + 2.0 * :math.cos(a), 3.0 + 2.0 * :math.sin(a), EKF.normalize(a + :math.pi() / 2)}
-      end
-
-    steps =
-      Enum.chunk_every(truth, 2, 1, :discard) |> Enum.map(fn [a, b] -> EKF.relative(a, b) end)
-
-    estimates =
-      Enum.scan(steps, hd(truth), fn {dx, dy, dth}, pose ->
-        EKF.motion(pose, {dx, dy, dth + 0.01})
-      end)
-
-    {loops, closed, _moves} =
-      Enum.zip(truth, [hd(truth) | estimates])
-      |> Enum.reduce({loops, 0, []}, fn {true_pose, estimate}, {loops, closed, moves} ->
-        estimate =
-          Enum.reduce(moves, estimate, fn {from, to}, p ->
-            EKF.motion(to, EKF.relative(from, p))
-          end)
-
-        case Loops.record(loops, :laser, {0.0, 0.0, 0.0}, scan(true_pose), estimate, nil) do
-          {loops, :none} -> {loops, closed, moves}
-          {loops, {:closed, from, to}} -> {loops, closed + 1, moves ++ [{from, to}]}
-        end
-      end)
-
-    {loops, closed}
+    DriftingCircle.drive(72, loops, fn true_pose, estimate, loops ->
+      Loops.record(loops, :laser, {0.0, 0.0, 0.0}, scan(true_pose), estimate, nil)
+    end)
   end
 
   defp grid, do: SensedGrid.new(200, 160, resolution: 0.05, origin: {-1.0, -1.0})

@@ -4,6 +4,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
   alias ThinkingCap.Navigation.Core.GridNif
   alias ThinkingCap.Navigation.EKF
   alias ThinkingCap.Navigation.Maps.PoseGraph
+  alias ThinkingCap.Test.DriftingCircle
 
   # the walls of a room, x in 0..w, y in 0..h, with a pillar so that no
   # symmetry makes two poses fit alike, as points every 5 cm
@@ -156,45 +157,22 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     test "coming back into a room seen before closes the loop and undoes the drift" do
       walls = room(8.0, 6.0)
 
-      # round the room's centre on a circle of 2 m, heading along it,
-      # the estimate turning 0.01 rad a node too far
-      truth =
-        for k <- 0..40 do
-          a = k * 2 * :math.pi() / 36
-          {4.0 + 2.0 * :math.cos(a), 3.0 + 2.0 * :math.sin(a), EKF.normalize(a + :math.pi() / 2)}
-        end
+      # round the room's centre, the estimate drifting
+      {truth, estimates} = DriftingCircle.poses(40)
 
-      steps =
-        Enum.chunk_every(truth, 2, 1, :discard) |> Enum.map(fn [a, b] -> EKF.relative(a, b) end)
-
-      estimates =
-        Enum.scan(steps, hd(truth), fn {dx, dy, dth}, pose ->
-          EKF.motion(pose, {dx, dy, dth + 0.01})
-        end)
-
-      g0 = PoseGraph.new(loop_gap: 20)
-
-      # a closed loop moves the map's frame under the robot: the localizer's
-      # later estimates are carried along (as ThinkingCap.Navigation.MCL does)
-      {g, closed, _} =
-        Enum.zip(truth, [hd(truth) | estimates])
-        |> Enum.reduce({g0, [], []}, fn {true_pose, estimate}, {g, closed, moves} ->
-          estimate =
-            Enum.reduce(moves, estimate, fn {from, to}, p ->
-              EKF.motion(to, EKF.relative(from, p))
-            end)
-
+      {g, closed} =
+        DriftingCircle.drive(40, PoseGraph.new(loop_gap: 20), fn true_pose, estimate, g ->
           {id, g} = PoseGraph.add_node(g, estimate, nil, bin(seen(walls, true_pose)))
 
           case PoseGraph.close_loop(g, id) do
-            {:closed, g, from, to} -> {g, [id | closed], moves ++ [{from, to}]}
-            {:none, g} -> {g, closed, moves}
+            {:closed, g, from, to} -> {g, {:closed, from, to}}
+            {:none, g} -> {g, :none}
           end
         end)
 
-      assert closed != []
+      assert closed > 0
       last = PoseGraph.last(g)
-      drifted = distance(List.last([hd(truth) | estimates]), List.last(truth))
+      drifted = distance(List.last(estimates), List.last(truth))
       assert drifted > 0.3
 
       for id <- 0..last do
