@@ -148,7 +148,9 @@ static double score_at(const Lgrid *g, const double *q, int n, double x, double 
 }
 
 /* slam_match(ref, query, {x, y, th}, {window_m, window_rad}, res, sigma)
- *   -> {{x, y, th}, score, {cxx, cxy, cxt, cyy, cyt, ctt}} | :none */
+ *   -> {{x, y, th}, score, {cxx, cxy, cxt, cyy, cyt, ctt}, score_at_guess}
+ *      | :none (nothing to match, or the best pose on the window's border)
+ * scores are mean likelihoods of the query's points, 0 to 1 */
 ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
@@ -205,9 +207,18 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
             }
     }
 
+    /* a best pose on the window's border may be the slope of a peak
+     * outside it: no match */
+    if ((U > 0 && (bu == -U || bu == U || bv == -U || bv == U)) || (K > 0 && (bk == -K || bk == K))) {
+        free(scores), free(cells), free(g.l);
+        return enif_make_atom(env, "none");
+    }
+    double at_guess = scores[((size_t)K * side + U) * side + U];
+
     /* the spread of the scores round the best: weights exp(beta (s - best)),
-     * beta from the beams' count (neighbouring beams are not independent) */
-    double beta = 4.0 / fmax(1.0, nq / 20.0);
+     * beta from the beams' count (neighbouring beams are not independent:
+     * a pose a few points worse is not much less likely) */
+    double beta = 2.0 / fmax(1.0, nq / 20.0);
     double sw = 0, mx = 0, my = 0, mt = 0, sxx = 0, sxy = 0, sxt = 0, syy = 0, syt = 0, stt = 0;
     for (int k = -K; k <= K; k++)
         for (int v = -U; v <= U; v++)
@@ -245,11 +256,12 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     ERL_NIF_TERM cov[6] = {enif_make_double(env, cxx), enif_make_double(env, cxy),
                            enif_make_double(env, cxt), enif_make_double(env, cyy),
                            enif_make_double(env, cyt), enif_make_double(env, ctt)};
-    return enif_make_tuple3(
+    return enif_make_tuple4(
         env,
         enif_make_tuple3(env, enif_make_double(env, x), enif_make_double(env, y),
                          enif_make_double(env, wrap(th))),
-        enif_make_double(env, cur / nq), enif_make_tuple_from_array(env, cov, 6));
+        enif_make_double(env, cur / nq), enif_make_tuple_from_array(env, cov, 6),
+        enif_make_double(env, at_guess / nq));
 }
 
 /* ---- the pose graph ---- */

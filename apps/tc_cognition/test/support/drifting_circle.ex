@@ -27,14 +27,14 @@ defmodule ThinkingCap.Test.DriftingCircle do
   end
 
   @doc """
-  Each true pose with its estimate handed to `fun.(true_pose, estimate,
+  Each true pose with its estimate (drifting `drift` a step) handed to `fun.(true_pose, estimate,
   acc)`, which returns `{acc, :none}` or `{acc, {:closed, from, to}}`: a
   closed loop moves the map's frame under the robot, and the later
   estimates are carried along (as `ThinkingCap.Navigation.MCL` does).
   Returns the accumulator and the number of loops closed.
   """
-  def drive(steps, acc, fun) do
-    {truth, estimates} = poses(steps)
+  def drive(steps, acc, fun, drift \\ 0.01) do
+    {truth, estimates} = poses(steps, drift)
 
     {acc, closed, _moves} =
       Enum.zip(truth, estimates)

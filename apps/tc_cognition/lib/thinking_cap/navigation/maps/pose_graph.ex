@@ -15,7 +15,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   the nearest node at least `loop_gap` nodes back within `loop_radius`
   metres, and its neighbours in the chain. A
   match that scores at least `min_score` (the mean likelihood of its
-  points) and fixes the pose sharply (σ at most `max_sigma` m and
+  points), lies inside the search window (not on its border), fits
+  clearly better than the estimate when it moves it far (more than
+  0.15 m or 0.05 rad: by 5 % of the points), and fixes the pose sharply (σ at most `max_sigma` m and
   `max_sigma_angle` rad: a corridor's length is not fixed by a scan
   inside it) is a **loop closure**: an edge from the old node. The graph
   is then optimized (Gauss-Newton, `slam_optimize`), and a loop edge that
@@ -244,10 +246,24 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
              p.resolution,
              p.resolution
            ) do
-        {matched, score, cov} when score >= p.min_score -> sharp(p, matched, cov)
-        _ -> :none
+        {matched, score, cov, at_guess} when score >= p.min_score ->
+          if decisive?(pose(g, id), matched, score, at_guess),
+            do: sharp(p, matched, cov),
+            else: :none
+
+        _ ->
+          :none
       end
     end
+  end
+
+  # a large correction must fit clearly better than the estimate: where
+  # the estimate fits nearly as well, the scan does not say it is wrong
+  defp decisive?({x, y, th}, {mx, my, mth}, score, at_guess) do
+    small =
+      :math.sqrt((mx - x) ** 2 + (my - y) ** 2) <= 0.15 and abs(EKF.normalize(mth - th)) <= 0.05
+
+    small or score - at_guess >= 0.05
   end
 
   defp sharp(p, matched, {cxx, _cxy, _cxt, cyy, _cyt, ctt} = cov) do

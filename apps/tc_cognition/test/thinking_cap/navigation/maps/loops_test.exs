@@ -57,11 +57,17 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
     end
   end
 
-  # twice round the room's centre, the estimate drifting
+  # twice round the room's centre, the estimate turning 0.3 degrees a
+  # step too far (10 degrees a turn)
   defp drive(loops) do
-    DriftingCircle.drive(72, loops, fn true_pose, estimate, loops ->
-      Loops.record(loops, :laser, {0.0, 0.0, 0.0}, scan(true_pose), estimate, nil)
-    end)
+    DriftingCircle.drive(
+      72,
+      loops,
+      fn true_pose, estimate, loops ->
+        Loops.record(loops, :laser, {0.0, 0.0, 0.0}, scan(true_pose), estimate, nil)
+      end,
+      0.005
+    )
   end
 
   defp grid, do: SensedGrid.new(200, 160, resolution: 0.05, origin: {-1.0, -1.0})
@@ -89,7 +95,7 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
   end
 
   test "closing loops draws the walls where they are; without, the drift smears them" do
-    {closing, closed} = drive(Loops.new(loop_gap: 20))
+    {closing, closed} = drive(Loops.new(loop_gap: 15))
     assert closed > 0
     assert Loops.frame(closing) == closed
 
@@ -132,7 +138,7 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
   end
 
   test "carry/3 brings an estimate of the frame before into the current one" do
-    {loops, closed} = drive(Loops.new(loop_gap: 20))
+    {loops, closed} = drive(Loops.new(loop_gap: 15))
     current = Loops.frame(loops)
     assert current == closed
     pose = {1.0, 2.0, 0.3}

@@ -43,13 +43,14 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       truth = {3.1, 2.2, 0.4}
       query = bin(seen(walls, truth))
 
-      {{x, y, th}, score, {cxx, _, _, cyy, _, ctt}} =
+      {{x, y, th}, score, {cxx, _, _, cyy, _, ctt}, at_guess} =
         GridNif.slam_match(bin(walls), query, {3.3, 2.05, 0.5}, {0.5, 0.2}, 0.05, 0.05)
 
       assert_in_delta x, 3.1, 0.02
       assert_in_delta y, 2.2, 0.02
       assert_in_delta th, 0.4, 0.01
       assert score > 0.8
+      assert at_guess < score - 0.3
       assert :math.sqrt(max(cxx, cyy)) < 0.05 and :math.sqrt(ctt) < 0.02
     end
 
@@ -58,11 +59,19 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
 
       query = bin(seen(walls, {10.0, 0.75, 0.0}))
 
-      {_pose, _score, {cxx, _, _, cyy, _, _}} =
+      {_pose, _score, {cxx, _, _, cyy, _, _}, _at_guess} =
         GridNif.slam_match(bin(walls), query, {10.2, 0.75, 0.0}, {0.5, 0.1}, 0.05, 0.05)
 
       assert :math.sqrt(cxx) > 0.1
       assert :math.sqrt(cyy) < 0.05
+    end
+
+    test "a best pose on the window's border is no match: the peak may lie beyond" do
+      walls = room(6.0, 4.0)
+      query = bin(seen(walls, {3.1, 2.2, 0.4}))
+      # the truth 0.7 m from the guess, the window 0.4 m
+      assert GridNif.slam_match(bin(walls), query, {3.8, 2.2, 0.4}, {0.4, 0.2}, 0.05, 0.05) ==
+               :none
     end
 
     test "nothing to match against says so; bad arguments are refused" do
@@ -161,7 +170,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       {truth, estimates} = DriftingCircle.poses(40)
 
       {g, closed} =
-        DriftingCircle.drive(40, PoseGraph.new(loop_gap: 20), fn true_pose, estimate, g ->
+        DriftingCircle.drive(40, PoseGraph.new(loop_gap: 15), fn true_pose, estimate, g ->
           {id, g} = PoseGraph.add_node(g, estimate, nil, bin(seen(walls, true_pose)))
 
           case PoseGraph.close_loop(g, id) do
