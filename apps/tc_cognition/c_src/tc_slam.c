@@ -218,7 +218,7 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     /* the spread of the scores round the best: weights exp(beta (s - best)),
      * beta from the beams' count (neighbouring beams are not independent:
      * a pose a few points worse is not much less likely) */
-    double beta = 2.0 / fmax(1.0, nq / 20.0);
+    double beta = 4.0 / fmax(1.0, nq / 20.0);
     double sw = 0, mx = 0, my = 0, mt = 0, sxx = 0, sxy = 0, sxt = 0, syy = 0, syt = 0, stt = 0;
     for (int k = -K; k <= K; k++)
         for (int v = -U; v <= U; v++)
