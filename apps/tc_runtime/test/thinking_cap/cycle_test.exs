@@ -316,6 +316,51 @@ defmodule ThinkingCap.CycleTest do
       end)
     end
 
+    # A wire's path that names another device after its line went away
+    # (a later test's pty that got the same /dev/pts/N, a symlink pointed
+    # elsewhere) is someone else's: the worker must not write there.
+    test "a line gone whose path names another device now is not reopened until attached again",
+         %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      link = Path.join(dir, "by-id")
+      :ok = File.ln_s(fifo, link)
+      :ok = Cycle.add(name, period: 0.02)
+      :ok = attach(name, link)
+      wire_until(reader, &String.contains?(&1, "stop\n"))
+
+      log =
+        ExUnit.CaptureLog.capture_log(fn ->
+          {:os_pid, os_pid} = Port.info(reader, :os_pid)
+          {_, 0} = System.cmd("kill", ["-9", "#{os_pid}"])
+
+          ThinkingCap.Testing.Cluster.wait_until(
+            fn -> Cycle.timing()[name].wire_errors >= 1 end,
+            5000
+          )
+
+          # the link now names another line, with its own reader
+          other = Path.join(dir, "other")
+          {_, 0} = System.cmd("mkfifo", [other])
+          other_reader = cat(other)
+          File.rm!(link)
+          :ok = File.ln_s(other, link)
+
+          ThinkingCap.Testing.Cluster.wait_until(
+            fn -> Cycle.timing()[name].wire_errors >= 2 end,
+            5000
+          )
+
+          # a second of fallbacks: none of them on the other line
+          assert wire_until(other_reader, &(&1 != ""), "", 999) == ""
+
+          # its owner hands the new device over: written to from then on
+          :ok = attach(name, link)
+          assert wire_until(other_reader, &String.contains?(&1, "stop\n")) =~ "stop\n"
+        end)
+
+      assert log =~ "the path names another device now"
+    end
+
     test "when the BEAM side closes, the worker writes the fallback bytes on the wire", %{
       tmp_dir: dir
     } do
