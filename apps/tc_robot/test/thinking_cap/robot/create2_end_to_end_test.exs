@@ -227,6 +227,7 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
        %{emu: emu} = ctx do
     {robot, base} = start_create2(ctx)
     pid = Runtime.whereis(base)
+    :ok = ThinkingCap.Cycle.subscribe(base)
 
     :ok = Emulator.unplug(emu)
     eventually(fn -> assert %{connected: false, streaming: false} = latest(:link, robot) end)
@@ -241,9 +242,16 @@ defmodule ThinkingCap.Robot.Create2EndToEndTest do
     %{stamp: s1} = latest(:odometry, robot)
     eventually(fn -> assert latest(:odometry, robot).stamp > s1 end)
 
-    # and it drives again
+    # and it drives again, the timing worker writing on the new line: the
+    # driver hands it over (the worker reopens no other device by itself)
     drive(robot, {:velocity, 0.1, 0.0})
     eventually(fn -> assert %{left: 100, right: 100} = Emulator.state(emu) end)
+
+    ThinkingCap.Testing.Cycle.applied_until(
+      base,
+      &(&1.kind == :fresh and &1.wired and &1.command == {:velocity, 0.1, 0.0})
+    )
+
     assert_odometry_matches(robot, emu)
     assert Runtime.whereis(base) == pid
   end
