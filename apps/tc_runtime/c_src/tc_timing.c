@@ -28,7 +28,16 @@
  * line does not take at once is dropped and reported (at most once a
  * second per activity). A line that fails (EIO, ENXIO: unplugged, the pty
  * master gone) is closed, reported once, and reopened on a later write,
- * at most every 100 ms, so a replugged device works again by itself.
+ * at most every 100 ms, but only if its path still names the device first
+ * opened (its device, inode and, for a character device, its inode's
+ * change time: a new pty that got the number /dev/pts/N of a closed one
+ * has the same device numbers and inode, not the same change time). A
+ * path that names another device now (a replugged adapter, a later pty
+ * of the same number, a symlink pointed elsewhere) is not written to and
+ * is reported once: that device may be someone else's, and only the
+ * activity's owner can tell, by attaching the wire again ('W'). A wire
+ * ends when it is detached ('X'), replaced ('W') or its activity removed
+ * ('R'), and when the worker exits: the worker never opens its path again.
  *
  * PROTOCOL (integers big-endian)
  *   BEAM -> worker
@@ -63,6 +72,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -97,6 +107,8 @@ typedef struct {
         uint8_t fallback[MAX_WIRE];
         uint32_t fallback_len;
         uint64_t opened_at;   /* last open attempt, for the reopen rate */
+        struct stat id;       /* the device first opened: reopened only if the path names it */
+        int other_reported;   /* the path names another device: said once */
         uint64_t reported_at; /* last short-write report, for its rate */
         uint32_t short_writes, dropped; /* not reported yet */
     } wire;
@@ -141,7 +153,7 @@ static void send_frame(const uint8_t *payload, uint32_t len) {
 }
 
 static void send_error(const char *text) {
-    uint8_t buf[256];
+    uint8_t buf[MAX_PATH + 256];
     size_t n = strlen(text);
     if (n > sizeof buf - 1) n = sizeof buf - 1;
     buf[0] = 'E';
@@ -181,6 +193,56 @@ static int open_wire(const char *path) {
     return fd;
 }
 
+/* Whether two stats are the same device node: the same file, and for a
+ * character device the same inode's life (devpts gives a new pty of a
+ * reused number the same device numbers and inode; its change time is
+ * when it was made). FIFOs and files change their change time as they
+ * are written, so only their identity counts. */
+static int same_device(const struct stat *a, const struct stat *b) {
+    if (a->st_dev != b->st_dev || a->st_ino != b->st_ino || a->st_rdev != b->st_rdev ||
+        (a->st_mode & S_IFMT) != (b->st_mode & S_IFMT))
+        return 0;
+    if (S_ISCHR(a->st_mode))
+        return a->st_ctim.tv_sec == b->st_ctim.tv_sec && a->st_ctim.tv_nsec == b->st_ctim.tv_nsec;
+    return 1;
+}
+
+/* Says once that a wire's path names another device now. */
+static void report_other_device(activity *a) {
+    char text[MAX_PATH + 200];
+    if (a->wire.other_reported) return;
+    snprintf(text, sizeof text,
+             "wire %u %s: the path names another device now; not reopened "
+             "(its owner must attach it again)",
+             a->id, a->wire.path);
+    send_error(text);
+    a->wire.other_reported = 1;
+}
+
+/* Reopens a wire's path if it still names the device first opened;
+ * otherwise says so, once, and leaves the line closed (-1). */
+static int reopen_wire(activity *a) {
+    struct wire *w = &a->wire;
+    struct stat st;
+    /* not there (yet): tried again later */
+    if (stat(w->path, &st) < 0) return -1;
+    /* looked at before opening: another owner's device is not even opened */
+    if (!same_device(&w->id, &st)) {
+        report_other_device(a);
+        return -1;
+    }
+    int fd = open_wire(w->path);
+    if (fd < 0) return -1;
+    /* what was opened, not what the path named a moment before */
+    if (fstat(fd, &st) < 0 || !same_device(&w->id, &st)) {
+        close(fd);
+        report_other_device(a);
+        return -1;
+    }
+    w->other_reported = 0;
+    return fd;
+}
+
 static void close_wire(activity *a) {
     if (a->wire.attached && a->wire.fd >= 0) close(a->wire.fd);
     a->wire.fd = -1;
@@ -196,11 +258,12 @@ static int wire_write(activity *a, const uint8_t *bytes, uint32_t len) {
     if (!w->attached) return 0;
     uint64_t now = now_ns();
     if (w->fd < 0) {
-        /* the line went away: try it again now and then (a replugged
-         * device, a symlink pointed at a new tty) */
+        /* the line went away: try it again now and then, if its path
+         * still names the same device (a tty hung up, a FIFO's reader
+         * back); a new device there is its owner's to attach */
         if (now - w->opened_at < REOPEN_EVERY) return 0;
         w->opened_at = now;
-        w->fd = open_wire(w->path);
+        w->fd = reopen_wire(a);
         if (w->fd < 0) return 0;
         snprintf(text, sizeof text, "reopened %s", w->path);
         send_wire_status(a->id, 2, text);
@@ -341,8 +404,10 @@ static void attach_wire(const uint8_t *p, uint32_t len) {
     path[path_len] = 0;
 
     int fd = open_wire(path);
-    if (fd < 0) {
+    struct stat st;
+    if (fd < 0 || fstat(fd, &st) < 0) {
         snprintf(text, sizeof text, "open %s: %s", path, strerror(errno));
+        if (fd >= 0) close(fd);
         send_wire_status(id, 0, text);
         return;
     }
@@ -363,6 +428,8 @@ static void attach_wire(const uint8_t *p, uint32_t len) {
     memcpy(w->fallback, p + 5, fallback_len);
     w->fallback_len = fallback_len;
     w->opened_at = now_ns();
+    w->id = st;
+    w->other_reported = 0;
     w->reported_at = 0;
     w->short_writes = w->dropped = 0;
     snprintf(text, sizeof text, "attached %s", path);

@@ -57,10 +57,15 @@ defmodule ThinkingCap.Robot do
   A driver of a serial robot may let the C timing worker own the line's
   command path, so that a missed deadline, a crashed module or a dead
   BEAM puts the stop frame on the wire in that same cycle, from the
-  worker. `wire/1` (called once after `open/2`) names the device (the
+  worker. `wire/1` (called after `open/2`) names the device (the
   line the driver opened with `ThinkingCap.Robot.UART`, whose settings
   the worker leaves alone) and the fallback bytes (the stop frame);
-  `wire_command/2` encodes each cycle's arbitrated command. An applied
+  `wire_command/2` encodes each cycle's arbitrated command. The worker
+  reopens a line that failed only while its path names the same device;
+  a driver that reopens its line itself (a cable replugged: a new
+  device behind the same path) returns `nil` from `wire/1` while the
+  line is down and the device again once it is back: the base then
+  attaches the wire again, handing the new device to the worker. An applied
   command with `wired: true` is on the line already: the base records
   and announces it but does not call `drive/2`. With `wired: false` (the
   worker was restarted, the line was down or full, no wire attached) it
@@ -104,9 +109,12 @@ defmodule ThinkingCap.Robot do
   @callback close(reason :: term(), state :: term()) :: term()
 
   @doc """
-  Called once after `open/2`: `{device, fallback}` hands the robot's
-  command path to the timing worker (it opens `device` and writes
-  `fallback` whenever it applies the fallback), `nil` keeps it here.
+  Called after `open/2`: `{device, fallback}` hands the robot's command
+  path to the timing worker (it opens `device` and writes `fallback`
+  whenever it applies the fallback), `nil` keeps it here. Called again
+  after each `handle_data/2` of a driver that named a device at start:
+  when it names one where it did not before that call (the driver
+  reopened its line), the wire is attached again.
   """
   @callback wire(state :: term()) :: {device :: Path.t(), fallback :: iodata()} | nil
 

@@ -48,9 +48,19 @@ defmodule ThinkingCap.Cycle do
   line down or full, the worker restarted) means whoever drives the
   device must write them itself. The worker never blocks on a line: bytes
   it does not take at once are dropped and reported; a line that went
-  away is reopened every 100 ms on later writes. Wires are attached again
-  when the worker is restarted. `timing/0` gives each activity's `wire`
-  (its device or `nil`) and `wire_errors`.
+  away is reopened every 100 ms on later writes, but only while its path
+  names the very device first opened (same device, inode and, for a
+  character device, inode change time). A path that names another device
+  now (a replugged adapter, a later pty that got the same `/dev/pts/N`, a
+  symlink pointed elsewhere) is never written to; that is reported once,
+  and only the owner can hand the new device over, by attaching the wire
+  again. Wires are attached again when the worker is restarted (the
+  device their path names then). A wire ends, and the worker never opens
+  its path again, when it is detached, replaced, or its activity removed
+  (the module stopped for good or crashed: its fallback bytes are written
+  first; a module restarted attaches its wire anew in its `init/2`).
+  `timing/0` gives each activity's `wire` (its device or `nil`) and
+  `wire_errors`.
 
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as

@@ -149,22 +149,61 @@ defmodule ThinkingCap.Runtime do
   end
 
   @doc """
-  Stops a module, wherever it runs. When it returns, the module's node no
-  longer finds it; other nodes stop finding it as soon as `:pg` tells them.
+  Stops a module, wherever it runs, for good: its periodic activity is
+  removed (the timing worker applies its fallback, on its wire too, and
+  closes the wire). When it returns, the module's node no longer finds
+  it; other nodes stop finding it as soon as `:pg` tells them.
+
+  A module that died and is being restarted by its supervisor when this
+  is called is stopped too, not left to come back: the process `:pg`
+  still names may be the dead one, or none while the new one starts.
   """
   @spec stop(module_ref()) :: :ok | {:error, :not_running}
   def stop(name) do
-    case whereis(name) do
-      nil ->
-        {:error, :not_running}
-
-      pid ->
-        :erpc.call(node(pid), DynamicSupervisor, :terminate_child, [
-          ThinkingCap.Runtime.Modules,
-          pid
-        ])
+    case whereis(name) || whereis_after_restarts(name) do
+      nil -> {:error, :not_running}
+      pid -> :erpc.call(node(pid), __MODULE__, :stop_process_here, [name, pid])
     end
   end
+
+  # Between a dead module's exit and its restarted copy joining :pg, no
+  # process is found by name; the local supervisor answers only after a
+  # restart it is doing, so a copy that is starting is found then.
+  defp whereis_after_restarts(name) do
+    case Process.whereis(ThinkingCap.Runtime.Modules) do
+      nil ->
+        nil
+
+      supervisor ->
+        _ = DynamicSupervisor.count_children(supervisor)
+        whereis(name)
+    end
+  catch
+    :exit, _ -> nil
+  end
+
+  @doc false
+  # Runs on the module's node: terminates `pid`, module `ref`'s process.
+  # If it is no longer the supervisor's child, it died and the supervisor
+  # has handled its exit already (its answer comes after it): a copy it
+  # restarted runs now, and is terminated in turn.
+  @spec stop_process_here(module_ref(), pid()) :: :ok
+  def stop_process_here(ref, pid) do
+    case DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid) do
+      :ok ->
+        :ok
+
+      {:error, :not_found} ->
+        case live_local_members(ref) -- [pid] do
+          [] -> :ok
+          [other | _] -> stop_process_here(ref, other)
+        end
+    end
+  end
+
+  # :pg drops a dead process when it hears of its death, a little later
+  defp live_local_members(ref),
+    do: Enum.filter(:pg.get_local_members(@scope, group(ref)), &Process.alive?/1)
 
   @doc """
   Restarts a module, wherever it runs: it terminates (its `terminate/2`
@@ -207,13 +246,15 @@ defmodule ThinkingCap.Runtime do
   @doc false
   def check_module_here(module), do: check_module(module)
 
-  @doc "The process of a running module (on any node), or nil."
+  @doc """
+  The process of a running module (on any node), or nil. A local process
+  that died is not returned, though `:pg` may list it for a moment.
+  """
   @spec whereis(module_ref()) :: pid() | nil
   def whereis(ref) do
-    case :pg.get_members(@scope, group(ref)) do
-      [pid | _] -> pid
-      [] -> nil
-    end
+    @scope
+    |> :pg.get_members(group(ref))
+    |> Enum.find(&(node(&1) != node() or Process.alive?(&1)))
   end
 
   @doc """
@@ -226,7 +267,7 @@ defmodule ThinkingCap.Runtime do
   @doc "The process of module `ref` on this node, or nil."
   @spec local_whereis(module_ref()) :: pid() | nil
   def local_whereis(ref) do
-    case :pg.get_local_members(@scope, group(ref)) do
+    case live_local_members(ref) do
       [pid | _] -> pid
       [] -> nil
     end
@@ -246,9 +287,9 @@ defmodule ThinkingCap.Runtime do
   @doc false
   # Stops module `ref` if it runs on this node.
   def stop_here(ref) do
-    case local_whereis(ref) do
-      nil -> :ok
-      pid -> DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid)
+    case live_local_members(ref) do
+      [] -> :ok
+      [pid | _] -> stop_process_here(ref, pid)
     end
   end
 

@@ -61,16 +61,17 @@ defmodule ThinkingCap.CycleTest do
 
   test "releases come every period and a result in time is applied fresh", %{name: name} do
     :ok = Cycle.add(name, period: 0.01, deadline: 0.008, priority: 60)
-    r1 = release(name)
-    :ok = Cycle.result(r1, {:vel, 0.2, 0.0})
-    assert %{cycle: c1, kind: :fresh, command: {:vel, 0.2, 0.0}} = a1 = applied(name)
-    assert c1 == r1.cycle
+    # a loaded machine may make a result late: answered until one is in time
+    {r1, a1} = fresh_result(name, {:vel, 0.2, 0.0}, nil)
+    assert %{kind: :fresh, command: {:vel, 0.2, 0.0}} = a1
+    assert a1.cycle == r1.cycle
     # when, on the worker's clock: its release plus the response
     assert a1.applied_ns == r1.released_ns + round(a1.response_us * 1000)
-    r2 = release(name)
-    assert r2.cycle == r1.cycle + 1
-    # absolute deadlines: releases are scheduled exactly one period apart
-    assert r2.scheduled_ns - r1.scheduled_ns == 10_000_000
+    r2 = release_after(name, r1)
+    # absolute deadlines: releases are scheduled on the period's grid (a
+    # release the worker was too late for is skipped, not shifted)
+    gap = r2.scheduled_ns - r1.scheduled_ns
+    assert gap > 0 and rem(gap, 10_000_000) == 0
   end
 
   test "a missed deadline gets the fallback in that cycle; the late result is reported, not applied",
@@ -83,37 +84,60 @@ defmodule ThinkingCap.CycleTest do
 
     assert cycle == r.cycle
     assert fallback.applied_ns >= r.scheduled_ns + 5_000_000
-    # applied at the deadline (measured from the actual release, so less its
-    # jitter), not a cycle later
-    assert response > 4_000 and response < 15_000
+    # not before the deadline (measured from the actual release, so less
+    # its jitter); how soon after it is the timing benchmark's business
+    assert response > 4_000
     Cycle.result(r, {:vel, 1.0, 0.0})
     assert %{kind: :late, command: nil, applied_ns: nil} = applied(name)
   end
 
+  # Counts, not times: on a loaded machine any answer may be late and the
+  # worker may skip releases it was too late for; what is counted must
+  # add up whatever the timing was.
   test "statistics count cycles, fallbacks and late results", %{name: name} do
     :ok = Cycle.add(name, period: 0.005, deadline: 0.004)
 
-    for i <- 1..20 do
-      r = release(name)
-      # answer every other release
-      if rem(i, 2) == 0, do: Cycle.result(r, :go)
-      applied(name)
-    end
+    # every other release answered, the others left to their fallback
+    answered =
+      Enum.flat_map(1..20, fn i ->
+        r = release(name)
 
+        if rem(i, 2) == 0 do
+          Cycle.result(r, :go)
+          [r.cycle]
+        else
+          []
+        end
+      end)
+
+    # each answer is reported, applied fresh or late (after its fallback)
+    reports =
+      for cycle <- answered,
+          do: applied_until(name, &(&1.cycle == cycle and &1.kind in [:fresh, :late])).kind
+
+    late = Enum.count(reports, &(&1 == :late))
     stats = Cycle.timing()[name]
     assert stats.cycles >= 20
-    assert stats.fallbacks >= 10
-    assert stats.response_us.n >= 10
+    assert stats.response_us.n + stats.late >= 10
+    assert stats.late >= late
+    # the 10 left unanswered, and every late one, got their fallback
+    assert stats.fallbacks >= 10 + late
     assert stats.jitter_us.n == stats.cycles
-    assert_in_delta stats.cycle_us.mean, 5000, 1000
+    # cycle times are whole periods (absolute deadlines), more than one
+    # only where releases were skipped
+    assert stats.cycle_us.n == stats.cycles - 1
+    assert stats.cycle_us.min >= 5000.0
+
+    assert_in_delta stats.cycle_us.mean * stats.cycle_us.n,
+                    5000.0 * (stats.cycle_us.n + stats.skipped),
+                    1.0
   end
 
   test "a killed worker is restarted; its activities stay stopped until a fresh command", %{
     name: name
   } do
     :ok = Cycle.add(name, period: 0.01, fallback: :stop)
-    Cycle.result(release(name), :go)
-    assert %{kind: :fresh} = applied(name)
+    assert {_, %{kind: :fresh}} = fresh_result(name, :go, nil)
     restarts = Cycle.status().restarts
 
     {_, 0} = System.cmd("kill", ["-9", "#{Cycle.worker_os_pid()}"])
@@ -125,8 +149,9 @@ defmodule ThinkingCap.CycleTest do
              applied_until(name, &(&1.kind == :fallback and &1.cycle == 0))
 
     assert Cycle.status().restarts == restarts + 1
-    Cycle.result(release(name), :go_again)
-    assert %{kind: :fresh, command: :go_again} = applied_until(name, &(&1.kind == :fresh))
+    # releases resume: answered (the old worker's releases still queued
+    # here are late for the new one) until one is applied fresh
+    assert {_, %{kind: :fresh, command: :go_again}} = fresh_result(name, :go_again, nil)
   end
 
   test "when the BEAM side closes, the worker applies every fallback and exits", %{tmp_dir: dir} do
@@ -291,6 +316,51 @@ defmodule ThinkingCap.CycleTest do
       end)
     end
 
+    # A wire's path that names another device after its line went away
+    # (a later test's pty that got the same /dev/pts/N, a symlink pointed
+    # elsewhere) is someone else's: the worker must not write there.
+    test "a line gone whose path names another device now is not reopened until attached again",
+         %{name: name, tmp_dir: dir} do
+      {fifo, reader} = fifo(dir)
+      link = Path.join(dir, "by-id")
+      :ok = File.ln_s(fifo, link)
+      :ok = Cycle.add(name, period: 0.02)
+      :ok = attach(name, link)
+      wire_until(reader, &String.contains?(&1, "stop\n"))
+
+      log =
+        ExUnit.CaptureLog.capture_log(fn ->
+          {:os_pid, os_pid} = Port.info(reader, :os_pid)
+          {_, 0} = System.cmd("kill", ["-9", "#{os_pid}"])
+
+          ThinkingCap.Testing.Cluster.wait_until(
+            fn -> Cycle.timing()[name].wire_errors >= 1 end,
+            5000
+          )
+
+          # the link now names another line, with its own reader
+          other = Path.join(dir, "other")
+          {_, 0} = System.cmd("mkfifo", [other])
+          other_reader = cat(other)
+          File.rm!(link)
+          :ok = File.ln_s(other, link)
+
+          ThinkingCap.Testing.Cluster.wait_until(
+            fn -> Cycle.timing()[name].wire_errors >= 2 end,
+            5000
+          )
+
+          # a second of fallbacks: none of them on the other line
+          assert wire_until(other_reader, &(&1 != ""), "", 999) == ""
+
+          # its owner hands the new device over: written to from then on
+          :ok = attach(name, link)
+          assert wire_until(other_reader, &String.contains?(&1, "stop\n")) =~ "stop\n"
+        end)
+
+      assert log =~ "the path names another device now"
+    end
+
     test "when the BEAM side closes, the worker writes the fallback bytes on the wire", %{
       tmp_dir: dir
     } do
@@ -368,18 +438,32 @@ defmodule ThinkingCap.CycleTest do
     )
   end
 
-  # answers releases until one is applied fresh
+  # answers releases until one is applied fresh (`bytes` for the wire, or nil)
   defp fresh(name, command, bytes), do: name |> fresh_result(command, bytes) |> elem(1)
   defp fresh_release(name, command, bytes), do: name |> fresh_result(command, bytes) |> elem(0)
 
-  defp fresh_result(name, command, bytes) do
+  defp fresh_result(name, command, bytes, tries \\ 20) do
+    if tries == 0, do: flunk("no result of #{inspect(name)} was applied fresh")
     r = newest(name, release(name))
-    Cycle.result(r, command, bytes)
+    if bytes, do: Cycle.result(r, command, bytes), else: Cycle.result(r, command)
 
-    # the result's own report: fresh, or late (a late one says its cycle)
-    case applied_until(name, &(&1.cycle == r.cycle and &1.kind != :fallback)) do
+    # the result's own report: fresh, or late (a late one says its cycle);
+    # none when it went to a worker that died meanwhile: answered again
+    case report(name, r.cycle, System.monotonic_time(:millisecond) + 1000) do
       %{kind: :fresh} = event -> {r, event}
-      %{kind: :late} -> fresh_result(name, command, bytes)
+      _late_or_lost -> fresh_result(name, command, bytes, tries - 1)
+    end
+  end
+
+  defp report(name, cycle, deadline) do
+    receive do
+      {:tc_cycle, :applied, ^name, %{cycle: ^cycle, kind: kind} = event} when kind != :fallback ->
+        event
+
+      {:tc_cycle, :applied, ^name, _other} ->
+        report(name, cycle, deadline)
+    after
+      max(deadline - System.monotonic_time(:millisecond), 0) -> nil
     end
   end
 

@@ -155,13 +155,20 @@ defmodule ThinkingCap.RuntimeTest do
     assert %{kind: :fallback, command: :halt} = applied_until(n.(:slow), &(&1.kind == :fallback))
     # the module itself hears the fallback that replaced its late result
     assert {:ok, _} = Blackboard.rd({:applied, robot, :halt}, 1000)
-    Process.sleep(300)
+
+    Cluster.wait_until(fn ->
+      t = Runtime.timing()
+      t[n.(:slow)].fallbacks >= 5 and t[n.(:cruise)].response_us.n >= 20
+    end)
+
     timing = Runtime.timing()
-    assert timing[n.(:slow)].fallbacks >= 5
     assert timing[n.(:slow)].late >= 1
-    # the slow module does not delay the other periodic activity
-    assert timing[n.(:cruise)].fallbacks == 0
-    assert timing[n.(:cruise)].response_us.n >= 20
+    # 30 ms of work for a 5 ms deadline: never in time
+    assert timing[n.(:slow)].response_us.n == 0
+    # the slow module's misses are its own: the other activity's results
+    # are applied fresh, most of them (a loaded machine may make some late;
+    # how few is the timing benchmark's business)
+    assert timing[n.(:cruise)].response_us.n > timing[n.(:cruise)].fallbacks
     # CPU time: the slow module's own 30 ms of work per cycle
     assert timing[n.(:slow)].cpu_us.min >= 30_000
     # published on the blackboard once a second: a later publication counts the fallbacks
@@ -262,6 +269,71 @@ defmodule ThinkingCap.RuntimeTest do
 
     assert Runtime.whereis(n.(:cruise)) == nil
     assert {:error, :not_running} = Runtime.stop(n.(:cruise))
+  end
+
+  # The isolation defect seen in tc_robot: a test killed its base module,
+  # then stopped it on exit while its supervisor was restarting it; the
+  # stop found the dead process, the restarted copy ran on, and its wire
+  # kept writing to whatever its device path named afterwards (a later
+  # test's pty). The scope of :pg is held so that it still lists the dead
+  # process while the supervisor restarts it: the order a loaded machine
+  # gives at random.
+  test "a module stopped while its supervisor restarts it stays stopped; its wire ends",
+       %{tmp_dir: dir} do
+    device = Path.join(dir, "line")
+    File.write!(device, "")
+
+    {adf, _robot, n} =
+      adf(dir,
+        wired:
+          "[module: ThinkingCap.Test.Modules.Wired, activity: :periodic, period: 0.01, " <>
+            "params: [device: #{inspect(device)}]]"
+      )
+
+    {:ok, [%{pid: old}]} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:wired))
+    applied_until(n.(:wired), &(&1.kind == :fresh and &1.wired))
+
+    scope = Process.whereis(Runtime.scope())
+    supervisor = Process.whereis(ThinkingCap.Runtime.Modules)
+    {:links, before} = Process.info(supervisor, :links)
+    :ok = :sys.suspend(scope)
+
+    stop =
+      try do
+        Process.exit(old, :kill)
+        # the supervisor restarts it: the new host waits to join :pg
+        Cluster.wait_until(fn ->
+          {:links, links} = Process.info(supervisor, :links)
+          Enum.any?(links -- before, &is_pid/1)
+        end)
+
+        # :pg lists the dead process still; the new one is not in it yet
+        assert :pg.get_members(Runtime.scope(), {:module, n.(:wired)}) == [old]
+        Task.async(fn -> Runtime.stop(n.(:wired)) end)
+      after
+        :sys.resume(scope)
+      end
+
+    assert :ok = Task.await(stop, 10_000)
+    assert Runtime.whereis(n.(:wired)) == nil
+    refute Map.has_key?(Cycle.timing(), n.(:wired))
+
+    # the fallback (on the wire) is the last command applied: no copy of
+    # the module cycles on, so nothing more is written on its device
+    Process.sleep(200)
+    assert %{kind: :fallback, wired: true} = last_applied(n.(:wired))
+    refute_receive {:tc_cycle, :applied, _, _}, 300
+    assert Runtime.whereis(n.(:wired)) == nil
+  end
+
+  # the last applied command of `name` in the mailbox
+  defp last_applied(name, last \\ nil) do
+    receive do
+      {:tc_cycle, :applied, ^name, event} -> last_applied(name, event)
+    after
+      0 -> last
+    end
   end
 
   test "a bad ADF is refused with its errors; nothing starts", %{tmp_dir: dir} do

@@ -197,9 +197,14 @@ defmodule ThinkingCap.Robot.Create2 do
   # The timing worker owns the command path (param `wire: :worker`, the
   # default): it writes each cycle's Drive Direct itself, and Drive Direct
   # 0 0 in the very cycle a result is late, the base module dies or the
-  # BEAM goes. `wire: :driver` leaves the writing to drive/2.
+  # BEAM goes. `wire: :driver` leaves the writing to drive/2. Nil while
+  # the line is lost: once it is back (maybe another tty behind the same
+  # path, which the worker does not reopen by itself) the base attaches
+  # the wire again.
   @impl true
-  def wire(%{wire: :worker} = state), do: {state.device, Protocol.drive_direct(0, 0)}
+  def wire(%{wire: :worker, connected: true} = state),
+    do: {state.device, Protocol.drive_direct(0, 0)}
+
   def wire(_state), do: nil
 
   @impl true

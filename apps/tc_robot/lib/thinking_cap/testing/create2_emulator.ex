@@ -104,7 +104,7 @@ defmodule ThinkingCap.Testing.Create2Emulator do
     GenServer.start_link(__MODULE__, opts, if(name, do: [name: name], else: []))
   end
 
-  @doc "Stops the emulator (its pty and link go)."
+  @doc "Stops the emulator (its pty and link go, also when its supervisor stops it)."
   @spec stop(GenServer.server()) :: :ok
   def stop(emu), do: GenServer.stop(emu)
 
@@ -163,6 +163,11 @@ defmodule ThinkingCap.Testing.Create2Emulator do
     link = Keyword.fetch!(opts, :link)
     # hardware does not wait for the BEAM (see the moduledoc)
     Process.flag(:priority, :high)
+    # stopped by a supervisor (ExUnit's start_supervised/1 too), terminate/2
+    # must run: the link would otherwise stay, naming /dev/pts/N, which the
+    # next pty made takes over, and whatever still opens the link (a driver
+    # left running, a wire reopened) would reach that pty's owner
+    Process.flag(:trap_exit, true)
     {:ok, uart} = UART.start_link(spawn_opt: [priority: :high])
 
     state = %{
@@ -280,12 +285,19 @@ defmodule ThinkingCap.Testing.Create2Emulator do
     {:noreply, safety(%{state | buffer: buffer})}
   end
 
+  # the pty master's process is gone: so is the robot
+  def handle_info({:EXIT, uart, reason}, %{uart: uart} = state), do: {:stop, reason, state}
+
   def handle_info(_message, state), do: {:noreply, state}
 
   @impl true
   def terminate(_reason, state) do
+    # the link first, so nothing opens the pty anew, then the pty itself
     File.rm(state.link)
+    if Process.alive?(state.uart), do: UART.stop(state.uart)
     :ok
+  catch
+    :exit, _ -> :ok
   end
 
   ## The line

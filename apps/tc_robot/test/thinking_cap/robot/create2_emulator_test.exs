@@ -178,6 +178,15 @@ defmodule ThinkingCap.Robot.Create2EmulatorTest do
     assert next_frame(link)[35] == :passive
   end
 
+  # a later test's pty may get the same /dev/pts/N: a link left behind
+  # would lead whatever still opens it (a driver, a wire) to that pty
+  test "stopped by its supervisor, the emulator takes its link away", %{emu: emu} do
+    link = Emulator.link(emu)
+    assert {:ok, "/dev/pts/" <> _} = File.read_link(link)
+    :ok = stop_supervised(Emulator)
+    assert {:error, :enoent} = File.read_link(link)
+  end
+
   defp flush_frames(link) do
     receive do
       {:tc_uart, ^link, _} -> flush_frames(link)

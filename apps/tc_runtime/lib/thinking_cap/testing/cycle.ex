@@ -29,10 +29,25 @@ defmodule ThinkingCap.Testing.Cycle do
     end
   end
 
-  @doc "Skips applied commands of `name` until one for which `fun` is true, and returns it."
+  @doc """
+  Skips applied commands of `name` until one for which `fun` is true, and
+  returns it; a test failure if none comes within `timeout` ms in all
+  (commands that keep coming, none of them the one, do not extend it).
+  """
   @spec applied_until(atom(), (map() -> boolean()), timeout()) :: map()
   def applied_until(name, fun, timeout \\ 5000) do
-    event = applied(name, timeout)
-    if fun.(event), do: event, else: applied_until(name, fun, timeout)
+    deadline = System.monotonic_time(:millisecond) + timeout
+    skip_until(name, fun, deadline, timeout)
+  end
+
+  defp skip_until(name, fun, deadline, timeout) do
+    left = max(deadline - System.monotonic_time(:millisecond), 0)
+
+    receive do
+      {:tc_cycle, :applied, ^name, event} ->
+        if fun.(event), do: event, else: skip_until(name, fun, deadline, timeout)
+    after
+      left -> flunk("no command applied for #{inspect(name)} was the one within #{timeout} ms")
+    end
   end
 end

@@ -197,8 +197,20 @@ defmodule ThinkingCap.Robot.Core.Base do
 
   def handle_info(message, state) do
     {readings, dstate} = state.driver.handle_data(message, state.dstate)
-    {publish(readings, state.robot), %{state | dstate: dstate}}
+    {reattach(state, dstate) ++ publish(readings, state.robot), %{state | dstate: dstate}}
   end
+
+  # A driver that reopened its line (a new device behind the same path)
+  # names it again: the worker, which reopens only the device it first
+  # opened, is handed the new one.
+  defp reattach(%{wire: true} = state, dstate) do
+    case {wire(state.driver, state.dstate), wire(state.driver, dstate)} do
+      {nil, {device, fallback}} -> [{:attach_wire, device, fallback}]
+      _ -> []
+    end
+  end
+
+  defp reattach(_state, _dstate), do: []
 
   def terminate(reason, state) do
     # leave the robot stopped whatever happened
