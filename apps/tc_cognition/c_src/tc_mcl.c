@@ -38,6 +38,7 @@ typedef struct {
     int w, h;
     double res, ox, oy;
     float *dist;      /* metres to the nearest occupied cell */
+    float *udist;     /* metres to the nearest unknown cell (or the map's edge) */
     uint8_t *unknown; /* 1 where the map does not know */
     int strict;       /* a map given whole: unknown endpoints are scored */
 } Field;
@@ -54,6 +55,7 @@ static void field_free(ErlNifEnv *env, void *obj)
     (void)env;
     Field *f = obj;
     free(f->dist);
+    free(f->udist);
     free(f->unknown);
 }
 
@@ -176,36 +178,47 @@ ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;
     int m = w > h ? w : h;
+    const double big = 1e20;
     Field *f = enif_alloc_resource(FIELD_TYPE, sizeof(Field));
     memset(f, 0, sizeof(Field));
     f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy, f->strict = strict != 0;
     f->dist = malloc(n * sizeof(float));
+    f->udist = malloc(n * sizeof(float));
     f->unknown = malloc(n);
     double *g = malloc(n * sizeof(double));
-    double *fl = calloc(m, sizeof(double)), *d = calloc(m, sizeof(double));
-    double *z = malloc((m + 1) * sizeof(double));
-    int *v = malloc(m * sizeof(int));
-    if (!f->dist || !f->unknown || !g || !fl || !d || !z || !v) {
+    /* a line one longer than the map: the map's edge as one more cell */
+    double *fl = calloc(m + 2, sizeof(double)), *d = calloc(m + 2, sizeof(double));
+    double *z = malloc((m + 3) * sizeof(double));
+    int *v = malloc((m + 2) * sizeof(int));
+    if (!f->dist || !f->udist || !f->unknown || !g || !fl || !d || !z || !v) {
         free(g), free(fl), free(d), free(z), free(v);
         enif_release_resource(f);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
-    const double big = 1e20;
-    for (int c = 0; c < w; c++) {
-        for (int r = 0; r < h; r++) {
-            int8_t val = (int8_t)b.data[(size_t)r * w + c];
-            fl[r] = val >= threshold ? 0.0 : big;
-        }
-        dt1(fl, d, h, v, z);
-        for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r];
-    }
-    for (int r = 0; r < h; r++) {
-        for (int c = 0; c < w; c++) fl[c] = g[(size_t)r * w + c];
-        dt1(fl, d, w, v, z);
+    for (size_t i = 0; i < n; i++) f->unknown[i] = (int8_t)b.data[i] < 0;
+    /* distances to the occupied cells, then to the unknown ones and the
+     * map's edge (the cells just outside it) */
+    for (int pass = 0; pass < 2; pass++) {
+        int pad = pass; /* the edge: one cell more on each side */
+        float *out = pass == 0 ? f->dist : f->udist;
         for (int c = 0; c < w; c++) {
-            size_t i = (size_t)r * w + c;
-            f->dist[i] = d[c] >= big / 2 ? 1e6f : (float)(sqrt(d[c]) * res);
-            f->unknown[i] = (int8_t)b.data[i] < 0;
+            for (int r = 0; r < h; r++) {
+                int8_t val = (int8_t)b.data[(size_t)r * w + c];
+                int on = pass == 0 ? val >= threshold : val < 0;
+                fl[r + pad] = on ? 0.0 : big;
+            }
+            if (pad) fl[0] = fl[h + 1] = 0.0;
+            dt1(fl, d, h + 2 * pad, v, z);
+            for (int r = 0; r < h; r++) g[(size_t)r * w + c] = d[r + pad];
+        }
+        for (int r = 0; r < h; r++) {
+            for (int c = 0; c < w; c++) fl[c + pad] = g[(size_t)r * w + c];
+            if (pad) fl[0] = fl[w + 1] = 0.0;
+            dt1(fl, d, w + 2 * pad, v, z);
+            for (int c = 0; c < w; c++) {
+                double dc = d[c + pad];
+                out[(size_t)r * w + c] = dc >= big / 2 ? 1e6f : (float)(sqrt(dc) * res);
+            }
         }
     }
     free(g), free(fl), free(d), free(z), free(v);
@@ -324,10 +337,12 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
 }
 
 /* field_fit(field, beams, model, {x, y, th}, tolerance) -> {near, judged}:
- * of the beams with an echo (`judged`; in a map not given whole, those
- * ending on known map), those that end within `tolerance` metres of an
- * occupied cell (`near`). In a map given whole, a beam ending in unknown
- * space or off the map is judged and is not near. A beam without echo is
+ * of the beams with an echo ending on known map (`judged`), those that
+ * end within `tolerance` metres of an occupied cell (`near`). A beam
+ * ending in unknown space, off the map, or within `tolerance` of either
+ * and not of an occupied cell is not judged: what the map does not know
+ * (a box in a rack's unknown inside, the open end of a map) says nothing
+ * of the pose, even in a map given whole. A beam without echo is
  * judged (and not near) when the map has an occupied cell on its way,
  * 0.5 m or more short of the range: the laser would have seen it. */
 ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -362,14 +377,14 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
         double ex = sx + r * cos(th + q[2]), ey = sy + r * sin(th + q[2]);
         long col = (long)floor((ex - f->ox) / f->res), row = (long)floor((ey - f->oy) / f->res);
-        if (col < 0 || row < 0 || col >= f->w || row >= f->h) {
-            if (f->strict) judged++;
-            continue;
-        }
+        if (col < 0 || row < 0 || col >= f->w || row >= f->h) continue;
         size_t cell = (size_t)row * f->w + col;
-        if (f->unknown[cell] && !f->strict) continue;
-        judged++;
-        if (!f->unknown[cell] && f->dist[cell] <= tol) near++;
+        if (f->unknown[cell]) continue;
+        if (f->dist[cell] <= tol) {
+            judged++, near++;
+        } else if (f->udist[cell] > tol) {
+            judged++;
+        }
     }
     return enif_make_tuple2(env, enif_make_int(env, near), enif_make_int(env, judged));
 }
@@ -722,6 +737,47 @@ ERL_NIF_TERM tc_nif_pf_estimate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
                          enif_make_double(env, mt)),
         enif_make_list3(env, rows[0], rows[1], rows[2]), enif_make_double(env, sw * sw / sw2));
+}
+
+/* pf_mode(pf, radius) -> {{x, y, th}, share}: the weighted mean pose
+ * (circular mean heading) of the particles within `radius` metres of the
+ * particle of the largest weight, and their share of the weight: the
+ * place the cloud holds most likely, when it is split between places */
+ERL_NIF_TERM tc_nif_pf_mode(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    double radius;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !num(env, argv[1], &radius) ||
+        radius < 0)
+        return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    int best = 0;
+    for (int i = 1; i < p->n; i++)
+        if (p->lw[i] > p->lw[best]) best = i;
+    double bx = p->x[best], by = p->y[best], r2 = radius * radius;
+    double mx = 0, my = 0, mc = 0, ms = 0, sw = 0, all = 0;
+    for (int i = 0; i < p->n; i++) {
+        double w = exp(p->lw[i]);
+        all += w;
+        double dx = p->x[i] - bx, dy = p->y[i] - by;
+        if (dx * dx + dy * dy > r2) continue;
+        mx += w * p->x[i], my += w * p->y[i];
+        mc += w * cos(p->th[i]), ms += w * sin(p->th[i]);
+        sw += w;
+    }
+    if (!(sw > 0)) {
+        /* weights too small to sum: the best particle alone */
+        mx = bx, my = by, mc = cos(p->th[best]), ms = sin(p->th[best]), sw = 1.0, all = 1.0;
+    } else {
+        mx /= sw, my /= sw;
+    }
+    enif_mutex_unlock(p->lock);
+    return enif_make_tuple2(
+        env,
+        enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
+                         enif_make_double(env, atan2(ms, mc))),
+        enif_make_double(env, all > 0 ? sw / all : 1.0));
 }
 
 /* pf_best(pf) -> {x, y, th}: the particle of the largest weight */

@@ -47,11 +47,21 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
     assert nil == ParticleFilter.hits(pf, beams([{:math.pi(), 1.0e6}]), pose)
   end
 
-  test "a beam ending in unknown space misfits in a map given whole, says nothing in one being built" do
-    beam = beams([{:math.pi(), 1.0}])
+  test "a beam ending in unknown space, off the map or by the unknown's edge is not judged" do
     pose = {1.5, 2.0, 0.0}
-    assert {0.0, 1} = ParticleFilter.hits(filter(true), beam, pose)
-    assert nil == ParticleFilter.hits(filter(false), beam, pose)
+
+    for strict <- [true, false] do
+      # 1.0 m behind: inside the unknown strip (a box there, as the map
+      # does not know); 0.45 m behind: in the open, 5 cm from the strip
+      assert nil == ParticleFilter.hits(filter(strict), beams([{:math.pi(), 1.0}]), pose)
+      assert nil == ParticleFilter.hits(filter(strict), beams([{:math.pi(), 0.45}]), pose)
+      # 3 m ahead: off the map
+      assert nil == ParticleFilter.hits(filter(strict), beams([{0.0, 3.0}]), pose)
+    end
+
+    # beside them, a beam in the open still misfits
+    assert {0.0, 1} =
+             ParticleFilter.hits(filter(true), beams([{:math.pi(), 1.0}, {0.0, 0.5}]), pose)
   end
 
   test "a wall seen once (occupancy under 50) counts from the threshold given" do
