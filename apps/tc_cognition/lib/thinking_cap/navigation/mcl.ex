@@ -53,9 +53,12 @@ defmodule ThinkingCap.Navigation.MCL do
   started from a wrong pose) only when a place more than 1 m from the
   best particle fits the scan better than the best place within 1 m by
   `lost_margin` (log-likelihood per beam with an echo), and the scan
-  would not be poor from there. Otherwise nothing moves (the particles
-  are only spread round the places near when these fit better by as
-  much), and the robot goes on 0.5 m before it searches again. A robot
+  would not be poor from there, or when a place near fits better than
+  the best particle by as much and places away fit about as well (a
+  symmetric room: the moves to come tell them apart). Otherwise nothing
+  moves (the particles are only spread round the places near when these
+  fit better by as much), and the robot goes on 0.5 m before it searches
+  again. A robot
   lost has its particles spread round the places found
   (`relocalizing`), and the scans after are weighed
   tempered (at most forty times, until the cloud gathers), so that
@@ -558,11 +561,20 @@ defmodule ThinkingCap.Navigation.MCL do
     # place fits them, whose walls the beams without echo pass through
     far = Enum.reject(far, &poor_at?(state, beams, &1))
 
-    case far do
-      [{ll, _, _, _} | _] when ll - elem(local, 0) > margin ->
-        lost(state, Enum.sort_by(near ++ far, &(-elem(&1, 0))), gain(ll, local, used), best)
+    local_ll = elem(local, 0)
+    # places away that fit about as well as the best near one
+    alike = Enum.filter(far, fn {ll, _, _, _} -> ll >= local_ll - margin end)
 
-      _ ->
+    cond do
+      far != [] and elem(hd(far), 0) - local_ll > margin ->
+        lost(state, Enum.sort_by(near ++ far, &(-elem(&1, 0))), gain(far, local, used), best)
+
+      local_ll - here > margin and alike != [] ->
+        # the tracked pose is wrong, and the scan fits places near and
+        # away alike (a symmetric room): the moves to come tell them apart
+        lost(state, Enum.sort_by(near ++ alike, &(-elem(&1, 0))), gain(far, local, used), best)
+
+      true ->
         Logger.info(
           "#{inspect(state.robot)}: the scan fits the map poorly at #{place(best)} " <>
             "(#{describe_fit(state)}) " <>
@@ -572,13 +584,11 @@ defmodule ThinkingCap.Navigation.MCL do
 
         state = %{state | poor: 0, quiet_until: state.travelled + @quiet}
 
-        case near do
-          [{ll, _, _, _} | _] when ll - here > margin ->
-            {filter, _} = ParticleFilter.relocalize_to(filter, near, seed: state.params[:seed])
-            settle(%{state | filter: filter, updates: 0})
-
-          _ ->
-            settle(state)
+        if local_ll - here > margin do
+          {filter, _} = ParticleFilter.relocalize_to(filter, near, seed: state.params[:seed])
+          settle(%{state | filter: filter, updates: 0})
+        else
+          settle(state)
         end
     end
   end
