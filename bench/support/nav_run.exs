@@ -230,8 +230,18 @@ defmodule ThinkingCap.Bench.NavRun do
 
     state = if plan, do: elem(plan, 2).state
 
+    estimate =
+      case Lockstep.latest(lock, {:pose, :nav, :_}) do
+        {:pose, _, %{pose: {ex, ey, _}, status: status}} ->
+          " estimate (#{fmt(ex)}, #{fmt(ey)}) #{status}"
+
+        _ ->
+          ""
+      end
+
     IO.puts(
-      "    t=#{fmt(time)} (#{fmt(x)}, #{fmt(y)}) #{state} #{inspect(command)} #{Enum.join(activation, " ")}"
+      "    t=#{fmt(time)} (#{fmt(x)}, #{fmt(y)})#{estimate} #{state} #{inspect(command)} " <>
+        Enum.join(activation, " ")
     )
   end
 

@@ -910,6 +910,7 @@ static ErlNifFunc funcs[] = {
     {"pf_weigh", 5, tc_nif_pf_weigh, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"pf_resample", 3, tc_nif_pf_resample, 0},
     {"pf_estimate", 1, tc_nif_pf_estimate, 0},
+    {"pf_mode", 2, tc_nif_pf_mode, 0},
     {"pf_best", 1, tc_nif_pf_best, 0},
     {"pf_sample", 2, tc_nif_pf_sample, 0},
     {"pf_transform", 3, tc_nif_pf_transform, 0},

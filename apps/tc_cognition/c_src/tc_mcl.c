@@ -39,6 +39,7 @@ typedef struct {
     int w, h;
     double res, ox, oy;
     float *dist;      /* metres to the nearest occupied cell */
+    float *udist;     /* metres to the nearest unknown cell (or the map's edge) */
     uint8_t *unknown; /* 1 where the map does not know */
     int strict;       /* a map given whole: unknown endpoints are scored */
 } Field;
@@ -55,6 +56,7 @@ static void field_free(ErlNifEnv *env, void *obj)
     (void)env;
     Field *f = obj;
     free(f->dist);
+    free(f->udist);
     free(f->unknown);
 }
 
@@ -154,23 +156,43 @@ ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     memset(f, 0, sizeof(Field));
     f->w = w, f->h = h, f->res = res, f->ox = ox, f->oy = oy, f->strict = strict != 0;
     f->dist = malloc(n * sizeof(float));
+    f->udist = malloc(n * sizeof(float));
     f->unknown = malloc(n);
-    unsigned char *walls = malloc(n);
-    if (!f->dist || !f->unknown || !walls) {
-        free(walls);
-        enif_release_resource(f);
-        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    }
-    for (size_t i = 0; i < n; i++) walls[i] = (int8_t)b.data[i] >= threshold;
-    double *g = tc_edt2(walls, w, h);
-    free(walls);
-    if (!g) {
+    /* seeds: the occupied cells; then the unknown ones and the map's edge
+     * (a border of cells just outside it) */
+    int pw = w + 2, ph = h + 2;
+    unsigned char *seeds = malloc((size_t)pw * ph);
+    if (!f->dist || !f->udist || !f->unknown || !seeds) {
+        free(seeds);
         enif_release_resource(f);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     for (size_t i = 0; i < n; i++) {
-        f->dist[i] = isinf(g[i]) ? 1e6f : (float)(sqrt(g[i]) * res);
         f->unknown[i] = (int8_t)b.data[i] < 0;
+        seeds[i] = (int8_t)b.data[i] >= threshold;
+    }
+    double *g = tc_edt2(seeds, w, h);
+    if (!g) {
+        free(seeds);
+        enif_release_resource(f);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (size_t i = 0; i < n; i++) f->dist[i] = isinf(g[i]) ? 1e6f : (float)(sqrt(g[i]) * res);
+    free(g);
+    for (int r = 0; r < ph; r++)
+        for (int c = 0; c < pw; c++)
+            seeds[(size_t)r * pw + c] = r == 0 || c == 0 || r == ph - 1 || c == pw - 1 ||
+                                        f->unknown[(size_t)(r - 1) * w + (c - 1)];
+    g = tc_edt2(seeds, pw, ph);
+    free(seeds);
+    if (!g) {
+        enif_release_resource(f);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            double dc = g[(size_t)(r + 1) * pw + (c + 1)];
+            f->udist[(size_t)r * w + c] = isinf(dc) ? 1e6f : (float)(sqrt(dc) * res);
     }
     free(g);
     ERL_NIF_TERM t = enif_make_resource(env, f);
@@ -288,10 +310,12 @@ ERL_NIF_TERM tc_nif_field_score(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
 }
 
 /* field_fit(field, beams, model, {x, y, th}, tolerance) -> {near, judged}:
- * of the beams with an echo (`judged`; in a map not given whole, those
- * ending on known map), those that end within `tolerance` metres of an
- * occupied cell (`near`). In a map given whole, a beam ending in unknown
- * space or off the map is judged and is not near. A beam without echo is
+ * of the beams with an echo ending on known map (`judged`), those that
+ * end within `tolerance` metres of an occupied cell (`near`). A beam
+ * ending in unknown space, off the map, or within `tolerance` of either
+ * and not of an occupied cell is not judged: what the map does not know
+ * (a box in a rack's unknown inside, the open end of a map) says nothing
+ * of the pose, even in a map given whole. A beam without echo is
  * judged (and not near) when the map has an occupied cell on its way,
  * 0.5 m or more short of the range: the laser would have seen it. */
 ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -326,14 +350,14 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         }
         double ex = sx + r * cos(th + q[2]), ey = sy + r * sin(th + q[2]);
         long col = (long)floor((ex - f->ox) / f->res), row = (long)floor((ey - f->oy) / f->res);
-        if (col < 0 || row < 0 || col >= f->w || row >= f->h) {
-            if (f->strict) judged++;
-            continue;
-        }
+        if (col < 0 || row < 0 || col >= f->w || row >= f->h) continue;
         size_t cell = (size_t)row * f->w + col;
-        if (f->unknown[cell] && !f->strict) continue;
-        judged++;
-        if (!f->unknown[cell] && f->dist[cell] <= tol) near++;
+        if (f->unknown[cell]) continue;
+        if (f->dist[cell] <= tol) {
+            judged++, near++;
+        } else if (f->udist[cell] > tol) {
+            judged++;
+        }
     }
     return enif_make_tuple2(env, enif_make_int(env, near), enif_make_int(env, judged));
 }
@@ -713,6 +737,47 @@ ERL_NIF_TERM tc_nif_pf_estimate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
                          enif_make_double(env, mt)),
         enif_make_list3(env, rows[0], rows[1], rows[2]), enif_make_double(env, sw * sw / sw2));
+}
+
+/* pf_mode(pf, radius) -> {{x, y, th}, share}: the weighted mean pose
+ * (circular mean heading) of the particles within `radius` metres of the
+ * particle of the largest weight, and their share of the weight: the
+ * place the cloud holds most likely, when it is split between places */
+ERL_NIF_TERM tc_nif_pf_mode(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Pf *p;
+    double radius;
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !num(env, argv[1], &radius) ||
+        radius < 0)
+        return enif_make_badarg(env);
+    enif_mutex_lock(p->lock);
+    int best = 0;
+    for (int i = 1; i < p->n; i++)
+        if (p->lw[i] > p->lw[best]) best = i;
+    double bx = p->x[best], by = p->y[best], r2 = radius * radius;
+    double mx = 0, my = 0, mc = 0, ms = 0, sw = 0, all = 0;
+    for (int i = 0; i < p->n; i++) {
+        double w = exp(p->lw[i]);
+        all += w;
+        double dx = p->x[i] - bx, dy = p->y[i] - by;
+        if (dx * dx + dy * dy > r2) continue;
+        mx += w * p->x[i], my += w * p->y[i];
+        mc += w * cos(p->th[i]), ms += w * sin(p->th[i]);
+        sw += w;
+    }
+    if (!(sw > 0)) {
+        /* weights too small to sum: the best particle alone */
+        mx = bx, my = by, mc = cos(p->th[best]), ms = sin(p->th[best]), sw = 1.0, all = 1.0;
+    } else {
+        mx /= sw, my /= sw;
+    }
+    enif_mutex_unlock(p->lock);
+    return enif_make_tuple2(
+        env,
+        enif_make_tuple3(env, enif_make_double(env, mx), enif_make_double(env, my),
+                         enif_make_double(env, atan2(ms, mc))),
+        enif_make_double(env, all > 0 ? sw / all : 1.0));
 }
 
 /* pf_best(pf) -> {x, y, th}: the particle of the largest weight */

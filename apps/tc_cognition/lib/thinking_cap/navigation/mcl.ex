@@ -41,18 +41,30 @@ defmodule ThinkingCap.Navigation.MCL do
   end short of one (a box, a person the map does not hold) contradict
   nothing. And a scan should end on the map: the share of its beams that
   end within 0.25 m of an obstacle of the map (a beam without echo
-  counting as a miss where the map has a wall in its range; in a WDF's
-  map, a beam ending in unknown space too) is set against what it
-  usually is while tracking (learnt quickly upwards, slowly downwards,
-  taken as at least 0.6). A scan is poor when more than `lost_through`
-  of its judged beams contradict the pose, or when its share falls under
-  `lost_hits` of the usual. The robot is taken to be lost (carried away,
-  or started from a wrong pose) when its scans are poor `lost_after`
-  times more often than not, once a fresh cloud had ten weighings to
-  settle. Then the whole map is searched for the scan (the estimate
-  staying a candidate; the lattice scored with a wider sensor model, the
-  best pose of each of up to 60 places refined), the particles spread
-  round those poses (`relocalizing`), and the scans after are weighed
+  counting as a miss where the map has a wall in its range; a beam
+  ending in unknown space, off the map or within 0.25 m of either, and
+  not of a wall, not judged: the map does not know what stopped it) is
+  set against what it usually is while tracking (learnt quickly
+  upwards, slowly downwards, taken as at least 0.6). A scan is poor when
+  more than `lost_through` of its judged beams contradict the pose, or
+  when its share falls under `lost_hits` of the usual. Scans poor
+  `lost_after` times more often than not (once a fresh cloud had ten
+  weighings to settle) say the pose may be wrong, or that the map lacks
+  what the laser sees (boxes, people, a map's open end). To tell which,
+  the whole map is searched for the scan (the lattice scored with a
+  wider sensor model, the best pose of each of up to 60 places refined,
+  the best particle refined too). The robot is lost (carried away, or
+  started from a wrong pose) only when a place more than 1 m from the
+  best particle fits the scan better than the best place within 1 m by
+  `lost_margin` (log-likelihood per beam with an echo), and the scan
+  would not be poor from there, or when a place near fits better than
+  the best particle by as much and places away fit about as well (a
+  symmetric room: the moves to come tell them apart). Otherwise nothing
+  moves (the particles are only spread round the places near when these
+  fit better by as much), and the robot goes on 0.5 m before it searches
+  again. A robot
+  lost has its particles spread round the places found
+  (`relocalizing`), and the scans after are weighed
   tempered (at most forty times, until the cloud gathers), so that
   places one scan cannot tell apart live on until the moves to come do.
   Scans poor again once the new cloud had its ten weighings search
@@ -74,7 +86,10 @@ defmodule ThinkingCap.Navigation.MCL do
   (latest value, key `{:pose, robot}`) after each weighing and, between
   them, after odometry when `publish_period` (default 0.1 s) of stamp has
   passed. `confidence` in [0, 1] is the fit of the last scan, lowered as
-  the position's standard deviation grows past 0.1 m; `status` is
+  the position's standard deviation grows past 0.1 m. While the particles
+  are spread wider than 0.3 m, `pose` is the mean of those within 1 m of
+  the best one (the mean of a cloud split between two aisles stands in
+  the rack between them); the covariance stays the whole cloud's. `status` is
   `:tracking`, `:uncertain` (a poor fit or a wide spread), `:lost`
   (about to search) or `:relocalizing`, or `:dead_reckoning` without a
   map. Also `{:particles, robot, %{poses: [{x, y, θ}], stamp: t}}`, up
@@ -91,13 +106,19 @@ defmodule ThinkingCap.Navigation.MCL do
       `odometry_error`: generous multiples of its slips);
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
       `publish_period` (0.1 s), `map_every` (2 s);
+    * `calibrate` - in simultaneous localization and mapping, calibrate
+      the odometry as it goes (default true): the heading corrections
+      the scans make teach it the odometry's turn scale and turn per
+      metre driven (a wheelbase off by 0.5 %, wheels of unequal size),
+      which are then taken out of its moves
+      (`ThinkingCap.Navigation.OdometryCalibration`);
     * `slam_wall` - in simultaneous localization and mapping, the
       occupancy (0-100) from which a cell of the map being built counts as
       a wall (default 30: a wall seen once, from afar, is already one;
       beams that end near it would otherwise weigh less than beams that
       end in unknown space, and pull the estimate off);
     * `lost_through` (0.2), `lost_hits` (0.6), `lost_after` (3),
-      `search_step` (0.2 m), `search_headings` (72).
+      `lost_margin` (0.3), `search_step` (0.2 m), `search_headings` (72).
 
   The params the filter reads as it runs (`beams`, `update_distance`,
   `update_angle`, `publish_period`, `map_every`, `slam_wall`, `lost_*`,
@@ -111,7 +132,7 @@ defmodule ThinkingCap.Navigation.MCL do
   require Logger
 
   alias ThinkingCap.Config.WDF
-  alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, ParticleFilter}
+  alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, OdometryCalibration, ParticleFilter}
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Robot.Description
 
@@ -138,9 +159,15 @@ defmodule ThinkingCap.Navigation.MCL do
     publish_period: {:pos_number, default: 0.1, doc: "s between estimates from odometry"},
     map_every: {:pos_number, default: 2.0, doc: "s between maps taken in SLAM"},
     slam_wall: {{:int_range, 1, 100}, default: 30, doc: "occupancy of a wall in SLAM"},
+    calibrate:
+      {:boolean,
+       default: true, read_only: true, doc: "in SLAM, calibrate the odometry's systematic errors"},
     lost_through: {:probability, default: 0.2, doc: "share of beams through walls: poor"},
     lost_hits: {:probability, default: 0.6, doc: "share of the usual hits below which: poor"},
     lost_after: {:pos_integer, default: 3, doc: "poor scans before lost"},
+    lost_margin:
+      {:non_neg_number,
+       default: 0.3, doc: "log-likelihood per beam a place far away must fit better by: lost"},
     search_step: {:pos_number, default: 0.2, doc: "m between poses of a map search"},
     search_headings: {{:int_range, 1, 720}, default: 72, doc: "headings of a map search"}
   ]
@@ -164,6 +191,11 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # weighings a fresh cloud of particles gets before it may be judged lost
   @settling 10
+  # m within which a place found counts as the tracked one
+  @near 1.0
+  # m the robot moves after a poor scan no other place explained before
+  # another search
+  @quiet 0.5
 
   @impl true
   def init(params, context) do
@@ -215,15 +247,21 @@ defmodule ThinkingCap.Navigation.MCL do
       moved: {0.0, 0.0},
       fit: nil,
       hits: nil,
+      through: nil,
       baseline: nil,
       poor: 0,
+      travelled: 0.0,
+      quiet_until: nil,
       updates: 0,
       spread: 0,
       checked: nil,
       status: if(filter.map, do: :tracking, else: :dead_reckoning),
       published: nil,
       particles_at: nil,
-      frame: 0
+      frame: 0,
+      # in SLAM: the odometry's systematic errors learned from the scans
+      calibration: if(filter.map == nil and params[:calibrate], do: OdometryCalibration.new()),
+      since: {0.0, 0.0}
     }
 
     subscriptions =
@@ -289,11 +327,24 @@ defmodule ThinkingCap.Navigation.MCL do
         {[], %{s | last_odometry: odom, odometry_at: stamp}}
 
       previous ->
-        {dx, dy, dth} = delta = EKF.relative(previous, odom)
-        filter = ParticleFilter.move(s.filter, delta)
+        {dx, dy, dth} = raw = EKF.relative(previous, odom)
+        filter = ParticleFilter.move(s.filter, calibrated(s.calibration, raw))
+        {turn, distance} = s.since
+        since = {turn + dth, distance + OdometryCalibration.signed_distance(dx, dy)}
+        s = %{s | since: since}
         {d, a} = s.moved
-        moved = {d + :math.sqrt(dx * dx + dy * dy), a + abs(dth)}
-        s = %{s | filter: filter, last_odometry: odom, odometry_at: stamp, moved: moved}
+        step = :math.sqrt(dx * dx + dy * dy)
+        moved = {d + step, a + abs(dth)}
+
+        s = %{
+          s
+          | filter: filter,
+            last_odometry: odom,
+            odometry_at: stamp,
+            moved: moved,
+            travelled: s.travelled + step
+        }
+
         {actions, s} = if due?(s, stamp), do: publish(s, stamp), else: {[], s}
         {more, s} = release_held(s)
         {actions ++ more, s}
@@ -371,7 +422,7 @@ defmodule ThinkingCap.Navigation.MCL do
 
       state
       |> first_fix(many)
-      |> weigh(beams, many)
+      |> learning(&weigh(&1, beams, many))
       |> Map.merge(%{moved: {0.0, 0.0}, checked: stamp})
       |> publish(stamp)
     else
@@ -389,6 +440,30 @@ defmodule ThinkingCap.Navigation.MCL do
   end
 
   ## the filter
+
+  defp calibrated(nil, move), do: move
+  defp calibrated(calibration, move), do: OdometryCalibration.apply_to(calibration, move)
+
+  # a weighing, and the heading correction it made taught to the odometry
+  # calibration (while tracking; a search's jump teaches nothing)
+  defp learning(%{calibration: nil} = state, weigh), do: weigh.(state)
+
+  defp learning(state, weigh) do
+    {{_, _, before}, _} = ParticleFilter.estimate(state.filter)
+    tracking = state.status == :tracking and state.filter.map != nil
+    state = weigh.(state)
+    {{_, _, now}, _} = ParticleFilter.estimate(state.filter)
+    delta = EKF.normalize(now - before)
+    {turn, distance} = state.since
+    c = state.calibration
+
+    calibration =
+      if tracking and state.status == :tracking and abs(delta) < 0.1,
+        do: OdometryCalibration.learn(c, turn, distance, delta + c.a * turn + c.b * distance),
+        else: c
+
+    %{state | calibration: calibration, since: {0.0, 0.0}}
+  end
 
   # the map builder's map, at most every map_every seconds
   defp take_map(%{pending_map: nil} = state, _stamp), do: state
@@ -460,18 +535,20 @@ defmodule ThinkingCap.Navigation.MCL do
         # beams seen through walls say the pose is wrong, and so do beams
         # ending far from what the map holds, many more than usual; a good
         # scan now and then takes one poor one back, not all of them
-        limit = state.params[:lost_through]
         hits = ParticleFilter.hits(filter, beams, best)
         misfit = misfit?(state, hits)
 
         poor =
-          case contradiction do
-            {share, judged} when judged >= 10 and share > limit -> state.poor + 1
-            _ when misfit -> state.poor + 1
-            _ -> max(state.poor - 1, 0)
-          end
+          if through?(state, contradiction) or misfit,
+            do: state.poor + 1,
+            else: max(state.poor - 1, 0)
 
-        state = %{state | hits: hits, baseline: baseline(state, hits, misfit)}
+        state = %{
+          state
+          | hits: hits,
+            through: contradiction,
+            baseline: baseline(state, hits, misfit)
+        }
 
         # a cloud that stays spread wide has no place either
         {_pose, [[sxx | _], [_, syy | _] | _]} = ParticleFilter.estimate(filter)
@@ -482,8 +559,11 @@ defmodule ThinkingCap.Navigation.MCL do
           state.slam or state.updates <= @settling ->
             settle(state)
 
+          poor >= state.params[:lost_after] and quiet?(state) ->
+            settle(%{state | poor: 0})
+
           poor >= state.params[:lost_after] ->
-            relocalize(state, many.())
+            confirm(state, many.())
 
           spread >= 2 * @settling and searched?(state) ->
             relocalize(state, many.(), around(state))
@@ -492,6 +572,18 @@ defmodule ThinkingCap.Navigation.MCL do
             settle(state)
         end
     end
+  end
+
+  # more than lost_through of the judged beams seen through walls
+  defp through?(state, {share, judged}), do: judged >= 10 and share > state.params[:lost_through]
+  defp through?(_state, nil), do: false
+
+  # a scan poor from `pose`, judged as from the tracked one
+  defp poor_at?(state, beams, {_ll, x, y, th}) do
+    pose = {x, y, th}
+
+    through?(state, ParticleFilter.contradiction(state.filter, beams, pose)) or
+      misfit?(state, ParticleFilter.hits(state.filter, beams, pose))
   end
 
   # a scan whose beams end on the map far less often than they did while
@@ -528,9 +620,104 @@ defmodule ThinkingCap.Navigation.MCL do
     {{x, y}, radius, {th, min(3 * :math.sqrt(max(stt, 0.0)) + 0.2, :math.pi())}}
   end
 
+  # a scan found poor again soon after one that fitted no other place
+  # better: left alone until the robot moved on
+  defp quiet?(%{quiet_until: nil}), do: false
+  defp quiet?(state), do: state.travelled < state.quiet_until
+
+  # poor scans say the pose may be wrong, or that the map lacks what the
+  # laser sees (boxes, people, racks moved): the whole map is searched,
+  # and the robot is lost only when a place away from the tracked one fits
+  # the scan clearly better (by lost_margin per beam) than the best place
+  # near it; otherwise the scan is left unexplained, and the particles are
+  # spread round the best place near the tracked one when it fits clearly
+  # better than the tracked pose itself
+  defp confirm(%{filter: filter} = state, beams) do
+    best = ParticleFilter.best(filter)
+    used = max(ParticleFilter.echoes(filter, beams), 1)
+
+    found =
+      ParticleFilter.search(filter, beams,
+        step: state.params[:search_step],
+        headings: state.params[:search_headings],
+        from: best
+      )
+
+    {near, far} = Enum.split_with(found, &near?(&1, best))
+    margin = state.params[:lost_margin] * used
+    here = ParticleFilter.score(filter, beams, best)
+    local = List.first(near, {here, best})
+    # a place away fits only if its scan would not be poor itself: with
+    # few echoes (a robot by the map's open end, boxes round it) some
+    # place fits them, whose walls the beams without echo pass through
+    far = Enum.reject(far, &poor_at?(state, beams, &1))
+
+    local_ll = elem(local, 0)
+    # places away that fit about as well as the best near one
+    alike = Enum.filter(far, fn {ll, _, _, _} -> ll >= local_ll - margin end)
+
+    cond do
+      far != [] and elem(hd(far), 0) - local_ll > margin ->
+        lost(state, Enum.sort_by(near ++ far, &(-elem(&1, 0))), gain(far, local, used), best)
+
+      local_ll - here > margin and alike != [] ->
+        # the tracked pose is wrong, and the scan fits places near and
+        # away alike (a symmetric room): the moves to come tell them apart
+        lost(state, Enum.sort_by(near ++ alike, &(-elem(&1, 0))), gain(far, local, used), best)
+
+      true ->
+        Logger.info(
+          "#{inspect(state.robot)}: the scan fits the map poorly at #{place(best)} " <>
+            "(#{describe_fit(state)}) " <>
+            "but no place away fits it better (#{gain(far, local, used)} per beam): " <>
+            "the map lacks what the laser sees"
+        )
+
+        state = %{state | poor: 0, quiet_until: state.travelled + @quiet}
+
+        if local_ll - here > margin do
+          {filter, _} = ParticleFilter.relocalize_to(filter, near, seed: state.params[:seed])
+          settle(%{state | filter: filter, updates: 0})
+        else
+          settle(state)
+        end
+    end
+  end
+
+  defp near?({_, x, y, _}, {bx, by, _}), do: (x - bx) ** 2 + (y - by) ** 2 <= @near * @near
+
+  defp gain([], _local, _used), do: "-"
+  defp gain([c | _], local, used), do: gain(elem(c, 0), local, used)
+
+  defp gain(ll, {local, _, _, _}, used),
+    do: :erlang.float_to_binary((ll - local) / used, decimals: 2)
+
+  defp gain(ll, {local, _pose}, used), do: gain(ll, {local, 0, 0, 0}, used)
+
+  defp lost(state, found, gain, from) do
+    Logger.info(
+      "#{inspect(state.robot)}: lost at #{place(from)} " <>
+        "(the scan fits the map poorly: #{describe_fit(state)}; " <>
+        "a place away fits it better by #{gain} per beam)"
+    )
+
+    {filter, best} = ParticleFilter.relocalize_to(state.filter, found, seed: state.params[:seed])
+    if best, do: Logger.info("#{inspect(state.robot)}: best fit at #{place(best)}")
+
+    %{
+      state
+      | filter: filter,
+        poor: 0,
+        spread: 0,
+        status: :relocalizing,
+        updates: 0,
+        quiet_until: nil
+    }
+  end
+
   # the whole map, or the places `around` the estimate (the estimate
   # staying a candidate): a robot carried away, a wrong initial pose
-  defp relocalize(state, beams, around \\ nil) do
+  defp relocalize(state, beams, around) do
     Logger.info(
       "#{inspect(state.robot)}: lost (the scan fits the map poorly: #{describe_fit(state)}); " <>
         "searching #{if around, do: "round the estimate", else: "the map"}"
@@ -548,6 +735,10 @@ defmodule ThinkingCap.Navigation.MCL do
     %{state | filter: filter, poor: 0, spread: 0, status: :relocalizing, updates: 0}
   end
 
+  defp place({x, y, th}) do
+    "{#{Enum.map_join([x, y, th], ", ", &:erlang.float_to_binary(&1 * 1.0, decimals: 2))}}"
+  end
+
   defp describe_fit(state) do
     hits =
       case state.hits do
@@ -556,7 +747,14 @@ defmodule ThinkingCap.Navigation.MCL do
       end
 
     usual = if state.baseline, do: ", usually #{round(state.baseline * 100)}%", else: ""
-    "#{hits}#{usual}, spread #{state.spread}"
+
+    through =
+      case state.through do
+        {share, judged} -> ", #{round(share * 100)}% of #{judged} through walls"
+        nil -> ""
+      end
+
+    "#{hits}#{usual}#{through}, spread #{state.spread}"
   end
 
   defp settle(state) do
@@ -603,10 +801,15 @@ defmodule ThinkingCap.Navigation.MCL do
   defp due?(_state, nil), do: true
   defp due?(state, stamp), do: stamp - state.published >= state.params[:publish_period] - 1.0e-9
 
+  # the pose published: the cloud's mean while it is gathered, its
+  # likeliest place while it is split between places (the mean of two
+  # aisles stands in the rack between them); the covariance is the whole
+  # cloud's, so that a split cloud says how unsure it is
   defp publish(state, stamp) do
     {pose, covariance} = ParticleFilter.estimate(state.filter)
     [[sxx | _], [_, syy | _] | _] = covariance
     sigma = :math.sqrt(max(max(sxx, syy), 0.0))
+    pose = if sigma > 0.3, do: elem(ParticleFilter.mode(state.filter, 1.0), 0), else: pose
     confidence = (state.fit || 0.0) * min(1.0, 0.1 / max(sigma, 0.1))
 
     payload = %{

@@ -232,12 +232,14 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   @doc """
   The share of a scan's beams that end on the map from `pose`: within
   `tolerance` metres (default 0.25) of an occupied cell. Judged are the
-  beams with an echo (in a map not given whole, only those ending on
-  known map) and the beams without one (range at least `range_max`)
-  that pass an occupied cell of the map 0.5 m or more short of the
-  range. Returns `{share, judged}`, or nil without a map or a beam to
-  judge by. A beam ending in the open, in unknown space of a map given
-  whole, or missing a wall in its range is a misfit.
+  beams with an echo ending on known map, unless they end within
+  `tolerance` of unknown space or of the map's edge and not of an
+  occupied cell (what stopped them the map does not know: a box in a
+  rack's unknown inside, something past a map's open end), and the
+  beams without one (range at least `range_max`) that pass an occupied
+  cell of the map 0.5 m or more short of the range. Returns `{share,
+  judged}`, or nil without a map or a beam to judge by. A beam ending in
+  the open or missing a wall in its range is a misfit.
   """
   @spec hits(t(), binary(), pose(), float()) :: {float(), non_neg_integer()} | nil
   def hits(pf, beams, pose, tolerance \\ 0.25)
@@ -278,30 +280,41 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   @doc """
   Searches the map for the scan (the whole map, or with `around: {{x,
   y}, r}` a square of half-side r round a point, and with `around: {{x,
-  y}, r, {θ, half}}` only the headings within half of θ): the `top` poses
-  (default 60) of a lattice over the known free space (`step` metres, default 0.2, and
-  `headings` headings, default 72) that fit it best, scored with a
-  wider sensor model and at most one per place, each refined on finer
-  lattices round it while they find better, and with the estimate as it was (a robot that
-  was not moved keeps its place if it fits best), and spreads the
-  particles around them
-  (`{σ_xy, σ_θ}` default `{0.1, 0.05}`), the better poses with more. Returns the filter and the best pose, or nil without a
-  map.
+  y}, r, {θ, half}}` only the headings within half of θ) and spreads the
+  particles round what it found (`search/3`, then `relocalize_to/3`).
+  Returns the filter and the best pose, or nil without a map.
   """
   @spec relocalize(t(), binary(), keyword()) :: {t(), pose() | nil}
   def relocalize(pf, beams, opts \\ [])
   def relocalize(%__MODULE__{field: nil} = pf, _beams, _opts), do: {pf, nil}
 
-  def relocalize(%__MODULE__{} = pf, beams, opts) do
+  def relocalize(%__MODULE__{} = pf, beams, opts),
+    do: relocalize_to(pf, search(pf, beams, opts), opts)
+
+  @doc """
+  Searches the map for the scan without touching the particles: the
+  `top` poses (default 60) of a lattice over the known free space
+  (`step` metres, default 0.2, and `headings` headings, default 72; the
+  whole map or the `around` box of `relocalize/3`) that fit it best,
+  scored with a wider sensor model and at most one per place, each
+  refined on finer lattices round it while they find better, and with
+  the pose `from` (default the estimate: a robot that was not moved
+  keeps its place if it fits best), refined likewise. Returns
+  `[{log_likelihood, x, y, θ}]` scored with the filter's sensor model,
+  best first; `[]` without a map.
+  """
+  @spec search(t(), binary(), keyword()) :: [{float(), float(), float(), float()}]
+  def search(pf, beams, opts \\ [])
+  def search(%__MODULE__{field: nil}, _beams, _opts), do: []
+
+  def search(%__MODULE__{} = pf, beams, opts) do
     step = Keyword.get(opts, :step, 0.2)
     headings = Keyword.get(opts, :headings, 72)
     top = Keyword.get(opts, :top, 60)
-    {s_xy, s_th} = Keyword.get(opts, :sigma, {0.1, 0.05})
 
-    # the estimate itself stays a candidate: a robot that was not moved
-    # keeps its place if it fits best
-    {{x, y, th} = here, _} = estimate(pf)
-    {ll, _} = GridNif.field_score(pf.field, beams, pf.model, here)
+    # the estimate (or the pose given) stays a candidate
+    {x, y, th} = Keyword.get_lazy(opts, :from, fn -> elem(estimate(pf), 0) end)
+    ll = score(pf, beams, {x, y, th})
 
     # the lattice scored with a wider sensor model: the pose nearest the
     # true one may be a half step and a half heading off it, and far beams
@@ -311,64 +324,81 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     coarse = {max(sigma, 1.5 * step) * 1.0, z_hit, z_rand, range_max}
     turn = :math.pi() / headings
 
-    found =
-      pf.field
-      |> GridNif.field_search(
-        beams,
-        coarse,
-        step * 1.0,
-        headings,
-        5 * top,
-        box(pf, opts[:around])
-      )
-      |> distinct(top)
-      |> Enum.map(fn {_, x, y, th} ->
-        {l, _} = GridNif.field_score(pf.field, beams, pf.model, {x, y, th})
-        {l, x, y, th}
-      end)
-      |> List.insert_at(0, {ll, x, y, th})
-      |> Enum.map(fn c ->
-        c
-        |> then(&climb(pf, beams, &1, step / 2, turn, 4))
-        |> then(&climb(pf, beams, &1, step / 6, turn / 3, 4))
-      end)
-      |> Enum.sort_by(&(-elem(&1, 0)))
-
-    case found do
-      [] ->
-        {pf, nil}
-
-      [{best_ll, bx, by, bth} | _] ->
-        # particles round each pose, in proportion to its likelihood over
-        # the best's, tempered (a scan alone may not tell two places apart:
-        # the moves to come will)
-        weights =
-          Enum.map(found, fn {ll, _, _, _} -> :math.exp(max((ll - best_ll) / 4, -30.0)) end)
-
-        total = Enum.sum(weights)
-        rng = :rand.seed_s(:exsss, {Keyword.get(opts, :seed, 1), 5, 5})
-
-        {poses, _} =
-          found
-          |> Enum.zip(weights)
-          |> Enum.flat_map(fn {{_, x, y, th}, w} ->
-            List.duplicate({x, y, th}, max(1, round(w / total * pf.count)))
-          end)
-          |> Stream.cycle()
-          |> Enum.take(pf.count)
-          |> Enum.map_reduce(rng, fn {x, y, th}, rng ->
-            {a, rng} = :rand.normal_s(rng)
-            {b, rng} = :rand.normal_s(rng)
-            {c, rng} = :rand.normal_s(rng)
-
-            {<<x + s_xy * a::float-native, y + s_xy * b::float-native,
-               th + s_th * c::float-native>>, rng}
-          end)
-
-        set = GridNif.pf_new(IO.iodata_to_binary(poses), Keyword.get(opts, :seed, 1))
-        {%{pf | set: set, w_slow: nil, w_fast: nil}, {bx, by, bth}}
-    end
+    pf.field
+    |> GridNif.field_search(
+      beams,
+      coarse,
+      step * 1.0,
+      headings,
+      5 * top,
+      box(pf, opts[:around])
+    )
+    |> distinct(top)
+    |> Enum.map(fn {_, x, y, th} -> {score(pf, beams, {x, y, th}), x, y, th} end)
+    |> List.insert_at(0, {ll, x * 1.0, y * 1.0, th * 1.0})
+    |> Enum.map(fn c ->
+      c
+      |> then(&climb(pf, beams, &1, step / 2, turn, 4))
+      |> then(&climb(pf, beams, &1, step / 6, turn / 3, 4))
+    end)
+    |> Enum.sort_by(&(-elem(&1, 0)))
   end
+
+  @doc """
+  Spreads the particles round the `candidates` of `search/3` (`{σ_xy,
+  σ_θ}` option `sigma`, default `{0.1, 0.05}`), the better poses with
+  more: in proportion to their likelihood over the best's, tempered (a
+  scan alone may not tell two places apart: the moves to come will).
+  Returns the filter and the best pose, or the filter unchanged and nil
+  without a candidate.
+  """
+  @spec relocalize_to(t(), [{float(), float(), float(), float()}], keyword()) ::
+          {t(), pose() | nil}
+  def relocalize_to(pf, candidates, opts \\ [])
+  def relocalize_to(%__MODULE__{} = pf, [], _opts), do: {pf, nil}
+
+  def relocalize_to(%__MODULE__{} = pf, [{best_ll, bx, by, bth} | _] = found, opts) do
+    {s_xy, s_th} = Keyword.get(opts, :sigma, {0.1, 0.05})
+    weights = Enum.map(found, fn {ll, _, _, _} -> :math.exp(max((ll - best_ll) / 4, -30.0)) end)
+    total = Enum.sum(weights)
+    rng = :rand.seed_s(:exsss, {Keyword.get(opts, :seed, 1), 5, 5})
+
+    {poses, _} =
+      found
+      |> Enum.zip(weights)
+      |> Enum.flat_map(fn {{_, x, y, th}, w} ->
+        List.duplicate({x, y, th}, max(1, round(w / total * pf.count)))
+      end)
+      |> Stream.cycle()
+      |> Enum.take(pf.count)
+      |> Enum.map_reduce(rng, fn {x, y, th}, rng ->
+        {a, rng} = :rand.normal_s(rng)
+        {b, rng} = :rand.normal_s(rng)
+        {c, rng} = :rand.normal_s(rng)
+
+        {<<x + s_xy * a::float-native, y + s_xy * b::float-native, th + s_th * c::float-native>>,
+         rng}
+      end)
+
+    set = GridNif.pf_new(IO.iodata_to_binary(poses), Keyword.get(opts, :seed, 1))
+    {%{pf | set: set, w_slow: nil, w_fast: nil}, {bx, by, bth}}
+  end
+
+  @doc """
+  The log-likelihood of a scan from `pose` with the filter's sensor
+  model (beams with an echo only); 0.0 without a map.
+  """
+  @spec score(t(), binary(), pose()) :: float()
+  def score(%__MODULE__{field: nil}, _beams, _pose), do: 0.0
+
+  def score(%__MODULE__{} = pf, beams, {x, y, th}) do
+    {ll, _known} = GridNif.field_score(pf.field, beams, pf.model, {x * 1.0, y * 1.0, th * 1.0})
+    ll
+  end
+
+  @doc "How many of a scan's beams have an echo (a range short of the model's `range_max`)."
+  @spec echoes(t(), binary()) :: non_neg_integer()
+  def echoes(%__MODULE__{model: {_, _, _, range_max}}, beams), do: count_echoes(beams, range_max)
 
   # the best `n` poses of a list best first, none within 0.5 m and 0.35 rad
   # of a better one
@@ -423,6 +453,16 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         if l > best, do: {l, x + dx, y + dy, th + dth}, else: acc
     end
   end
+
+  @doc """
+  The place the cloud holds most likely: the weighted mean pose (circular
+  mean heading) of the particles within `radius` metres (default 1.0) of
+  the particle of the largest weight, and their share of the weight. The
+  mean of a cloud split between places stands nowhere; this stands at
+  the likeliest of them.
+  """
+  @spec mode(t(), number()) :: {pose(), float()}
+  def mode(%__MODULE__{} = pf, radius \\ 1.0), do: GridNif.pf_mode(pf.set, radius * 1.0)
 
   @doc "The particle of the largest weight."
   @spec best(t()) :: pose()

@@ -156,6 +156,92 @@ defmodule ThinkingCap.Navigation.MCLTest do
     assert pose.status == :tracking
   end
 
+  # a hall of 12 x 8 m (0.05 m cells) with a pillar near its north-west
+  # corner, whose east end (x > 9 m) the map does not know and has no wall
+  # (an open end: the laser sees nothing there); with `boxes`, the true
+  # world's four boxes of 0.5 m, one of them in the unknown end
+  defp open_hall(dir, name, boxes) do
+    {w, h} = {240, 160}
+    box_at = [{4.5, 2.6}, {6.6, 5.4}, {6.8, 3.4}, {9.6, 4.0}]
+
+    cell = fn c, r ->
+      x = (c + 0.5) * 0.05
+      y = (r + 0.5) * 0.05
+
+      cond do
+        boxes and
+            Enum.any?(box_at, fn {bx, by} -> abs(x - bx) <= 0.25 and abs(y - by) <= 0.25 end) ->
+          0
+
+        x > 9.0 ->
+          205
+
+        c < 2 or r < 2 or r >= h - 2 ->
+          0
+
+        x >= 1.0 and x <= 1.4 and y >= 6.6 and y <= 7.0 ->
+          0
+
+        true ->
+          254
+      end
+    end
+
+    pixels = for r <- (h - 1)..0, c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)>>
+    File.write!(Path.join(dir, "#{name}.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
+
+    File.write!(
+      Path.join(dir, "#{name}.yaml"),
+      "image: #{name}.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n" <>
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\nnegate: 0\n"
+    )
+
+    path = Path.join(dir, "#{name}.wdf")
+    File.write!(path, ~s([name: "#{name}", map: [yaml: "#{name}.yaml"]]))
+    path
+  end
+
+  test "boxes the map lacks and its open unknown end do not make the robot lost; a kidnap does",
+       %{tmp_dir: dir} do
+    truth = open_hall(dir, "truth", true)
+    given = open_hall(dir, "given", false)
+    {:ok, sim} = Sim.start_link(world: truth, mode: :fast, running: false, step: 0.05, seed: 7)
+    on_exit(fn -> if Process.alive?(sim), do: GenServer.stop(sim) end)
+
+    modules = [
+      perception: {ThinkingCap.Perception.Fuser, []},
+      localization: {MCL, [initial: {1.5, 1.5, 0.0}, initial_sigma: {0.1, 0.05}, seed: 7]},
+      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      planner:
+        {ThinkingCap.Planner.Monitor,
+         [task: {:patrol, [{8.3, 1.5}, {8.3, 6.5}, {3.0, 6.0}, {1.5, 1.5}]}], period: 0.5}
+    ]
+
+    :ok =
+      Sim.add_robot(sim, :r,
+        rdf: @rdf,
+        at: {1.5, 1.5, 0.0},
+        controller: {Sim.LockstepController, modules: modules, rdf: @rdf, wdf: given}
+      )
+
+    # round the hall past the boxes and along the open end: never lost
+    samples = for _ <- 1..80, do: run(sim, 0.5)
+    statuses = samples |> Enum.map(fn {_, p} -> p.status end) |> Enum.uniq()
+    worst = samples |> Enum.map(&elem(&1, 0)) |> Enum.max()
+    refute :relocalizing in statuses, "took itself for lost: #{inspect(statuses)}"
+    assert worst < 0.2, "#{worst} m off"
+
+    # carried 4 m or more away without notice: noticed and found again
+    {:ok, {x, y, th}} = Sim.pose(sim, :r)
+    to = if x < 5.0, do: {7.5, 4.5, th}, else: {2.5, 4.0, th}
+    :ok = Sim.teleport(sim, :r, to)
+    assert :math.sqrt((elem(to, 0) - x) ** 2 + (elem(to, 1) - y) ** 2) > 2.0
+
+    {error, pose} = run(sim, 15.0)
+    assert error < 0.15, "still #{error} m off after the kidnapping"
+    assert pose.status == :tracking
+  end
+
   test "a wrong initial pose, given with its uncertainty, is corrected" do
     # the robot stands at {1, 1, 0}; it is told {1.4, 0.7, 0.25}
     sim = patrol({1.4, 0.7, 0.25}, {0.5, 0.3})

@@ -47,11 +47,21 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
     assert nil == ParticleFilter.hits(pf, beams([{:math.pi(), 1.0e6}]), pose)
   end
 
-  test "a beam ending in unknown space misfits in a map given whole, says nothing in one being built" do
-    beam = beams([{:math.pi(), 1.0}])
+  test "a beam ending in unknown space, off the map or by the unknown's edge is not judged" do
     pose = {1.5, 2.0, 0.0}
-    assert {0.0, 1} = ParticleFilter.hits(filter(true), beam, pose)
-    assert nil == ParticleFilter.hits(filter(false), beam, pose)
+
+    for strict <- [true, false] do
+      # 1.0 m behind: inside the unknown strip (a box there, as the map
+      # does not know); 0.45 m behind: in the open, 5 cm from the strip
+      assert nil == ParticleFilter.hits(filter(strict), beams([{:math.pi(), 1.0}]), pose)
+      assert nil == ParticleFilter.hits(filter(strict), beams([{:math.pi(), 0.45}]), pose)
+      # 3 m ahead: off the map
+      assert nil == ParticleFilter.hits(filter(strict), beams([{0.0, 3.0}]), pose)
+    end
+
+    # beside them, a beam in the open still misfits
+    assert {0.0, 1} =
+             ParticleFilter.hits(filter(true), beams([{:math.pi(), 1.0}, {0.0, 0.5}]), pose)
   end
 
   test "a wall seen once (occupancy under 50) counts from the threshold given" do
@@ -82,5 +92,40 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
 
     assert_in_delta x, 2.0, 0.1
     assert_in_delta th, 0.0, 0.1
+  end
+
+  test "a search leaves the particles be, and keeps the pose it is told to start from" do
+    pf = filter(true)
+    scan = beams(for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)})
+    {before, _} = ParticleFilter.estimate(pf)
+
+    found = ParticleFilter.search(pf, scan, around: {{2.0, 2.0}, 0.6}, from: {2.5, 3.0, 1.0})
+
+    assert [{best, x, _, th} | _] = found
+    assert_in_delta x, 2.0, 0.1
+    assert_in_delta th, 0.0, 0.1
+    # best first, scored with the filter's sensor model
+    assert best == found |> Enum.map(&elem(&1, 0)) |> Enum.max()
+    assert best > ParticleFilter.score(pf, scan, {2.5, 3.0, 1.0})
+    # the pose searched from is among the candidates (refined round itself)
+    assert Enum.any?(found, fn {_, cx, cy, _} -> abs(cx - 2.5) < 0.6 and abs(cy - 3.0) < 0.6 end)
+    assert {^before, _} = ParticleFilter.estimate(pf)
+    assert ParticleFilter.echoes(pf, scan) == 13
+  end
+
+  test "the mode of a cloud split between two places stands at one of them" do
+    pf = filter(true)
+    {pf, _} = ParticleFilter.relocalize_to(pf, [{0.0, 1.5, 1.0, 0.0}, {-0.2, 2.5, 3.0, 0.0}])
+
+    {{mx, my, _}, _} = ParticleFilter.estimate(pf)
+    assert_in_delta mx, 2.0, 0.2
+    assert_in_delta my, 2.0, 0.3
+
+    {{x, y, _}, share} = ParticleFilter.mode(pf, 1.0)
+
+    assert (abs(x - 1.5) < 0.2 and abs(y - 1.0) < 0.2) or
+             (abs(x - 2.5) < 0.2 and abs(y - 3.0) < 0.2)
+
+    assert share > 0.3 and share < 0.7
   end
 end

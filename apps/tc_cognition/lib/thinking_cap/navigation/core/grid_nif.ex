@@ -59,6 +59,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def pf_weigh(_pf, _field, _beams, _model, _scale), do: :erlang.nif_error(:nif_not_loaded)
   def pf_resample(_pf, _share, _poses), do: :erlang.nif_error(:nif_not_loaded)
   def pf_estimate(_pf), do: :erlang.nif_error(:nif_not_loaded)
+  def pf_mode(_pf, _radius), do: :erlang.nif_error(:nif_not_loaded)
   def pf_best(_pf), do: :erlang.nif_error(:nif_not_loaded)
   def pf_sample(_pf, _k), do: :erlang.nif_error(:nif_not_loaded)
 
