@@ -11,9 +11,13 @@ defmodule ThinkingCap.Runtime do
       ThinkingCap.Runtime.stop(:control)
 
   Each module runs in a process the framework owns
-  (`ThinkingCap.Module`), supervised on its node: a module that crashes is
+  (`ThinkingCap.Module`), supervised on its node under its robot and its
+  layer (`ThinkingCap.Runtime.Supervision`): a module that crashes is
   restarted, and while it is down its periodic activity's fallback command
-  holds (the timing worker applies it when the activity goes away). Module
+  holds (the timing worker applies it when the activity goes away). A
+  module that keeps crashing makes its layer give up: that robot is left
+  stopped and `{:module_gave_up, robot, ...}` says so, and no other
+  robot's module is touched (`resume/1` brings the layer back). Module
   processes join a `:pg` group per module name, so every node can find
   every module.
 
@@ -37,7 +41,7 @@ defmodule ThinkingCap.Runtime do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Config.ADF
-  alias ThinkingCap.Runtime.Host
+  alias ThinkingCap.Runtime.Supervision
 
   @scope :thinking_cap_runtime
 
@@ -58,6 +62,7 @@ defmodule ThinkingCap.Runtime do
           node: node(),
           pid: pid(),
           activity: atom(),
+          layer: Supervision.layer(),
           started_at: integer()
         }
 
@@ -126,13 +131,7 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
-  defp start_child(spec) do
-    case DynamicSupervisor.start_child(ThinkingCap.Runtime.Modules, {Host, spec}) do
-      {:ok, pid} -> {:ok, pid}
-      {:error, {reason, _child}} -> {:error, reason}
-      {:error, reason} -> {:error, reason}
-    end
-  end
+  defp start_child(spec), do: Supervision.start_host(spec)
 
   # A module must be loadable on its node and implement ThinkingCap.Module.
   defp check_module(module) do
@@ -159,10 +158,10 @@ defmodule ThinkingCap.Runtime do
         {:error, :not_running}
 
       pid ->
-        :erpc.call(node(pid), DynamicSupervisor, :terminate_child, [
-          ThinkingCap.Runtime.Modules,
-          pid
-        ])
+        case :erpc.call(node(pid), __MODULE__, :terminate_here, [pid]) do
+          :ok -> :ok
+          {:error, :not_found} -> {:error, :not_running}
+        end
     end
   end
 
@@ -248,8 +247,15 @@ defmodule ThinkingCap.Runtime do
   def stop_here(ref) do
     case local_whereis(ref) do
       nil -> :ok
-      pid -> DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid)
+      pid -> terminate_here(pid)
     end
+  end
+
+  @doc false
+  # Stops module host `pid` of this node for good (not restarted).
+  def terminate_here(pid) do
+    Supervision.Warden.stopping(pid)
+    Supervision.terminate_host(pid)
   end
 
   @doc """
@@ -271,7 +277,30 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
-  @doc "Every running module of the cluster: name, module, node, pid, activity."
+  @doc """
+  Brings back `robot`'s layers that gave up (`ThinkingCap.Runtime.Supervision`),
+  on every connected node, and takes their `{:module_gave_up, ...}` tuples
+  off the blackboard. A deployment then starts their modules again on its
+  next round; modules started with `start/1` are started again by the
+  caller (`start_module/2`). Returns the modules that had been stopped, by
+  node. The robot's E-stop stays latched: releasing it is a separate,
+  operator's decision.
+  """
+  @spec resume(atom()) :: %{node() => [atom()]}
+  def resume(robot) do
+    nodes = [node() | Node.list()]
+
+    nodes
+    |> :erpc.multicall(Supervision, :resume_here, [robot], 15_000)
+    |> Enum.zip(nodes)
+    |> Enum.flat_map(fn
+      {{:ok, [_ | _] = names}, node} -> [{node, names}]
+      _ -> []
+    end)
+    |> Map.new()
+  end
+
+  @doc "Every running module of the cluster: name, module, node, pid, activity, layer."
   @spec which_modules() :: [module_info()]
   def which_modules do
     @scope

@@ -22,6 +22,9 @@ defmodule ThinkingCap.Runtime.Host do
   @impl true
   def init(spec) do
     Process.flag(:trap_exit, true)
+    spec = Map.put(spec, :layer, ThinkingCap.Runtime.Supervision.layer_of(spec))
+    # its robot's warden watches it before its module's init/2 runs
+    ThinkingCap.Runtime.Supervision.Warden.hosting(spec.robot, spec.layer, spec.name)
     Process.flag(:priority, priority(spec.activity))
     Enum.each(groups(spec), &(:ok = :pg.join(ThinkingCap.Runtime.scope(), &1, self())))
 
@@ -164,6 +167,7 @@ defmodule ThinkingCap.Runtime.Host do
       node: node(),
       pid: self(),
       activity: state.spec.activity,
+      layer: state.spec.layer,
       started_at: state.started
     }
 
