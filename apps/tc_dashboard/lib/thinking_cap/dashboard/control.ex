@@ -109,7 +109,9 @@ defmodule ThinkingCap.Dashboard.Control do
   atom), of `robot` when given. Without a robot, a name that two robots'
   modules share is refused, naming them. Restarts are rate limited, all
   clients together (a module at most once every 5 s, 20 a minute in all):
-  the runtime's module supervisor gives up after 100 restarts in 10 s.
+  a restart counts against the restart intensity of the module's layer
+  (`ThinkingCap.Runtime.Supervision`), which gives up on a robot's layer
+  after 5 restarts in 5 s (reactive) or 10 in 60 s (cognitive).
   """
   @spec restart(String.t() | atom(), String.t() | atom() | nil) :: :ok | {:error, String.t()}
   def restart(name, robot \\ nil) do
