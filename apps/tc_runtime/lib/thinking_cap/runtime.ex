@@ -167,21 +167,22 @@ defmodule ThinkingCap.Runtime do
 
   @doc """
   Restarts a module, wherever it runs: it terminates (its `terminate/2`
-  runs, so a robot base leaves its robot stopped) and its supervisor starts
-  it again with the ADF's parameters. The periodic activity's fallback holds
-  meanwhile.
+  runs with `{:shutdown, :restart_requested}`, so a robot base leaves its
+  robot stopped) and is started again on its node, under its layer, with
+  the ADF's parameters. The periodic activity's fallback holds meanwhile.
+  A restart asked for does not count against the layer's restart
+  intensity (`ThinkingCap.Runtime.Supervision`): only crashes do.
   """
-  @spec restart(module_ref()) :: :ok | {:error, :not_running}
+  @spec restart(module_ref()) :: :ok | {:error, :not_running | term()}
   def restart(name) do
     case whereis(name) do
       nil ->
         {:error, :not_running}
 
       pid ->
-        try do
-          :proc_lib.stop(pid, {:shutdown, :restart_requested}, 5_000)
-        catch
-          :exit, _ -> :ok
+        case :erpc.call(node(pid), Supervision, :restart_host, [pid], 15_000) do
+          {:ok, _pid} -> :ok
+          {:error, reason} -> {:error, reason}
         end
     end
   end

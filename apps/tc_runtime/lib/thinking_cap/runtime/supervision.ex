@@ -33,7 +33,9 @@ defmodule ThinkingCap.Runtime.Supervision do
       given up on within a minute.
 
   An operator's restart (`ThinkingCap.Runtime.restart/1`, the dashboard's
-  button, rate limited there) counts like a crash.
+  button) stops the module and starts it again itself: it does not count
+  against the layer's intensity, so no client can make a layer give up
+  by asking for restarts.
 
   ## Giving up
 
@@ -166,6 +168,33 @@ defmodule ThinkingCap.Runtime.Supervision do
     case Process.info(pid, :parent) do
       {:parent, sup} when is_pid(sup) -> DynamicSupervisor.terminate_child(sup, pid)
       _ -> {:error, :not_found}
+    end
+  end
+
+  @doc """
+  Restarts module host `pid` of this node: it is stopped (its module's
+  `terminate/2` gets `{:shutdown, :restart_requested}`) and started again
+  from the spec it was started with, under the same layer. Not counted
+  against the layer's restart intensity.
+  """
+  @spec restart_host(pid()) :: {:ok, pid()} | {:error, term()}
+  def restart_host(pid) do
+    with {:parent, sup} when is_pid(sup) <- Process.info(pid, :parent),
+         {:dictionary, dictionary} <- Process.info(pid, :dictionary),
+         {:ok, spec} <- Keyword.fetch(dictionary, :"$tc_spec") do
+      try do
+        :proc_lib.stop(pid, {:shutdown, :restart_requested}, 5_000)
+      catch
+        :exit, _ -> :ok
+      end
+
+      case DynamicSupervisor.start_child(sup, {ThinkingCap.Runtime.Host, spec}) do
+        {:ok, pid} -> {:ok, pid}
+        {:error, {reason, _child}} -> {:error, reason}
+        {:error, reason} -> {:error, reason}
+      end
+    else
+      _ -> {:error, :not_running}
     end
   end
 

@@ -148,6 +148,26 @@ defmodule ThinkingCap.Runtime.SupervisionTest do
     refute_tuple({:module_gave_up, robot, :_})
   end
 
+  test "restarts asked for are not crashes: they never make a layer give up", %{tmp_dir: dir} do
+    {adf, robot, n} = robot_adf(dir, drive: @cruise)
+    {:ok, _} = Runtime.start(adf)
+    :ok = Cycle.subscribe(n.(:drive))
+
+    # more than the reactive layer's 5 restarts in 5 s
+    pids =
+      for _ <- 1..8 do
+        pid = Runtime.whereis({robot, n.(:drive)})
+        assert :ok = Runtime.restart({robot, n.(:drive)})
+        refute Process.alive?(pid)
+        pid
+      end
+
+    assert length(Enum.uniq(pids)) == 8
+    refute Supervision.gave_up?(robot, :reactive)
+    refute_tuple({:module_gave_up, robot, :_})
+    assert %{kind: :fresh} = applied_until(n.(:drive), &(&1.kind == :fresh))
+  end
+
   test "a deployment does not start again the modules of a layer that gave up",
        %{tmp_dir: dir} do
     {adf, robot, n} = robot_adf(dir, drive: @cruise, broken: @broken)
