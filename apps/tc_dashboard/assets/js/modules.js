@@ -1,5 +1,6 @@
 // The Modules panel: what runs on which node (`modules/all`), its
-// activity, status and restarts, with a restart button for those who have
+// activity, status and restarts (a module whose layer gave up: "gave up",
+// with its reason, and those stopped with it: "stopped"), with a restart button for those who have
 // control; then the selected robot's behaviours and their activation
 // degrees (`activation/<robot>`) and its plan (`plan/<robot>`).
 
@@ -77,15 +78,17 @@ export class ModulesPanel {
     setChildren(this.table,
       el('thead', null, el('tr', null, ...['module · node', 'activity', 'status', 'restarts', ''].map((h) => el('th', null, h)))),
       el('tbody', null, mods.map((m) => el('tr', { dataset: { module: String(m.name) } },
-        el('td', { title: `${m.module || ''} on ${m.node || '?'}${m.robot ? `, robot ${m.robot}` : ''}` }, el('b', null, String(m.name)),
+        el('td', { title: `${m.module || ''} on ${m.node || '?'}${m.robot ? `, robot ${m.robot}` : ''}${m.layer ? `, layer ${m.layer}` : ''}` }, el('b', null, String(m.name)),
           el('small', null, String(m.module || '').replace(/^Elixir\./, '').replace(/^ThinkingCap\./, '')),
           el('small.node', null, String(m.node || '–'))),
         el('td', null, activityText(m.activity)),
-        el('td', null, el(`span.pill.${statusClass(m.status)}`, null, String(m.status || '–'))),
+        el('td', m.reason ? { title: String(m.reason) } : null,
+          el(`span.pill.${statusClass(m.status)}`, null, String(m.status || '–').replace(/_/g, ' ')),
+          m.reason ? el('small.reason', null, String(m.reason)) : null),
         el(`td.num${(m.restarts || 0) > 0 ? '.warn-text' : ''}`, null, String(m.restarts ?? 0)),
         el('td', null, el('button.small', {
           type: 'button',
-          disabled: !canRestart,
+          disabled: !canRestart || (m.status != null && m.status !== 'running'),
           title: canRestart ? `Restart ${m.name}` : 'Needs control (the token)',
           onclick: () => this._restart(String(m.name), m.robot == null ? null : String(m.robot)),
         }, '↻'))))));

@@ -12,6 +12,8 @@ defmodule ThinkingCap.Console do
       iex> move(:control, :brain)  # move a module (after a failover)
       iex> params(:control)        # a module's params, their types and values
       iex> param(:control, :max_speed, 0.3)  # set one while it runs
+      iex> gave_up()               # modules whose supervision layer gave up
+      iex> resume(:r1)             # bring their layers back
       iex> release_estop(:r1)
 
   Each prints a table and returns its data, so the result can be worked
@@ -44,11 +46,61 @@ defmodule ThinkingCap.Console do
     modules = Runtime.which_modules()
 
     table(
-      ["module", "implementation", "node", "activity"],
-      for(m <- modules, do: [m.name, inspect(m.module), m.node, m.activity])
+      ["module", "implementation", "node", "activity", "layer"],
+      for(m <- modules, do: [m.name, inspect(m.module), m.node, m.activity, m[:layer]])
     )
 
     modules
+  end
+
+  @doc """
+  The modules whose supervision layer gave up (`ThinkingCap.Runtime.Supervision`),
+  every robot's: the module, its layer and node, why, and the modules
+  stopped with it. Their robots' E-stops are latched.
+  """
+  @spec gave_up() :: [map()]
+  def gave_up do
+    gave_up =
+      for {:module_gave_up, robot, g} <- Blackboard.rd_all({:module_gave_up, :_, :_}),
+          do: Map.put(g, :robot, robot)
+
+    table(
+      ["robot", "module", "layer", "node", "reason", "stopped with it"],
+      for(
+        g <- gave_up,
+        do: [
+          g.robot,
+          g.module,
+          g.layer,
+          g.node,
+          g.reason,
+          Enum.join(g.stopped -- [g.module], ", ")
+        ]
+      )
+    )
+
+    gave_up
+  end
+
+  @doc """
+  Brings back `robot`'s supervision layers that gave up
+  (`ThinkingCap.Runtime.resume/1`): a deployment starts their modules
+  again. The E-stop stays latched: `release_estop/1` when the robot is
+  safe to drive.
+  """
+  @spec resume(atom()) :: %{node() => [atom()]}
+  def resume(robot) do
+    resumed = Runtime.resume(robot)
+
+    if resumed == %{},
+      do: IO.puts("#{robot}: no layer had given up"),
+      else:
+        for(
+          {node, names} <- resumed,
+          do: IO.puts("#{robot}: layers resumed on #{node}: #{Enum.join(names, ", ")}")
+        )
+
+    resumed
   end
 
   @doc """

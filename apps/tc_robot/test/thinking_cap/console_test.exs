@@ -101,6 +101,42 @@ defmodule ThinkingCap.ConsoleTest do
     def handle_param(:max_speed, speed, _speed), do: {[], speed}
   end
 
+  defmodule Broken do
+    @moduledoc false
+    use ThinkingCap.Module
+
+    @impl true
+    def handle_cycle(_release, _state), do: raise("broken on purpose")
+  end
+
+  test "gave_up/0 lists a module whose layer gave up; resume/1 brings the layer back",
+       %{tmp_dir: dir, robot: robot} do
+    name = :"broken_#{robot}"
+    path = Path.join(dir, "broken.adf")
+
+    File.write!(path, """
+    [robot: :#{robot}, modules: [#{name}: [module: #{inspect(Broken)}, activity: :periodic,
+      period: 0.01, layer: :cognitive]]]
+    """)
+
+    {:ok, _} = Runtime.start(Config.read!(path))
+    on_exit(fn -> Runtime.stop({robot, name}) end)
+    {:ok, _} = Blackboard.rd({:module_gave_up, robot, :_}, 10_000)
+
+    output = capture_io(fn -> send(self(), {:gave_up, Console.gave_up()}) end)
+    assert_received {:gave_up, gave_up}
+    assert %{module: ^name, layer: :cognitive} = Enum.find(gave_up, &(&1.robot == robot))
+    assert output =~ ~r/#{robot}\s+#{name}\s+cognitive/
+    assert output =~ "broken on purpose"
+
+    # the base, in the other layer, runs on, held by the E-stop
+    assert {:ok, {:estop, ^robot, %{engaged: true}}} = Blackboard.rdp({:estop, robot, :_})
+    assert is_pid(Runtime.whereis({robot, :"base_#{robot}"}))
+
+    assert capture_io(fn -> Console.resume(robot) end) =~ "layers resumed on #{node()}: #{name}"
+    assert capture_io(fn -> Console.resume(robot) end) =~ "no layer had given up"
+  end
+
   test "params/1 shows a module's params; param/3 sets one within a cycle, or says why not",
        %{tmp_dir: dir, robot: robot} do
     name = :"cruise_#{robot}"

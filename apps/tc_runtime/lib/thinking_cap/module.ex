@@ -3,7 +3,9 @@ defmodule ThinkingCap.Module do
   The behaviour of a ThinkingCap module. A module author writes callbacks
   that return `{actions, state}`; the framework owns the process, its
   supervision and restarts, its blackboard subscriptions, its placement on
-  the node the ADF names, and its timing.
+  the node the ADF names, and its timing. The module author's guide,
+  `docs/module_guide.md`, writes one from scratch with its params, ADF
+  entry and tests (`ThinkingCap.Examples.WallFollower`).
 
       defmodule MyRobot.Cruise do
         use ThinkingCap.Module

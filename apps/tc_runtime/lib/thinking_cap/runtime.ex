@@ -11,9 +11,13 @@ defmodule ThinkingCap.Runtime do
       ThinkingCap.Runtime.stop(:control)
 
   Each module runs in a process the framework owns
-  (`ThinkingCap.Module`), supervised on its node: a module that crashes is
+  (`ThinkingCap.Module`), supervised on its node under its robot and its
+  layer (`ThinkingCap.Runtime.Supervision`): a module that crashes is
   restarted, and while it is down its periodic activity's fallback command
-  holds (the timing worker applies it when the activity goes away). Module
+  holds (the timing worker applies it when the activity goes away). A
+  module that keeps crashing makes its layer give up: that robot is left
+  stopped and `{:module_gave_up, robot, ...}` says so, and no other
+  robot's module is touched (`resume/1` brings the layer back). Module
   processes join a `:pg` group per module name, so every node can find
   every module.
 
@@ -37,7 +41,7 @@ defmodule ThinkingCap.Runtime do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Config.ADF
-  alias ThinkingCap.Runtime.Host
+  alias ThinkingCap.Runtime.Supervision
 
   @scope :thinking_cap_runtime
 
@@ -58,6 +62,7 @@ defmodule ThinkingCap.Runtime do
           node: node(),
           pid: pid(),
           activity: atom(),
+          layer: Supervision.layer(),
           started_at: integer()
         }
 
@@ -126,13 +131,7 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
-  defp start_child(spec) do
-    case DynamicSupervisor.start_child(ThinkingCap.Runtime.Modules, {Host, spec}) do
-      {:ok, pid} -> {:ok, pid}
-      {:error, {reason, _child}} -> {:error, reason}
-      {:error, reason} -> {:error, reason}
-    end
-  end
+  defp start_child(spec), do: Supervision.start_host(spec)
 
   # A module must be loadable on its node and implement ThinkingCap.Module.
   defp check_module(module) do
@@ -161,41 +160,54 @@ defmodule ThinkingCap.Runtime do
   @spec stop(module_ref()) :: :ok | {:error, :not_running}
   def stop(name) do
     case whereis(name) || whereis_after_restarts(name) do
-      nil -> {:error, :not_running}
-      pid -> :erpc.call(node(pid), __MODULE__, :stop_process_here, [name, pid])
+      nil ->
+        {:error, :not_running}
+
+      pid ->
+        case :erpc.call(node(pid), __MODULE__, :stop_process_here, [name, pid]) do
+          :ok -> :ok
+          {:error, :not_found} -> {:error, :not_running}
+        end
     end
   end
 
   # Between a dead module's exit and its restarted copy joining :pg, no
-  # process is found by name; the local supervisor answers only after a
+  # process is found by name; a layer supervisor answers only after a
   # restart it is doing, so a copy that is starting is found then.
   defp whereis_after_restarts(name) do
-    case Process.whereis(ThinkingCap.Runtime.Modules) do
-      nil ->
-        nil
+    sync_layers()
+    whereis(name)
+  end
 
-      supervisor ->
-        _ = DynamicSupervisor.count_children(supervisor)
-        whereis(name)
-    end
-  catch
-    :exit, _ -> nil
+  # waits until this node's layer supervisors have handled what they had
+  defp sync_layers do
+    ThinkingCap.Runtime.Supervision.registry()
+    |> Registry.select([{{{:layer, :_, :_}, :"$1", :_}, [], [:"$1"]}])
+    |> Enum.each(fn sup ->
+      try do
+        DynamicSupervisor.count_children(sup)
+      catch
+        :exit, _ -> :ok
+      end
+    end)
   end
 
   @doc false
-  # Runs on the module's node: terminates `pid`, module `ref`'s process.
-  # If it is no longer the supervisor's child, it died and the supervisor
-  # has handled its exit already (its answer comes after it): a copy it
-  # restarted runs now, and is terminated in turn.
-  @spec stop_process_here(module_ref(), pid()) :: :ok
+  # Runs on the module's node: stops `pid`, module `ref`'s process, for
+  # good. If it is no longer a supervisor's child, it died and its layer
+  # has handled its exit (or is handling it): a copy it restarted runs
+  # now, and is stopped in turn.
+  @spec stop_process_here(module_ref(), pid()) :: :ok | {:error, :not_found}
   def stop_process_here(ref, pid) do
-    case DynamicSupervisor.terminate_child(ThinkingCap.Runtime.Modules, pid) do
+    case terminate_here(pid) do
       :ok ->
         :ok
 
       {:error, :not_found} ->
+        sync_layers()
+
         case live_local_members(ref) -- [pid] do
-          [] -> :ok
+          [] -> if Process.alive?(pid), do: {:error, :not_found}, else: :ok
           [other | _] -> stop_process_here(ref, other)
         end
     end
@@ -207,21 +219,22 @@ defmodule ThinkingCap.Runtime do
 
   @doc """
   Restarts a module, wherever it runs: it terminates (its `terminate/2`
-  runs, so a robot base leaves its robot stopped) and its supervisor starts
-  it again with the ADF's parameters. The periodic activity's fallback holds
-  meanwhile.
+  runs with `{:shutdown, :restart_requested}`, so a robot base leaves its
+  robot stopped) and is started again on its node, under its layer, with
+  the ADF's parameters. The periodic activity's fallback holds meanwhile.
+  A restart asked for does not count against the layer's restart
+  intensity (`ThinkingCap.Runtime.Supervision`): only crashes do.
   """
-  @spec restart(module_ref()) :: :ok | {:error, :not_running}
+  @spec restart(module_ref()) :: :ok | {:error, :not_running | term()}
   def restart(name) do
     case whereis(name) do
       nil ->
         {:error, :not_running}
 
       pid ->
-        try do
-          :proc_lib.stop(pid, {:shutdown, :restart_requested}, 5_000)
-        catch
-          :exit, _ -> :ok
+        case :erpc.call(node(pid), Supervision, :restart_host, [pid], 15_000) do
+          {:ok, _pid} -> :ok
+          {:error, reason} -> {:error, reason}
         end
     end
   end
@@ -289,8 +302,15 @@ defmodule ThinkingCap.Runtime do
   def stop_here(ref) do
     case live_local_members(ref) do
       [] -> :ok
-      [pid | _] -> stop_process_here(ref, pid)
+      [pid | _] -> with {:error, :not_found} <- stop_process_here(ref, pid), do: :ok
     end
+  end
+
+  @doc false
+  # Stops module host `pid` of this node for good (not restarted).
+  def terminate_here(pid) do
+    Supervision.Warden.stopping(pid)
+    Supervision.terminate_host(pid)
   end
 
   @doc """
@@ -312,7 +332,30 @@ defmodule ThinkingCap.Runtime do
     end
   end
 
-  @doc "Every running module of the cluster: name, module, node, pid, activity."
+  @doc """
+  Brings back `robot`'s layers that gave up (`ThinkingCap.Runtime.Supervision`),
+  on every connected node, and takes their `{:module_gave_up, ...}` tuples
+  off the blackboard. A deployment then starts their modules again on its
+  next round; modules started with `start/1` are started again by the
+  caller (`start_module/2`). Returns the modules that had been stopped, by
+  node. The robot's E-stop stays latched: releasing it is a separate,
+  operator's decision.
+  """
+  @spec resume(atom()) :: %{node() => [atom()]}
+  def resume(robot) do
+    nodes = [node() | Node.list()]
+
+    nodes
+    |> :erpc.multicall(Supervision, :resume_here, [robot], 15_000)
+    |> Enum.zip(nodes)
+    |> Enum.flat_map(fn
+      {{:ok, [_ | _] = names}, node} -> [{node, names}]
+      _ -> []
+    end)
+    |> Map.new()
+  end
+
+  @doc "Every running module of the cluster: name, module, node, pid, activity, layer."
   @spec which_modules() :: [module_info()]
   def which_modules do
     @scope

@@ -64,6 +64,14 @@ defmodule ThinkingCap.Test.Modules do
     def handle_tuple({:crash, _robot}, _state), do: raise("asked to crash")
   end
 
+  defmodule Broken do
+    @moduledoc false
+    # a periodic module that crashes at every release: a crash loop
+    use ThinkingCap.Module
+    @impl true
+    def handle_cycle(_release, _state), do: raise("broken sensor")
+  end
+
   defmodule Parting do
     @moduledoc false
     use ThinkingCap.Module

@@ -295,7 +295,8 @@ defmodule ThinkingCap.RuntimeTest do
     applied_until(n.(:wired), &(&1.kind == :fresh and &1.wired))
 
     scope = Process.whereis(Runtime.scope())
-    supervisor = Process.whereis(ThinkingCap.Runtime.Modules)
+    # the robot's layer supervisor the module runs under
+    {:parent, supervisor} = Process.info(old, :parent)
     {:links, before} = Process.info(supervisor, :links)
     :ok = :sys.suspend(scope)
 

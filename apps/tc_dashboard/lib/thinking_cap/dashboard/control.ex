@@ -109,7 +109,10 @@ defmodule ThinkingCap.Dashboard.Control do
   atom), of `robot` when given. Without a robot, a name that two robots'
   modules share is refused, naming them. Restarts are rate limited, all
   clients together (a module at most once every 5 s, 20 a minute in all):
-  the runtime's module supervisor gives up after 100 restarts in 10 s.
+  the module is down (its fallback holding) while it restarts. Restarts
+  asked for do not count against the restart intensity of the module's
+  layer (`ThinkingCap.Runtime.Supervision`): no client can make a layer
+  give up.
   """
   @spec restart(String.t() | atom(), String.t() | atom() | nil) :: :ok | {:error, String.t()}
   def restart(name, robot \\ nil) do
@@ -128,6 +131,7 @@ defmodule ThinkingCap.Dashboard.Control do
           case ThinkingCap.Runtime.restart({robot, name}) do
             :ok -> :ok
             {:error, :not_running} -> {:error, "module #{name} stopped meanwhile"}
+            {:error, reason} -> {:error, "module #{name} did not restart: #{inspect(reason)}"}
           end
         end
 

@@ -10,7 +10,10 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
   Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology)a)}`
   (`{tag, id, payload}` tuples, keyed `"tag/id"`), plus `modules/all`, the
-  modules running in the cluster, once a second. A learned map (`map`)
+  modules running in the cluster, once a second, with those whose layer
+  gave up (`{:module_gave_up, robot, _}`, `ThinkingCap.Runtime.Supervision`)
+  and are not running again: `status: "gave_up"`, the `reason` and the
+  modules stopped with them (`status: "stopped"`). A learned map (`map`)
   of more than #{250_000} cells is shrunk for display
   (`ThinkingCap.Navigation.OccupancyGrid.shrink/2`), its cells sent as
   base64.
@@ -125,16 +128,20 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   # which_modules asks every module: done in a task, never blocking the
   # collection of streams
   def handle_info(:modules, %{task: nil} = state) do
-    task = Task.async(fn -> ThinkingCap.Runtime.which_modules() end)
+    task =
+      Task.async(fn ->
+        {ThinkingCap.Runtime.which_modules(), Blackboard.rd_all({:module_gave_up, :_, :_})}
+      end)
+
     {:noreply, %{state | task: task}}
   end
 
   def handle_info(:modules, state), do: {:noreply, state}
 
-  def handle_info({ref, modules}, %{task: %Task{ref: ref}} = state) do
+  def handle_info({ref, {modules, gave_up}}, %{task: %Task{ref: ref}} = state) do
     Process.demonitor(ref, [:flush])
     Process.send_after(self(), :modules, @modules_every)
-    {:noreply, modules(modules, %{state | task: nil})}
+    {:noreply, modules(modules, gave_up, %{state | task: nil})}
   end
 
   def handle_info({:DOWN, ref, :process, _, reason}, %{task: %Task{ref: ref}} = state) do
@@ -147,7 +154,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
   # restarts: a module seen under a new pid was restarted (modules are
   # told apart by robot and name: two robots may share a module name)
-  defp modules(modules, state) do
+  defp modules(modules, gave_up, state) do
     restarts =
       Enum.reduce(modules, state.restarts, fn m, acc ->
         case state.pids[module_key(m)] do
@@ -166,12 +173,13 @@ defmodule ThinkingCap.Dashboard.Telemetry do
             module: inspect(m.module),
             node: m.node,
             activity: m.activity,
+            layer: m[:layer],
             status: :running,
             pid: inspect(m.pid),
             started_at: m[:started_at],
             restarts: Map.get(restarts, module_key(m), 0)
           }
-        end
+        end ++ given_up(gave_up, modules, restarts)
     }
 
     state = %{state | pids: Map.new(modules, &{module_key(&1), &1.pid}), restarts: restarts}
@@ -182,6 +190,40 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   end
 
   defp module_key(m), do: {m[:robot], m.name}
+
+  # the modules of layers that gave up, and not running again: the one
+  # that gave up, then those stopped with it
+  defp given_up(gave_up, modules, restarts) do
+    running = MapSet.new(modules, &module_key/1)
+
+    rows =
+      for {:module_gave_up, robot, %{module: name} = g} <- gave_up,
+          {status, stopped} <- [
+            {:gave_up, name} | for(s <- g.stopped, s != name, do: {:stopped, s})
+          ],
+          stopped != nil,
+          not MapSet.member?(running, {robot, stopped}) do
+        %{
+          name: stopped,
+          robot: robot,
+          module: nil,
+          node: g.node,
+          activity: nil,
+          layer: g.layer,
+          status: status,
+          reason:
+            if(status == :gave_up,
+              do: "#{g.reason} (more than #{g.restarts} restarts in #{g.seconds} s)",
+              else: "stopped with #{name || "its layer"}"
+            ),
+          pid: nil,
+          started_at: nil,
+          restarts: Map.get(restarts, {robot, stopped}, 0)
+        }
+      end
+
+    Enum.uniq_by(rows, &{&1.robot, &1.name})
+  end
 
   # to 0.1 mm, 0.1 mrad, 0.1 ms: what a screen can show, in a third of
   # the text a browser must parse

@@ -14,6 +14,15 @@ defmodule ThinkingCap.Dashboard.ControlTest do
     def init(_params, _ctx), do: {:ok, nil}
   end
 
+  defmodule Broken do
+    @moduledoc false
+    # crashes at every release: its layer gives up
+    use ThinkingCap.Module
+
+    @impl true
+    def handle_cycle(_release, _state), do: raise("broken sensor")
+  end
+
   defp wait_until(fun, tries \\ 500) do
     cond do
       fun.() -> :ok
@@ -77,7 +86,7 @@ defmodule ThinkingCap.Dashboard.ControlTest do
 
     {:ok, _} = Runtime.start(Config.read!(path))
     on_exit(fn -> Runtime.stop({robot, name}) end)
-    supervisor = Process.whereis(ThinkingCap.Runtime.Modules)
+    supervisor = ThinkingCap.Runtime.Supervision.lookup({:layer, robot, :cognitive})
 
     results = for _ <- 1..200, do: Control.restart(to_string(name), to_string(robot))
     assert Enum.count(results, &(&1 == :ok)) == 1
@@ -85,8 +94,33 @@ defmodule ThinkingCap.Dashboard.ControlTest do
     assert message =~ "try again"
 
     # the supervisor lives on, and so does the module
-    assert Process.whereis(ThinkingCap.Runtime.Modules) == supervisor
+    assert ThinkingCap.Runtime.Supervision.lookup({:layer, robot, :cognitive}) == supervisor
     wait_until(fn -> is_pid(Runtime.whereis({robot, name})) end)
+  end
+
+  test "a module whose layer gave up is listed as given up, with its reason", %{tmp_dir: dir} do
+    robot = :"r#{System.unique_integer([:positive])}"
+    broken = :"broken_#{robot}"
+    quiet = :"quiet_#{robot}"
+    path = Path.join(dir, "#{robot}.adf")
+
+    File.write!(path, """
+    [robot: :#{robot}, modules: [
+      #{broken}: [module: #{inspect(Broken)}, activity: :periodic, period: 0.01],
+      #{quiet}: [module: #{inspect(Quiet)}, activity: :event, layer: :reactive]]]
+    """)
+
+    {:ok, _} = Runtime.start(Config.read!(path))
+    on_exit(fn -> for m <- [broken, quiet], do: Runtime.stop({robot, m}) end)
+    {:ok, _} = ThinkingCap.Dashboard.start(port: 0, rosbridge_port: nil)
+    on_exit(fn -> ThinkingCap.Dashboard.stop() end)
+
+    wait_until(fn -> match?([%{"status" => "gave_up"}], listed(broken)) end)
+    assert [%{"robot" => r, "layer" => "reactive", "reason" => reason}] = listed(broken)
+    assert r == to_string(robot)
+    assert reason =~ "broken sensor"
+    assert reason =~ "more than 5 restarts in 5 s"
+    assert [%{"status" => "stopped", "reason" => "stopped with " <> _}] = listed(quiet)
   end
 
   # the dashboard's telemetry entries for module `name`

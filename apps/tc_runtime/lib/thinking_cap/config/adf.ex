@@ -51,6 +51,10 @@ defmodule ThinkingCap.Config.ADF do
          "seconds between the handoffs (`c:ThinkingCap.Module.handoff/1`) sent to the other nodes of `[node | standby]`"},
     activity:
       {{:one_of, [:periodic, :event, :background]}, required: true, doc: "how it is released"},
+    layer:
+      {{:one_of, [:reactive, :cognitive]},
+       doc:
+         "its supervision layer, with that layer's restart intensity (`ThinkingCap.Runtime.Supervision`): `:reactive` (base, perception, control; 5 restarts in 5 s) or `:cognitive` (localization, mapping, planning; 10 in 60 s). Default: `:reactive` for periodic modules, `:cognitive` for the others"},
     period: {:pos_number, doc: "seconds between releases (periodic only; required there)"},
     deadline:
       {:pos_number,
@@ -134,7 +138,10 @@ defmodule ThinkingCap.Config.ADF do
 
   defstruct [:file, :robot, :rdf, :wdf, nodes: %{}, cluster: %{}, dashboard: %{}, modules: []]
 
-  @typedoc "One module entry, with defaults filled in (`deadline` defaults to `period`)."
+  @typedoc """
+  One module entry, with defaults filled in (`deadline` defaults to
+  `period`, `layer` follows from `activity`).
+  """
   @type module_spec :: %{
           name: atom(),
           module: module(),
@@ -143,6 +150,7 @@ defmodule ThinkingCap.Config.ADF do
           failback: :manual | :auto,
           handoff_every: float(),
           activity: :periodic | :event | :background,
+          layer: :reactive | :cognitive,
           period: float() | nil,
           deadline: float() | nil,
           priority: 1..99,
@@ -182,7 +190,14 @@ defmodule ThinkingCap.Config.ADF do
 
     case Schema.errors(st) do
       [] ->
-        modules = Enum.map(modules, fn m -> %{m | deadline: m.deadline || m.period} end)
+        modules =
+          Enum.map(modules, fn m ->
+            %{
+              m
+              | deadline: m.deadline || m.period,
+                layer: m.layer || ThinkingCap.Runtime.Supervision.default_layer(m.activity)
+            }
+          end)
 
         adf = %__MODULE__{
           file: file,

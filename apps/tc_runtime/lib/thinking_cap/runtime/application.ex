@@ -4,16 +4,21 @@ defmodule ThinkingCap.Runtime.Application do
   # depend on earlier ones):
   #
   #   :pg scope                  finds every node's modules
+  #   ThinkingCap.Runtime.Registry  names of robots' supervisors, layers, wardens
   #   ThinkingCap.Cycle          the timing worker's owner
-  #   ThinkingCap.Runtime.Modules  DynamicSupervisor of module hosts
+  #   ThinkingCap.Runtime.Robots   DynamicSupervisor: a supervisor per robot,
+  #                                a layer supervisor per layer inside it
+  #                                (ThinkingCap.Runtime.Supervision)
   #   (a release's boot deployment, when `config :tc_runtime, deploy: adf`)
   #
   # A release deploys its ADF once the whole release has booted (the
   # modules an ADF names live in later applications), from a task that
   # logs a bad ADF instead of failing the boot: the node stays up for a
   # remote shell.
-  # One crash-looping module must not take the others down with the
-  # supervisor, hence the generous restart intensity of Modules.
+  # One crash-looping module must not take other robots' modules down:
+  # restart intensities are per robot and layer, below Robots, whose
+  # children (robots' supervisors) are temporary and never restarted, so
+  # Robots itself never exceeds its intensity.
   use Application
   require Logger
 
@@ -25,12 +30,9 @@ defmodule ThinkingCap.Runtime.Application do
 
     children = [
       %{id: :pg, start: {:pg, :start_link, [ThinkingCap.Runtime.scope()]}},
+      {Registry, keys: :unique, name: ThinkingCap.Runtime.Supervision.registry()},
       ThinkingCap.Cycle,
-      {DynamicSupervisor,
-       name: ThinkingCap.Runtime.Modules,
-       strategy: :one_for_one,
-       max_restarts: 100,
-       max_seconds: 10}
+      {DynamicSupervisor, name: ThinkingCap.Runtime.Robots, strategy: :one_for_one}
     ]
 
     boot =

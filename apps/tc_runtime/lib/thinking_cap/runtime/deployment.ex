@@ -20,7 +20,10 @@ defmodule ThinkingCap.Runtime.Deployment do
       to `cluster.settle` seconds for the other nodes (or until all are
       up) before it takes over modules whose nodes are missing, so a node
       that restarts does not snatch its modules back from a standby it has
-      not seen yet;
+      not seen yet. A module whose layer gave up on its host
+      (`ThinkingCap.Runtime.Supervision`) is not started again, there or
+      on a standby, while that host is up: its robot stays stopped until
+      `ThinkingCap.Runtime.resume/1`;
     * **fails over**: when a node goes down (crash, power loss, cable),
       each of its modules is started on the first live node of its
       standby list. A module without a live standby is reported in
@@ -213,6 +216,11 @@ defmodule ThinkingCap.Runtime.Deployment do
     elsewhere = for pid <- Runtime.whereis_all(ref), node(pid) in up, do: node(pid)
 
     cond do
+      # a layer that gave up here stays down until resumed (Runtime.resume/1)
+      host == node() and here == nil and
+          ThinkingCap.Runtime.Supervision.gave_up?(state.adf.robot, layer(spec)) ->
+        :ok
+
       host == node() and here == nil and (elsewhere == [] or spec.failback == :auto) ->
         locked(ref, fn -> host_here(state, spec, up) end)
 
@@ -340,6 +348,8 @@ defmodule ThinkingCap.Runtime.Deployment do
   # this robot's module, by {robot, name}: another robot of the cluster may
   # run a module of the same name
   defp ref(state, spec), do: {state.adf.robot, spec.name}
+
+  defp layer(spec), do: ThinkingCap.Runtime.Supervision.layer_of(spec)
 
   defp running_on(ref, up) do
     up

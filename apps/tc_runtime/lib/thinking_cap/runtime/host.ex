@@ -4,7 +4,11 @@ defmodule ThinkingCap.Runtime.Host do
   # actions, owns its subscriptions and its periodic activity in the cycle.
   # Process priority follows the activity: periodic high, event normal,
   # background low (it runs when nothing else does).
-  use GenServer, restart: :permanent
+  # transient: a crash is restarted by its layer (and counts against the
+  # layer's intensity); an exit with :shutdown or {:shutdown, _} is not:
+  # an operator's restart (Supervision.restart_host/1) starts it again
+  # itself, uncounted
+  use GenServer, restart: :transient
   require Logger
 
   alias ThinkingCap.{Blackboard, Cycle}
@@ -16,12 +20,18 @@ defmodule ThinkingCap.Runtime.Host do
     do: %{
       id: {__MODULE__, spec.name},
       start: {__MODULE__, :start_link, [spec]},
-      restart: :permanent
+      restart: :transient
     }
 
   @impl true
   def init(spec) do
     Process.flag(:trap_exit, true)
+    # what it was started with: read by an operator's restart even when
+    # the module is stuck in a callback
+    Process.put(:"$tc_spec", spec)
+    spec = Map.put(spec, :layer, ThinkingCap.Runtime.Supervision.layer_of(spec))
+    # its robot's warden watches it before its module's init/2 runs
+    ThinkingCap.Runtime.Supervision.Warden.hosting(spec.robot, spec.layer, spec.name)
     Process.flag(:priority, priority(spec.activity))
     Enum.each(groups(spec), &(:ok = :pg.join(ThinkingCap.Runtime.scope(), &1, self())))
 
@@ -164,6 +174,7 @@ defmodule ThinkingCap.Runtime.Host do
       node: node(),
       pid: self(),
       activity: state.spec.activity,
+      layer: state.spec.layer,
       started_at: state.started
     }
 

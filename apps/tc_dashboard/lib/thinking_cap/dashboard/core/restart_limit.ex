@@ -2,9 +2,10 @@ defmodule ThinkingCap.Dashboard.Core.RestartLimit do
   @moduledoc false
   # How often clients may restart modules, all clients together: one
   # module at most once every @per_module_ms, and at most @per_minute
-  # restarts a minute in all, far below what the runtime's module
-  # supervisor tolerates (100 restarts in 10 s), so that no client, however
-  # many sockets it opens, can make it give up and take every module down.
+  # restarts a minute in all: a restart stops a module and its fallback
+  # holds until it is back, so no client, however many sockets it opens,
+  # may keep a robot's modules restarting. (Restarts asked for do not
+  # count against a layer's restart intensity: ThinkingCap.Runtime.Supervision.)
 
   use Agent
 
