@@ -28,6 +28,10 @@ defmodule ThinkingCap.Planner.Monitor do
   map (unexplored space, within `reach` metres of it) is planned to
   through unknown space.
 
+  Where no path keeps the margin (a doorway drawn a little narrower than
+  it is, a corner the robot drove into), on a sensed map, the path is
+  planned again with the robot's own radius.
+
   **Exploring** (`:explore`, on the map the map builder builds; without
   one the task fails after `map_timeout` seconds, saying so): the robot
   visits frontiers between known free and unknown space
@@ -597,8 +601,30 @@ defmodule ThinkingCap.Planner.Monitor do
           error -> error
         end
 
+      {:error, reason, planner}
+      when reason in [:no_path, :start_blocked] and state.source == :sensed ->
+        squeeze(state, planner, from, goal, reason)
+
       error ->
         error
+    end
+  end
+
+  # No way with the margin: a doorway drawn narrower than it is (a wall
+  # seen a little off), or the robot in a corner it drove into. Planned
+  # again with the robot's own radius, the path keeps to free space the
+  # robot fits in; the behaviours steer it clear of the walls.
+  defp squeeze(state, planner, from, goal, reason) do
+    tight =
+      PathPlanner.new(
+        radius: planner.radius - state.params[:margin] + 0.02,
+        resolution: planner.resolution
+      )
+      |> PathPlanner.set_map(state.map)
+
+    case PathPlanner.plan(tight, from, goal) do
+      {:ok, cells, _tight} -> {:ok, cells, planner, state}
+      {:error, _, _} -> {:error, reason, planner}
     end
   end
 

@@ -55,6 +55,35 @@ defmodule ThinkingCap.Planner.MonitorTest do
   defp pose(state, pose), do: elem(Monitor.handle_tuple({:pose, :r, %{pose: pose}}, state), 1)
   defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
 
+  @tag :tmp_dir
+  test "a doorway narrower than the margin allows is passed with the robot's own radius", %{
+    tmp_dir: dir
+  } do
+    empty = Path.join(dir, "empty.wdf")
+    File.write!(empty, "[name: \"nothing known\"]")
+    state = start(empty, {:go_to, {3.0, 3.0}})
+
+    # 6 x 4 m of 5 cm cells, a wall along y = 2 with a 0.5 m gap: the
+    # robot (0.2 m) fits, its margin (0.08 m each side) does not
+    data =
+      for r <- 0..79, c <- 0..119, into: <<>> do
+        x = (c + 0.5) * 0.05
+        if r == 40 and not (x > 2.74 and x < 3.24), do: <<100::signed-8>>, else: <<0::signed-8>>
+      end
+
+    map = %{
+      ThinkingCap.Navigation.OccupancyGrid.new(120, 80, resolution: 0.05)
+      | data: data,
+        version: 1
+    }
+
+    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
+    state = pose(state, {3.0, 1.0, 1.57})
+    {plan, _actions, _state} = cycle(state, 1.0)
+    assert plan.state == :moving
+    assert Enum.any?(plan.path, fn {_x, y} -> y > 2.2 end)
+  end
+
   test "plans through the office's doors to the waypoint and publishes the plan" do
     state = start(@office, {:go_to, :desk_a})
     {plan, _, state} = cycle(state, 0.0)
