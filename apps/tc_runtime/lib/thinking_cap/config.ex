@@ -30,8 +30,6 @@ defmodule ThinkingCap.Config do
 
   alias ThinkingCap.Config.{ADF, Error, Literal, RDF, Source, WDF}
 
-  @max_errors 50
-
   @kinds %{".adf" => ADF, ".rdf" => RDF, ".wdf" => WDF}
 
   @type description :: ADF.t() | RDF.t() | WDF.t()
@@ -45,19 +43,7 @@ defmodule ThinkingCap.Config do
          {:ok, description} <- kind.from_data(data, path, positions) do
       {:ok, description}
     else
-      {:error, errors} -> {:error, bounded(errors)}
-    end
-  end
-
-  # at most @max_errors errors, then one that says how many more there are
-  defp bounded(errors) do
-    case Enum.split(errors, @max_errors) do
-      {some, []} ->
-        some
-
-      {some, [first | _] = rest} ->
-        some ++
-          [Error.new(first.file, {first.line, first.column}, "and #{length(rest)} more errors")]
+      {:error, errors} -> {:error, Error.cap(errors)}
     end
   end
 
