@@ -65,6 +65,21 @@ defmodule ThinkingCap.Config.HostileMapsTest do
     assert message =~ "1000000000 cells: a map is limited to 100000000 cells"
   end
 
+  test "Config.check (mix tc.check) reads maps and takes readers of other kinds", %{
+    tmp_dir: dir
+  } do
+    bad = Path.join(dir, "bad.yaml")
+    File.write!(bad, "image: x.pgm\nresolution: 0\norigin: [0, 0]\n")
+    good = Path.join(@maps, "testmap.yaml")
+
+    assert [%Error{file: ^bad, line: 2, column: 13}] = ThinkingCap.Config.check([good, bad])
+
+    other = fn path -> {:error, [Error.new(path, {3, 0}, "refused by its reader")]} end
+
+    assert [%Error{file: "r.urdf", line: 3}] =
+             ThinkingCap.Config.check(["r.urdf"], %{".urdf" => other})
+  end
+
   test "fuzz: random and mutated YAML and PGM files are answered, never raise", %{
     tmp_dir: dir
   } do
