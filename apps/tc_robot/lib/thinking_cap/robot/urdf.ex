@@ -418,12 +418,7 @@ defmodule ThinkingCap.Robot.URDF do
           )
         end
 
-    loop =
-      errors == [] &&
-        urdf.links
-        |> Map.keys()
-        |> Enum.sort()
-        |> Enum.find(&match?({:error, _}, chain(urdf, &1)))
+    loop = errors == [] && loop_link(urdf)
 
     cond do
       map_size(urdf.links) == 0 ->
@@ -444,6 +439,46 @@ defmodule ThinkingCap.Robot.URDF do
 
       true ->
         {:ok, urdf}
+    end
+  end
+
+  # A link on a loop of joints, or nil. Each link is walked up to the root
+  # once at most (a walk stops at a link known to reach the root): linear
+  # in the links, where a chain per link would be quadratic on a long arm.
+  defp loop_link(urdf) do
+    parent_of = Map.new(Map.values(urdf.joints), &{&1.child, &1.parent})
+
+    urdf.links
+    |> Map.keys()
+    |> Enum.sort()
+    |> Enum.reduce_while(MapSet.new(), fn link, rooted ->
+      case walk_up(link, parent_of, rooted, [], MapSet.new()) do
+        {:ok, rooted} -> {:cont, rooted}
+        {:loop, at} -> {:halt, {:loop, at}}
+      end
+    end)
+    |> case do
+      {:loop, at} -> at
+      _rooted -> nil
+    end
+  end
+
+  defp walk_up(link, parent_of, rooted, path, on_path) do
+    cond do
+      MapSet.member?(rooted, link) ->
+        {:ok, Enum.reduce(path, rooted, &MapSet.put(&2, &1))}
+
+      MapSet.member?(on_path, link) ->
+        {:loop, link}
+
+      true ->
+        case Map.fetch(parent_of, link) do
+          {:ok, parent} ->
+            walk_up(parent, parent_of, rooted, [link | path], MapSet.put(on_path, link))
+
+          :error ->
+            {:ok, Enum.reduce([link | path], rooted, &MapSet.put(&2, &1))}
+        end
     end
   end
 

@@ -78,6 +78,31 @@ defmodule ThinkingCap.Robot.HostileURDFTest do
     assert message == "malformed XML: more than 100000 elements"
   end
 
+  # checked per link up to the root, a long arm took minutes (quadratic);
+  # the default test timeout (60 s) bounds it now
+  test "a long arm of 10,000 links is read, and a loop in it found", %{tmp_dir: dir} do
+    joints =
+      Enum.map_join(1..9_999, "\n", fn i ->
+        ~s(<link name="l#{i}"/><joint name="j#{i}" type="fixed">) <>
+          ~s(<parent link="l#{i - 1}"/><child link="l#{i}"/></joint>)
+      end)
+
+    path = write(dir, "arm.urdf", ~s(<robot name="arm">\n<link name="l0"/>\n#{joints}\n</robot>))
+    assert {:ok, %URDF{links: links}} = URDF.load(path)
+    assert map_size(links) == 10_000
+
+    loop = ~s(<joint name="back" type="fixed"><parent link="l9999"/><child link="l0"/></joint>)
+
+    path =
+      write(
+        dir,
+        "loop.urdf",
+        ~s(<robot name="arm">\n<link name="l0"/>\n#{joints}\n#{loop}</robot>)
+      )
+
+    assert [%Error{message: "the joints form a loop through link \"l0\""}] = refused(path)
+  end
+
   test "a file of novel tag and attribute names makes no atom", %{tmp_dir: dir} do
     prefix = "zq#{:erlang.unique_integer([:positive])}"
 
