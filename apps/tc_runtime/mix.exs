@@ -35,16 +35,12 @@ defmodule ThinkingCap.Runtime.MixProject do
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
       compilers: [:tc_timing | Mix.compilers()],
-      xref: [exclude: [:fast_yaml]],
       elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       deps: [{:tc_blackboard, in_umbrella: true}]
     ]
   end
 
   def application do
-    # fast_yaml (Debian's erlang-p1-yaml, for ROS map_server YAML files) is
-    # started when a map is read (ThinkingCap.Config.RosMap): its directory
-    # is not named after the application, so a release cannot bundle it
     [extra_applications: [:logger], mod: {ThinkingCap.Runtime.Application, []}]
   end
 end

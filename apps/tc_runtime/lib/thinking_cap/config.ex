@@ -28,9 +28,7 @@ defmodule ThinkingCap.Config do
       {:error, [%ThinkingCap.Config.Error{} | _]} = ThinkingCap.Config.read("broken.rdf")
   """
 
-  alias ThinkingCap.Config.{ADF, Error, Literal, RDF, Source, WDF}
-
-  @max_errors 50
+  alias ThinkingCap.Config.{ADF, Error, Literal, RDF, RosMap, Source, WDF}
 
   @kinds %{".adf" => ADF, ".rdf" => RDF, ".wdf" => WDF}
 
@@ -45,19 +43,7 @@ defmodule ThinkingCap.Config do
          {:ok, description} <- kind.from_data(data, path, positions) do
       {:ok, description}
     else
-      {:error, errors} -> {:error, bounded(errors)}
-    end
-  end
-
-  # at most @max_errors errors, then one that says how many more there are
-  defp bounded(errors) do
-    case Enum.split(errors, @max_errors) do
-      {some, []} ->
-        some
-
-      {some, [first | _] = rest} ->
-        some ++
-          [Error.new(first.file, {first.line, first.column}, "and #{length(rest)} more errors")]
+      {:error, errors} -> {:error, Error.cap(errors)}
     end
   end
 
@@ -73,11 +59,27 @@ defmodule ThinkingCap.Config do
     end
   end
 
-  @doc "Validates any number of description files; returns every error of every file."
-  @spec check([Path.t()]) :: [Error.t()]
-  def check(paths) do
+  @typedoc """
+  A reader of another kind of file, by extension (`".urdf"`): it returns
+  `{:ok, _}` or `{:error, errors}` (at most 50 and a count of the rest).
+  """
+  @type reader :: (Path.t() -> {:ok, term()} | {:error, [Error.t()]})
+
+  @doc """
+  Validates any number of files; returns every error of every file.
+  Description files are read with `read/1`, ROS map files (`*.yaml`)
+  with `ThinkingCap.Config.RosMap.load/1` (the YAML and the image it
+  names), and other extensions with the `readers` given (the URDF reader
+  of `tc_robot`, a layer above this one, comes so from `mix tc.check`).
+  """
+  @spec check([Path.t()], %{optional(String.t()) => reader()}) :: [Error.t()]
+  def check(paths, readers \\ %{}) do
+    readers = Map.merge(%{".yaml" => &RosMap.load/1}, readers)
+
     Enum.flat_map(paths, fn path ->
-      case read(path) do
+      read = Map.get(readers, Path.extname(path), &read/1)
+
+      case read.(path) do
         {:ok, _} -> []
         {:error, errors} -> errors
       end
@@ -99,7 +101,7 @@ defmodule ThinkingCap.Config do
            Error.new(
              path,
              {0, 0},
-             "unknown kind of description file: expected a .adf, .rdf or .wdf file"
+             "unknown kind of file: expected a .adf, .rdf or .wdf description file (mix tc.check also reads .yaml maps and .urdf files)"
            )
          ]}
     end

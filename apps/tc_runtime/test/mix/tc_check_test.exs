@@ -17,7 +17,7 @@ defmodule Mix.Tasks.Tc.CheckTest do
   test "accepts the examples" do
     files = for f <- ~w(office.adf office_robot.rdf office.wdf), do: Path.join(@examples, f)
     Mix.Tasks.Tc.Check.run(files)
-    assert_received {:mix_shell, :info, ["3 description file(s) OK"]}
+    assert_received {:mix_shell, :info, ["3 file(s) OK"]}
   end
 
   test "prints every error and fails", %{tmp_dir: dir} do

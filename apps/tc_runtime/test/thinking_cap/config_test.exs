@@ -358,10 +358,10 @@ defmodule ThinkingCap.ConfigTest do
 
   describe "files" do
     test "unknown extensions and unreadable files are errors, not crashes", %{tmp_dir: dir} do
-      assert [error] = errors(write(dir, "robot.yaml", "[]"))
+      assert [error] = errors(write(dir, "robot.toml", "[]"))
 
       assert error =~
-               "robot.yaml:0:0: unknown kind of description file: expected a .adf, .rdf or .wdf file"
+               "robot.toml:0:0: unknown kind of file: expected a .adf, .rdf or .wdf description file"
 
       assert [error] = errors(Path.join(dir, "absent.adf"))
       assert error =~ "absent.adf:0:0: cannot read the file: no such file or directory"

@@ -67,14 +67,30 @@ defmodule ThinkingCap.Navigation.OccupancyGrid do
     }
   end
 
-  @doc "Loads a `map_server` map (YAML + PGM)."
-  @spec load(Path.t()) :: {:ok, t()} | {:error, String.t()}
+  @doc """
+  Loads a `map_server` map (YAML + PGM) through `ThinkingCap.Config.RosMap.load/1`,
+  the one bounded reader of map files; a map whose origin has a yaw is
+  refused here (an error at the YAML file).
+  """
+  @spec load(Path.t()) :: {:ok, t()} | {:error, [ThinkingCap.Config.Error.t()]}
   def load(yaml_path) do
-    with {:ok, map} <- RosMap.load(yaml_path) do
-      {:ok, from_ros_map(map)}
+    case RosMap.load(yaml_path) do
+      {:ok, %RosMap{origin: {_, _, yaw}}} when abs(yaw) > 1.0e-9 ->
+        {:error,
+         [
+           ThinkingCap.Config.Error.new(
+             yaml_path,
+             {0, 0},
+             "origin: the map's origin has a yaw of #{yaw} rad (must be 0)"
+           )
+         ]}
+
+      {:ok, map} ->
+        {:ok, from_ros_map(map)}
+
+      {:error, errors} ->
+        {:error, errors}
     end
-  rescue
-    e in ArgumentError -> {:error, Exception.message(e)}
   end
 
   @doc "Saves the map as `map_server` does (`ThinkingCap.Config.RosMap.save/2`)."

@@ -66,17 +66,18 @@ defmodule ThinkingCap.Navigation.OccupancyGridTest do
   end
 
   test "a map whose origin is rotated is refused with its name", %{tmp_dir: _dir} do
-    assert {:error, message} = OccupancyGrid.load(Path.join(@maps, "testmap.yaml"))
-    assert message =~ "testmap.yaml" and message =~ "yaw"
+    path = Path.join(@maps, "testmap.yaml")
+    assert {:error, [error]} = OccupancyGrid.load(path)
+    assert error.file == path and error.message =~ "yaw"
   end
 
   test "a missing or corrupt map file is an error naming it", %{tmp_dir: dir} do
-    assert {:error, message} = OccupancyGrid.load(Path.join(dir, "none.yaml"))
-    assert message =~ "none.yaml"
+    assert {:error, [error]} = OccupancyGrid.load(Path.join(dir, "none.yaml"))
+    assert error.file == Path.join(dir, "none.yaml")
     yaml = Path.join(dir, "bad.yaml")
     File.write!(yaml, "image: bad.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
     File.write!(Path.join(dir, "bad.pgm"), "P5\n10 10\n255\n\0\0")
-    assert {:error, message} = OccupancyGrid.load(yaml)
-    assert message =~ "bad.pgm"
+    assert {:error, [error]} = OccupancyGrid.load(yaml)
+    assert to_string(error) =~ "bad.pgm:byte 15: the image data ends after 2 of 100 bytes"
   end
 end

@@ -141,7 +141,7 @@ defmodule ThinkingCap.Robot.Description do
   defp load_urdf(%RDF{urdf: path} = rdf) do
     case URDF.load(path) do
       {:ok, urdf} -> {:ok, urdf}
-      {:error, message} -> {:error, "#{rdf.file}: urdf: #{message}"}
+      {:error, errors} -> {:error, "#{rdf.file}: urdf:\n" <> URDF.format_errors(errors)}
     end
   end
 

@@ -21,9 +21,17 @@ defmodule ThinkingCap.Robot.URDF do
   convention), in metres and radians; `rpy` is roll, pitch, yaw about the
   fixed x, y, z axes (`R = Rz(yaw) Ry(pitch) Rx(roll)`).
 
-  The file is parsed with `:xmerl_sax_parser`, so element and attribute
-  names stay strings: a URDF cannot fill the atom table.
+  The file is read within bounds (`load/1`): by size, as UTF-8, and by a
+  small XML reader of its own (`ThinkingCap.Robot.URDF.XML`) that takes no
+  DOCTYPE or entity, bounds depth and element count, and keeps names as
+  strings: a URDF cannot fill the atom table, name another file, or take
+  unbounded time or memory.
   """
+
+  alias ThinkingCap.Config.Error
+  alias ThinkingCap.Robot.URDF.XML
+
+  @max_bytes 4 * 1024 * 1024
 
   defstruct [:file, :name, links: %{}, joints: %{}]
 
@@ -78,95 +86,150 @@ defmodule ThinkingCap.Robot.URDF do
   ## Loading
 
   @doc """
-  Reads and checks a URDF file. Errors name the file and the problem: a
-  missing file, malformed XML (with its line), a root element that is not
-  `<robot>`, a link or joint without a name, a joint of an unknown type or
-  without parent or child, a joint naming an unknown link, a link with two
-  parents, numbers that do not parse.
+  Reads and checks a URDF file, within bounds: a file over 4 MB is
+  refused unread, one that is not UTF-8 before it is parsed, and the XML
+  is read by `ThinkingCap.Robot.URDF.XML` (no DOCTYPE or entities, at most
+  64 deep and 100,000 elements, no atoms). Every problem is a
+  `ThinkingCap.Config.Error` at its line (column 0: the line of the
+  element): malformed XML (the first place only), a root element that is
+  not `<robot>`, a link or joint without a name or given twice, a joint of
+  an unknown type or without parent or child, a joint naming an unknown
+  link, a link with two parents, joints in a loop, numbers that do not
+  parse. All of them at once, at most 50 and then how many more.
   """
-  @spec load(Path.t()) :: {:ok, t()} | {:error, String.t()}
+  @spec load(Path.t()) :: {:ok, t()} | {:error, [Error.t()]}
   def load(path) do
     with {:ok, xml} <- read(path),
          {:ok, root} <- parse(xml, path),
-         {:ok, urdf} <- build(root, path) do
-      check_tree(urdf)
+         {:ok, urdf, lines} <- build(root, path),
+         {:ok, urdf} <- check_tree(urdf, lines) do
+      {:ok, urdf}
+    else
+      {:error, errors} -> {:error, Error.cap(errors)}
     end
   end
+
+  @doc "One line per error of `load/1`, as `file:line:column: message`."
+  @spec format_errors([Error.t()]) :: String.t()
+  def format_errors(errors), do: Enum.map_join(errors, "\n", &to_string/1)
 
   defp read(path) do
+    with {:ok, size} <- size(path),
+         :ok <- small(path, size),
+         {:ok, xml} <- read_file(path),
+         :ok <- utf8(path, xml) do
+      {:ok, xml}
+    end
+  end
+
+  defp size(path) do
+    case File.stat(path) do
+      {:ok, %File.Stat{type: :regular, size: size}} -> {:ok, size}
+      {:ok, %File.Stat{type: type}} -> fail(path, "the URDF is not a regular file (#{type})")
+      {:error, reason} -> fail(path, "cannot read the URDF: #{:file.format_error(reason)}")
+    end
+  end
+
+  defp small(_path, size) when size <= @max_bytes, do: :ok
+
+  defp small(path, size),
+    do: fail(path, "#{size} bytes: a URDF is limited to #{@max_bytes} bytes")
+
+  defp read_file(path) do
     case File.read(path) do
       {:ok, xml} -> {:ok, xml}
-      {:error, reason} -> {:error, "#{path}: cannot read the URDF: #{:file.format_error(reason)}"}
+      {:error, reason} -> fail(path, "cannot read the URDF: #{:file.format_error(reason)}")
     end
   end
 
-  # A tree of {name, %{attribute => value}, [children]}, strings throughout.
+  defp utf8(path, xml) do
+    case :unicode.characters_to_binary(xml) do
+      bin when is_binary(bin) ->
+        :ok
+
+      {_error, good, _rest} ->
+        lines = :binary.split(good, "\n", [:global])
+
+        {:error,
+         [
+           Error.new(
+             path,
+             {length(lines), String.length(List.last(lines)) + 1},
+             "not UTF-8 text: invalid bytes here"
+           )
+         ]}
+    end
+  end
+
+  defp fail(path, message), do: {:error, [Error.new(path, {0, 0}, message)]}
+
   defp parse(xml, path) do
-    handler = fn
-      {:startElement, _uri, name, _qname, attributes}, _loc, stack ->
-        attrs = Map.new(attributes, fn {_uri, _prefix, k, v} -> {to_string(k), to_string(v)} end)
-        [{to_string(name), attrs, []} | stack]
+    case XML.parse(xml) do
+      {:ok, root} ->
+        {:ok, root}
 
-      {:endElement, _uri, _name, _qname}, _loc, [element, {n, a, children} | stack] ->
-        [{n, a, [reverse_children(element) | children]} | stack]
-
-      {:endElement, _uri, _name, _qname}, _loc, [element] ->
-        [{:done, reverse_children(element)}]
-
-      _event, _loc, stack ->
-        stack
+      {:error, line, message} ->
+        {:error, [Error.new(path, {line, 0}, "malformed XML: #{message}")]}
     end
-
-    case :xmerl_sax_parser.stream(xml, event_fun: handler, event_state: []) do
-      {:ok, [{:done, root}], rest} ->
-        # the parser stops at the root's end: comments and processing
-        # instructions may follow it, nothing else
-        trailing = Regex.replace(~r/<!--.*?-->|<\?.*?\?>|\s/s, to_string(rest), "")
-
-        if trailing == "",
-          do: {:ok, root},
-          else: {:error, "#{path}: malformed XML: content after the root element"}
-
-      {:ok, _state, _rest} ->
-        {:error, "#{path}: malformed XML: no root element"}
-
-      {:fatal_error, {_entity, _name, line}, reason, _tags, _state} ->
-        {:error, "#{path}:#{line}: malformed XML: #{format_reason(reason)}"}
-
-      {:error, reason} ->
-        {:error, "#{path}: malformed XML: #{format_reason(reason)}"}
-    end
-  catch
-    kind, reason ->
-      {:error, "#{path}: malformed XML: #{Exception.format_banner(kind, reason)}"}
   end
 
-  defp reverse_children({n, a, children}), do: {n, a, Enum.reverse(children)}
-
-  defp format_reason(reason) when is_list(reason) do
-    to_string(reason)
-  rescue
-    _ -> inspect(reason)
-  end
-
-  defp format_reason(reason), do: inspect(reason)
-
+  # Every <link> and <joint> is read, each problem an error at its line.
   defp build({"robot", attrs, children}, path) do
-    with {:ok, links} <- collect(children, "link", &link(&1, path)),
-         {:ok, joints} <- collect(children, "joint", &joint(&1, path)) do
-      {:ok,
-       %__MODULE__{
-         file: path,
-         name: Map.get(attrs, "name", ""),
-         links: Map.new(links, &{&1.name, &1}),
-         joints: Map.new(joints, &{&1.name, &1})
-       }}
+    {items, errors} =
+      Enum.reduce(children, {[], []}, fn
+        {"link", a, _} = element, acc -> item(acc, :link, a.line, link(element), path)
+        {"joint", a, _} = element, acc -> item(acc, :joint, a.line, joint(element), path)
+        _other, acc -> acc
+      end)
+
+    {links, joints, lines, errors} =
+      items
+      |> Enum.reverse()
+      |> Enum.reduce({%{}, %{}, %{}, errors}, fn {kind, line, item},
+                                                 {links, joints, lines, errors} ->
+        case Map.fetch(lines, {kind, item.name}) do
+          {:ok, first} ->
+            message = "#{kind} #{inspect(item.name)} is given twice (first at line #{first})"
+            {links, joints, lines, [Error.new(path, {line, 0}, message) | errors]}
+
+          :error ->
+            lines = Map.put(lines, {kind, item.name}, line)
+
+            if kind == :link,
+              do: {Map.put(links, item.name, item), joints, lines, errors},
+              else: {links, Map.put(joints, item.name, item), lines, errors}
+        end
+      end)
+
+    case errors do
+      [] ->
+        {:ok,
+         %__MODULE__{file: path, name: Map.get(attrs, "name", ""), links: links, joints: joints},
+         lines}
+
+      _ ->
+        {:error, errors |> Enum.reverse() |> Enum.sort_by(& &1.line)}
     end
   end
 
-  defp build({other, _, _}, path),
-    do: {:error, "#{path}: not a URDF: the root element is <#{other}>, expected <robot>"}
+  defp build({other, attrs, _}, path),
+    do:
+      {:error,
+       [
+         Error.new(
+           path,
+           {attrs.line, 0},
+           "not a URDF: the root element is <#{other}>, expected <robot>"
+         )
+       ]}
 
+  defp item({items, errors}, kind, line, {:ok, item}, _path),
+    do: {[{kind, line, item} | items], errors}
+
+  defp item({items, errors}, _kind, line, {:error, message}, path),
+    do: {items, [Error.new(path, {line, 0}, message) | errors]}
+
+  # the first error of each element, or its items
   defp collect(children, tag, fun) do
     children
     |> Enum.filter(&match?({^tag, _, _}, &1))
@@ -182,21 +245,21 @@ defmodule ThinkingCap.Robot.URDF do
     end
   end
 
-  defp link({"link", attrs, children}, path) do
-    with {:ok, name} <- name_of(attrs, "link", path),
+  defp link({"link", attrs, children}) do
+    with {:ok, name} <- name_of(attrs, "link"),
          where = "link #{inspect(name)}",
-         {:ok, visual} <- geometries(children, "visual", where, path),
-         {:ok, collision} <- geometries(children, "collision", where, path) do
+         {:ok, visual} <- geometries(children, "visual", where),
+         {:ok, collision} <- geometries(children, "collision", where) do
       {:ok, %{name: name, visual: visual, collision: collision}}
     end
   end
 
-  defp geometries(children, tag, where, path) do
-    collect(children, tag, fn {_, _, parts} ->
-      with {:ok, origin} <- origin(parts, "#{where} <#{tag}>", path) do
+  defp geometries(children, tag, where) do
+    collect(children, tag, fn {_, a, parts} ->
+      with {:ok, origin} <- origin(parts, "#{where} <#{tag}>") do
         case Enum.find(parts, &match?({"geometry", _, _}, &1)) do
-          {"geometry", _, [shape | _]} -> shape(shape, origin, "#{where} <#{tag}>", path)
-          _ -> {:error, "#{path}: #{where} <#{tag}> has no <geometry>"}
+          {"geometry", _, [shape | _]} -> shape(shape, origin, "#{where} <#{tag}>")
+          _ -> {:error, "#{where} <#{tag}> (line #{a.line}) has no <geometry>"}
         end
       end
     end)
@@ -206,96 +269,96 @@ defmodule ThinkingCap.Robot.URDF do
     end
   end
 
-  defp shape({"cylinder", a, _}, origin, where, path) do
-    with {:ok, r} <- number(a, "radius", "#{where} cylinder", path),
-         {:ok, l} <- number(a, "length", "#{where} cylinder", path),
+  defp shape({"cylinder", a, _}, origin, where) do
+    with {:ok, r} <- number(a, "radius", "#{where} cylinder"),
+         {:ok, l} <- number(a, "length", "#{where} cylinder"),
          do: {:ok, %{type: :cylinder, radius: r, length: l, origin: origin}}
   end
 
-  defp shape({"box", a, _}, origin, where, path) do
-    with {:ok, size} <- vector(a, "size", nil, "#{where} box", path),
+  defp shape({"box", a, _}, origin, where) do
+    with {:ok, size} <- vector(a, "size", nil, "#{where} box"),
          do: {:ok, %{type: :box, size: size, origin: origin}}
   end
 
-  defp shape({"sphere", a, _}, origin, where, path) do
-    with {:ok, r} <- number(a, "radius", "#{where} sphere", path),
+  defp shape({"sphere", a, _}, origin, where) do
+    with {:ok, r} <- number(a, "radius", "#{where} sphere"),
          do: {:ok, %{type: :sphere, radius: r, origin: origin}}
   end
 
-  defp shape({"mesh", a, _}, origin, where, path) do
-    with {:ok, scale} <- vector(a, "scale", {1.0, 1.0, 1.0}, "#{where} mesh", path),
+  defp shape({"mesh", a, _}, origin, where) do
+    with {:ok, scale} <- vector(a, "scale", {1.0, 1.0, 1.0}, "#{where} mesh"),
          do:
            {:ok,
             %{type: :mesh, filename: Map.get(a, "filename", ""), scale: scale, origin: origin}}
   end
 
   # other shapes (e.g. capsule in newer URDF) are ignored
-  defp shape(_other, _origin, _where, _path), do: {:ok, nil}
+  defp shape(_other, _origin, _where), do: {:ok, nil}
 
-  defp joint({"joint", attrs, children}, path) do
-    with {:ok, name} <- name_of(attrs, "joint", path),
+  defp joint({"joint", attrs, children}) do
+    with {:ok, name} <- name_of(attrs, "joint"),
          where = "joint #{inspect(name)}",
-         {:ok, type} <- joint_type(attrs, where, path),
-         {:ok, parent} <- link_ref(children, "parent", where, path),
-         {:ok, child} <- link_ref(children, "child", where, path),
-         {:ok, origin} <- origin(children, where, path),
-         {:ok, axis} <- axis(children, where, path) do
+         {:ok, type} <- joint_type(attrs, where),
+         {:ok, parent} <- link_ref(children, "parent", where),
+         {:ok, child} <- link_ref(children, "child", where),
+         {:ok, origin} <- origin(children, where),
+         {:ok, axis} <- axis(children, where) do
       {:ok, %{name: name, type: type, parent: parent, child: child, origin: origin, axis: axis}}
     end
   end
 
-  defp name_of(attrs, tag, path) do
+  defp name_of(attrs, tag) do
     case Map.get(attrs, "name") do
       name when is_binary(name) and name != "" -> {:ok, name}
-      _ -> {:error, "#{path}: a <#{tag}> without a name"}
+      _ -> {:error, "a <#{tag}> without a name"}
     end
   end
 
-  defp joint_type(attrs, where, path) do
+  defp joint_type(attrs, where) do
     case Map.fetch(@joint_types, Map.get(attrs, "type")) do
       {:ok, type} ->
         {:ok, type}
 
       :error ->
         {:error,
-         "#{path}: #{where}: unknown type #{inspect(Map.get(attrs, "type"))} (expected one of #{Enum.join(Map.keys(@joint_types), ", ")})"}
+         "#{where}: unknown type #{inspect(Map.get(attrs, "type"))} (expected one of #{Enum.join(Map.keys(@joint_types), ", ")})"}
     end
   end
 
-  defp link_ref(children, tag, where, path) do
+  defp link_ref(children, tag, where) do
     case Enum.find(children, &match?({^tag, _, _}, &1)) do
       {_, %{"link" => link}, _} when link != "" -> {:ok, link}
-      _ -> {:error, "#{path}: #{where} has no <#{tag} link=\"...\"/>"}
+      _ -> {:error, "#{where} has no <#{tag} link=\"...\"/>"}
     end
   end
 
-  defp origin(children, where, path) do
+  defp origin(children, where) do
     case Enum.find(children, &match?({"origin", _, _}, &1)) do
       nil ->
         {:ok, @zero_origin}
 
       {_, a, _} ->
-        with {:ok, xyz} <- vector(a, "xyz", {0.0, 0.0, 0.0}, "#{where} origin", path),
-             {:ok, rpy} <- vector(a, "rpy", {0.0, 0.0, 0.0}, "#{where} origin", path),
+        with {:ok, xyz} <- vector(a, "xyz", {0.0, 0.0, 0.0}, "#{where} origin"),
+             {:ok, rpy} <- vector(a, "rpy", {0.0, 0.0, 0.0}, "#{where} origin"),
              do: {:ok, {xyz, rpy}}
     end
   end
 
-  defp axis(children, where, path) do
+  defp axis(children, where) do
     case Enum.find(children, &match?({"axis", _, _}, &1)) do
       nil -> {:ok, {1.0, 0.0, 0.0}}
-      {_, a, _} -> vector(a, "xyz", {1.0, 0.0, 0.0}, "#{where} axis", path)
+      {_, a, _} -> vector(a, "xyz", {1.0, 0.0, 0.0}, "#{where} axis")
     end
   end
 
-  defp number(attrs, key, where, path) do
+  defp number(attrs, key, where) do
     case parse_numbers(Map.get(attrs, key, "")) do
       [x] -> {:ok, x}
-      _ -> {:error, "#{path}: #{where}: #{key}= expected a number, got #{inspect(attrs[key])}"}
+      _ -> {:error, "#{where}: #{key}= expected a number, got #{shown(attrs[key])}"}
     end
   end
 
-  defp vector(attrs, key, default, where, path) do
+  defp vector(attrs, key, default, where) do
     case {Map.fetch(attrs, key), default} do
       {:error, default} when default != nil ->
         {:ok, default}
@@ -306,52 +369,116 @@ defmodule ThinkingCap.Robot.URDF do
             {:ok, {x, y, z}}
 
           _ ->
-            {:error,
-             "#{path}: #{where}: #{key}= expected 3 numbers, got #{inspect(Map.get(attrs, key))}"}
+            {:error, "#{where}: #{key}= expected 3 numbers, got #{shown(Map.get(attrs, key))}"}
         end
     end
   end
 
+  # a value in a message: at most 80 characters of it
+  defp shown(value) when is_binary(value) and byte_size(value) > 80,
+    do: inspect(String.slice(value, 0, 80) <> "...")
+
+  defp shown(value), do: inspect(value)
+
+  # finite numbers only (Float.parse refuses what overflows), at most 64 bytes each
   defp parse_numbers(text) do
     text
     |> String.split()
-    |> Enum.map(fn word ->
+    |> Enum.reduce_while([], fn word, acc ->
       # Float.parse wants a digit before the point: ".5", "-.5"
       word = String.replace(word, ~r/^([+-]?)\./, "\\g{1}0.")
 
-      case Float.parse(word) do
-        {x, ""} -> x
-        _ -> :error
+      case byte_size(word) <= 64 and Float.parse(word) do
+        {x, ""} when length(acc) < 3 -> {:cont, [x | acc]}
+        _ -> {:halt, :error}
       end
     end)
-    |> then(&if Enum.member?(&1, :error), do: :error, else: &1)
+    |> then(&if &1 == :error, do: :error, else: Enum.reverse(&1))
   end
 
-  defp check_tree(urdf) do
-    joints = Map.values(urdf.joints)
-    parents = joints |> Enum.group_by(& &1.child) |> Enum.find(fn {_, js} -> length(js) > 1 end)
+  defp check_tree(urdf, lines) do
+    joints = urdf.joints |> Map.values() |> Enum.sort_by(&lines[{:joint, &1.name}])
+    at = fn kind, name -> {Map.get(lines, {kind, name}, 0), 0} end
+
+    errors =
+      for joint <- joints, not linked?(urdf, joint) do
+        missing = if Map.has_key?(urdf.links, joint.parent), do: joint.child, else: joint.parent
+
+        Error.new(
+          urdf.file,
+          at.(:joint, joint.name),
+          "joint #{inspect(joint.name)} names an unknown link #{inspect(missing)}"
+        )
+      end ++
+        for {child, [_, _ | _] = js} <- Enum.group_by(joints, & &1.child) do
+          Error.new(
+            urdf.file,
+            at.(:link, child),
+            "link #{inspect(child)} is the child of several joints: #{js |> Enum.map(& &1.name) |> Enum.sort() |> Enum.map_join(", ", &inspect/1)}"
+          )
+        end
+
+    loop = errors == [] && loop_link(urdf)
 
     cond do
       map_size(urdf.links) == 0 ->
-        {:error, "#{urdf.file}: the URDF has no <link>"}
+        {:error, [Error.new(urdf.file, {0, 0}, "the URDF has no <link>")]}
 
-      joint = Enum.find(joints, &(not linked?(urdf, &1))) ->
-        missing = if Map.has_key?(urdf.links, joint.parent), do: joint.child, else: joint.parent
+      errors != [] ->
+        {:error, Enum.sort_by(errors, & &1.line)}
 
+      loop ->
         {:error,
-         "#{urdf.file}: joint #{inspect(joint.name)} names an unknown link #{inspect(missing)}"}
-
-      parents != nil ->
-        {child, js} = parents
-
-        {:error,
-         "#{urdf.file}: link #{inspect(child)} is the child of several joints: #{js |> Enum.map(& &1.name) |> Enum.sort() |> Enum.map_join(", ", &inspect/1)}"}
-
-      link = Enum.find(Map.keys(urdf.links), &match?({:error, _}, chain(urdf, &1))) ->
-        {:error, "#{urdf.file}: the joints form a loop through link #{inspect(link)}"}
+         [
+           Error.new(
+             urdf.file,
+             at.(:link, loop),
+             "the joints form a loop through link #{inspect(loop)}"
+           )
+         ]}
 
       true ->
         {:ok, urdf}
+    end
+  end
+
+  # A link on a loop of joints, or nil. Each link is walked up to the root
+  # once at most (a walk stops at a link known to reach the root): linear
+  # in the links, where a chain per link would be quadratic on a long arm.
+  defp loop_link(urdf) do
+    parent_of = Map.new(Map.values(urdf.joints), &{&1.child, &1.parent})
+
+    urdf.links
+    |> Map.keys()
+    |> Enum.sort()
+    |> Enum.reduce_while(MapSet.new(), fn link, rooted ->
+      case walk_up(link, parent_of, rooted, [], MapSet.new()) do
+        {:ok, rooted} -> {:cont, rooted}
+        {:loop, at} -> {:halt, {:loop, at}}
+      end
+    end)
+    |> case do
+      {:loop, at} -> at
+      _rooted -> nil
+    end
+  end
+
+  defp walk_up(link, parent_of, rooted, path, on_path) do
+    cond do
+      MapSet.member?(rooted, link) ->
+        {:ok, Enum.reduce(path, rooted, &MapSet.put(&2, &1))}
+
+      MapSet.member?(on_path, link) ->
+        {:loop, link}
+
+      true ->
+        case Map.fetch(parent_of, link) do
+          {:ok, parent} ->
+            walk_up(parent, parent_of, rooted, [link | path], MapSet.put(on_path, link))
+
+          :error ->
+            {:ok, Enum.reduce([link | path], rooted, &MapSet.put(&2, &1))}
+        end
     end
   end
 

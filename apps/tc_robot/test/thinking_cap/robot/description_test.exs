@@ -125,7 +125,7 @@ defmodule ThinkingCap.Robot.DescriptionTest do
       write(dir, "broken.urdf", "<robot name=\"b\"><link name=\"base_link\">\n</robot>")
       path = turtlebot_rdf(dir, urdf: "broken.urdf")
       assert {:error, message} = Description.load(path)
-      assert message =~ "#{path}: urdf: #{Path.join(dir, "broken.urdf")}:2: malformed XML"
+      assert message =~ "#{path}: urdf:\n#{Path.join(dir, "broken.urdf")}:2:0: malformed XML"
     end
 
     test "a URDF without two wheels cannot give the wheel geometry", %{tmp_dir: dir} do
@@ -150,7 +150,7 @@ defmodule ThinkingCap.Robot.DescriptionTest do
       {:ok, rdf} = Config.read(turtlebot_rdf(dir))
       assert {:ok, %Description{name: "burger"}} = Description.from_rdf(rdf)
       assert {:error, message} = Description.from_rdf(%{rdf | urdf: Path.join(dir, "gone.urdf")})
-      assert message =~ "urdf: #{Path.join(dir, "gone.urdf")}: cannot read the URDF"
+      assert message =~ "urdf:\n#{Path.join(dir, "gone.urdf")}:0:0: cannot read the URDF"
     end
   end
 end

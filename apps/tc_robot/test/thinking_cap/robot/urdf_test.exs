@@ -141,35 +141,42 @@ defmodule ThinkingCap.Robot.URDFTest do
   end
 
   describe "errors" do
+    # load's errors, as `file:line:column: message` strings
+    defp errors(path) do
+      assert {:error, [_ | _] = errors} = URDF.load(path)
+      Enum.map(errors, &to_string/1)
+    end
+
     test "a missing file", %{tmp_dir: dir} do
       path = Path.join(dir, "absent.urdf")
-      assert {:error, message} = URDF.load(path)
-      assert message == "#{path}: cannot read the URDF: no such file or directory"
+      assert errors(path) == ["#{path}:0:0: cannot read the URDF: no such file or directory"]
     end
 
     test "malformed XML names the file and line", %{tmp_dir: dir} do
       path = write(dir, "bad.urdf", ~s(<robot name="r">\n  <link name="a">\n</robot>\n))
-      assert {:error, message} = URDF.load(path)
-      assert message =~ ~r/^#{Regex.escape(path)}:3: malformed XML: /
+
+      assert errors(path) == [
+               "#{path}:3:0: malformed XML: </robot> closes <link> (opened at line 2)"
+             ]
 
       path = write(dir, "two.urdf", ~s(<robot name="a"><link name="l"/></robot><robot/>))
-      assert URDF.load(path) == {:error, "#{path}: malformed XML: content after the root element"}
+      assert errors(path) == ["#{path}:1:0: malformed XML: content after the root element"]
       # comments may follow the root
       assert {:ok, _} =
                URDF.load(
                  write(dir, "c.urdf", ~s(<robot><link name="l"/></robot>\n<!-- end -->\n))
                )
 
-      assert {:error, message} = URDF.load(write(dir, "empty.urdf", ""))
-      assert message =~ "empty.urdf"
-      assert message =~ "malformed XML"
+      path = write(dir, "empty.urdf", "")
+      assert errors(path) == ["#{path}:1:0: malformed XML: no root element"]
     end
 
     test "not a robot, a joint to nowhere, a bad number, a loop, no wheels", %{tmp_dir: dir} do
       path = write(dir, "sdf.urdf", ~s(<sdf version="1.6"><model name="m"/></sdf>))
 
-      assert URDF.load(path) ==
-               {:error, "#{path}: not a URDF: the root element is <sdf>, expected <robot>"}
+      assert errors(path) == [
+               "#{path}:1:0: not a URDF: the root element is <sdf>, expected <robot>"
+             ]
 
       path =
         write(dir, "dangling.urdf", """
@@ -179,8 +186,7 @@ defmodule ThinkingCap.Robot.URDFTest do
         </robot>
         """)
 
-      assert URDF.load(path) ==
-               {:error, "#{path}: joint \"j\" names an unknown link \"ghost\""}
+      assert errors(path) == ["#{path}:3:0: joint \"j\" names an unknown link \"ghost\""]
 
       path =
         write(dir, "number.urdf", """
@@ -191,8 +197,9 @@ defmodule ThinkingCap.Robot.URDFTest do
         </robot>
         """)
 
-      assert URDF.load(path) ==
-               {:error, "#{path}: joint \"j\" origin: xyz= expected 3 numbers, got \"0 zero 0\""}
+      assert errors(path) == [
+               "#{path}:3:0: joint \"j\" origin: xyz= expected 3 numbers, got \"0 zero 0\""
+             ]
 
       path =
         write(dir, "type.urdf", """
@@ -200,19 +207,38 @@ defmodule ThinkingCap.Robot.URDFTest do
           <joint name="j" type="hinge"><parent link="a"/><child link="b"/></joint></robot>
         """)
 
-      assert {:error, message} = URDF.load(path)
-      assert message =~ "#{path}: joint \"j\": unknown type \"hinge\""
+      assert [message] = errors(path)
+      assert message =~ "#{path}:2:0: joint \"j\": unknown type \"hinge\""
 
       path = chain(dir, [{"j1", "a", "b", "0 0 0", "0 0 0"}, {"j2", "b", "a", "0 0 0", "0 0 0"}])
-
-      assert {:error, message} = URDF.load(path)
-      assert message =~ "#{path}: the joints form a loop through link"
+      assert [message] = errors(path)
+      assert message =~ "#{path}:3:0: the joints form a loop through link"
 
       {:ok, urdf} = URDF.load(chain(dir, [{"j", "base_link", "a", "0 0 0", "0 0 0"}]))
       assert {:error, message} = URDF.wheels(urdf)
 
       assert message =~
                "chain.urdf: expected two continuous wheel joints (named *wheel*, their links with a cylinder), found 0"
+    end
+
+    test "every bad link and joint at once, at its line, twice-given names too", %{tmp_dir: dir} do
+      path =
+        write(dir, "many.urdf", """
+        <robot name="r">
+          <link name="a"/>
+          <link/>
+          <link name="a"/>
+          <joint name="j" type="fixed"><parent link="a"/></joint>
+          <link name="b"><visual><geometry><sphere radius="big"/></geometry></visual></link>
+        </robot>
+        """)
+
+      assert errors(path) == [
+               "#{path}:3:0: a <link> without a name",
+               "#{path}:4:0: link \"a\" is given twice (first at line 2)",
+               "#{path}:5:0: joint \"j\" has no <child link=\"...\"/>",
+               "#{path}:6:0: link \"b\" <visual> sphere: radius= expected a number, got \"big\""
+             ]
     end
   end
 end

@@ -284,7 +284,7 @@ defmodule ThinkingCap.Config.ADF do
   defp places(_modules, nil, _file), do: nil
 
   defp places(modules, wdf, file) do
-    with true <- Enum.any?(modules, &(is_atom(&1[:module]) and declared_params(&1.module))),
+    with true <- Enum.any?(modules, &(is_atom(&1[:module]) and declared_params(&1[:module]))),
          {:ok, %ThinkingCap.Config.WDF{} = w} <- ThinkingCap.Config.read(resolve(file, wdf)) do
       MapSet.new(
         for key <- [:waypoints, :rooms, :corridors, :doors],

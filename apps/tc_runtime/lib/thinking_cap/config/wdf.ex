@@ -200,8 +200,12 @@ defmodule ThinkingCap.Config.WDF do
 
   defp load_map(st, %{yaml: yaml}) do
     case RosMap.load(Path.expand(yaml, Path.dirname(st.file))) do
-      {:ok, grid} -> {grid, st}
-      {:error, message} -> {nil, Schema.error(st, [:map, :yaml], "map.yaml: #{message}")}
+      {:ok, grid} ->
+        {grid, st}
+
+      {:error, errors} ->
+        st = Schema.error(st, [:map, :yaml], "map.yaml: the map #{inspect(yaml)} is refused:")
+        {nil, %{st | errors: Enum.reverse(errors, st.errors)}}
     end
   end
 end
