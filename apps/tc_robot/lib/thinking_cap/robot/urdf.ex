@@ -117,7 +117,7 @@ defmodule ThinkingCap.Robot.URDF do
     with {:ok, size} <- size(path),
          :ok <- small(path, size),
          {:ok, xml} <- read_file(path),
-         :ok <- utf8(path, xml) do
+         :ok <- ThinkingCap.Config.Source.utf8(path, xml) do
       {:ok, xml}
     end
   end
@@ -139,25 +139,6 @@ defmodule ThinkingCap.Robot.URDF do
     case File.read(path) do
       {:ok, xml} -> {:ok, xml}
       {:error, reason} -> fail(path, "cannot read the URDF: #{:file.format_error(reason)}")
-    end
-  end
-
-  defp utf8(path, xml) do
-    case :unicode.characters_to_binary(xml) do
-      bin when is_binary(bin) ->
-        :ok
-
-      {_error, good, _rest} ->
-        lines = :binary.split(good, "\n", [:global])
-
-        {:error,
-         [
-           Error.new(
-             path,
-             {length(lines), String.length(List.last(lines)) + 1},
-             "not UTF-8 text: invalid bytes here"
-           )
-         ]}
     end
   end
 

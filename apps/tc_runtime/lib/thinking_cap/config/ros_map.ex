@@ -179,7 +179,7 @@ defmodule ThinkingCap.Config.RosMap do
     with {:ok, size} <- regular(path, "the map's YAML file"),
          :ok <- at_most(path, size, @max_yaml_bytes, "a map's YAML file is limited to"),
          {:ok, text} <- read_whole(path),
-         :ok <- utf8(path, text) do
+         :ok <- ThinkingCap.Config.Source.utf8(path, text) do
       {:ok, text}
     end
   end
@@ -204,25 +204,6 @@ defmodule ThinkingCap.Config.RosMap do
     case File.read(path) do
       {:ok, text} -> {:ok, text}
       {:error, reason} -> fail(path, "cannot read the file: #{:file.format_error(reason)}")
-    end
-  end
-
-  defp utf8(path, text) do
-    case :unicode.characters_to_binary(text) do
-      bin when is_binary(bin) ->
-        :ok
-
-      {_error, good, _rest} ->
-        lines = :binary.split(good, "\n", [:global])
-
-        {:error,
-         [
-           Error.new(
-             path,
-             {length(lines), String.length(List.last(lines)) + 1},
-             "not UTF-8 text: invalid bytes here"
-           )
-         ]}
     end
   end
 

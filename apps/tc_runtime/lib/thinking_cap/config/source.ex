@@ -56,7 +56,11 @@ defmodule ThinkingCap.Config.Source do
     end
   end
 
-  defp utf8(path, source) do
+  @doc false
+  # :ok, or the line and column where `source` stops being UTF-8 (shared
+  # by every bounded reader: description files, maps, URDFs)
+  @spec utf8(Path.t(), binary()) :: :ok | {:error, [Error.t()]}
+  def utf8(path, source) do
     case :unicode.characters_to_binary(source) do
       binary when is_binary(binary) ->
         :ok
