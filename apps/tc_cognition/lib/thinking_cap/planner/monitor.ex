@@ -365,12 +365,19 @@ defmodule ThinkingCap.Planner.Monitor do
     {x, y, _} = state.pose
     frontiers = Frontiers.find(state.map)
 
-    seen_around? =
-      OccupancyGrid.value(state.map, OccupancyGrid.cell_of(state.map, {x, y})) in 0..49
+    # the robot's own cell free, and more than its footprint seen free:
+    # the first maps may hold only the ground under the robot and a few
+    # sonar echoes
+    seen_around? = fn ->
+      OccupancyGrid.value(state.map, OccupancyGrid.cell_of(state.map, {x, y})) in 0..49 and
+        free_area(state.map) >= 4.0
+    end
 
-    case Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up) do
+    choice = Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up)
+
+    case if(choice == nil and not seen_around?.(), do: :unseen, else: choice) do
       # the first maps may hold nothing but a few echoes
-      nil when not seen_around? ->
+      :unseen ->
         {[], %{state | status: :waiting, reason: "waiting for the map around the robot"}}
 
       # frontiers given up on a map since drawn again (a loop closed, a
@@ -449,6 +456,12 @@ defmodule ThinkingCap.Planner.Monitor do
       true ->
         {[], %{state | progress: progress(state.progress, to_go, state.time)}}
     end
+  end
+
+  # square metres of the map seen free
+  defp free_area(%OccupancyGrid{data: data, resolution: res}) do
+    free = for <<v::signed-8 <- data>>, v in 0..49, reduce: 0, do: (n -> n + 1)
+    free * res * res
   end
 
   defp explored?(%{task: :explore, target: target, map: map}),

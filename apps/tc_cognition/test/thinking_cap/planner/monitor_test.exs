@@ -56,6 +56,40 @@ defmodule ThinkingCap.Planner.MonitorTest do
   defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
 
   @tag :tmp_dir
+  test "exploring: a first map of the ground under the robot and a few echoes is waited on", %{
+    tmp_dir: dir
+  } do
+    empty = Path.join(dir, "empty.wdf")
+    File.write!(empty, "[name: \"nothing known\"]")
+    state = start(empty, :explore)
+
+    # 4 x 4 m: unknown but for a few free cells under the robot at {2, 2}
+    # (too few to make a frontier) and two sonar echoes
+    data =
+      for r <- 0..79, c <- 0..79, into: <<>> do
+        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+        cond do
+          abs(x - 2) < 0.05 and abs(y - 2) < 0.05 -> <<0::signed-8>>
+          {c, r} in [{5, 70}, {75, 10}] -> <<100::signed-8>>
+          true -> <<-1::signed-8>>
+        end
+      end
+
+    map = %{
+      ThinkingCap.Navigation.OccupancyGrid.new(80, 80, resolution: 0.05)
+      | data: data,
+        version: 1
+    }
+
+    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
+    state = pose(state, {2.0, 2.0, 0.0})
+    {plan, actions, _state} = cycle(state, 1.0)
+    assert plan.state == :waiting
+    refute Enum.any?(actions, &match?({:out, {:save_map, _, _}}, &1))
+  end
+
+  @tag :tmp_dir
   test "a doorway narrower than the margin allows is passed with the robot's own radius", %{
     tmp_dir: dir
   } do
