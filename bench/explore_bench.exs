@@ -32,6 +32,7 @@ defmodule ThinkingCap.Bench.Explore do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Testing.Lockstep
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @limit 1800.0
   @root Path.expand("..", __DIR__)
@@ -189,7 +190,7 @@ defmodule ThinkingCap.Bench.Explore do
         case Lockstep.latest(c.lock, {:pose, :explorer, :_}) do
           {:pose, _, %{pose: {ex, ey, eth}} = p} ->
             e = :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
-            dth = ThinkingCap.Navigation.EKF.normalize(eth - th)
+            dth = normalize_angle(eth - th)
 
             IO.puts(
               "    t=#{NavRun.fmt(t + i * dt)} th=#{NavRun.fmt(th)} err=#{NavRun.fmt(e)} dth=#{NavRun.fmt(dth)} " <>

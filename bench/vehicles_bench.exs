@@ -20,10 +20,11 @@ defmodule ThinkingCap.Bench.Vehicles do
   """
 
   alias ThinkingCap.Navigation.{AStar, Grid, Maps}
-  alias ThinkingCap.Robot.{Description, Kinematics}
+  alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Sim.LockstepController
   alias ThinkingCap.Testing.Lockstep
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @root Path.expand("..", __DIR__)
   @limit 240.0
@@ -120,7 +121,7 @@ defmodule ThinkingCap.Bench.Vehicles do
          true <- Sim.World.free?(world, {x, y}, radius + 0.1),
          true <- :math.sqrt((gx - x) ** 2 + (gy - y) ** 2) >= 3.0,
          {:ok, _} <- AStar.plan_world(grid, {x, y}, {gx, gy}) do
-      {{{x, y, Kinematics.normalize_angle((w - 0.5) * 2 * :math.pi())}, station}, rng}
+      {{{x, y, normalize_angle((w - 0.5) * 2 * :math.pi())}, station}, rng}
     else
       _ -> one_case(grid, world, radius, stations, rng)
     end
@@ -153,7 +154,7 @@ defmodule ThinkingCap.Bench.Vehicles do
 
     {gx, gy, gth} = station.at
     error = :math.sqrt((gx - x) ** 2 + (gy - y) ** 2)
-    heading_error = abs(Kinematics.normalize_angle(th - gth))
+    heading_error = abs(normalize_angle(th - gth))
     dock = d.docking
     state = if plan, do: elem(plan, 2).state, else: nil
 

@@ -6,13 +6,14 @@ defmodule ThinkingCap.Test.DriftingCircle do
   # loop-closure tests.
 
   alias ThinkingCap.Navigation.EKF
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @doc "The true poses and the drifting estimates of `steps + 1` nodes."
   def poses(steps, drift \\ 0.01) do
     truth =
       for k <- 0..steps do
         a = k * 2 * :math.pi() / 36
-        {4.0 + 2.0 * :math.cos(a), 3.0 + 2.0 * :math.sin(a), EKF.normalize(a + :math.pi() / 2)}
+        {4.0 + 2.0 * :math.cos(a), 3.0 + 2.0 * :math.sin(a), normalize_angle(a + :math.pi() / 2)}
       end
 
     estimates =

@@ -36,6 +36,7 @@ defmodule ThinkingCap.Control.CrossDoor do
 
   alias ThinkingCap.Control.{Fuzzy, Geometry, GoToPoint}
   alias ThinkingCap.Perception.LPS
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   defstruct lookahead: 0.5, approach: 2.5, beyond: 0.3, match: 0.4
 
@@ -79,7 +80,7 @@ defmodule ThinkingCap.Control.CrossDoor do
 
     heading =
       case given do
-        %{heading: heading} when is_number(heading) -> LPS.normalize(heading - theta)
+        %{heading: heading} when is_number(heading) -> normalize_angle(heading - theta)
         _ -> :math.atan2(cy, cx)
       end
 
@@ -102,9 +103,9 @@ defmodule ThinkingCap.Control.CrossDoor do
       {_, d} ->
         # the same crossing direction as the plan's
         h =
-          if abs(LPS.normalize(d.heading - phi)) > :math.pi() / 2,
-            do: LPS.normalize(d.heading + :math.pi()),
-            else: LPS.normalize(d.heading)
+          if abs(normalize_angle(d.heading - phi)) > :math.pi() / 2,
+            do: normalize_angle(d.heading + :math.pi()),
+            else: normalize_angle(d.heading)
 
         %{centre: d.centre, heading: h, width: d.width}
     end

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Control.Geometry do
   """
 
   alias ThinkingCap.Perception.LPS
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @half_pi :math.pi() / 2
 
@@ -22,7 +23,7 @@ defmodule ThinkingCap.Control.Geometry do
 
   @doc "Distance and bearing (in (−π, π]) of a robot-frame point."
   @spec polar({number(), number()}) :: {float(), float()}
-  def polar({x, y}), do: {:math.sqrt(x * x + y * y), LPS.normalize(:math.atan2(y, x))}
+  def polar({x, y}), do: {:math.sqrt(x * x + y * y), normalize_angle(:math.atan2(y, x))}
 
   @doc """
   The robot-frame obstacle points of the LPS: one per sector that sees
@@ -156,10 +157,12 @@ defmodule ThinkingCap.Control.Geometry do
         dir = :math.atan2(by - ay, bx - ax)
 
         dir =
-          if abs(LPS.normalize(dir)) > @half_pi, do: LPS.normalize(dir + :math.pi()), else: dir
+          if abs(normalize_angle(dir)) > @half_pi,
+            do: normalize_angle(dir + :math.pi()),
+            else: dir
 
         # a left wall turning left ahead (dir > 0) moves away from the robot
-        {d, -sign * LPS.normalize(dir)}
+        {d, -sign * normalize_angle(dir)}
     end
   end
 

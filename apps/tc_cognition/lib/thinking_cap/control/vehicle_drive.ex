@@ -62,6 +62,7 @@ defmodule ThinkingCap.Control.VehicleDrive do
   alias ThinkingCap.Navigation.Maps
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @defaults [
     resolution: 0.1,
@@ -299,7 +300,7 @@ defmodule ThinkingCap.Control.VehicleDrive do
 
   defp docking_error(%{goal: {gx, gy, heading}, pose: {x, y, th}} = state) do
     d = :math.sqrt((gx - x) ** 2 + (gy - y) ** 2)
-    dth = if heading, do: abs(Kinematics.normalize_angle(th - heading)), else: 0.0
+    dth = if heading, do: abs(normalize_angle(th - heading)), else: 0.0
 
     {tol, htol} =
       case state.docking do

@@ -54,6 +54,8 @@ defmodule ThinkingCap.Navigation.EKF do
   `{{σxx, σxy, σxθ}, {σyx, σyy, σyθ}, {σθx, σθy, σθθ}}`.
   """
 
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
+
   @enforce_keys [:pose, :covariance]
   defstruct [:pose, :covariance]
 
@@ -69,8 +71,6 @@ defmodule ThinkingCap.Navigation.EKF do
           optional(any()) => any()
         }
 
-  @pi :math.pi()
-  @two_pi 2 * :math.pi()
   @default_gate 13.8
 
   @doc """
@@ -85,7 +85,7 @@ defmodule ThinkingCap.Navigation.EKF do
       do:
         raise(ArgumentError, "EKF covariance: expected a 3×3 matrix, got #{inspect(covariance)}")
 
-    %__MODULE__{pose: {x * 1.0, y * 1.0, normalize(th * 1.0)}, covariance: symmetrise(cov)}
+    %__MODULE__{pose: {x * 1.0, y * 1.0, normalize_angle(th * 1.0)}, covariance: symmetrise(cov)}
   end
 
   @doc "A diagonal covariance from the standard deviations of x, y and θ."
@@ -111,14 +111,14 @@ defmodule ThinkingCap.Navigation.EKF do
   def relative({x0, y0, th0}, {x1, y1, th1}) do
     {c, s} = {:math.cos(th0), :math.sin(th0)}
     {ex, ey} = {x1 - x0, y1 - y0}
-    {c * ex + s * ey, -s * ex + c * ey, normalize(th1 - th0)}
+    {c * ex + s * ey, -s * ex + c * ey, normalize_angle(th1 - th0)}
   end
 
   @doc "The pose reached from `pose` by the robot-frame motion `delta` (pose composition)."
   @spec motion(pose(), delta()) :: pose()
   def motion({x, y, th}, {dx, dy, dth}) do
     {c, s} = {:math.cos(th), :math.sin(th)}
-    {x + c * dx - s * dy, y + s * dx + c * dy, normalize(th + dth)}
+    {x + c * dx - s * dy, y + s * dx + c * dy, normalize_angle(th + dth)}
   end
 
   @doc """
@@ -166,7 +166,7 @@ defmodule ThinkingCap.Navigation.EKF do
   def measure(pose, beacon, sensor_pose \\ {0.0, 0.0, 0.0}) do
     {dx, dy, _sxth, _syth, th} = geometry(pose, beacon, sensor_pose)
     {_px, _py, pth} = sensor_pose
-    {:math.sqrt(dx * dx + dy * dy), normalize(:math.atan2(dy, dx) - th - pth)}
+    {:math.sqrt(dx * dx + dy * dy), normalize_angle(:math.atan2(dy, dx) - th - pth)}
   end
 
   @doc """
@@ -226,7 +226,7 @@ defmodule ThinkingCap.Navigation.EKF do
       pht = mul(p, transpose(h))
       s = add(mul(h, pht), r)
       s_inv = inverse2(s)
-      nu = {{z_r - r_hat}, {normalize(z_b - b_hat)}}
+      nu = {{z_r - r_hat}, {normalize_angle(z_b - b_hat)}}
       d2 = at(mul(mul(transpose(nu), s_inv), nu), 0, 0)
 
       if gate != :infinity and d2 > gate do
@@ -235,7 +235,7 @@ defmodule ThinkingCap.Navigation.EKF do
         k = mul(pht, s_inv)
         dx = mul(k, nu)
         {x, y, th} = pose
-        pose = {x + at(dx, 0, 0), y + at(dx, 1, 0), normalize(th + at(dx, 2, 0))}
+        pose = {x + at(dx, 0, 0), y + at(dx, 1, 0), normalize_angle(th + at(dx, 2, 0))}
         i_kh = sub(identity3(), mul(k, h))
         p = add(mul(mul(i_kh, p), transpose(i_kh)), mul(mul(k, r), transpose(k)))
         {:accepted, %__MODULE__{pose: pose, covariance: symmetrise(p)}, d2}
@@ -302,7 +302,7 @@ defmodule ThinkingCap.Navigation.EKF do
       cov ->
         step = mul(cov, b)
         {dx, dy, dth} = {at(step, 0, 0), at(step, 1, 0), at(step, 2, 0)}
-        pose = {x + dx, y + dy, normalize(th + dth)}
+        pose = {x + dx, y + dy, normalize_angle(th + dth)}
 
         cond do
           abs(dx) + abs(dy) + abs(dth) < 1.0e-9 ->
@@ -325,20 +325,11 @@ defmodule ThinkingCap.Navigation.EKF do
     Enum.reduce(pairs, {zero, {{0.0}, {0.0}, {0.0}}, 0.0}, fn {d, beacon}, {a, b, chi2} ->
       {r_hat, b_hat} = measure(pose, beacon, sensor_pose)
       h = measurement_jacobian(pose, beacon, sensor_pose)
-      {nr, nb} = {d.range - r_hat, normalize(d.bearing - b_hat)}
+      {nr, nb} = {d.range - r_hat, normalize_angle(d.bearing - b_hat)}
       htw = mul(transpose(h), w)
 
       {add(a, mul(htw, h)), add(b, mul(htw, {{nr}, {nb}})), chi2 + nr * nr * w_r + nb * nb * w_b}
     end)
-  end
-
-  @doc "An angle normalised to (−π, π]."
-  @spec normalize(number()) :: float()
-  def normalize(a) when a > -@pi and a <= @pi, do: a * 1.0
-
-  def normalize(a) do
-    a = :math.fmod(a + @pi, @two_pi)
-    if a <= 0, do: a + @pi, else: a - @pi
   end
 
   ## noise

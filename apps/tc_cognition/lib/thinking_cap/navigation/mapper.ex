@@ -108,6 +108,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Navigation.Maps.{Loops, Rooms, SensedGrid, Segments}
   alias ThinkingCap.Robot.Description
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pair {:tuple, [:pos_number, :pos_number]}
   @degrees {:keyword_of, :non_neg_number}
@@ -264,7 +265,7 @@ defmodule ThinkingCap.Navigation.Mapper do
   defp turn_rate(state) do
     case :queue.to_list(state.history) |> Enum.take(-2) do
       [{t0, {_, _, a0}}, {t1, {_, _, a1}}] when t1 > t0 ->
-        abs(EKF.normalize(a1 - a0)) / (t1 - t0)
+        abs(normalize_angle(a1 - a0)) / (t1 - t0)
 
       _ ->
         0.0

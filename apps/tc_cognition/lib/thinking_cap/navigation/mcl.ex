@@ -137,6 +137,7 @@ defmodule ThinkingCap.Navigation.MCL do
   alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, OdometryCalibration, ParticleFilter}
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Robot.Description
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pair {:tuple, [:non_neg_number, :non_neg_number]}
   @params [
@@ -455,7 +456,7 @@ defmodule ThinkingCap.Navigation.MCL do
     tracking = state.status == :tracking and state.filter.map != nil
     state = weigh.(state)
     {{_, _, now}, _} = ParticleFilter.estimate(state.filter)
-    delta = EKF.normalize(now - before)
+    delta = normalize_angle(now - before)
     {turn, distance} = state.since
     c = state.calibration
 

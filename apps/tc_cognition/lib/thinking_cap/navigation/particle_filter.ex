@@ -35,6 +35,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
 
   alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Navigation.Core.GridNif
+  import ThinkingCap.Geometry, only: [angle_diff: 2]
 
   defstruct [
     :set,
@@ -409,7 +410,7 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
         length(kept) >= n or
           Enum.any?(kept, fn {_, kx, ky, kth} ->
             (kx - x) ** 2 + (ky - y) ** 2 < 0.25 and
-              abs(:math.atan2(:math.sin(kth - th), :math.cos(kth - th))) < 0.35
+              abs(angle_diff(kth, th)) < 0.35
           end)
 
       if near, do: kept, else: [c | kept]

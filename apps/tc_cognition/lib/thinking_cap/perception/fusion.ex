@@ -26,6 +26,7 @@ defmodule ThinkingCap.Perception.Fusion do
   """
 
   alias ThinkingCap.Perception.LPS
+  import ThinkingCap.Geometry, only: [normalize_angle: 1, segment_distance: 3]
 
   defstruct resolution: 0.1,
             window: 6.0,
@@ -143,7 +144,7 @@ defmodule ThinkingCap.Perception.Fusion do
     cells =
       Map.new(state.cells, fn {key, {o, e, t} = ev} ->
         {cx, cy} = cell_centre(key, res)
-        i = round(LPS.normalize(:math.atan2(cy - y, cx - x) - a0) / inc)
+        i = round(normalize_angle(:math.atan2(cy - y, cx - x) - a0) / inc)
 
         seen =
           Enum.any?([i - 1, i, i + 1], fn k ->
@@ -162,7 +163,7 @@ defmodule ThinkingCap.Perception.Fusion do
   defp spacing(_laser, index) when tuple_size(index) > 1 do
     {_, _, a0, _, _, _} = elem(index, 0)
     {_, _, a1, _, _, _} = elem(index, 1)
-    {LPS.normalize(a1 - a0), false}
+    {normalize_angle(a1 - a0), false}
   end
 
   defp spacing(_laser, _index), do: {1.0, false}
@@ -247,19 +248,19 @@ defmodule ThinkingCap.Perception.Fusion do
   defp a_priori(%{world_pose: nil}), do: {[], []}
 
   defp a_priori(%{world_pose: {world, odom_then}, odom: odom_now} = state) do
-    pose = compose(world, relative(odom_then, odom_now))
+    {x, y, _} = pose = compose(world, relative(odom_then, odom_now))
     near = state.range + 1.0
 
     walls =
       for {a, b} <- state.walls,
-          segment_distance(pose, a, b) <= near,
+          segment_distance({x, y}, a, b) <= near,
           do: {to_robot(pose, a), to_robot(pose, b)}
 
     doors =
       for %{centre: centre} = d <- state.doors,
           distance(pose, centre) <= near do
         {_, _, th} = pose
-        %{d | centre: to_robot(pose, centre), heading: LPS.normalize(d.heading - th)}
+        %{d | centre: to_robot(pose, centre), heading: normalize_angle(d.heading - th)}
       end
 
     {walls, doors}
@@ -270,14 +271,14 @@ defmodule ThinkingCap.Perception.Fusion do
   @doc false
   def compose({x, y, th}, {dx, dy, dth}) do
     {c, s} = {:math.cos(th), :math.sin(th)}
-    {x + c * dx - s * dy, y + s * dx + c * dy, LPS.normalize(th + dth)}
+    {x + c * dx - s * dy, y + s * dx + c * dy, normalize_angle(th + dth)}
   end
 
   @doc false
   def relative({x0, y0, th0}, {x1, y1, th1}) do
     {c, s} = {:math.cos(th0), :math.sin(th0)}
     {dx, dy} = {x1 - x0, y1 - y0}
-    {c * dx + s * dy, -s * dx + c * dy, LPS.normalize(th1 - th0)}
+    {c * dx + s * dy, -s * dx + c * dy, normalize_angle(th1 - th0)}
   end
 
   defp to_robot({x, y, th}, {px, py}) do
@@ -287,13 +288,6 @@ defmodule ThinkingCap.Perception.Fusion do
   end
 
   defp distance({x, y, _}, {px, py}), do: :math.sqrt((px - x) ** 2 + (py - y) ** 2)
-
-  defp segment_distance({x, y, _}, {ax, ay}, {bx, by}) do
-    {ex, ey} = {bx - ax, by - ay}
-    len2 = ex * ex + ey * ey
-    u = if len2 == 0, do: 0.0, else: max(0.0, min(1.0, ((x - ax) * ex + (y - ay) * ey) / len2))
-    :math.sqrt((ax + u * ex - x) ** 2 + (ay + u * ey - y) ** 2)
-  end
 
   defp cell_key({x, y}, res), do: {floor(x / res), floor(y / res)}
   defp cell_centre({i, j}, res), do: {(i + 0.5) * res, (j + 0.5) * res}

@@ -20,6 +20,8 @@ defmodule ThinkingCap.Perception.LPS do
   Behaviours read it through `min_distance/3` and `distance_at/2`.
   """
 
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
+
   defstruct robot: nil,
             stamp: 0.0,
             pose: {0.0, 0.0, 0.0},
@@ -74,7 +76,7 @@ defmodule ThinkingCap.Perception.LPS do
   @doc "The sector index of a robot-frame angle."
   @spec sector(t(), number()) :: non_neg_integer()
   def sector(%__MODULE__{n: n}, angle) do
-    a = normalize(angle)
+    a = normalize_angle(angle)
     min(n - 1, floor((a + :math.pi()) / @two_pi * n))
   end
 
@@ -100,12 +102,5 @@ defmodule ThinkingCap.Perception.LPS do
     Enum.reduce(0..(count - 1), lps.range, fn k, acc ->
       min(acc, elem(bins, rem(first + k, n)))
     end)
-  end
-
-  @doc "An angle in (−π, π]."
-  @spec normalize(number()) :: float()
-  def normalize(a) do
-    a = :math.fmod(a + :math.pi(), @two_pi)
-    if a <= 0, do: a + :math.pi(), else: a - :math.pi()
   end
 end

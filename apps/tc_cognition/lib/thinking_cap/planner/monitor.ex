@@ -95,6 +95,7 @@ defmodule ThinkingCap.Planner.Monitor do
   alias ThinkingCap.Navigation.Core.{GridNif, ModuleContext}
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
+  import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3]
 
   @defaults [
     tolerance: 0.35,
@@ -703,8 +704,7 @@ defmodule ThinkingCap.Planner.Monitor do
     case {state.docking, target_heading(state, state.target)} do
       {%{position_tolerance: p, heading_tolerance: h}, heading} when is_number(heading) ->
         {_, _, th} = state.pose
-        d = :math.fmod(th - heading + 3 * :math.pi(), 2 * :math.pi()) - :math.pi()
-        distance <= p and abs(d) <= h
+        distance <= p and abs(angle_diff(th, heading)) <= h
 
       _ ->
         distance <= state.params[:tolerance]
@@ -842,13 +842,6 @@ defmodule ThinkingCap.Planner.Monitor do
     {c, s} = {:math.cos(th), :math.sin(th)}
     {dx, dy} = {px - x, py - y}
     {c * dx + s * dy, -s * dx + c * dy}
-  end
-
-  defp segment_distance({x, y}, {ax, ay}, {bx, by}) do
-    {ex, ey} = {bx - ax, by - ay}
-    len2 = ex * ex + ey * ey
-    u = if len2 == 0, do: 0.0, else: max(0.0, min(1.0, ((x - ax) * ex + (y - ay) * ey) / len2))
-    :math.sqrt((ax + u * ex - x) ** 2 + (ay + u * ey - y) ** 2)
   end
 
   ## Publishing

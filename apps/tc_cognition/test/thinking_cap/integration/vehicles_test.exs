@@ -3,9 +3,10 @@ defmodule ThinkingCap.Integration.VehiclesTest do
   # lockstep with the simulator.
   use ExUnit.Case, async: true
 
-  alias ThinkingCap.Robot.{Description, Kinematics}
+  alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Testing.Lockstep
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @moduletag timeout: 180_000
 
@@ -56,7 +57,7 @@ defmodule ThinkingCap.Integration.VehiclesTest do
     assert plan.state == :done
     assert plan.reached == [station]
     assert :math.sqrt((x - gx) ** 2 + (y - gy) ** 2) <= docking.position_tolerance
-    assert abs(Kinematics.normalize_angle(th - gth)) <= docking.heading_tolerance
+    assert abs(normalize_angle(th - gth)) <= docking.heading_tolerance
     assert blocked == 0
   end
 

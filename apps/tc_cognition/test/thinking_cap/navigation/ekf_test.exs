@@ -2,6 +2,7 @@ defmodule ThinkingCap.Navigation.EKFTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Navigation.EKF
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @beacons %{b1: {0.0, 0.0}, b2: {8.0, 0.0}, b3: {8.0, 8.0}, b4: {0.0, 8.0}, b5: {4.0, 9.0}}
   @noise [slip: 0.02, turn_slip: 0.03, drift: 0.02, floor: {0.001, 0.001}]
@@ -37,7 +38,7 @@ defmodule ThinkingCap.Navigation.EKFTest do
           {r, b} = EKF.measure(truth, at)
           {nr, rng} = gauss(rng, 0.02)
           {nb, rng} = gauss(rng, 0.02)
-          {%{id: id, range: r + nr, bearing: EKF.normalize(b + nb)}, rng}
+          {%{id: id, range: r + nr, bearing: normalize_angle(b + nb)}, rng}
         end)
 
       {ekf, _used, _rejected} = EKF.update_beacons(ekf, detections, @beacons, @sensor)
@@ -46,7 +47,7 @@ defmodule ThinkingCap.Navigation.EKFTest do
   end
 
   defp errors(%EKF{pose: {x, y, th}}, {tx, ty, tth}),
-    do: {x - tx, y - ty, EKF.normalize(th - tth)}
+    do: {x - tx, y - ty, normalize_angle(th - tth)}
 
   describe "convergence" do
     for seed <- [1, 7, 42] do
@@ -257,7 +258,7 @@ defmodule ThinkingCap.Navigation.EKFTest do
           minus = put_elem(pose, j, elem(pose, j) - @h)
           d = elem(f.(plus), i) - elem(f.(minus), i)
           # bearings and headings: the difference of two angles
-          d = if i == n_out - 1, do: EKF.normalize(d), else: d
+          d = if i == n_out - 1, do: normalize_angle(d), else: d
           d / (2 * @h)
         end
       end

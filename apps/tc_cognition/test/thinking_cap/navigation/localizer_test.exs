@@ -2,6 +2,7 @@ defmodule ThinkingCap.Navigation.LocalizerTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Navigation.{EKF, Localizer}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @rdf Path.expand("../../../../../priv/examples/office_robot.rdf", __DIR__)
 
@@ -188,7 +189,7 @@ defmodule ThinkingCap.Navigation.LocalizerTest do
   end
 
   defp error(%{pose: {x, y, th}}, {tx, ty, tth}),
-    do: {:math.sqrt((x - tx) ** 2 + (y - ty) ** 2), abs(EKF.normalize(th - tth))}
+    do: {:math.sqrt((x - tx) ** 2 + (y - ty) ** 2), abs(normalize_angle(th - tth))}
 
   test "tracks a drive with noisy odometry from a doubtful start, defaults from the RDF",
        %{context: ctx} do

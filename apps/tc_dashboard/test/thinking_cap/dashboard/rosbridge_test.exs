@@ -4,6 +4,7 @@ defmodule ThinkingCap.Dashboard.RosbridgeTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Dashboard.Rosbridge.{Definitions, Messages, Services, Topics, WorldMap}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @examples Path.expand("../../../../../priv/examples", __DIR__)
 
@@ -49,7 +50,7 @@ defmodule ThinkingCap.Dashboard.RosbridgeTest do
         {cx, cy, cth} = composed
         assert_in_delta cx, ex, 1.0e-9
         assert_in_delta cy, ey, 1.0e-9
-        assert_in_delta Messages.normalize(cth - eth), 0.0, 1.0e-9
+        assert_in_delta normalize_angle(cth - eth), 0.0, 1.0e-9
       end
 
       assert Messages.map_to_odom({1.0, 1.0, 0.0}, {1.0, 1.0, 0.0}) == {0.0, 0.0, 0.0}

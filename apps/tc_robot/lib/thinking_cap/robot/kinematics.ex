@@ -51,6 +51,7 @@ defmodule ThinkingCap.Robot.Kinematics do
   """
 
   alias ThinkingCap.Robot.Kinematics.{Ackermann, Differential, Tricycle}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @typedoc "Body velocity: forward speed (m/s) and turn rate (rad/s, counter-clockwise)."
   @type twist :: {v :: float(), omega :: float()}
@@ -183,18 +184,6 @@ defmodule ThinkingCap.Robot.Kinematics do
 
   defp sinc(a) when abs(a) < 1.0e-4, do: 1.0 - a * a / 6.0
   defp sinc(a), do: :math.sin(a) / a
-
-  @doc "An angle normalised to (−π, π]."
-  @spec normalize_angle(number()) :: float()
-  def normalize_angle(angle) do
-    a = :math.fmod(angle, 2 * :math.pi())
-
-    cond do
-      a > :math.pi() -> a - 2 * :math.pi()
-      a <= -:math.pi() -> a + 2 * :math.pi()
-      true -> a
-    end
-  end
 
   @doc false
   # The limits shared by every model (steps 1-4 of "Limits"), then the

@@ -3,6 +3,7 @@ defmodule ThinkingCap.Robot.KinematicsTest do
 
   alias ThinkingCap.Robot.Kinematics
   alias ThinkingCap.Robot.Kinematics.{Ackermann, Differential, Tricycle}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pi :math.pi()
 
@@ -25,7 +26,7 @@ defmodule ThinkingCap.Robot.KinematicsTest do
     assert_in_delta x, ex, eps
     assert_in_delta y, ey, eps
     # angles compared on the circle
-    assert_in_delta Kinematics.normalize_angle(t - et), 0.0, eps
+    assert_in_delta normalize_angle(t - et), 0.0, eps
   end
 
   defp assert_twist({v, w}, {ev, ew}, eps \\ 1.0e-9) do
@@ -119,14 +120,6 @@ defmodule ThinkingCap.Robot.KinematicsTest do
       assert_in_delta x, 1.0, 1.0e-12
       assert_in_delta y, 0.5e-12, 1.0e-15
       assert_in_delta t, 1.0e-12, 1.0e-18
-    end
-
-    test "angles are normalised to (−π, π]" do
-      assert_in_delta Kinematics.normalize_angle(3 * @pi), @pi, 1.0e-12
-      assert Kinematics.normalize_angle(-@pi) == @pi
-      assert_in_delta Kinematics.normalize_angle(-3 * @pi / 2), @pi / 2, 1.0e-12
-      assert_in_delta Kinematics.normalize_angle(7.0), 7.0 - 2 * @pi, 1.0e-12
-      assert Kinematics.normalize_angle(0.5) == 0.5
     end
   end
 

@@ -2,6 +2,7 @@ defmodule ThinkingCap.Robot.OdometryErrorTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Robot.{Kinematics, OdometryError}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @diff %{type: :differential, wheel_radius: 0.05, wheel_separation: 0.4}
 
@@ -20,7 +21,7 @@ defmodule ThinkingCap.Robot.OdometryErrorTest do
   defp assert_pose({x, y, t}, {ex, ey, et}, eps) do
     assert_in_delta x, ex, eps
     assert_in_delta y, ey, eps
-    assert_in_delta Kinematics.normalize_angle(t - et), 0.0, eps
+    assert_in_delta normalize_angle(t - et), 0.0, eps
   end
 
   defp std(xs) do

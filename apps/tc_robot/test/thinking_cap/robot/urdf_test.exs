@@ -1,7 +1,8 @@
 defmodule ThinkingCap.Robot.URDFTest do
   use ExUnit.Case, async: true
 
-  alias ThinkingCap.Robot.{Kinematics, URDF}
+  alias ThinkingCap.Robot.URDF
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @turtlebot Path.expand("../../../../../test/data/turtlebot3_burger.urdf", __DIR__)
   @pi :math.pi()
@@ -24,7 +25,7 @@ defmodule ThinkingCap.Robot.URDFTest do
     for i <- 3..5,
         do:
           assert_in_delta(
-            Kinematics.normalize_angle(elem(pose, i) - elem(expected, i)),
+            normalize_angle(elem(pose, i) - elem(expected, i)),
             0.0,
             1.0e-9
           )

@@ -10,6 +10,9 @@ defmodule ThinkingCap.Sim.Wander do
   `turn_rate` (rad/s, default 1.0), `safe` (clearance ahead to keep, m,
   default 0.5), `seed`.
   """
+
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
+
   @behaviour ThinkingCap.Sim.Controller
 
   @impl true
@@ -81,7 +84,7 @@ defmodule ThinkingCap.Sim.Wander do
   defp layout(payload, n) do
     angles =
       case payload do
-        %{headings: headings} -> Enum.map(headings, &normalize/1)
+        %{headings: headings} -> Enum.map(headings, &normalize_angle/1)
         %{angle_min: a0} -> List.duplicate(a0, n)
       end
 
@@ -141,11 +144,5 @@ defmodule ThinkingCap.Sim.Wander do
     direction = if state.bias >= 0, do: 1.0, else: -1.0
     command = {:velocity, 0.0, direction * state.turn_rate}
     {command, %{state | turning: max(state.turning, steps), last: command}}
-  end
-
-  defp normalize(a) do
-    two_pi = 2 * :math.pi()
-    a = :math.fmod(a + :math.pi(), two_pi)
-    if a <= 0, do: a + :math.pi(), else: a - :math.pi()
   end
 end

@@ -28,6 +28,7 @@ defmodule ThinkingCap.Control.Vehicle.Planner do
 
   alias ThinkingCap.Navigation.Grid
   alias ThinkingCap.Robot.Kinematics
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @typedoc "A world pose, m and rad."
   @type pose :: {float(), float(), float()}
@@ -168,7 +169,7 @@ defmodule ThinkingCap.Control.Vehicle.Planner do
   ## Search
 
   defp search(o, {sx, sy, sth}) do
-    start = {sx * 1.0, sy * 1.0, Kinematics.normalize_angle(sth)}
+    start = {sx * 1.0, sy * 1.0, normalize_angle(sth)}
     key = key(o, start)
     nodes = %{key => %{pose: start, g: 0.0, parent: nil, direction: 0, arc: []}}
     open = :gb_sets.singleton({h(o, start), 0, key})
@@ -269,7 +270,7 @@ defmodule ThinkingCap.Control.Vehicle.Planner do
       {px, py} = {x + c * dx - s * dy, y + s * dx + c * dy}
 
       if free?(o.grid, px, py),
-        do: {:cont, [{px, py, Kinematics.normalize_angle(th + dth)} | acc]},
+        do: {:cont, [{px, py, normalize_angle(th + dth)} | acc]},
         else: {:halt, nil}
     end)
     |> case do
@@ -296,7 +297,7 @@ defmodule ThinkingCap.Control.Vehicle.Planner do
       d ->
         case o.goal do
           {_, _, nil} -> d
-          {_, _, gth} -> max(d, abs(Kinematics.normalize_angle(th - gth)) / o.k)
+          {_, _, gth} -> max(d, abs(normalize_angle(th - gth)) / o.k)
         end
     end
   end
@@ -306,7 +307,7 @@ defmodule ThinkingCap.Control.Vehicle.Planner do
   defp goal?(o, {x, y, th}) do
     {gx, gy, gth} = o.goal
     d = :math.sqrt((gx - x) ** 2 + (gy - y) ** 2)
-    heading_ok = gth == nil or abs(Kinematics.normalize_angle(th - gth)) <= o.heading_tolerance
+    heading_ok = gth == nil or abs(normalize_angle(th - gth)) <= o.heading_tolerance
 
     cond do
       not heading_ok -> false

@@ -19,6 +19,7 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
 
   alias ThinkingCap.Navigation.EKF
   alias ThinkingCap.Navigation.Maps.{PoseGraph, SensedGrid}
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   defstruct graph: nil,
             scans: [],
@@ -117,7 +118,7 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
       case before.nodes do
         %{^id => {x0, y0, th0}} ->
           :math.sqrt((x - x0) ** 2 + (y - y0) ** 2) >= p.redraw_distance or
-            abs(EKF.normalize(th - th0)) >= p.redraw_angle
+            abs(normalize_angle(th - th0)) >= p.redraw_angle
 
         _ ->
           false
@@ -152,7 +153,7 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
 
   defp moved?({x0, y0, th0}, {x, y, th}, p) do
     :math.sqrt((x - x0) ** 2 + (y - y0) ** 2) >= p.keep_distance or
-      abs(EKF.normalize(th - th0)) >= p.keep_angle
+      abs(normalize_angle(th - th0)) >= p.keep_angle
   end
 
   defp meta(scan) do

@@ -30,6 +30,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
 
   alias ThinkingCap.Navigation.Core.GridNif
   alias ThinkingCap.Navigation.EKF
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   defstruct nodes: %{},
             odometry: %{},
@@ -107,7 +108,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     {lx, ly, lth} = pose(g, last(g))
 
     :math.sqrt((x - lx) ** 2 + (y - ly) ** 2) >= p.node_distance or
-      abs(EKF.normalize(th - lth)) >= p.node_angle
+      abs(normalize_angle(th - lth)) >= p.node_angle
   end
 
   @doc """
@@ -156,7 +157,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
 
   defp jumped?({zx, zy, zth}, {ox, oy, oth}, d) do
     :math.sqrt((zx - ox) ** 2 + (zy - oy) ** 2) > 0.1 + 0.1 * d or
-      abs(EKF.normalize(zth - oth)) > 0.05 + 0.1 * abs(oth)
+      abs(normalize_angle(zth - oth)) > 0.05 + 0.1 * abs(oth)
   end
 
   defp edge(i, j, z, s_xy, s_th, kind) do
@@ -196,7 +197,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # 1 cm and 0.2 degrees)
   defp agrees?(g, %{from: i, to: j, z: {zx, zy, zth}}) do
     {x, y, th} = EKF.relative(pose(g, i), pose(g, j))
-    :math.sqrt((x - zx) ** 2 + (y - zy) ** 2) < 0.01 and abs(EKF.normalize(th - zth)) < 0.0035
+    :math.sqrt((x - zx) ** 2 + (y - zy) ** 2) < 0.01 and abs(normalize_angle(th - zth)) < 0.0035
   end
 
   # the old nodes near `id`: the nearest is the anchor; the submap is the
@@ -261,7 +262,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # the estimate fits nearly as well, the scan does not say it is wrong
   defp decisive?({x, y, th}, {mx, my, mth}, score, at_guess) do
     small =
-      :math.sqrt((mx - x) ** 2 + (my - y) ** 2) <= 0.15 and abs(EKF.normalize(mth - th)) <= 0.05
+      :math.sqrt((mx - x) ** 2 + (my - y) ** 2) <= 0.15 and abs(normalize_angle(mth - th)) <= 0.05
 
     small or score - at_guess >= 0.05
   end

@@ -194,14 +194,12 @@ defmodule ThinkingCap.Navigation.Maps.Segments do
     end
   end
 
-  @doc "The distance from a point to a segment, m."
+  @doc """
+  The distance from a point to a segment, m: `ThinkingCap.Geometry.segment_distance/3`
+  for a segment given as one `{a, b}` tuple.
+  """
   @spec distance(point(), segment()) :: float()
-  def distance({px, py}, {{x1, y1}, {x2, y2}}) do
-    {dx, dy} = {x2 - x1, y2 - y1}
-    len2 = dx * dx + dy * dy
-    t = if len2 == 0, do: 0.0, else: max(0.0, min(1.0, ((px - x1) * dx + (py - y1) * dy) / len2))
-    :math.sqrt((px - x1 - t * dx) ** 2 + (py - y1 - t * dy) ** 2)
-  end
+  def distance(point, {a, b}), do: ThinkingCap.Geometry.segment_distance(point, a, b)
 
   ## split and merge
 

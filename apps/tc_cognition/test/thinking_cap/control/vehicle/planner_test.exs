@@ -4,6 +4,7 @@ defmodule ThinkingCap.Control.Vehicle.PlannerTest do
   alias ThinkingCap.Control.Vehicle.{Planner, Tracker}
   alias ThinkingCap.Navigation.Grid
   alias ThinkingCap.Robot.Kinematics
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   # a 12 m x 8 m room at 0.1 m, walls one cell thick, `blocked` cells added
   defp room(blocked \\ []) do
@@ -20,7 +21,7 @@ defmodule ThinkingCap.Control.Vehicle.PlannerTest do
   defp assert_feasible(start, segments, k) do
     Enum.reduce(poses(segments), start, fn {x, y, th} = p, {px, py, pth} ->
       ds = :math.sqrt((x - px) ** 2 + (y - py) ** 2)
-      dth = abs(Kinematics.normalize_angle(th - pth))
+      dth = abs(normalize_angle(th - pth))
       # (ds is the chord, a little shorter than the arc)
       assert dth <= k * ds * 1.01 + 1.0e-6
       p
@@ -37,7 +38,7 @@ defmodule ThinkingCap.Control.Vehicle.PlannerTest do
 
     {x, y, th} = segments |> poses() |> List.last()
     assert :math.sqrt((x - 2.0) ** 2 + (y - 4.0) ** 2) <= 0.2
-    assert abs(Kinematics.normalize_angle(th - :math.pi())) <= 0.15
+    assert abs(normalize_angle(th - :math.pi())) <= 0.15
 
     for {px, py, _} <- poses(segments),
         do: assert(Grid.passable?(grid, Grid.cell_of(grid, {px, py})))
@@ -82,7 +83,7 @@ defmodule ThinkingCap.Control.Vehicle.PlannerTest do
     {x, y, th} = segments |> poses() |> List.last()
     assert x >= 5.8 and x <= 9.2
     assert abs(y - 4.0) <= 0.2
-    assert abs(Kinematics.normalize_angle(th - :math.pi())) <= 0.15
+    assert abs(normalize_angle(th - :math.pi())) <= 0.15
   end
 
   test "blocked starts and goals and walled-off goals are errors" do
@@ -127,7 +128,7 @@ defmodule ThinkingCap.Control.Vehicle.PlannerTest do
         assert abs(x - 6.0) < 0.05
         assert abs(y) < 0.03
         heading = if direction == 1, do: 0.0, else: :math.pi()
-        assert abs(Kinematics.normalize_angle(th - heading)) < 0.05
+        assert abs(normalize_angle(th - heading)) < 0.05
         assert Enum.all?(speeds, &(&1 * direction >= 0))
         # slow at the end of the last segment
         assert abs(hd(speeds)) <= 0.2

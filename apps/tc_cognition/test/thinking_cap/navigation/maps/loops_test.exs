@@ -1,9 +1,10 @@
 defmodule ThinkingCap.Navigation.Maps.LoopsTest do
   use ExUnit.Case, async: true
 
-  alias ThinkingCap.Navigation.{EKF, OccupancyGrid}
+  alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Navigation.Maps.{Loops, SensedGrid}
   alias ThinkingCap.Test.DriftingCircle
+  import ThinkingCap.Geometry, only: [normalize_angle: 1, segment_distance: 3]
 
   # a room of 8 x 6 m with a pillar: no symmetry makes two poses alike
   @walls [
@@ -84,14 +85,12 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
           OccupancyGrid.value(map, {c, r}) >= 65,
           do: {ox + (c + 0.5) * map.resolution, oy + (r + 0.5) * map.resolution}
 
-    near = Enum.count(cells, fn p -> Enum.any?(@walls, &(segment_distance(p, &1) <= 0.1)) end)
-    {near / max(length(cells), 1), length(cells)}
-  end
+    near =
+      Enum.count(cells, fn p ->
+        Enum.any?(@walls, fn {a, b} -> segment_distance(p, a, b) <= 0.1 end)
+      end)
 
-  defp segment_distance({px, py}, {{x1, y1}, {x2, y2}}) do
-    {dx, dy} = {x2 - x1, y2 - y1}
-    t = max(0.0, min(1.0, ((px - x1) * dx + (py - y1) * dy) / (dx * dx + dy * dy)))
-    :math.sqrt((px - x1 - t * dx) ** 2 + (py - y1 - t * dy) ** 2)
+    {near / max(length(cells), 1), length(cells)}
   end
 
   test "closing loops draws the walls where they are; without, the drift smears them" do
@@ -149,5 +148,5 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
   end
 
   defp close_to({x1, y1, t1}, {x2, y2, t2}),
-    do: abs(x1 - x2) < 1.0e-9 and abs(y1 - y2) < 1.0e-9 and abs(EKF.normalize(t1 - t2)) < 1.0e-9
+    do: abs(x1 - x2) < 1.0e-9 and abs(y1 - y2) < 1.0e-9 and abs(normalize_angle(t1 - t2)) < 1.0e-9
 end

@@ -1,5 +1,7 @@
 defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
   @moduledoc false
+
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
   # Blackboard payloads as ROS 2 messages (maps ready for
   # ThinkingCap.Dashboard.Core.JSON), and the one message rosbridge takes in
   # (geometry_msgs/Twist) back. Frames follow REP-103/REP-105: `map`, then
@@ -71,19 +73,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
   def map_to_odom({xm, ym, thm}, {xo, yo, tho}) do
     th = thm - tho
     {c, s} = {:math.cos(th), :math.sin(th)}
-    {xm - (c * xo - s * yo), ym - (s * xo + c * yo), normalize(th)}
-  end
-
-  @doc "An angle in (−π, π]."
-  @spec normalize(number()) :: float()
-  def normalize(a) do
-    a = :math.fmod(a * 1.0, 2 * :math.pi())
-
-    cond do
-      a > :math.pi() -> a - 2 * :math.pi()
-      a <= -:math.pi() -> a + 2 * :math.pi()
-      true -> a
-    end
+    {xm - (c * xo - s * yo), ym - (s * xo + c * yo), normalize_angle(th)}
   end
 
   @doc """

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
   # drifting bias, dead) are applied here.
 
   alias ThinkingCap.Sim.Raycast
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @two_pi 2 * :math.pi()
   @ranged [:sonar, :laser]
@@ -287,7 +288,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       {dx, dy} = {bx - sx, by - sy}
       range = :math.sqrt(dx * dx + dy * dy)
       angle = :math.atan2(dy, dx)
-      bearing = normalize(angle - heading)
+      bearing = normalize_angle(angle - heading)
 
       visible =
         range >= sensor.min_range and range <= sensor.max_range and
@@ -301,7 +302,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
         {nb, rng} = :rand.normal_s(rng)
         sd = sensor.noise.stddev
 
-        {[%{id: name, range: range + sd * nr, bearing: normalize(bearing + sd * nb)}], rng}
+        {[%{id: name, range: range + sd * nr, bearing: normalize_angle(bearing + sd * nb)}], rng}
       else
         {[], rng}
       end
@@ -312,10 +313,5 @@ defmodule ThinkingCap.Sim.Core.Sensors do
     [%{range: hit}] = Raycast.cast_rays(world.raycast, [{sx, sy, angle, range}], exclude: exclude)
     # a beacon on a wall is hit at its own distance
     hit >= range - 0.05
-  end
-
-  defp normalize(a) do
-    a = :math.fmod(a + :math.pi(), @two_pi)
-    if a <= 0, do: a + :math.pi(), else: a - :math.pi()
   end
 end
