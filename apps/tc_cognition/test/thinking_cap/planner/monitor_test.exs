@@ -55,36 +55,38 @@ defmodule ThinkingCap.Planner.MonitorTest do
   defp pose(state, pose), do: elem(Monitor.handle_tuple({:pose, :r, %{pose: pose}}, state), 1)
   defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
 
+  # a monitor with no WDF, given the map builder's map (`w` x `h` cells of
+  # 5 cm, `cell.(c, r)` each) and standing at `at`: one cycle's plan
+  defp on_sensed_map(dir, task, {w, h}, cell, at) do
+    empty = Path.join(dir, "empty.wdf")
+    File.write!(empty, "[name: \"nothing known\"]")
+    data = for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)::signed-8>>
+    grid = ThinkingCap.Navigation.OccupancyGrid.new(w, h, resolution: 0.05)
+
+    {_, state} =
+      Monitor.handle_tuple({:map, :r, %{grid | data: data, version: 1}}, start(empty, task))
+
+    {plan, actions, _state} = cycle(pose(state, at), 1.0)
+    {plan, actions}
+  end
+
   @tag :tmp_dir
   test "exploring: a first map of the ground under the robot and a few echoes is waited on", %{
     tmp_dir: dir
   } do
-    empty = Path.join(dir, "empty.wdf")
-    File.write!(empty, "[name: \"nothing known\"]")
-    state = start(empty, :explore)
-
     # 4 x 4 m: unknown but for a few free cells under the robot at {2, 2}
     # (too few to make a frontier) and two sonar echoes
-    data =
-      for r <- 0..79, c <- 0..79, into: <<>> do
-        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
 
-        cond do
-          abs(x - 2) < 0.05 and abs(y - 2) < 0.05 -> <<0::signed-8>>
-          {c, r} in [{5, 70}, {75, 10}] -> <<100::signed-8>>
-          true -> <<-1::signed-8>>
-        end
+      cond do
+        abs(x - 2) < 0.05 and abs(y - 2) < 0.05 -> 0
+        {c, r} in [{5, 70}, {75, 10}] -> 100
+        true -> -1
       end
+    end
 
-    map = %{
-      ThinkingCap.Navigation.OccupancyGrid.new(80, 80, resolution: 0.05)
-      | data: data,
-        version: 1
-    }
-
-    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
-    state = pose(state, {2.0, 2.0, 0.0})
-    {plan, actions, _state} = cycle(state, 1.0)
+    {plan, actions} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, 0.0})
     assert plan.state == :waiting
     refute Enum.any?(actions, &match?({:out, {:save_map, _, _}}, &1))
   end
@@ -93,27 +95,14 @@ defmodule ThinkingCap.Planner.MonitorTest do
   test "a doorway narrower than the margin allows is passed with the robot's own radius", %{
     tmp_dir: dir
   } do
-    empty = Path.join(dir, "empty.wdf")
-    File.write!(empty, "[name: \"nothing known\"]")
-    state = start(empty, {:go_to, {3.0, 3.0}})
+    # 6 x 4 m, a wall along y = 2 with a 0.5 m gap: the robot (0.2 m)
+    # fits, its margin (0.08 m each side) does not
+    cell = fn c, r ->
+      x = (c + 0.5) * 0.05
+      if r == 40 and not (x > 2.74 and x < 3.24), do: 100, else: 0
+    end
 
-    # 6 x 4 m of 5 cm cells, a wall along y = 2 with a 0.5 m gap: the
-    # robot (0.2 m) fits, its margin (0.08 m each side) does not
-    data =
-      for r <- 0..79, c <- 0..119, into: <<>> do
-        x = (c + 0.5) * 0.05
-        if r == 40 and not (x > 2.74 and x < 3.24), do: <<100::signed-8>>, else: <<0::signed-8>>
-      end
-
-    map = %{
-      ThinkingCap.Navigation.OccupancyGrid.new(120, 80, resolution: 0.05)
-      | data: data,
-        version: 1
-    }
-
-    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
-    state = pose(state, {3.0, 1.0, 1.57})
-    {plan, _actions, _state} = cycle(state, 1.0)
+    {plan, _actions} = on_sensed_map(dir, {:go_to, {3.0, 3.0}}, {120, 80}, cell, {3.0, 1.0, 1.57})
     assert plan.state == :moving
     assert Enum.any?(plan.path, fn {_x, y} -> y > 2.2 end)
   end
