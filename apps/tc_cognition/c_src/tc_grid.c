@@ -33,6 +33,7 @@
 #include "tc_mcl.h"
 #include "tc_slam.h"
 #include "tc_edt.h"
+#include "tc_nif.h"
 #include "tc_plan.h"
 #include <stdint.h>
 #include <stdlib.h>
@@ -87,17 +88,6 @@ static int upgrade(ErlNifEnv *env, void **priv, void **old, ERL_NIF_TERM info)
     return load(env, priv, info);
 }
 
-static int get_number(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
-{
-    long l;
-    if (enif_get_double(env, t, out)) return isfinite(*out);
-    if (enif_get_long(env, t, &l)) {
-        *out = (double)l;
-        return 1;
-    }
-    return 0;
-}
-
 static void widen(FMap *m, int c, int r)
 {
     if (m->bx1 < m->bx0) {
@@ -118,8 +108,8 @@ static ERL_NIF_TERM nif_fmap_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     int w, h;
     double res, ox, oy;
     if (!enif_get_int(env, argv[0], &w) || !enif_get_int(env, argv[1], &h) || w <= 0 || h <= 0 ||
-        (long)w * h > MAX_CELLS || !get_number(env, argv[2], &res) || res <= 0 ||
-        !get_number(env, argv[3], &ox) || !get_number(env, argv[4], &oy))
+        (long)w * h > MAX_CELLS || !tc_number(env, argv[2], &res) || res <= 0 ||
+        !tc_number(env, argv[3], &ox) || !tc_number(env, argv[4], &oy))
         return enif_make_badarg(env);
 
     FMap *m = enif_alloc_resource(FMAP_TYPE, sizeof(FMap));
@@ -268,14 +258,14 @@ static ERL_NIF_TERM nif_fmap_integrate(ErlNifEnv *env, int argc, const ERL_NIF_T
     int arity;
     const ERL_NIF_TERM *lambdas;
     if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
-        !get_number(env, argv[1], &sx) || !get_number(env, argv[2], &sy) ||
+        !tc_number(env, argv[1], &sx) || !tc_number(env, argv[2], &sy) ||
         !enif_inspect_binary(env, argv[3], &rays) || rays.size % (4 * sizeof(double)) != 0 ||
-        rays.size / (4 * sizeof(double)) > MAX_RAYS || !get_number(env, argv[4], &range_max) ||
-        range_max <= 0 || range_max / m->res > MAX_STEPS || !get_number(env, argv[5], &fade) ||
+        rays.size / (4 * sizeof(double)) > MAX_RAYS || !tc_number(env, argv[4], &range_max) ||
+        range_max <= 0 || range_max / m->res > MAX_STEPS || !tc_number(env, argv[5], &fade) ||
         !enif_get_tuple(env, argv[6], &arity, &lambdas) || arity != 2 ||
-        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
-        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
-        !get_number(env, argv[7], &margin) || margin < 0)
+        !tc_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
+        !tc_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
+        !tc_number(env, argv[7], &margin) || margin < 0)
         return enif_make_badarg(env);
 
     size_t n = rays.size / (4 * sizeof(double));
@@ -306,15 +296,15 @@ static ERL_NIF_TERM nif_fmap_replay(ErlNifEnv *env, int argc, const ERL_NIF_TERM
         !enif_inspect_binary(env, argv[2], &ranges) || !enif_get_int(env, argv[3], &beams) ||
         beams <= 0 || beams > MAX_RAYS ||
         ranges.size != poses.size / (3 * sizeof(double)) * beams * sizeof(float) ||
-        !enif_get_tuple(env, argv[4], &a1, &meta) || a1 != 4 || !get_number(env, meta[0], &amin) ||
-        !get_number(env, meta[1], &ainc) || !get_number(env, meta[2], &rmin) ||
-        !get_number(env, meta[3], &rmax) || rmax <= 0 || rmax / m->res > MAX_STEPS ||
-        !enif_get_tuple(env, argv[5], &a2, &ks) || a2 != 2 || !get_number(env, ks[0], &k_e) ||
-        !get_number(env, ks[1], &k_o) || !get_number(env, argv[6], &fade) ||
+        !enif_get_tuple(env, argv[4], &a1, &meta) || a1 != 4 || !tc_number(env, meta[0], &amin) ||
+        !tc_number(env, meta[1], &ainc) || !tc_number(env, meta[2], &rmin) ||
+        !tc_number(env, meta[3], &rmax) || rmax <= 0 || rmax / m->res > MAX_STEPS ||
+        !enif_get_tuple(env, argv[5], &a2, &ks) || a2 != 2 || !tc_number(env, ks[0], &k_e) ||
+        !tc_number(env, ks[1], &k_o) || !tc_number(env, argv[6], &fade) ||
         !enif_get_tuple(env, argv[7], &a3, &lambdas) || a3 != 2 ||
-        !get_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
-        !get_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
-        !get_number(env, argv[8], &margin) || margin < 0)
+        !tc_number(env, lambdas[0], &le) || le < 0 || le > 1 ||
+        !tc_number(env, lambdas[1], &lo) || lo < 0 || lo > 1 ||
+        !tc_number(env, argv[8], &margin) || margin < 0)
         return enif_make_badarg(env);
     size_t scans = poses.size / (3 * sizeof(double));
     const double *p = (const double *)poses.data;
@@ -358,7 +348,7 @@ static ERL_NIF_TERM nif_fmap_occupancy(ErlNifEnv *env, int argc, const ERL_NIF_T
     if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
         !enif_get_int(env, argv[1], &c0) || !enif_get_int(env, argv[2], &r0) ||
         !enif_get_int(env, argv[3], &w) || !enif_get_int(env, argv[4], &h) || w <= 0 || h <= 0 ||
-        c0 < 0 || r0 < 0 || c0 + w > m->w || r0 + h > m->h || !get_number(env, argv[5], &known))
+        c0 < 0 || r0 < 0 || c0 + w > m->w || r0 + h > m->h || !tc_number(env, argv[5], &known))
         return enif_make_badarg(env);
     ERL_NIF_TERM out;
     int8_t *p = (int8_t *)enif_make_new_binary(env, (size_t)w * h, &out);
@@ -424,7 +414,7 @@ static ERL_NIF_TERM nif_fmap_seed(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     double s;
     if (!enif_get_resource(env, argv[0], FMAP_TYPE, (void **)&m) ||
         !enif_inspect_binary(env, argv[1], &occ) || occ.size != (size_t)m->w * m->h ||
-        !get_number(env, argv[2], &s) || s < 0 || s > 1)
+        !tc_number(env, argv[2], &s) || s < 0 || s > 1)
         return enif_make_badarg(env);
     uint16_t q = (uint16_t)lround(s * FRAC);
     enif_mutex_lock(m->lock);
@@ -515,7 +505,7 @@ static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     ErlNifBinary b;
     int w, h;
     double radius;
-    if (!get_grid(env, argv, &b, &w, &h) || !get_number(env, argv[3], &radius) || radius < 0)
+    if (!get_grid(env, argv, &b, &w, &h) || !tc_number(env, argv[3], &radius) || radius < 0)
         return enif_make_badarg(env);
     double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
@@ -638,7 +628,7 @@ static ERL_NIF_TERM nif_rooms(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     int w, h, free_below;
     double half, min_core;
     if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &free_below) ||
-        !get_number(env, argv[4], &half) || !get_number(env, argv[5], &min_core))
+        !tc_number(env, argv[4], &half) || !tc_number(env, argv[5], &min_core))
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;
     unsigned char *blocked = calloc(n, 1);

@@ -23,6 +23,7 @@
  */
 #include "tc_mcl.h"
 #include "tc_edt.h"
+#include "tc_nif.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -81,17 +82,6 @@ int tc_mcl_load(ErlNifEnv *env)
     return FIELD_TYPE == NULL || PF_TYPE == NULL;
 }
 
-static int num(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
-{
-    long l;
-    if (enif_get_double(env, t, out)) return isfinite(*out);
-    if (enif_get_long(env, t, &l)) {
-        *out = (double)l;
-        return 1;
-    }
-    return 0;
-}
-
 /* ---- random numbers ---- */
 
 static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
@@ -129,13 +119,6 @@ static void seed(Pf *p, uint64_t seed)
     }
 }
 
-static double wrap(double a)
-{
-    a = fmod(a + M_PI, TWO_PI);
-    if (a < 0) a += TWO_PI;
-    return a - M_PI;
-}
-
 /* ---- the likelihood field ---- */
 
 /* field_new(occupancy, w, h, resolution, ox, oy, threshold, strict) */
@@ -147,8 +130,8 @@ ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     double res, ox, oy;
     if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
         !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
-        b.size != (size_t)w * h || !num(env, argv[3], &res) || res <= 0 ||
-        !num(env, argv[4], &ox) || !num(env, argv[5], &oy) ||
+        b.size != (size_t)w * h || !tc_number(env, argv[3], &res) || res <= 0 ||
+        !tc_number(env, argv[4], &ox) || !tc_number(env, argv[5], &oy) ||
         !enif_get_int(env, argv[6], &threshold) || !enif_get_int(env, argv[7], &strict))
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;
@@ -266,9 +249,9 @@ static int get_model(ErlNifEnv *env, ERL_NIF_TERM t, Model *m)
 {
     int arity;
     const ERL_NIF_TERM *e;
-    return enif_get_tuple(env, t, &arity, &e) && arity == 4 && num(env, e[0], &m->sigma) &&
-           m->sigma > 0 && num(env, e[1], &m->z_hit) && num(env, e[2], &m->z_rand) &&
-           num(env, e[3], &m->range_max) && m->range_max > 0;
+    return enif_get_tuple(env, t, &arity, &e) && arity == 4 && tc_number(env, e[0], &m->sigma) &&
+           m->sigma > 0 && tc_number(env, e[1], &m->z_hit) && tc_number(env, e[2], &m->z_rand) &&
+           tc_number(env, e[3], &m->range_max) && m->range_max > 0;
 }
 
 static int get_beams(ErlNifEnv *env, ERL_NIF_TERM t, Beams *bs)
@@ -292,7 +275,7 @@ static int get_field_pose(ErlNifEnv *env, const ERL_NIF_TERM argv[], Field **f, 
     const ERL_NIF_TERM *e;
     return enif_get_resource(env, argv[0], FIELD_TYPE, (void **)f) && get_beams(env, argv[1], bs) &&
            get_model(env, argv[2], m) && enif_get_tuple(env, argv[3], &arity, &e) && arity == 3 &&
-           num(env, e[0], x) && num(env, e[1], y) && num(env, e[2], th);
+           tc_number(env, e[0], x) && tc_number(env, e[1], y) && tc_number(env, e[2], th);
 }
 
 /* field_score(field, beams, model, {x, y, th}) -> {log_likelihood, known} */
@@ -325,7 +308,7 @@ ERL_NIF_TERM tc_nif_field_fit(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     Beams bs;
     Model m;
     double x, y, th, tol;
-    if (!get_field_pose(env, argv, &f, &bs, &m, &x, &y, &th) || !num(env, argv[4], &tol))
+    if (!get_field_pose(env, argv, &f, &bs, &m, &x, &y, &th) || !tc_number(env, argv[4], &tol))
         return enif_make_badarg(env);
     double c = cos(th), s = sin(th);
     int near = 0, judged = 0;
@@ -424,13 +407,13 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     int headings, top, arity;
     const ERL_NIF_TERM *box;
     if (!enif_get_resource(env, argv[0], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[1], &bs) ||
-        !get_model(env, argv[2], &m) || !num(env, argv[3], &step) || step <= 0 ||
+        !get_model(env, argv[2], &m) || !tc_number(env, argv[3], &step) || step <= 0 ||
         !enif_get_int(env, argv[4], &headings) || headings < 1 || headings > 720 ||
         !enif_get_int(env, argv[5], &top) || top < 1 || top > 10000 ||
         !enif_get_tuple(env, argv[6], &arity, &box) || (arity != 4 && arity != 6) ||
-        !num(env, box[0], &bx0) || !num(env, box[1], &by0) || !num(env, box[2], &bx1) ||
-        !num(env, box[3], &by1) ||
-        (arity == 6 && (!num(env, box[4], &bth) || !num(env, box[5], &bhalf))))
+        !tc_number(env, box[0], &bx0) || !tc_number(env, box[1], &by0) || !tc_number(env, box[2], &bx1) ||
+        !tc_number(env, box[3], &by1) ||
+        (arity == 6 && (!tc_number(env, box[4], &bth) || !tc_number(env, box[5], &bhalf))))
         return enif_make_badarg(env);
     int c0 = (int)fmax(0.0, floor((bx0 - f->ox) / f->res)), r0 = (int)fmax(0.0, floor((by0 - f->oy) / f->res));
     int c1 = (int)fmin(f->w - 1.0, floor((bx1 - f->ox) / f->res));
@@ -450,7 +433,7 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
             double x = f->ox + (c + 0.5) * f->res, y = f->oy + (r + 0.5) * f->res;
             for (int k = 0; k < headings; k++) {
                 double th = -M_PI + TWO_PI * k / headings;
-                if (fabs(wrap(th - bth)) > bhalf) continue;
+                if (fabs(tc_wrap(th - bth)) > bhalf) continue;
                 int known;
                 double l = score(f, &bs, &m, x, y, th, &known);
                 if (kept < top || l > best_l[kept - 1]) {
@@ -513,7 +496,7 @@ ERL_NIF_TERM tc_nif_pf_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         if (!isfinite(q[i])) return enif_make_badarg(env);
     Pf *p = pf_alloc(n);
     if (!p) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    for (int i = 0; i < n; i++) p->x[i] = q[3 * i], p->y[i] = q[3 * i + 1], p->th[i] = wrap(q[3 * i + 2]);
+    for (int i = 0; i < n; i++) p->x[i] = q[3 * i], p->y[i] = q[3 * i + 1], p->th[i] = tc_wrap(q[3 * i + 2]);
     seed(p, s);
     ERL_NIF_TERM t = enif_make_resource(env, p);
     enif_release_resource(p);
@@ -530,15 +513,15 @@ ERL_NIF_TERM tc_nif_pf_spread(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     const ERL_NIF_TERM *e1, *e2;
     double x, y, th, sx, sy, sth;
     if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
-        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &x) ||
-        !num(env, e1[1], &y) || !num(env, e1[2], &th) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
-        a2 != 3 || !num(env, e2[0], &sx) || !num(env, e2[1], &sy) || !num(env, e2[2], &sth))
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !tc_number(env, e1[0], &x) ||
+        !tc_number(env, e1[1], &y) || !tc_number(env, e1[2], &th) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        a2 != 3 || !tc_number(env, e2[0], &sx) || !tc_number(env, e2[1], &sy) || !tc_number(env, e2[2], &sth))
         return enif_make_badarg(env);
     enif_mutex_lock(p->lock);
     for (int i = 0; i < p->n; i++) {
         p->x[i] = x + sx * gauss(p);
         p->y[i] = y + sy * gauss(p);
-        p->th[i] = wrap(th + sth * gauss(p));
+        p->th[i] = tc_wrap(th + sth * gauss(p));
         p->lw[i] = 0.0;
     }
     enif_mutex_unlock(p->lock);
@@ -556,9 +539,9 @@ ERL_NIF_TERM tc_nif_pf_transform(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     const ERL_NIF_TERM *e1, *e2;
     double fx, fy, fth, tx, ty, tth;
     if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
-        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &fx) ||
-        !num(env, e1[1], &fy) || !num(env, e1[2], &fth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
-        a2 != 3 || !num(env, e2[0], &tx) || !num(env, e2[1], &ty) || !num(env, e2[2], &tth))
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !tc_number(env, e1[0], &fx) ||
+        !tc_number(env, e1[1], &fy) || !tc_number(env, e1[2], &fth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        a2 != 3 || !tc_number(env, e2[0], &tx) || !tc_number(env, e2[1], &ty) || !tc_number(env, e2[2], &tth))
         return enif_make_badarg(env);
     double d = tth - fth, c = cos(d), s = sin(d);
     enif_mutex_lock(p->lock);
@@ -566,7 +549,7 @@ ERL_NIF_TERM tc_nif_pf_transform(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         double rx = p->x[i] - fx, ry = p->y[i] - fy;
         p->x[i] = tx + c * rx - s * ry;
         p->y[i] = ty + s * rx + c * ry;
-        p->th[i] = wrap(p->th[i] + d);
+        p->th[i] = tc_wrap(p->th[i] + d);
     }
     enif_mutex_unlock(p->lock);
     return M_OK;
@@ -582,21 +565,21 @@ ERL_NIF_TERM tc_nif_pf_move(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     const ERL_NIF_TERM *e1, *e2;
     double dx, dy, dth, al[4];
     if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
-        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !num(env, e1[0], &dx) ||
-        !num(env, e1[1], &dy) || !num(env, e1[2], &dth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
+        !enif_get_tuple(env, argv[1], &a1, &e1) || a1 != 3 || !tc_number(env, e1[0], &dx) ||
+        !tc_number(env, e1[1], &dy) || !tc_number(env, e1[2], &dth) || !enif_get_tuple(env, argv[2], &a2, &e2) ||
         a2 != 4)
         return enif_make_badarg(env);
     for (int k = 0; k < 4; k++)
-        if (!num(env, e2[k], &al[k]) || al[k] < 0) return enif_make_badarg(env);
+        if (!tc_number(env, e2[k], &al[k]) || al[k] < 0) return enif_make_badarg(env);
     double trans = sqrt(dx * dx + dy * dy);
     /* a backward move turns by pi less (Probabilistic Robotics' remark) */
     double rot1 = trans < 1e-6 ? 0.0 : atan2(dy, dx);
     int back = 0;
     if (fabs(rot1) > M_PI / 2) {
         back = 1;
-        rot1 = wrap(rot1 + M_PI);
+        rot1 = tc_wrap(rot1 + M_PI);
     }
-    double rot2 = wrap(dth - rot1);
+    double rot2 = tc_wrap(dth - rot1);
     enif_mutex_lock(p->lock);
     for (int i = 0; i < p->n; i++) {
         double r1 = rot1 - sqrt(al[0] * rot1 * rot1 + al[1] * trans * trans) * gauss(p);
@@ -605,7 +588,7 @@ ERL_NIF_TERM tc_nif_pf_move(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         double dir = back ? -1.0 : 1.0;
         p->x[i] += dir * t * cos(p->th[i] + r1);
         p->y[i] += dir * t * sin(p->th[i] + r1);
-        p->th[i] = wrap(p->th[i] + r1 + r2);
+        p->th[i] = tc_wrap(p->th[i] + r1 + r2);
     }
     enif_mutex_unlock(p->lock);
     return M_OK;
@@ -627,7 +610,7 @@ ERL_NIF_TERM tc_nif_pf_weigh(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     double scale;
     if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) ||
         !enif_get_resource(env, argv[1], FIELD_TYPE, (void **)&f) || !get_beams(env, argv[2], &bs) ||
-        !get_model(env, argv[3], &m) || !num(env, argv[4], &scale) || scale <= 0 || scale > 1)
+        !get_model(env, argv[3], &m) || !tc_number(env, argv[4], &scale) || scale <= 0 || scale > 1)
         return enif_make_badarg(env);
     enif_mutex_lock(p->lock);
     double mean = 0.0, top = -INFINITY;
@@ -666,7 +649,7 @@ ERL_NIF_TERM tc_nif_pf_resample(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     Pf *p;
     double share;
     ErlNifBinary poses;
-    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !num(env, argv[1], &share) ||
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !tc_number(env, argv[1], &share) ||
         share < 0 || share > 1 || !enif_inspect_binary(env, argv[2], &poses) ||
         poses.size % (3 * sizeof(double)) != 0)
         return enif_make_badarg(env);
@@ -689,7 +672,7 @@ ERL_NIF_TERM tc_nif_pf_resample(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         if (nq > 0 && uniform(p) < share) {
             int k = (int)(uniform(p) * nq);
             if (k >= nq) k = nq - 1;
-            x[i] = q[3 * k], y[i] = q[3 * k + 1], th[i] = wrap(q[3 * k + 2]);
+            x[i] = q[3 * k], y[i] = q[3 * k + 1], th[i] = tc_wrap(q[3 * k + 2]);
         } else {
             x[i] = p->x[j], y[i] = p->y[j], th[i] = p->th[j];
         }
@@ -723,7 +706,7 @@ ERL_NIF_TERM tc_nif_pf_estimate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     double c[3][3] = {{0}};
     for (int i = 0; i < p->n; i++) {
         double w = exp(p->lw[i]) / sw;
-        double d[3] = {p->x[i] - mx, p->y[i] - my, wrap(p->th[i] - mt)};
+        double d[3] = {p->x[i] - mx, p->y[i] - my, tc_wrap(p->th[i] - mt)};
         for (int a = 0; a < 3; a++)
             for (int b = 0; b < 3; b++) c[a][b] += w * d[a] * d[b];
     }
@@ -748,7 +731,7 @@ ERL_NIF_TERM tc_nif_pf_mode(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     (void)argc;
     Pf *p;
     double radius;
-    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !num(env, argv[1], &radius) ||
+    if (!enif_get_resource(env, argv[0], PF_TYPE, (void **)&p) || !tc_number(env, argv[1], &radius) ||
         radius < 0)
         return enif_make_badarg(env);
     enif_mutex_lock(p->lock);

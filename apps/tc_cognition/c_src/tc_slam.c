@@ -23,6 +23,7 @@
  */
 #include "tc_slam.h"
 #include "tc_edt.h"
+#include "tc_nif.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -33,38 +34,20 @@
 #define MAX_NODES 200000
 #define INF 1e20
 
-static double wrap(double a)
-{
-    a = fmod(a + M_PI, 2 * M_PI);
-    if (a < 0) a += 2 * M_PI;
-    return a - M_PI;
-}
-
-static int num(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
-{
-    long l;
-    if (enif_get_double(env, t, out)) return isfinite(*out);
-    if (enif_get_long(env, t, &l)) {
-        *out = (double)l;
-        return 1;
-    }
-    return 0;
-}
-
 static int triple(ErlNifEnv *env, ERL_NIF_TERM t, double out[3])
 {
     int a;
     const ERL_NIF_TERM *e;
-    return enif_get_tuple(env, t, &a, &e) && a == 3 && num(env, e[0], &out[0]) &&
-           num(env, e[1], &out[1]) && num(env, e[2], &out[2]);
+    return enif_get_tuple(env, t, &a, &e) && a == 3 && tc_number(env, e[0], &out[0]) &&
+           tc_number(env, e[1], &out[1]) && tc_number(env, e[2], &out[2]);
 }
 
 static int pair(ErlNifEnv *env, ERL_NIF_TERM t, double out[2])
 {
     int a;
     const ERL_NIF_TERM *e;
-    return enif_get_tuple(env, t, &a, &e) && a == 2 && num(env, e[0], &out[0]) &&
-           num(env, e[1], &out[1]);
+    return enif_get_tuple(env, t, &a, &e) && a == 2 && tc_number(env, e[0], &out[0]) &&
+           tc_number(env, e[1], &out[1]);
 }
 
 /* a binary of native doubles, k per item, all finite */
@@ -159,7 +142,7 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     double guess[3], win[2], res, sigma;
     if (!doubles(env, argv[0], 2, MAX_POINTS, &ref, &nr) ||
         !doubles(env, argv[1], 2, MAX_POINTS, &q, &nq) || !triple(env, argv[2], guess) ||
-        !pair(env, argv[3], win) || !num(env, argv[4], &res) || !num(env, argv[5], &sigma) ||
+        !pair(env, argv[3], win) || !tc_number(env, argv[4], &res) || !tc_number(env, argv[5], &sigma) ||
         res <= 0.005 || sigma <= 0 || win[0] < 0 || win[1] < 0 || win[0] > 5.0 || win[1] > M_PI)
         return enif_make_badarg(env);
     if (nr == 0 || nq == 0) return enif_make_atom(env, "none");
@@ -259,7 +242,7 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     return enif_make_tuple4(
         env,
         enif_make_tuple3(env, enif_make_double(env, x), enif_make_double(env, y),
-                         enif_make_double(env, wrap(th))),
+                         enif_make_double(env, tc_wrap(th))),
         enif_make_double(env, cur / nq), enif_make_tuple_from_array(env, cov, 6),
         enif_make_double(env, at_guess / nq));
 }
@@ -289,7 +272,7 @@ static void edge_error(const double *xi, const double *xj, const Edge *e, double
     double ex = lx - e->z[0], ey = ly - e->z[1];
     err[0] = cz * ex + sz * ey;
     err[1] = -sz * ex + cz * ey;
-    err[2] = wrap(xj[2] - xi[2] - e->z[2]);
+    err[2] = tc_wrap(xj[2] - xi[2] - e->z[2]);
     /* d(Ri^T d)/d thi = [-si dx + ci dy; -ci dx - si dy] */
     double gx = -si * dx + ci * dy, gy = -ci * dx - si * dy;
     /* RzT RiT */
@@ -475,7 +458,7 @@ static double gn_step(int n, double *x, int m, const Edge *es)
     for (int i = 0; i < n; i++) {
         x[3 * i] += dx[3 * i];
         x[3 * i + 1] += dx[3 * i + 1];
-        x[3 * i + 2] = wrap(x[3 * i + 2] + dx[3 * i + 2]);
+        x[3 * i + 2] = tc_wrap(x[3 * i + 2] + dx[3 * i + 2]);
         for (int a = 0; a < 3; a++) result = fmax(result, fabs(dx[3 * i + a]));
     }
 done:

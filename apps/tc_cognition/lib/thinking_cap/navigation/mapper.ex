@@ -134,7 +134,7 @@ defmodule ThinkingCap.Navigation.Mapper do
     loop_closure:
       {:boolean, default: true, doc: "close loops in a map built from nothing (pose-graph SLAM)"}
   ]
-  @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
+  @defaults ThinkingCap.Config.Schema.defaults(@params)
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
   @impl true

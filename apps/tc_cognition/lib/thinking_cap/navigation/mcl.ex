@@ -174,7 +174,7 @@ defmodule ThinkingCap.Navigation.MCL do
     search_step: {:pos_number, default: 0.2, doc: "m between poses of a map search"},
     search_headings: {{:int_range, 1, 720}, default: 72, doc: "headings of a map search"}
   ]
-  @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
+  @defaults ThinkingCap.Config.Schema.defaults(@params)
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
   @impl true

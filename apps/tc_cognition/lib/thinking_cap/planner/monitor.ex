@@ -148,7 +148,6 @@ defmodule ThinkingCap.Planner.Monitor do
       reached: [],
       given_up: [],
       rounds: 1,
-      explore_rounds: params[:explore_rounds],
       replans: 0,
       progress: nil,
       blocked_at: nil,
@@ -375,6 +374,7 @@ defmodule ThinkingCap.Planner.Monitor do
     end
 
     choice = Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up)
+    again? = state.given_up != [] and state.rounds < state.params[:explore_rounds]
 
     case if(choice == nil and not seen_around?.(), do: :unseen, else: choice) do
       # the first maps may hold nothing but a few echoes
@@ -383,7 +383,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
       # frontiers given up on a map since drawn again (a loop closed, a
       # door seen open) may be reachable now: another round tries them
-      nil when state.given_up != [] and state.rounds < state.explore_rounds ->
+      nil when again? ->
         Logger.info(
           "#{inspect(state.robot)}: trying again #{length(state.given_up)} frontiers given up"
         )

@@ -56,7 +56,8 @@ defmodule ThinkingCap.Planner.MonitorTest do
   defp lps(state, lps), do: elem(Monitor.handle_tuple({:lps, :r, lps}, state), 1)
 
   # a monitor with no WDF, given the map builder's map (`w` x `h` cells of
-  # 5 cm, `cell.(c, r)` each) and standing at `at`: one cycle's plan
+  # 5 cm, `cell.(c, r)` each) and standing at `at`: one cycle's plan,
+  # actions and state
   defp on_sensed_map(dir, task, {w, h}, cell, at) do
     empty = Path.join(dir, "empty.wdf")
     File.write!(empty, "[name: \"nothing known\"]")
@@ -66,8 +67,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
     {_, state} =
       Monitor.handle_tuple({:map, :r, %{grid | data: data, version: 1}}, start(empty, task))
 
-    {plan, actions, _state} = cycle(pose(state, at), 1.0)
-    {plan, actions}
+    cycle(pose(state, at), 1.0)
   end
 
   @tag :tmp_dir
@@ -86,9 +86,30 @@ defmodule ThinkingCap.Planner.MonitorTest do
       end
     end
 
-    {plan, actions} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, 0.0})
+    {plan, actions, _state} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, 0.0})
     assert plan.state == :waiting
     refute Enum.any?(actions, &match?({:out, {:save_map, _, _}}, &1))
+  end
+
+  @tag :tmp_dir
+  test "exploring: frontiers given up are tried once more before it is done", %{tmp_dir: dir} do
+    # 4 x 4 m known, a wall across x = 2; beyond it a strip of free floor
+    # and, past x = 3.5, unknown space: a frontier no path reaches
+    cell = fn c, _r ->
+      x = (c + 0.5) * 0.05
+
+      cond do
+        x > 2.0 and x < 2.1 -> 100
+        x > 3.5 -> -1
+        true -> 0
+      end
+    end
+
+    {plan, _actions, state} = on_sensed_map(dir, :explore, {80, 80}, cell, {1.0, 2.0, 0.0})
+    assert plan.state == :done
+    # given up, tried in a second round, given up again
+    assert state.rounds == 2
+    assert [_] = state.given_up
   end
 
   @tag :tmp_dir
@@ -102,7 +123,9 @@ defmodule ThinkingCap.Planner.MonitorTest do
       if r == 40 and not (x > 2.74 and x < 3.24), do: 100, else: 0
     end
 
-    {plan, _actions} = on_sensed_map(dir, {:go_to, {3.0, 3.0}}, {120, 80}, cell, {3.0, 1.0, 1.57})
+    {plan, _actions, _state} =
+      on_sensed_map(dir, {:go_to, {3.0, 3.0}}, {120, 80}, cell, {3.0, 1.0, 1.57})
+
     assert plan.state == :moving
     assert Enum.any?(plan.path, fn {_x, y} -> y > 2.2 end)
   end

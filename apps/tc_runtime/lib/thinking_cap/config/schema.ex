@@ -104,6 +104,10 @@ defmodule ThinkingCap.Config.Schema do
     end)
   end
 
+  @doc "The defaults of `fields` as a keyword list (nil where a field has none)."
+  @spec defaults(fields()) :: keyword()
+  def defaults(fields), do: for({key, {_type, opts}} <- fields, do: {key, opts[:default]})
+
   @doc "Renders `fields` as a Markdown table: key, type, default, meaning."
   @spec describe(fields()) :: String.t()
   def describe(fields) do

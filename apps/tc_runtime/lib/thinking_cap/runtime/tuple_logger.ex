@@ -30,7 +30,7 @@ defmodule ThinkingCap.Runtime.TupleLogger do
       {{:int_range, 1024, 1_000_000_000},
        default: 4_000_000, doc: "bytes waiting to be written at most; beyond: dropped"}
   ]
-  @defaults for {key, {_type, opts}} <- @params, do: {key, opts[:default]}
+  @defaults ThinkingCap.Config.Schema.defaults(@params)
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
   @impl true

@@ -91,7 +91,8 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
              {:closed, closed, from, to} <- PoseGraph.close_loop(graph, id) do
           if shifted?(graph, closed, loops.params) do
             frame = loops.frame + 1
-            moves = Map.put(loops.moves, frame, {from, to})
+            # only the last move is carried (carry/3): older frames are too old
+            moves = %{frame => {from, to}}
             {%{loops | graph: closed, frame: frame, moves: moves}, {:closed, from, to}}
           else
             # a correction too small to draw the map again for: the graph
