@@ -193,7 +193,7 @@ defmodule ThinkingCap.Bench.Explore do
             dth = normalize_angle(eth - th)
 
             IO.puts(
-              "    t=#{NavRun.fmt(t + i * dt)} th=#{NavRun.fmt(th)} err=#{NavRun.fmt(e)} dth=#{NavRun.fmt(dth)} " <>
+              "    t=#{NavRun.fmt(t + i * dt)} x=#{NavRun.fmt(x)} y=#{NavRun.fmt(y)} th=#{NavRun.fmt(th)} err=#{NavRun.fmt(e)} dth=#{NavRun.fmt(dth)} " <>
                 "#{p[:status]} conf=#{NavRun.fmt(p[:confidence] || 0.0)}"
             )
 

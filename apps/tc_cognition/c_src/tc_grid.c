@@ -889,6 +889,7 @@ static ErlNifFunc funcs[] = {
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"shrink", 4, nif_shrink, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"costs", 5, tc_nif_costs, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_new", 8, tc_nif_field_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_score", 4, tc_nif_field_score, 0},
     {"field_through", 4, tc_nif_field_through, 0},

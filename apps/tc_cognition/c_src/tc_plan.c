@@ -31,7 +31,7 @@
 
 static int64_t DIAGONAL;
 static ErlNifResourceType *DSL_TYPE;
-static ERL_NIF_TERM A_OK, A_ERROR, A_NO_PATH;
+static ERL_NIF_TERM A_OK, A_ERROR, A_NO_PATH, A_NONE;
 
 typedef struct {
     int64_t k1, k2;
@@ -281,6 +281,80 @@ ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return result;
 }
 
+/* ---- costs to many cells ---- */
+
+/* costs(cells, w, h, start, targets) -> [cost_units | :none], one per
+ * target: the cost of the cheapest path from start (Dijkstra, the same
+ * steps as A*), :none for a target no path reaches. The search stops when
+ * every reachable target is settled. Start passable. */
+ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    int32_t s;
+    unsigned count;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
+        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
+        b.size != (size_t)w * h || !get_cell(env, argv[3], w, h, &s) ||
+        !enif_get_list_length(env, argv[4], &count) || count > 100000)
+        return enif_make_badarg(env);
+    int32_t *targets = malloc((count ? count : 1) * sizeof(int32_t));
+    if (!targets) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    ERL_NIF_TERM list = argv[4], head;
+    for (unsigned k = 0; k < count; k++) {
+        enif_get_list_cell(env, list, &head, &list);
+        if (!get_cell(env, head, w, h, &targets[k])) {
+            free(targets);
+            return enif_make_badarg(env);
+        }
+    }
+    const uint8_t *cells = b.data;
+    if (!scratch_for((size_t)w * h)) {
+        free(targets);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    /* a target is waited for only if its cell is passable */
+    unsigned left = 0;
+    for (unsigned k = 0; k < count; k++) left += cells[targets[k]] == 0;
+    Heap heap = {0};
+    set_g(s, 0);
+    int ok = heap_push(&heap, 0, 0, s);
+    int32_t to[8];
+    int64_t cost[8];
+    while (ok && heap.n > 0 && left > 0) {
+        Entry e = heap_pop(&heap);
+        int32_t u = e.u;
+        if (is_closed(u)) continue;
+        close_cell(u);
+        for (unsigned k = 0; k < count; k++) left -= targets[k] == u;
+        int64_t gu = get_g(u);
+        int m = edges(cells, w, h, u, to, cost);
+        for (int k = 0; k < m; k++) {
+            int32_t v = to[k];
+            int64_t gv = gu + cost[k];
+            if (!is_closed(v) && (!seen(v) || gv < get_g(v))) {
+                set_g(v, gv);
+                ok = heap_push(&heap, gv, 0, v) && ok;
+            }
+        }
+    }
+    free(heap.e);
+    ERL_NIF_TERM result;
+    if (!ok) {
+        result = enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    } else {
+        result = enif_make_list(env, 0);
+        for (unsigned k = count; k > 0; k--) {
+            int32_t t = targets[k - 1];
+            ERL_NIF_TERM c = is_closed(t) ? enif_make_int64(env, get_g(t)) : A_NONE;
+            result = enif_make_list_cell(env, c, result);
+        }
+    }
+    free(targets);
+    return result;
+}
+
 /* ---- D* Lite ---- */
 
 typedef struct {
@@ -320,6 +394,7 @@ int tc_plan_load(ErlNifEnv *env)
     A_OK = enif_make_atom(env, "ok");
     A_ERROR = enif_make_atom(env, "error");
     A_NO_PATH = enif_make_atom(env, "no_path");
+    A_NONE = enif_make_atom(env, "none");
     return DSL_TYPE == NULL;
 }
 

@@ -7,6 +7,7 @@
 
 int tc_plan_load(ErlNifEnv *env);
 ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
+ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_sync(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);

@@ -10,7 +10,9 @@ defmodule ThinkingCap.Navigation.Frontiers do
 
   `choose/3` picks the one to visit: the cheapest by explore_lite's rule,
   `distance − gain · length` (default gain 1), among those not within
-  `blacklist_radius` of a point given up.
+  `blacklist_radius` of a point given up, with the distance along the
+  path when the caller gives the paths' lengths: a frontier behind a
+  wall is then as far as the way round it.
   """
 
   alias ThinkingCap.Navigation.{Grid, OccupancyGrid}
@@ -44,9 +46,11 @@ defmodule ThinkingCap.Navigation.Frontiers do
 
   @doc """
   The frontier to visit from `from`: the least `distance − gain · length`
-  (straight-line distance; option `gain`, default 1), skipping those
-  within `blacklist_radius` (default 0.75 m) of a point in `blacklist`;
-  nil if none is left.
+  (option `gain`, default 1), skipping those within `blacklist_radius`
+  (default 0.75 m) of a point in `blacklist`; nil if none is left. The
+  distance is the straight line's, or with option `distances` (a map from
+  a frontier's point to the length of the path there, `nil` or missing
+  for no path) the path's, and a frontier without a path is skipped.
   """
   @spec choose([frontier()], {number(), number()}, keyword()) :: frontier() | nil
   def choose(frontiers, {x, y}, opts \\ []) do
@@ -54,9 +58,16 @@ defmodule ThinkingCap.Navigation.Frontiers do
     radius = Keyword.get(opts, :blacklist_radius, 0.75)
     blacklist = Keyword.get(opts, :blacklist, [])
 
+    distances = Keyword.get(opts, :distances)
+
     frontiers
     |> Enum.reject(fn %{point: p} -> Enum.any?(blacklist, &(dist(&1, p) < radius)) end)
-    |> Enum.min_by(fn %{point: p, length: l} -> dist(p, {x, y}) - gain * l end, fn -> nil end)
+    |> Enum.map(fn %{point: p} = f ->
+      {f, if(distances, do: Map.get(distances, p), else: dist(p, {x, y}))}
+    end)
+    |> Enum.reject(fn {_, d} -> d == nil end)
+    |> Enum.min_by(fn {%{length: l}, d} -> d - gain * l end, fn -> {nil, nil} end)
+    |> elem(0)
   end
 
   @doc "Whether any unknown cell lies within `radius` metres of a point (the frontier is still there)."

@@ -31,7 +31,8 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   """
 
   alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, OccupancyGrid}
-  alias ThinkingCap.Navigation.Core.GridNif
+  alias ThinkingCap.Navigation.Core.{Cost, GridNif}
+  require Cost
 
   defstruct radius: 0.25,
             threshold: 50,
@@ -151,6 +152,43 @@ defmodule ThinkingCap.Navigation.PathPlanner do
       {:error, :blocked, :start_outside_map} -> {:error, :start_blocked, planner}
       {:error, :blocked, :goal_outside_map} -> {:error, :goal_blocked, planner}
       {:error, reason} -> {:error, reason, planner}
+    end
+  end
+
+  @doc """
+  The length (m) of the shortest path on the cost map from `from` to
+  each of `points`, in one search: a list in the order of `points`, `nil`
+  for a point no path reaches, off the map, or in an obstacle with no free
+  cell within the planner's radius. All `nil` without a map or when the
+  robot's cell is blocked. The search stops once every point is reached.
+  """
+  @spec distances(t(), point(), [point()]) :: [float() | nil]
+  def distances(%__MODULE__{grid: nil}, _from, points), do: Enum.map(points, fn _ -> nil end)
+
+  def distances(%__MODULE__{grid: grid} = planner, from, points) do
+    cells = Enum.map(points, &free_cell(grid, &1, planner.radius))
+
+    case free_cell(grid, from, 2 * planner.radius) do
+      nil ->
+        Enum.map(points, fn _ -> nil end)
+
+      start ->
+        targets = for cell <- cells, cell != nil, do: cell
+        units = GridNif.costs(grid.cells, grid.width, grid.height, start, targets)
+        metres = Map.new(Enum.zip(targets, units))
+        scale = grid.resolution / Cost.straight()
+
+        Enum.map(cells, fn
+          nil -> nil
+          cell -> with u when is_integer(u) <- metres[cell], do: u * scale, else: (_ -> nil)
+        end)
+    end
+  end
+
+  defp free_cell(grid, point, within) do
+    case cell(grid, point, :outside, within) do
+      {:ok, cell} -> cell
+      _ -> nil
     end
   end
 

@@ -373,7 +373,8 @@ defmodule ThinkingCap.Planner.Monitor do
         free_area(state.map) >= 4.0
     end
 
-    choice = Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up)
+    {distances, state} = frontier_distances(frontiers, state)
+    choice = Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up, distances: distances)
     again? = state.given_up != [] and state.rounds < state.params[:explore_rounds]
 
     case if(choice == nil and not seen_around?.(), do: :unseen, else: choice) do
@@ -457,6 +458,20 @@ defmodule ThinkingCap.Planner.Monitor do
       true ->
         {[], %{state | progress: progress(state.progress, to_go, state.time)}}
     end
+  end
+
+  # the length of the way to each frontier on the map as planned on: one
+  # search from the robot (nil when the robot's cell is blocked: then the
+  # straight line)
+  defp frontier_distances(frontiers, %{pose: {x, y, _}} = state) do
+    planner = PathPlanner.set_map(state.planner, state.map)
+    points = Enum.map(frontiers, & &1.point)
+    lengths = PathPlanner.distances(planner, {x, y}, points)
+    state = %{state | planner: planner}
+
+    if frontiers != [] and Enum.all?(lengths, &is_nil/1),
+      do: {nil, state},
+      else: {Map.new(Enum.zip(points, lengths)), state}
   end
 
   # square metres of the map seen free

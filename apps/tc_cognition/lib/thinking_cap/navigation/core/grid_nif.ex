@@ -73,6 +73,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
 
   def slam_optimize(_nodes, _edges, _iterations), do: :erlang.nif_error(:nif_not_loaded)
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
+  def costs(_cells, _w, _h, _start, _targets), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_sync(_dsl, _cells, _max), do: :erlang.nif_error(:nif_not_loaded)

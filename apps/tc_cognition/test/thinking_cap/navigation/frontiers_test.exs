@@ -1,0 +1,82 @@
+defmodule ThinkingCap.Navigation.FrontiersTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.Navigation.{Frontiers, OccupancyGrid, PathPlanner}
+
+  # A 10 x 6 m frame at 5 cm, walled around. A wall along y = 3 m from
+  # x = 2 m to the right end splits it; the gap x < 2 m joins the halves.
+  # Seen free: the lower half up to x = 9.5 m, and the upper half up to
+  # x = 6 m; the rest is unknown. Two frontiers: the upper half's at
+  # x = 6 m, reached only round the wall, and the lower half's at 9.5 m.
+  defp map do
+    {w, h} = {200, 120}
+
+    data =
+      for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
+        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+        cond do
+          c == 0 or r == 0 or c == w - 1 or r == h - 1 -> <<100>>
+          y >= 3.0 and y < 3.1 and x >= 2.0 -> <<100>>
+          y < 3.0 and x > 9.5 -> <<-1::signed-8>>
+          y >= 3.1 and x > 6.0 -> <<-1::signed-8>>
+          true -> <<0>>
+        end
+      end
+
+    %OccupancyGrid{width: w, height: h, data: data, resolution: 0.05, version: 1}
+  end
+
+  defp frontier_at(frontiers, x0),
+    do: Enum.find(frontiers, fn %{point: {x, _}} -> abs(x - x0) < 0.15 end)
+
+  test "finds the boundaries between seen free and unknown space" do
+    frontiers = Frontiers.find(map())
+    assert length(frontiers) == 2
+    assert %{point: {_, y}} = frontier_at(frontiers, 6.0)
+    assert y > 3.1
+    assert %{point: {_, y}} = frontier_at(frontiers, 9.5)
+    assert y < 3.0
+  end
+
+  test "by the straight line the frontier behind the wall wins; by the path the open one" do
+    map = map()
+    frontiers = Frontiers.find(map)
+    behind = frontier_at(frontiers, 6.0)
+    open = frontier_at(frontiers, 9.5)
+    robot = {6.0, 2.5}
+
+    assert Frontiers.choose(frontiers, robot, gain: 0.0) == behind
+
+    planner = PathPlanner.new(radius: 0.25) |> PathPlanner.set_map(map)
+    points = [behind.point, open.point]
+    [round_the_wall, straight_on] = PathPlanner.distances(planner, robot, points)
+    # round the wall's end at x = 2 m and back: more than 8 m
+    assert round_the_wall > 8.0
+    assert_in_delta straight_on, 3.5, 0.5
+
+    distances = Map.new(Enum.zip(points, [round_the_wall, straight_on]))
+    assert Frontiers.choose(frontiers, robot, gain: 0.0, distances: distances) == open
+  end
+
+  test "a frontier without a path is skipped; none reachable is none" do
+    frontiers = Frontiers.find(map())
+    behind = frontier_at(frontiers, 6.0)
+    open = frontier_at(frontiers, 9.5)
+    distances = %{behind.point => 1.0, open.point => nil}
+    assert Frontiers.choose(frontiers, {9.0, 1.0}, distances: distances) == behind
+    assert Frontiers.choose(frontiers, {9.0, 1.0}, distances: %{}) == nil
+  end
+
+  test "paths' lengths: nil off the map or in a wall; all nil from off the map or without one" do
+    map = map()
+    planner = PathPlanner.new(radius: 0.25) |> PathPlanner.set_map(map)
+    [off, wall, here] = PathPlanner.distances(planner, {1.0, 1.0}, [{20.0, 1.0}, {5.0, 3.05}, {1.0, 1.0}])
+    assert off == nil
+    # in the wall, with no free cell within the radius
+    assert wall == nil
+    assert here == 0.0
+    assert PathPlanner.distances(planner, {-3.0, 1.0}, [{1.0, 1.0}]) == [nil]
+    assert PathPlanner.distances(PathPlanner.new(), {1.0, 1.0}, [{2.0, 1.0}]) == [nil]
+  end
+end
