@@ -50,6 +50,8 @@ defmodule ThinkingCap.Bench.Dashboard do
   Code.require_file(Path.join(@root, "apps/tc_dashboard/test/support/browser.ex"))
   alias ThinkingCap.Dashboard.Test.Browser
   alias ThinkingCap.Bench.ProcStat
+  alias ThinkingCap.Tuples
+  require Tuples
 
   def run(args) do
     {opts, _, _} =
@@ -211,14 +213,16 @@ defmodule ThinkingCap.Bench.Dashboard do
     """)
 
     {:ok, _} = Runtime.start(path)
-    {:ok, _} = Blackboard.rd({:sim_pose, robot, :_}, 10_000)
+    {:ok, _} = Blackboard.rd(Tuples.sim_pose(robot), 10_000)
   end
 
   # "autonomy" for the other robots: turning on the spot, refreshed within
   # the base's command timeout
   defp spin(robots) do
-    for r <- robots,
-        do: Blackboard.out({:drive, r, %{command: {:velocity, 0.0, 0.5}}}, key: {:drive, r})
+    for r <- robots do
+      {drive, opts} = Tuples.keyed(Tuples.drive(r, %{command: {:velocity, 0.0, 0.5}}))
+      Blackboard.out(drive, opts)
+    end
 
     Process.sleep(150)
     spin(robots)
@@ -229,13 +233,13 @@ defmodule ThinkingCap.Bench.Dashboard do
   # arrival time of the robot's {:control, ...} tuples that echo a teleop
   # stamp: the first one after each arm
   defp collect(robot) do
-    {:ok, ref} = Blackboard.subscribe({:control, robot, :_})
+    {:ok, ref} = Blackboard.subscribe(Tuples.control(robot))
     collect_loop(ref, nil)
   end
 
   defp collect_loop(ref, armed) do
     receive do
-      {:blackboard, ^ref, {:control, _, %{mode: :teleop, teleop_sent_at: sent} = c}}
+      {:blackboard, ^ref, Tuples.control(_, %{mode: :teleop, teleop_sent_at: sent} = c)}
       when is_number(sent) and armed != nil ->
         now = System.os_time(:microsecond) / 1000
         send(armed, {:teleop_applied, now - sent, c.command})
@@ -270,8 +274,8 @@ defmodule ThinkingCap.Bench.Dashboard do
   end
 
   defp await_released(robot, tries \\ 200) do
-    case Blackboard.rdp({:control, robot, :_}) do
-      {:ok, {:control, _, %{mode: :teleop}}} when tries > 0 ->
+    case Blackboard.rdp(Tuples.control(robot)) do
+      {:ok, Tuples.control(_, %{mode: :teleop})} when tries > 0 ->
         Process.sleep(5)
         await_released(robot, tries - 1)
 

@@ -40,6 +40,8 @@ defmodule ThinkingCap.Bench.Edge do
   alias ThinkingCap.{Blackboard, Config, Dashboard, Runtime}
   alias ThinkingCap.Bench.Cyclictest
   alias ThinkingCap.Dashboard.Core.RuntimeDir
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @root Path.expand("..", __DIR__)
   @examples Path.join(@root, "priv/examples")
@@ -206,7 +208,7 @@ defmodule ThinkingCap.Bench.Edge do
 
   # the E-stop asked on its port; ms until the base applied it (nil: never)
   defp estop(robot, port) do
-    {:ok, ref} = Blackboard.subscribe({:control, robot, :_})
+    {:ok, ref} = Blackboard.subscribe(Tuples.control(robot))
     t0 = System.monotonic_time(:microsecond)
 
     reply =
@@ -216,7 +218,8 @@ defmodule ThinkingCap.Bench.Edge do
 
     applied =
       receive do
-        {:blackboard, ^ref, {:control, _, %{mode: :estop}}} -> System.monotonic_time(:microsecond)
+        {:blackboard, ^ref, Tuples.control(_, %{mode: :estop})} ->
+          System.monotonic_time(:microsecond)
       after
         5_000 -> nil
       end
@@ -266,8 +269,8 @@ defmodule ThinkingCap.Bench.Edge do
     do: Map.new(Runtime.timing(), fn {name, t} -> {name, Map.get(t, :fallbacks, 0)} end)
 
   defp control(robot) do
-    case Blackboard.rdp({:control, robot, :_}) do
-      {:ok, {:control, _, control}} -> control
+    case Blackboard.rdp(Tuples.control(robot)) do
+      {:ok, Tuples.control(_, control)} -> control
       :none -> nil
     end
   end

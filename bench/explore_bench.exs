@@ -32,6 +32,8 @@ defmodule ThinkingCap.Bench.Explore do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @limit 1800.0
@@ -164,13 +166,13 @@ defmodule ThinkingCap.Bench.Explore do
     :ok = trace_or_run(sim, t)
     t = t + 10.0
     {:ok, c} = Sim.controller_state(sim, :explorer)
-    saved = Lockstep.latest(c.lock, {:map_saved, :explorer, :_})
+    saved = Lockstep.latest(c.lock, Tuples.map_saved(:explorer))
 
     limit = min(@limit, limit())
 
-    case Lockstep.latest(c.lock, {:plan, :explorer, :_}) do
-      {:plan, _, %{state: s}} when s in [:done, :failed] and saved != nil -> {t, s}
-      {:plan, _, %{state: s}} when t >= limit -> {t, s}
+    case Lockstep.latest(c.lock, Tuples.plan(:explorer)) do
+      Tuples.plan(_, %{state: s}) when s in [:done, :failed] and saved != nil -> {t, s}
+      Tuples.plan(_, %{state: s}) when t >= limit -> {t, s}
       _ -> drive(sim, t)
     end
   end
@@ -187,8 +189,8 @@ defmodule ThinkingCap.Bench.Explore do
         {:ok, {x, y, th}} = Sim.pose(sim, :explorer)
         {:ok, c} = Sim.controller_state(sim, :explorer)
 
-        case Lockstep.latest(c.lock, {:pose, :explorer, :_}) do
-          {:pose, _, %{pose: {ex, ey, eth}} = p} ->
+        case Lockstep.latest(c.lock, Tuples.pose(:explorer)) do
+          Tuples.pose(_, %{pose: {ex, ey, eth}} = p) ->
             e = :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
             dth = normalize_angle(eth - th)
 

@@ -25,6 +25,8 @@ defmodule ThinkingCap.Bench.Localize do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @duration 300.0
   @settle 10.0
@@ -147,7 +149,7 @@ defmodule ThinkingCap.Bench.Localize do
 
         {:ok, {x, y, _}} = Sim.pose(sim, :loc)
         {:ok, c} = Sim.controller_state(sim, :loc)
-        {:pose, _, %{pose: {ex, ey, _}} = p} = Lockstep.latest(c.lock, {:pose, :loc, :_})
+        Tuples.pose(_, %{pose: {ex, ey, _}} = p) = Lockstep.latest(c.lock, Tuples.pose(:loc))
 
         error = :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
         near_kidnap = t >= plan.kidnap_at - 1 and t <= plan.kidnap_at + 30

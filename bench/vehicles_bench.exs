@@ -24,6 +24,8 @@ defmodule ThinkingCap.Bench.Vehicles do
   alias ThinkingCap.Sim
   alias ThinkingCap.Sim.LockstepController
   alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @root Path.expand("..", __DIR__)
@@ -175,8 +177,8 @@ defmodule ThinkingCap.Bench.Vehicles do
   defp drive(sim) do
     :ok = Sim.run_for(sim, 0.5)
     {:ok, cstate} = Sim.controller_state(sim, :agv)
-    plan = Lockstep.latest(cstate.lock, {:plan, :agv, :_})
-    vehicle = Lockstep.latest(cstate.lock, {:vehicle, :agv, :_})
+    plan = Lockstep.latest(cstate.lock, Tuples.plan(:agv))
+    vehicle = Lockstep.latest(cstate.lock, Tuples.vehicle(:agv))
     time = Sim.time(sim)
 
     if Process.get(:trace) do
@@ -188,7 +190,7 @@ defmodule ThinkingCap.Bench.Vehicles do
     end
 
     case plan do
-      {:plan, _, %{state: s}} when s in [:done, :failed] ->
+      Tuples.plan(_, %{state: s}) when s in [:done, :failed] ->
         # let the robot come to rest on the dock
         :ok = Sim.run_for(sim, 1.0)
         {plan, vehicle}

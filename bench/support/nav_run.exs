@@ -11,6 +11,8 @@ defmodule ThinkingCap.Bench.NavRun do
   alias ThinkingCap.Sim
   alias ThinkingCap.Sim.LockstepController
   alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @root Path.expand("../..", __DIR__)
   @default_maps ["priv/maps/turtlebot3_world.yaml", "priv/maps/warehouse.yaml"]
@@ -159,8 +161,8 @@ defmodule ThinkingCap.Bench.NavRun do
     {time, acc} = drive(sim, limit, acc, 0)
     status = Sim.status(sim)
     {:ok, cstate} = Sim.controller_state(sim, :nav)
-    plan = Lockstep.latest(cstate.lock, {:plan, :nav, :_})
-    estimate = Lockstep.latest(cstate.lock, {:pose, :nav, :_})
+    plan = Lockstep.latest(cstate.lock, Tuples.plan(:nav))
+    estimate = Lockstep.latest(cstate.lock, Tuples.pose(:nav))
     GenServer.stop(sim)
     {gx, gy} = goal
     {lx, ly} = acc.last
@@ -183,7 +185,7 @@ defmodule ThinkingCap.Bench.NavRun do
     }
   end
 
-  defp pose_error({:pose, _, %{pose: {ex, ey, _}}}, {x, y}),
+  defp pose_error(Tuples.pose(_, %{pose: {ex, ey, _}}), {x, y}),
     do: :math.sqrt((ex - x) ** 2 + (ey - y) ** 2)
 
   defp pose_error(_estimate, _true), do: nil
@@ -197,11 +199,11 @@ defmodule ThinkingCap.Bench.NavRun do
     acc = %{acc | driven: acc.driven + :math.sqrt((x - lx) ** 2 + (y - ly) ** 2), last: {x, y}}
     time = Sim.time(sim)
     {:ok, cstate} = Sim.controller_state(sim, :nav)
-    plan = Lockstep.latest(cstate.lock, {:plan, :nav, :_})
+    plan = Lockstep.latest(cstate.lock, Tuples.plan(:nav))
 
     acc =
       case plan do
-        {:plan, _, %{planning: %{} = p, planned_at: at}} when at != nil ->
+        Tuples.plan(_, %{planning: %{} = p, planned_at: at}) when at != nil ->
           %{acc | replans: Map.put(acc.replans, at, p)}
 
         _ ->
@@ -212,7 +214,7 @@ defmodule ThinkingCap.Bench.NavRun do
       do: trace(time, {x, y}, plan, cstate.lock)
 
     case plan do
-      {:plan, _, %{state: s}} when s in [:done, :failed] -> {time, acc}
+      Tuples.plan(_, %{state: s}) when s in [:done, :failed] -> {time, acc}
       _ when time >= limit -> {time, acc}
       _ -> drive(sim, limit, acc, step + 1)
     end
@@ -220,19 +222,19 @@ defmodule ThinkingCap.Bench.NavRun do
 
   defp trace(time, {x, y}, plan, lock) do
     activation =
-      case Lockstep.latest(lock, {:activation, :nav, :_}) do
-        {:activation, _, a} -> for {b, v} <- a, v >= 0.05, do: "#{b}=#{fmt(v)}"
+      case Lockstep.latest(lock, Tuples.activation(:nav)) do
+        Tuples.activation(_, a) -> for {b, v} <- a, v >= 0.05, do: "#{b}=#{fmt(v)}"
         nil -> []
       end
 
-    {:drive, _, %{command: command}} =
-      Lockstep.latest(lock, {:drive, :nav, :_}) || {:drive, nil, %{command: nil}}
+    Tuples.drive(_, %{command: command}) =
+      Lockstep.latest(lock, Tuples.drive(:nav)) || Tuples.drive(nil, %{command: nil})
 
     state = if plan, do: elem(plan, 2).state
 
     estimate =
-      case Lockstep.latest(lock, {:pose, :nav, :_}) do
-        {:pose, _, %{pose: {ex, ey, _}, status: status}} ->
+      case Lockstep.latest(lock, Tuples.pose(:nav)) do
+        Tuples.pose(_, %{pose: {ex, ey, _}, status: status}) ->
           " estimate (#{fmt(ex)}, #{fmt(ey)}) #{status}"
 
         _ ->

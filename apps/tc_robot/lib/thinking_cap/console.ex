@@ -22,6 +22,8 @@ defmodule ThinkingCap.Console do
 
   alias ThinkingCap.{Blackboard, Runtime}
   alias ThinkingCap.Runtime.Deployment
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @doc """
   Engages the E-stop of `robot`: its base stops at its next cycle and stays
@@ -29,14 +31,16 @@ defmodule ThinkingCap.Console do
   """
   @spec estop(atom()) :: :ok
   def estop(robot) do
-    :ok = Blackboard.out({:estop, robot, %{engaged: true, by: :console}}, key: {:estop, robot})
+    {estop, opts} = Tuples.keyed(Tuples.estop_engaged(robot, :console))
+    :ok = Blackboard.out(estop, opts)
     IO.puts("#{robot}: E-stop engaged")
   end
 
   @doc "Releases the E-stop of `robot`: autonomy (or teleoperation) drives again."
   @spec release_estop(atom()) :: :ok
   def release_estop(robot) do
-    :ok = Blackboard.out({:estop, robot, %{engaged: false, by: :console}}, key: {:estop, robot})
+    {estop, opts} = Tuples.keyed(Tuples.estop_released(robot, :console))
+    :ok = Blackboard.out(estop, opts)
     IO.puts("#{robot}: E-stop released")
   end
 
@@ -61,7 +65,7 @@ defmodule ThinkingCap.Console do
   @spec gave_up() :: [map()]
   def gave_up do
     gave_up =
-      for {:module_gave_up, robot, g} <- Blackboard.rd_all({:module_gave_up, :_, :_}),
+      for Tuples.module_gave_up(robot, g) <- Blackboard.rd_all(Tuples.module_gave_up()),
           do: Map.put(g, :robot, robot)
 
     table(

@@ -42,6 +42,8 @@ defmodule ThinkingCap.Runtime do
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Config.ADF
   alias ThinkingCap.Runtime.Supervision
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @scope :thinking_cap_runtime
 
@@ -451,18 +453,22 @@ defmodule ThinkingCap.Runtime do
   # What was started, for the services that follow an ADF (the dashboard
   # starts itself on the announcing node when the ADF enables it)
   def announce(%ADF{} = adf) do
-    Blackboard.out(
-      {:adf, adf.robot,
-       %{
-         node: node(),
-         file: adf.file,
-         rdf: adf.rdf,
-         wdf: adf.wdf,
-         dashboard: adf.dashboard,
-         modules: Enum.map(adf.modules, & &1.name)
-       }},
-      key: {:adf, adf.robot}
-    )
+    {tuple, opts} =
+      Tuples.keyed(
+        Tuples.adf(
+          adf.robot,
+          %{
+            node: node(),
+            file: adf.file,
+            rdf: adf.rdf,
+            wdf: adf.wdf,
+            dashboard: adf.dashboard,
+            modules: Enum.map(adf.modules, & &1.name)
+          }
+        )
+      )
+
+    Blackboard.out(tuple, opts)
   end
 
   defp node_of(_adf, :local), do: node()

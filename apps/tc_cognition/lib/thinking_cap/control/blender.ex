@@ -84,6 +84,8 @@ defmodule ThinkingCap.Control.Blender do
 
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @named ThinkingCap.Control.behaviours()
 
@@ -158,9 +160,9 @@ defmodule ThinkingCap.Control.Blender do
     }
 
     subscribe = [
-      subscribe: {:lps, robot, :_},
-      subscribe: {:pose, robot, :_},
-      subscribe: {:plan, robot, :_}
+      subscribe: Tuples.lps(robot),
+      subscribe: Tuples.pose(robot),
+      subscribe: Tuples.plan(robot)
     ]
 
     # the limits it drives within, as its params: shown and recorded
@@ -230,13 +232,13 @@ defmodule ThinkingCap.Control.Blender do
     do: raise(ArgumentError, "Blender: not a behaviour: #{inspect(other)}")
 
   @impl true
-  def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
+  def handle_tuple(Tuples.lps(robot, %LPS{} = lps), %{robot: robot} = state),
     do: {[], %{state | lps: lps}}
 
-  def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose}}, %{robot: robot} = state),
+  def handle_tuple(Tuples.pose(robot, %{pose: {_, _, _} = pose}), %{robot: robot} = state),
     do: {[], %{state | pose: pose}}
 
-  def handle_tuple({:plan, robot, plan}, %{robot: robot} = state) when is_map(plan),
+  def handle_tuple(Tuples.plan(robot, plan), %{robot: robot} = state) when is_map(plan),
     do: {[], %{state | plan: plan}}
 
   def handle_tuple(_tuple, state), do: {[], state}
@@ -257,8 +259,8 @@ defmodule ThinkingCap.Control.Blender do
     robot = state.robot
 
     actions = [
-      out: {{:drive, robot, %{command: command}}, [key: {:drive, robot}]},
-      out: {{:activation, robot, activations}, [key: {:activation, robot}]}
+      out: Tuples.keyed(Tuples.drive(robot, %{command: command})),
+      out: Tuples.keyed(Tuples.activation(robot, activations))
     ]
 
     {actions, state}

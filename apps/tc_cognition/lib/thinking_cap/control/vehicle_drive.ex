@@ -62,6 +62,8 @@ defmodule ThinkingCap.Control.VehicleDrive do
   alias ThinkingCap.Navigation.Maps
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @defaults [
@@ -114,9 +116,9 @@ defmodule ThinkingCap.Control.VehicleDrive do
     }
 
     {[
-       subscribe: {:pose, context.robot, :_},
-       subscribe: {:plan, context.robot, :_},
-       subscribe: {:lps, context.robot, :_}
+       subscribe: Tuples.pose(context.robot),
+       subscribe: Tuples.plan(context.robot),
+       subscribe: Tuples.lps(context.robot)
      ], state}
   end
 
@@ -149,13 +151,13 @@ defmodule ThinkingCap.Control.VehicleDrive do
   defp grid_opts(_wdf, _params), do: []
 
   @impl true
-  def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose}}, %{robot: robot} = state),
+  def handle_tuple(Tuples.pose(robot, %{pose: {_, _, _} = pose}), %{robot: robot} = state),
     do: {[], %{state | pose: pose}}
 
-  def handle_tuple({:plan, robot, plan}, %{robot: robot} = state) when is_map(plan),
+  def handle_tuple(Tuples.plan(robot, plan), %{robot: robot} = state) when is_map(plan),
     do: {[], %{state | plan: plan}}
 
-  def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
+  def handle_tuple(Tuples.lps(robot, %LPS{} = lps), %{robot: robot} = state),
     do: {[], %{state | lps: lps}}
 
   def handle_tuple(_tuple, state), do: {[], state}
@@ -174,8 +176,8 @@ defmodule ThinkingCap.Control.VehicleDrive do
     }
 
     {[
-       out: {{:drive, robot, %{command: command}}, [key: {:drive, robot}]},
-       out: {{:vehicle, robot, info}, [key: {:vehicle, robot}]}
+       out: Tuples.keyed(Tuples.drive(robot, %{command: command})),
+       out: Tuples.keyed(Tuples.vehicle(robot, info))
      ], state}
   end
 

@@ -21,6 +21,8 @@ defmodule ThinkingCap.Examples.WallFollower do
   use ThinkingCap.Module
 
   alias ThinkingCap.Perception.LPS
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @impl true
   def params do
@@ -47,11 +49,11 @@ defmodule ThinkingCap.Examples.WallFollower do
     # context.params: the ADF's params, checked against params/0, with
     # the defaults of those it does not give
     state = Map.merge(context.params, %{robot: context.robot, lps: nil})
-    {[subscribe: {:lps, context.robot, :_}], state}
+    {[subscribe: Tuples.lps(context.robot)], state}
   end
 
   @impl true
-  def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
+  def handle_tuple(Tuples.lps(robot, %LPS{} = lps), %{robot: robot} = state),
     do: {[], %{state | lps: lps}}
 
   def handle_tuple(_tuple, state), do: {[], state}
@@ -59,8 +61,8 @@ defmodule ThinkingCap.Examples.WallFollower do
   @impl true
   def handle_cycle(_release, state) do
     command = if state.lps, do: steer(state.lps, state), else: :stop
-    drive = {:drive, state.robot, %{command: command}}
-    {[out: {drive, [key: {:drive, state.robot}]}], state}
+    drive = Tuples.drive(state.robot, %{command: command})
+    {[out: Tuples.keyed(drive)], state}
   end
 
   @impl true

@@ -71,6 +71,8 @@ defmodule ThinkingCap.Navigation.Localizer do
 
   alias ThinkingCap.Navigation.EKF
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @doc """
   Reads the WDF (beacons, waypoints) and the RDF (noise defaults) of the
@@ -124,7 +126,7 @@ defmodule ThinkingCap.Navigation.Localizer do
       last_published: nil
     }
 
-    {[subscribe: {odometry, robot, :_}, subscribe: {beacon_tag, robot, :_}],
+    {[subscribe: Tuples.reading(odometry, robot), subscribe: Tuples.reading(beacon_tag, robot)],
      resume(state, Map.get(context, :handoff))}
   end
 
@@ -146,7 +148,10 @@ defmodule ThinkingCap.Navigation.Localizer do
   @doc "Predicts on odometry, corrects on beacon detections, publishes the pose."
   @impl true
   @spec handle_tuple(tuple(), map()) :: {ThinkingCap.Module.actions(), map()}
-  def handle_tuple({tag, robot, %{pose: odom} = payload}, %{odometry: tag, robot: robot} = state) do
+  def handle_tuple(
+        Tuples.reading(tag, robot, %{pose: odom} = payload),
+        %{odometry: tag, robot: robot} = state
+      ) do
     stamp = Map.get(payload, :stamp)
 
     case state.last_odometry do
@@ -162,7 +167,7 @@ defmodule ThinkingCap.Navigation.Localizer do
   end
 
   def handle_tuple(
-        {tag, robot, %{detections: detections} = payload},
+        Tuples.reading(tag, robot, %{detections: detections} = payload),
         %{beacon_tag: tag, robot: robot} = state
       ) do
     {ekf, used, rejected} = update(state, state.ekf, detections)
@@ -216,9 +221,9 @@ defmodule ThinkingCap.Navigation.Localizer do
       beacons_used: used
     }
 
-    tuple = {:pose, state.robot, payload}
+    tuple = Tuples.pose(state.robot, payload)
     last = if is_number(stamp), do: stamp, else: state.last_published
-    {[out: {tuple, [key: {:pose, state.robot}]}], %{state | last_published: last}}
+    {[out: Tuples.keyed(tuple)], %{state | last_published: last}}
   end
 
   ## descriptions

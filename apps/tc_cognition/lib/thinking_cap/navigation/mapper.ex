@@ -108,6 +108,8 @@ defmodule ThinkingCap.Navigation.Mapper do
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Navigation.Maps.{Loops, Rooms, SensedGrid, Segments}
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pair {:tuple, [:pos_number, :pos_number]}
@@ -184,9 +186,16 @@ defmodule ThinkingCap.Navigation.Mapper do
       loops: if(blank and params[:loop_closure] and lasers != %{}, do: Loops.new())
     }
 
+    # odometry first, then what else it hears, then the range sensors
     subscriptions =
-      for tag <- [odometry, :pose, :save_map | Map.keys(sensors)],
-          do: {:subscribe, {tag, context.robot, :_}}
+      for template <-
+            [
+              Tuples.reading(odometry, context.robot),
+              Tuples.pose(context.robot),
+              Tuples.save_map(context.robot)
+            ] ++
+              for(sensor <- Map.keys(sensors), do: Tuples.reading(sensor, context.robot)),
+          do: {:subscribe, template}
 
     {subscriptions, resume(state, Map.get(context, :handoff))}
   end
@@ -207,14 +216,17 @@ defmodule ThinkingCap.Navigation.Mapper do
   defp resume(state, _handoff), do: state
 
   @impl true
-  def handle_tuple({tag, robot, %{pose: pose, stamp: t}}, %{robot: robot, odometry: tag} = state)
+  def handle_tuple(
+        Tuples.reading(tag, robot, %{pose: pose, stamp: t}),
+        %{robot: robot, odometry: tag} = state
+      )
       when is_number(t) do
     history = :queue.in({t, pose}, state.history)
     history = if :queue.len(history) > @history, do: :queue.drop(history), else: history
     {[], %{state | history: history}}
   end
 
-  def handle_tuple({:pose, robot, %{pose: {_, _, _} = pose} = p}, %{robot: robot} = state) do
+  def handle_tuple(Tuples.pose(robot, %{pose: {_, _, _} = pose} = p), %{robot: robot} = state) do
     stamp = Map.get(p, :stamp)
     # a localizer that does not follow the map's frame (beacons, an EKF on
     # a known world) holds the map to itself: no loops to close
@@ -226,11 +238,14 @@ defmodule ThinkingCap.Navigation.Mapper do
     end
   end
 
-  def handle_tuple({:save_map, robot, %{path: path}}, %{robot: robot} = state)
+  def handle_tuple(Tuples.save_map(robot, %{path: path}), %{robot: robot} = state)
       when is_binary(path),
       do: save(state, path)
 
-  def handle_tuple({tag, robot, %{ranges: ranges} = reading}, %{robot: robot} = state)
+  def handle_tuple(
+        Tuples.reading(tag, robot, %{ranges: ranges} = reading),
+        %{robot: robot} = state
+      )
       when is_map_key(state.sensors, tag) and is_list(ranges) do
     pose = pose_at(state, Map.get(reading, :stamp))
 
@@ -336,8 +351,8 @@ defmodule ThinkingCap.Navigation.Mapper do
     {more2, state} = save_due(state)
 
     {[
-       out: {{:map, state.robot, map}, [key: {:map, state.robot}]},
-       out: {{:map_correction, state.robot, correction}, [key: {:map_correction, state.robot}]}
+       out: Tuples.keyed(Tuples.map(state.robot, map)),
+       out: Tuples.keyed(Tuples.map_correction(state.robot, correction))
      ] ++ more ++ more2, state}
   end
 
@@ -384,9 +399,9 @@ defmodule ThinkingCap.Navigation.Mapper do
     if elapsed?(state.published, state.stamp, state.params[:publish_every]) do
       version = state.version + 1
       map = SensedGrid.occupancy(state.grid, version: version, stamp: state.stamp)
-      tuple = {:map, state.robot, map}
+      tuple = Tuples.map(state.robot, map)
 
-      {[out: {tuple, [key: {:map, state.robot}]}],
+      {[out: Tuples.keyed(tuple)],
        %{state | version: version, published: state.stamp, changed: false, last_map: map}}
     else
       {[], state}
@@ -402,10 +417,9 @@ defmodule ThinkingCap.Navigation.Mapper do
       segments = Segments.from_occupancy(state.last_map)
 
       {[
-         out: {{:topology, state.robot, topology}, [key: {:topology, state.robot}]},
+         out: Tuples.keyed(Tuples.topology(state.robot, topology)),
          out:
-           {{:segments, state.robot, %{segments: segments, stamp: state.stamp}},
-            [key: {:segments, state.robot}]}
+           Tuples.keyed(Tuples.segments(state.robot, %{segments: segments, stamp: state.stamp}))
        ], %{state | topology: topology, topology_at: state.stamp}}
     else
       {[], state}
@@ -432,8 +446,8 @@ defmodule ThinkingCap.Navigation.Mapper do
       {:error, reason} -> Logger.warning("#{inspect(state.robot)}: map not saved: #{reason}")
     end
 
-    tuple = {:map_saved, state.robot, %{path: path, result: result}}
-    {[out: {tuple, [key: {:map_saved, state.robot}]}], state}
+    tuple = Tuples.map_saved(state.robot, %{path: path, result: result})
+    {[out: Tuples.keyed(tuple)], state}
   end
 
   defp elapsed?(nil, _now, _period), do: true

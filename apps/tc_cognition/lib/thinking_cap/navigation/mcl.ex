@@ -137,6 +137,8 @@ defmodule ThinkingCap.Navigation.MCL do
   alias ThinkingCap.Navigation.{EKF, Maps, OccupancyGrid, OdometryCalibration, ParticleFilter}
   alias ThinkingCap.Navigation.Core.ModuleContext
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pair {:tuple, [:non_neg_number, :non_neg_number]}
@@ -267,9 +269,16 @@ defmodule ThinkingCap.Navigation.MCL do
       since: {0.0, 0.0}
     }
 
+    # odometry first, then what else it hears, then the range sensors
     subscriptions =
-      for tag <- [odometry, :map, :map_correction | Map.keys(lasers)],
-          do: {:subscribe, {tag, context.robot, :_}}
+      for template <-
+            [
+              Tuples.reading(odometry, context.robot),
+              Tuples.map(context.robot),
+              Tuples.map_correction(context.robot)
+            ] ++
+              for(sensor <- Map.keys(lasers), do: Tuples.reading(sensor, context.robot)),
+          do: {:subscribe, template}
 
     {subscriptions, resume(state, Map.get(context, :handoff))}
   end
@@ -320,7 +329,7 @@ defmodule ThinkingCap.Navigation.MCL do
 
   @impl true
   def handle_tuple(
-        {tag, robot, %{pose: {_, _, _} = odom} = p},
+        Tuples.reading(tag, robot, %{pose: {_, _, _} = odom} = p),
         %{odometry: tag, robot: robot} = s
       ) do
     stamp = Map.get(p, :stamp)
@@ -356,14 +365,21 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # the map builder's map, when there is no WDF map to hold to: a map being
   # built knows little at first, and what it does not know says nothing
-  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot, slam: true} = state),
-    do: {[], %{state | pending_map: map}}
+  def handle_tuple(
+        Tuples.map(robot, %OccupancyGrid{} = map),
+        %{robot: robot, slam: true} = state
+      ),
+      do: {[], %{state | pending_map: map}}
 
   # the map builder closed a loop: its map's frame moved under the robot;
   # the particles move with it, onto the map drawn in the new frame
   def handle_tuple(
-        {:map_correction, robot,
-         %{from: from, to: to, frame: frame, map: %OccupancyGrid{} = map}},
+        Tuples.map_correction(robot, %{
+          from: from,
+          to: to,
+          frame: frame,
+          map: %OccupancyGrid{} = map
+        }),
         %{robot: robot, slam: true} = state
       )
       when frame > state.frame do
@@ -384,7 +400,7 @@ defmodule ThinkingCap.Navigation.MCL do
      }}
   end
 
-  def handle_tuple({tag, robot, %{ranges: ranges} = scan}, %{robot: robot} = state)
+  def handle_tuple(Tuples.reading(tag, robot, %{ranges: ranges} = scan), %{robot: robot} = state)
       when is_map_key(state.lasers, tag) and is_list(ranges) do
     if ahead?(Map.get(scan, :stamp), state.odometry_at) do
       # taken after the odometry so far: weighed once the odometry of its
@@ -824,7 +840,7 @@ defmodule ThinkingCap.Navigation.MCL do
       frame: state.frame
     }
 
-    out = [out: {{:pose, state.robot, payload}, [key: {:pose, state.robot}]}]
+    out = [out: Tuples.keyed(Tuples.pose(state.robot, payload))]
     {more, state} = particles(state, stamp)
     last = if is_number(stamp), do: stamp, else: state.published
     {out ++ more, %{state | published: last}}
@@ -833,8 +849,8 @@ defmodule ThinkingCap.Navigation.MCL do
   defp particles(state, stamp) do
     if is_number(stamp) and (state.particles_at == nil or stamp - state.particles_at >= 0.5) do
       poses = ParticleFilter.sample(state.filter, 200)
-      tuple = {:particles, state.robot, %{poses: poses, stamp: stamp}}
-      {[out: {tuple, [key: {:particles, state.robot}]}], %{state | particles_at: stamp}}
+      tuple = Tuples.particles(state.robot, %{poses: poses, stamp: stamp})
+      {[out: Tuples.keyed(tuple)], %{state | particles_at: stamp}}
     else
       {[], state}
     end

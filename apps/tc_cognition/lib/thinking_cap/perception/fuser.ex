@@ -20,6 +20,8 @@ defmodule ThinkingCap.Perception.Fuser do
 
   alias ThinkingCap.Perception.Fusion
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @impl true
   def init(params, context) do
@@ -38,8 +40,12 @@ defmodule ThinkingCap.Perception.Fuser do
           [walls: walls, doors: doors, robot: context.robot]
       )
 
+    # odometry first, then what else it hears, then the range sensors
     subscriptions =
-      for tag <- [odometry, :pose | Map.keys(sensors)], do: {:subscribe, {tag, context.robot, :_}}
+      for template <-
+            [Tuples.reading(odometry, context.robot), Tuples.pose(context.robot)] ++
+              for(sensor <- Map.keys(sensors), do: Tuples.reading(sensor, context.robot)),
+          do: {:subscribe, template}
 
     {subscriptions,
      %{
@@ -52,19 +58,23 @@ defmodule ThinkingCap.Perception.Fuser do
   end
 
   @impl true
-  def handle_tuple({tag, robot, %{pose: pose} = p}, %{robot: robot, odometry: tag} = state),
-    do: {[], %{state | fusion: Fusion.put_odometry(state.fusion, pose, Map.get(p, :stamp, 0.0))}}
+  def handle_tuple(
+        Tuples.reading(tag, robot, %{pose: pose} = p),
+        %{robot: robot, odometry: tag} = state
+      ),
+      do:
+        {[], %{state | fusion: Fusion.put_odometry(state.fusion, pose, Map.get(p, :stamp, 0.0))}}
 
-  def handle_tuple({:pose, robot, %{pose: pose}}, %{robot: robot} = state),
+  def handle_tuple(Tuples.pose(robot, %{pose: pose}), %{robot: robot} = state),
     do: {[], %{state | fusion: Fusion.put_world_pose(state.fusion, pose)}}
 
-  def handle_tuple({sensor, robot, %{ranges: _} = payload}, %{robot: robot} = state) do
+  def handle_tuple(Tuples.reading(sensor, robot, %{ranges: _} = payload), %{robot: robot} = state) do
     fusion = Fusion.add_reading(state.fusion, sensor, payload)
     state = %{state | fusion: fusion}
 
     if state.published == nil or fusion.time - state.published >= state.period - 1.0e-9 do
       lps = Fusion.lps(fusion)
-      {[out: {{:lps, robot, lps}, [key: {:lps, robot}]}], %{state | published: fusion.time}}
+      {[out: Tuples.keyed(Tuples.lps(robot, lps))], %{state | published: fusion.time}}
     else
       {[], state}
     end

@@ -95,6 +95,8 @@ defmodule ThinkingCap.Planner.Monitor do
   alias ThinkingCap.Navigation.Core.{GridNif, ModuleContext}
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
   import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3]
 
   @defaults [
@@ -163,11 +165,11 @@ defmodule ThinkingCap.Planner.Monitor do
       |> resume(Map.get(context, :handoff))
 
     {[
-       subscribe: {:pose, context.robot, :_},
-       subscribe: {:lps, context.robot, :_},
-       subscribe: {:task, context.robot, :_},
-       subscribe: {:map, context.robot, :_},
-       subscribe: {:topology, context.robot, :_}
+       subscribe: Tuples.pose(context.robot),
+       subscribe: Tuples.lps(context.robot),
+       subscribe: Tuples.task(context.robot),
+       subscribe: Tuples.map(context.robot),
+       subscribe: Tuples.topology(context.robot)
      ], state}
   end
 
@@ -190,20 +192,20 @@ defmodule ThinkingCap.Planner.Monitor do
   defp resume(state, _handoff), do: state
 
   @impl true
-  def handle_tuple({:pose, robot, %{pose: {x, y, th} = pose}}, %{robot: robot} = state)
+  def handle_tuple(Tuples.pose(robot, %{pose: {x, y, th} = pose}), %{robot: robot} = state)
       when is_number(x) and is_number(y) and is_number(th),
       do: {[], %{state | pose: pose}}
 
-  def handle_tuple({:lps, robot, %LPS{} = lps}, %{robot: robot} = state),
+  def handle_tuple(Tuples.lps(robot, %LPS{} = lps), %{robot: robot} = state),
     do: {[], %{state | lps: lps}}
 
-  def handle_tuple({:task, robot, %{task: task}}, %{robot: robot} = state),
+  def handle_tuple(Tuples.task(robot, %{task: task}), %{robot: robot} = state),
     do: {[], set_task(state, task)}
 
-  def handle_tuple({:map, robot, %OccupancyGrid{} = map}, %{robot: robot} = state),
+  def handle_tuple(Tuples.map(robot, %OccupancyGrid{} = map), %{robot: robot} = state),
     do: {[], %{state | incoming: map}}
 
-  def handle_tuple({:topology, robot, %Topology{} = topology}, %{robot: robot} = state),
+  def handle_tuple(Tuples.topology(robot, %Topology{} = topology), %{robot: robot} = state),
     do: {[], %{state | learned: topology}}
 
   def handle_tuple(_tuple, state), do: {[], state}
@@ -446,7 +448,7 @@ defmodule ThinkingCap.Planner.Monitor do
       door = shut_door(state) ->
         Logger.info("#{inspect(state.robot)}: door #{door.name} is shut; replanning")
         state = %{state | closed: MapSet.put(state.closed, door.name)} |> wdf_map()
-        seen = {{:door, door.name, %{open: false, stamp: state.time}}, [key: {:door, door.name}]}
+        seen = Tuples.keyed(Tuples.door(door.name, %{open: false, stamp: state.time}))
         {[out: seen], plan(state)}
 
       stuck?(state, to_go) ->
@@ -494,7 +496,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
     case state.params[:save_to] do
       nil -> []
-      path -> [out: {:save_map, state.robot, %{path: Path.expand(path)}}]
+      path -> [out: Tuples.save_map(state.robot, %{path: Path.expand(path)})]
     end
   end
 
@@ -881,7 +883,7 @@ defmodule ThinkingCap.Planner.Monitor do
       planned_at: state.planned_at
     }
 
-    {:out, {{:plan, state.robot, plan}, [key: {:plan, state.robot}]}}
+    {:out, Tuples.keyed(Tuples.plan(state.robot, plan))}
   end
 
   defp goal_point(%{target: nil}), do: nil

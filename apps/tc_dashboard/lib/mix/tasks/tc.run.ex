@@ -23,6 +23,8 @@ defmodule Mix.Tasks.Tc.Run do
   use Mix.Task
 
   alias ThinkingCap.{Blackboard, Runtime}
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @impl true
   def run(args) do
@@ -105,15 +107,15 @@ defmodule Mix.Tasks.Tc.Run do
   end
 
   defp status_line(robot) do
-    truth = latest({:sim_pose, robot, :_})
-    odom = latest({:odom, robot, :_})
-    laser = latest({:laser, robot, :_})
-    bumper = latest({:bumper, robot, :_})
+    truth = latest(Tuples.sim_pose(robot))
+    odom = latest(Tuples.reading(:odom, robot))
+    laser = latest(Tuples.reading(:laser, robot))
+    bumper = latest(Tuples.reading(:bumper, robot))
     timing = Runtime.timing() |> Map.get(:base)
 
-    estimate = latest({:pose, robot, :_})
-    plan = latest({:plan, robot, :_})
-    activation = latest({:activation, robot, :_})
+    estimate = latest(Tuples.pose(robot))
+    plan = latest(Tuples.plan(robot))
+    activation = latest(Tuples.activation(robot))
 
     [
       "t=#{fmt(truth[:stamp])} s",
@@ -131,7 +133,7 @@ defmodule Mix.Tasks.Tc.Run do
 
   defp latest(template) do
     case Blackboard.rdp(template) do
-      {:ok, {_, _, payload}} -> payload
+      {:ok, Tuples.reading(_, _, payload)} -> payload
       :none -> %{}
     end
   end

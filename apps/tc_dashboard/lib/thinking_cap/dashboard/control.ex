@@ -19,13 +19,15 @@ defmodule ThinkingCap.Dashboard.Control do
 
   alias ThinkingCap.Dashboard.Core.RestartLimit
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @type robot :: atom()
 
   @doc "The robots that published their capabilities."
   @spec robots() :: [robot()]
   def robots do
-    for {:robot, id, _caps} <- Blackboard.rd_all({:robot, :_, :_}), do: id
+    for Tuples.robot(id, _caps) <- Blackboard.rd_all(Tuples.robot()), do: id
   end
 
   @doc "Looks up a robot by its name (a string from a client), among the known robots."
@@ -57,10 +59,12 @@ defmodule ThinkingCap.Dashboard.Control do
       v = clamp(v * 1.0, limits[:max_speed])
       w = clamp(w * 1.0, limits[:max_turn_rate])
 
-      Blackboard.out(
-        {:teleop, robot,
-         %{command: {:velocity, v, w}, by: opts[:by], sent_at: number(opts[:sent_at])}},
-        key: {:teleop, robot}
+      out(
+        Tuples.teleop(robot, %{
+          command: {:velocity, v, w},
+          by: opts[:by],
+          sent_at: number(opts[:sent_at])
+        })
       )
 
       {:ok, {v, w}}
@@ -73,35 +77,29 @@ defmodule ThinkingCap.Dashboard.Control do
   @doc "Ends teleoperation of `robot` now."
   @spec teleop_release(robot(), term()) :: :ok
   def teleop_release(robot, by \\ nil) do
-    Blackboard.out({:teleop, robot, %{command: :release, by: by}}, key: {:teleop, robot})
+    out(Tuples.teleop(robot, %{command: :release, by: by}))
   end
 
   @doc "Latches `robot`'s E-stop: it stops and stays stopped until released."
   @spec estop(robot(), term()) :: :ok
   def estop(robot, by \\ nil) do
-    Blackboard.out(
-      {:estop, robot, %{engaged: true, by: by, at: System.os_time(:millisecond)}},
-      key: {:estop, robot}
-    )
+    out(Tuples.estop_engaged(robot, by))
   end
 
   @doc "Releases `robot`'s E-stop."
   @spec estop_release(robot(), term()) :: :ok
   def estop_release(robot, by \\ nil) do
-    Blackboard.out(
-      {:estop, robot, %{engaged: false, by: by, at: System.os_time(:millisecond)}},
-      key: {:estop, robot}
-    )
+    out(Tuples.estop_released(robot, by))
   end
 
   @doc "Sends `robot` to a point `{x, y}` or a named waypoint (a go-to task for its planner)."
   @spec goal(robot(), {number(), number()} | atom()) :: :ok
   def goal(robot, {x, y} = target) when is_number(x) and is_number(y) do
-    Blackboard.out({:task, robot, %{task: {:go_to, target}}}, key: {:task, robot})
+    out(Tuples.task(robot, %{task: {:go_to, target}}))
   end
 
   def goal(robot, waypoint) when is_atom(waypoint) do
-    Blackboard.out({:task, robot, %{task: {:go_to, waypoint}}}, key: {:task, robot})
+    out(Tuples.task(robot, %{task: {:go_to, waypoint}}))
   end
 
   @doc """
@@ -210,9 +208,15 @@ defmodule ThinkingCap.Dashboard.Control do
 
   defp from_json(_field, value), do: {:ok, value}
 
+  # the latest per robot (Tuples.key/1)
+  defp out(tuple) do
+    {tuple, opts} = Tuples.keyed(tuple)
+    Blackboard.out(tuple, opts)
+  end
+
   defp limits(robot) do
-    case Blackboard.rdp({:robot, robot, :_}) do
-      {:ok, {:robot, ^robot, caps}} -> {:ok, Map.get(caps, :limits, %{})}
+    case Blackboard.rdp(Tuples.robot(robot)) do
+      {:ok, Tuples.robot(^robot, caps)} -> {:ok, Map.get(caps, :limits, %{})}
       :none -> {:error, "no robot #{inspect(robot)}"}
     end
   end

@@ -7,17 +7,19 @@ defmodule ThinkingCap.Dashboard.Launcher do
   require Logger
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
 
   def start_link(_), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
 
   @impl true
   def init(nil) do
-    {:ok, _ref} = Blackboard.subscribe({:adf, :_, :_})
+    {:ok, _ref} = Blackboard.subscribe(Tuples.adf())
     {:ok, nil}
   end
 
   @impl true
-  def handle_info({:blackboard, _ref, {:adf, robot, %{node: node} = adf}}, state)
+  def handle_info({:blackboard, _ref, Tuples.adf(robot, %{node: node} = adf)}, state)
       when node == node() do
     dashboard = Map.new(adf[:dashboard] || %{})
 

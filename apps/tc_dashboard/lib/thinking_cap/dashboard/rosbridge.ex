@@ -104,6 +104,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Dashboard.Rosbridge.Topics
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @doc """
   The topics served right now, `{name, type}` sorted by name (what
@@ -112,8 +114,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge do
   @spec topics(boolean()) :: [{String.t(), String.t()}]
   def topics(world? \\ true) do
     robots =
-      for {:robot, id, caps} when is_atom(id) and is_map(caps) <-
-            Blackboard.rd_all({:robot, :_, :_}),
+      for Tuples.robot(id, caps) when is_atom(id) and is_map(caps) <-
+            Blackboard.rd_all(Tuples.robot()),
           into: %{},
           do: {Atom.to_string(id), %{id: id, caps: caps}}
 

@@ -21,6 +21,8 @@ defmodule ThinkingCap.Dashboard.Session do
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Dashboard.{Control, Telemetry}
   alias ThinkingCap.Dashboard.Core.JSON
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @tail_rate 20
   @max_tails 8
@@ -316,7 +318,7 @@ defmodule ThinkingCap.Dashboard.Session do
   # places of the maps the robots learned
   defp known_places do
     learned =
-      for {:topology, _robot, %{places: places}} <- Blackboard.rd_all({:topology, :_, :_}),
+      for Tuples.topology(_robot, %{places: places}) <- Blackboard.rd_all(Tuples.topology()),
           {name, _} <- places,
           do: to_string(name)
 

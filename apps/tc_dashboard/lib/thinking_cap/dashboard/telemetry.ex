@@ -23,9 +23,31 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Dashboard.Core.JSON
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @table __MODULE__
-  @streams ~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology)a
+  # the vocabulary's streams, and the sensors' conventional names
+  @streams [
+    Tuples.tag(:sim_pose),
+    Tuples.tag(:pose),
+    :odom,
+    :laser,
+    :sonar,
+    Tuples.tag(:lps),
+    Tuples.tag(:plan),
+    Tuples.tag(:activation),
+    Tuples.tag(:control),
+    Tuples.tag(:robot),
+    :bumper,
+    :beacons,
+    Tuples.tag(:estop),
+    Tuples.tag(:timing),
+    Tuples.tag(:door),
+    Tuples.tag(:map),
+    Tuples.tag(:particles),
+    Tuples.tag(:topology)
+  ]
   @map_cells 250_000
   @modules_every 1_000
 
@@ -130,7 +152,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   def handle_info(:modules, %{task: nil} = state) do
     task =
       Task.async(fn ->
-        {ThinkingCap.Runtime.which_modules(), Blackboard.rd_all({:module_gave_up, :_, :_})}
+        {ThinkingCap.Runtime.which_modules(), Blackboard.rd_all(Tuples.module_gave_up())}
       end)
 
     {:noreply, %{state | task: task}}
@@ -197,7 +219,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
     running = MapSet.new(modules, &module_key/1)
 
     rows =
-      for {:module_gave_up, robot, %{module: name} = g} <- gave_up,
+      for Tuples.module_gave_up(robot, %{module: name} = g) <- gave_up,
           {status, stopped} <- [
             {:gave_up, name} | for(s <- g.stopped, s != name, do: {:stopped, s})
           ],

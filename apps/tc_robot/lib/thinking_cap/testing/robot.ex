@@ -26,6 +26,8 @@ defmodule ThinkingCap.Testing.Robot do
   use ThinkingCap.Robot
 
   alias ThinkingCap.Runtime
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @doc "Hands the test robot hosted as module `name` (or at `pid`) some readings."
   @spec feed(atom() | pid(), [ThinkingCap.Robot.reading()]) :: :ok
@@ -62,8 +64,8 @@ defmodule ThinkingCap.Testing.Robot do
       {:error, :refused, state}
     else
       count = state.count + 1
-      driven = {:driven, state.robot, %{command: command, count: count}}
-      :ok = ThinkingCap.Blackboard.out(driven, key: {:driven, state.robot})
+      {driven, opts} = Tuples.keyed(Tuples.driven(state.robot, %{command: command, count: count}))
+      :ok = ThinkingCap.Blackboard.out(driven, opts)
       {:ok, %{state | count: count}}
     end
   end

@@ -68,6 +68,8 @@ defmodule ThinkingCap.Runtime.Deployment do
 
   alias ThinkingCap.{Blackboard, Config, Runtime}
   alias ThinkingCap.Config.ADF
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @typedoc "What `status/0` reports."
   @type status :: %{
@@ -443,11 +445,15 @@ defmodule ThinkingCap.Runtime.Deployment do
         )
       end
 
-      Blackboard.out(
-        {:cluster, state.adf.robot,
-         Map.take(status, [:node, :logical, :up, :missing, :unplaced])},
-        key: {:cluster, state.adf.robot, node()}
-      )
+      cluster =
+        Tuples.cluster(
+          state.adf.robot,
+          Map.take(status, [:node, :logical, :up, :missing, :unplaced])
+        )
+
+      # key {:cluster, robot, node}: status.node is this node
+      {cluster, opts} = Tuples.keyed(cluster)
+      Blackboard.out(cluster, opts)
     end
 
     %{state | reported: seen}

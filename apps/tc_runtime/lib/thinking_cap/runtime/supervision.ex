@@ -71,6 +71,8 @@ defmodule ThinkingCap.Runtime.Supervision do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Runtime.Supervision.{Robot, Warden}
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @registry ThinkingCap.Runtime.Registry
 
@@ -225,10 +227,10 @@ defmodule ThinkingCap.Runtime.Supervision do
 
         Warden.resumed(robot)
 
-        for {:module_gave_up, ^robot, %{node: node} = gave_up} <-
-              Blackboard.rd_all({:module_gave_up, robot, :_}),
+        for Tuples.module_gave_up(^robot, %{node: node} = gave_up) <-
+              Blackboard.rd_all(Tuples.module_gave_up(robot)),
             node == node(),
-            {:ok, _} <- [Blackboard.takep({:module_gave_up, robot, gave_up})],
+            {:ok, _} <- [Blackboard.takep(Tuples.module_gave_up(robot, gave_up))],
             name <- Enum.uniq([gave_up.module | gave_up.stopped]),
             name != nil,
             do: name

@@ -17,6 +17,8 @@ defmodule ThinkingCap.Sim.LockstepController do
   @behaviour ThinkingCap.Sim.Controller
 
   alias ThinkingCap.Testing.Lockstep
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @impl true
   def init(args, %{robot: robot}) do
@@ -39,13 +41,13 @@ defmodule ThinkingCap.Sim.LockstepController do
       readings
       |> Enum.sort_by(fn {_sensor, payload} -> not is_map_key(payload, :pose) end)
       |> Enum.reduce(Lockstep.clear_outs(state.lock), fn {sensor, payload}, lock ->
-        Lockstep.deliver(lock, {sensor, robot, payload})
+        Lockstep.deliver(lock, Tuples.reading(sensor, robot, payload))
       end)
       |> Lockstep.advance(time)
 
     command =
-      case Lockstep.latest(lock, {:drive, robot, :_}) do
-        {:drive, ^robot, %{command: command}} -> command
+      case Lockstep.latest(lock, Tuples.drive(robot)) do
+        Tuples.drive(^robot, %{command: command}) -> command
         nil -> :stop
       end
 

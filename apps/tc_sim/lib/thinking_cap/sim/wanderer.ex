@@ -15,6 +15,8 @@ defmodule ThinkingCap.Sim.Wanderer do
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.Wander
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @impl true
   def init(params, context) do
@@ -34,10 +36,10 @@ defmodule ThinkingCap.Sim.Wanderer do
   end
 
   @impl true
-  def handle_tuple({sensor, robot, payload}, %{robot: robot} = state) when is_map(payload) do
+  def handle_tuple(Tuples.reading(sensor, robot, payload), %{robot: robot} = state)
+      when is_map(payload) do
     {command, wander} = Wander.control(%{sensor => payload}, state.wander)
-    drive = {:drive, robot, %{command: command}}
-    {[out: {drive, [key: {:drive, robot}]}], %{state | wander: wander}}
+    {[out: Tuples.keyed(Tuples.drive(robot, %{command: command}))], %{state | wander: wander}}
   end
 
   def handle_tuple(_tuple, state), do: {[], state}

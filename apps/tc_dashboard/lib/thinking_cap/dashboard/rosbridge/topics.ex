@@ -9,6 +9,9 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
   # `robots` everywhere is what the session knows of the robots that
   # published their capabilities: `%{"r1" => %{id: :r1, caps: map}}`.
 
+  alias ThinkingCap.Tuples
+  require Tuples
+
   @robot_kinds %{
     "scan" => {:scan, "sensor_msgs/msg/LaserScan"},
     "odom" => {:odom, "nav_msgs/msg/Odometry"},
@@ -163,28 +166,28 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Topics do
   @spec tags(topic(), robots()) :: [atom()]
   def tags(%{kind: :scan, robot: r}, robots), do: [sensor_tag(robots, r, :laser, :laser)]
   def tags(%{kind: :odom, robot: r}, robots), do: [sensor_tag(robots, r, :odometry, :odom)]
-  def tags(%{kind: :pose}, _robots), do: [:pose]
-  def tags(%{kind: :cmd_vel}, _robots), do: [:control]
+  def tags(%{kind: :pose}, _robots), do: [Tuples.tag(:pose)]
+  def tags(%{kind: :cmd_vel}, _robots), do: [Tuples.tag(:control)]
 
   def tags(%{kind: :tf, robot: nil}, robots) do
     odoms = for r <- Map.keys(robots), do: sensor_tag(robots, r, :odometry, :odom)
-    Enum.uniq([:odom, :pose | odoms])
+    Enum.uniq([:odom, Tuples.tag(:pose) | odoms])
   end
 
   def tags(%{kind: :tf, robot: r}, robots),
-    do: Enum.uniq([sensor_tag(robots, r, :odometry, :odom), :pose])
+    do: Enum.uniq([sensor_tag(robots, r, :odometry, :odom), Tuples.tag(:pose)])
 
-  def tags(%{kind: :tf_static}, _robots), do: [:robot]
-  def tags(%{kind: :map}, _robots), do: [:map]
+  def tags(%{kind: :tf_static}, _robots), do: [Tuples.tag(:robot)]
+  def tags(%{kind: :map}, _robots), do: [Tuples.tag(:map)]
 
   @doc "Whether a blackboard tuple `{tag, robot, _}` feeds a topic."
   @spec feeds?(topic(), atom(), String.t(), robots()) :: boolean()
   def feeds?(%{robot: r} = _topic, _tag, robot, _robots) when r != nil and r != robot, do: false
-  def feeds?(%{kind: :map}, tag, _robot, _robots), do: tag == :map
-  def feeds?(%{kind: :tf_static}, tag, _robot, _robots), do: tag == :robot
+  def feeds?(%{kind: :map}, tag, _robot, _robots), do: tag == Tuples.tag(:map)
+  def feeds?(%{kind: :tf_static}, tag, _robot, _robots), do: tag == Tuples.tag(:robot)
 
   def feeds?(%{kind: :tf}, tag, robot, robots),
-    do: tag == :pose or tag == sensor_tag(robots, robot, :odometry, :odom)
+    do: tag == Tuples.tag(:pose) or tag == sensor_tag(robots, robot, :odometry, :odom)
 
   def feeds?(topic, tag, _robot, robots), do: tag in tags(topic, robots)
 end

@@ -7,6 +7,8 @@ defmodule ThinkingCap.Robot.Core.Base do
 
   alias ThinkingCap.Robot
   alias ThinkingCap.Robot.Description
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @default_timeout 0.5
   @default_teleop_timeout 0.3
@@ -45,17 +47,15 @@ defmodule ThinkingCap.Robot.Core.Base do
           wire: wire != nil
         }
 
-        capabilities =
-          {{:robot, context.robot, Robot.capabilities(description)},
-           [key: {:robot, context.robot}]}
+        capabilities = Tuples.keyed(Tuples.robot(context.robot, Robot.capabilities(description)))
 
         attach = if wire, do: [{:attach_wire, elem(wire, 0), elem(wire, 1)}], else: []
 
         {[
            out: capabilities,
-           subscribe: {:drive, context.robot, :_},
-           subscribe: {:teleop, context.robot, :_},
-           subscribe: {:estop, context.robot, :_}
+           subscribe: Tuples.drive(context.robot),
+           subscribe: Tuples.teleop(context.robot),
+           subscribe: Tuples.estop(context.robot)
          ] ++ attach, state}
 
       {:error, reason} ->
@@ -120,7 +120,7 @@ defmodule ThinkingCap.Robot.Core.Base do
     end
   end
 
-  def handle_tuple({:drive, robot, %{command: command}}, %{robot: robot} = state) do
+  def handle_tuple(Tuples.drive(robot, %{command: command}), %{robot: robot} = state) do
     case Robot.check_command(state.description, command) do
       :ok ->
         {[], %{state | command: command, received: System.monotonic_time()}}
@@ -131,10 +131,10 @@ defmodule ThinkingCap.Robot.Core.Base do
     end
   end
 
-  def handle_tuple({:teleop, robot, %{command: :release}}, %{robot: robot} = state),
+  def handle_tuple(Tuples.teleop(robot, %{command: :release}), %{robot: robot} = state),
     do: {[], %{state | teleop: nil}}
 
-  def handle_tuple({:teleop, robot, %{command: command} = teleop}, %{robot: robot} = state) do
+  def handle_tuple(Tuples.teleop(robot, %{command: command} = teleop), %{robot: robot} = state) do
     case Robot.check_command(state.description, command) do
       :ok ->
         teleop = %{
@@ -152,7 +152,7 @@ defmodule ThinkingCap.Robot.Core.Base do
     end
   end
 
-  def handle_tuple({:estop, robot, %{engaged: engaged}}, %{robot: robot} = state)
+  def handle_tuple(Tuples.estop(robot, %{engaged: engaged}), %{robot: robot} = state)
       when is_boolean(engaged),
       do: {[], %{state | estop: engaged}}
 
@@ -186,13 +186,16 @@ defmodule ThinkingCap.Robot.Core.Base do
         teleop_sent_at: if(mode == :teleop, do: state.teleop[:sent_at])
       }
 
-      {[out: {{:control, state.robot, control}, [key: {:control, state.robot}]}],
+      {[out: Tuples.keyed(Tuples.control(state.robot, control))],
        %{state | published: {mode, applied}}}
     end
   end
 
   defp estop_latched?(robot) do
-    match?({:ok, {:estop, _, %{engaged: true}}}, ThinkingCap.Blackboard.rdp({:estop, robot, :_}))
+    match?(
+      {:ok, Tuples.estop(_, %{engaged: true})},
+      ThinkingCap.Blackboard.rdp(Tuples.estop(robot))
+    )
   end
 
   def handle_info(message, state) do
@@ -242,7 +245,7 @@ defmodule ThinkingCap.Robot.Core.Base do
 
   defp publish(readings, robot) do
     for {sensor, payload} <- readings,
-        do: {:out, {{sensor, robot, payload}, [key: {sensor, robot}]}}
+        do: {:out, Tuples.keyed(Tuples.reading(sensor, robot, payload))}
   end
 
   defp load!(path) do

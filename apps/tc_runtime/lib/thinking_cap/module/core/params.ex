@@ -15,6 +15,8 @@ defmodule ThinkingCap.Module.Core.Params do
 
   alias ThinkingCap.Config.{ADF, Schema}
   alias ThinkingCap.Module.Core.Actions
+  alias ThinkingCap.Tuples
+  require Tuples
 
   @type t :: %{schema: Schema.fields() | nil, values: map(), live: boolean()}
 
@@ -161,9 +163,12 @@ defmodule ThinkingCap.Module.Core.Params do
   # robot, module and key.
   @spec record(atom(), atom(), atom(), term(), term()) :: {tuple(), keyword()}
   def record(robot, name, key, value, by) do
-    {{:param, robot,
-      %{module: name, key: key, value: value, by: by, at: System.os_time(:millisecond)}},
-     [key: {:param, robot, name, key}]}
+    Tuples.keyed(
+      Tuples.param(
+        robot,
+        %{module: name, key: key, value: value, by: by, at: System.os_time(:millisecond)}
+      )
+    )
   end
 
   @doc false

@@ -12,6 +12,8 @@ defmodule ThinkingCap.Runtime.Supervision.Warden do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Runtime.Supervision
+  alias ThinkingCap.Tuples
+  require Tuples
 
   def start_link(robot),
     do: GenServer.start_link(__MODULE__, robot, name: Supervision.via({:warden, robot}))
@@ -141,25 +143,26 @@ defmodule ThinkingCap.Runtime.Supervision.Warden do
         "stopped with it: #{inspect(stopped)}; E-stop latched"
     )
 
-    Blackboard.out(
-      {:estop, robot, %{engaged: true, by: "runtime: #{who} gave up", at: at}},
-      key: {:estop, robot}
-    )
+    {estop, opts} = Tuples.keyed(Tuples.estop_engaged(robot, "runtime: #{who} gave up", at))
+    Blackboard.out(estop, opts)
 
-    Blackboard.out(
-      {:module_gave_up, robot,
-       %{
-         module: name,
-         layer: layer,
-         node: node(),
-         reason: describe(reason),
-         restarts: restarts,
-         seconds: seconds,
-         stopped: stopped,
-         at: at
-       }},
-      key: {:module_gave_up, robot, name}
-    )
+    gave_up =
+      Tuples.module_gave_up(
+        robot,
+        %{
+          module: name,
+          layer: layer,
+          node: node(),
+          reason: describe(reason),
+          restarts: restarts,
+          seconds: seconds,
+          stopped: stopped,
+          at: at
+        }
+      )
+
+    {gave_up, opts} = Tuples.keyed(gave_up)
+    Blackboard.out(gave_up, opts)
 
     %{
       state

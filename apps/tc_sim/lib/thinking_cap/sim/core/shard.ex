@@ -9,6 +9,8 @@ defmodule ThinkingCap.Sim.Core.Shard do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Sim.Core.Body
+  alias ThinkingCap.Tuples
+  require Tuples
 
   def start_link(opts), do: GenServer.start_link(__MODULE__, opts)
 
@@ -122,7 +124,7 @@ defmodule ThinkingCap.Sim.Core.Shard do
 
     if publish do
       for {sensor, payload} <- readings,
-          do: Blackboard.out({sensor, body.id, payload}, key: {sensor, body.id})
+          do: Blackboard.out(Tuples.reading(sensor, body.id, payload), key: {sensor, body.id})
     end
 
     :ok
