@@ -71,7 +71,10 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
   test "paths' lengths: nil off the map or in a wall; all nil from off the map or without one" do
     map = map()
     planner = PathPlanner.new(radius: 0.25) |> PathPlanner.set_map(map)
-    [off, wall, here] = PathPlanner.distances(planner, {1.0, 1.0}, [{20.0, 1.0}, {5.0, 3.05}, {1.0, 1.0}])
+
+    [off, wall, here] =
+      PathPlanner.distances(planner, {1.0, 1.0}, [{20.0, 1.0}, {5.0, 3.05}, {1.0, 1.0}])
+
     assert off == nil
     # in the wall, with no free cell within the radius
     assert wall == nil
