@@ -95,7 +95,7 @@ defmodule ThinkingCap.Planner.Monitor do
   alias ThinkingCap.Navigation.Core.{GridNif, ModuleContext}
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.Description
-  import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3]
+  import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3, to_frame: 2]
 
   @defaults [
     tolerance: 0.35,
@@ -831,17 +831,11 @@ defmodule ThinkingCap.Planner.Monitor do
   defp across(state, door) do
     {a, b} = door.jambs
     {p, q} = {lerp(a, b, 0.2), lerp(a, b, 0.8)}
-    {ra, rb} = {to_robot(state.pose, p), to_robot(state.pose, q)}
+    {ra, rb} = {to_frame(state.pose, p), to_frame(state.pose, q)}
 
     Enum.count(state.lps.evidence, fn {px, py, o, e} ->
       min(o, 1 - e) >= 0.5 and segment_distance({px, py}, ra, rb) < 0.1
     end)
-  end
-
-  defp to_robot({x, y, th}, {px, py}) do
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {dx, dy} = {px - x, py - y}
-    {c * dx + s * dy, -s * dx + c * dy}
   end
 
   ## Publishing
