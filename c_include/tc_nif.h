@@ -1,4 +1,4 @@
-/* tc_nif: small helpers shared by the navigation NIF's files. */
+/* tc_nif: small helpers shared by the NIFs (navigation, ray casting). */
 #ifndef TC_NIF_H
 #define TC_NIF_H
 
