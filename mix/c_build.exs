@@ -5,16 +5,20 @@ defmodule ThinkingCap.Build.C do
   # app's mix.exs requires this file and defines its compiler with it, so
   # the compiler exists before the app it builds for is compiled.
 
+  # the headers every app's C code may include (tc_nif.h, tc_port.h)
+  @shared Path.expand("../c_include", __DIR__)
+
   @doc """
   Builds `target` from the app's `sources` (paths relative to `app_dir`)
-  when a source or a header in `c_src/` is newer. Options: `cflags`,
+  when a source or a header in `c_src/` or the shared `c_include/` is
+  newer. Options: `cflags`,
   `ldflags` (after the sources), `nif: true` (a shared object with the
   ERTS headers, and priv/ linked into the build).
   """
   def compile(name, app_dir, sources, target, opts \\ []) do
     sources = Enum.map(sources, &Path.join(app_dir, &1))
     target = Path.join(app_dir, target)
-    headers = Path.wildcard(Path.join(app_dir, "c_src/*.h"))
+    headers = Path.wildcard(Path.join(app_dir, "c_src/*.h")) ++ Path.wildcard("#{@shared}/*.h")
 
     result =
       if Mix.Utils.stale?(sources ++ headers, [target]),
@@ -32,6 +36,7 @@ defmodule ThinkingCap.Build.C do
 
     args =
       ~w(-O2 -Wall -Wextra -Werror) ++
+        ["-I#{@shared}"] ++
         nif ++
         Keyword.get(opts, :cflags, []) ++
         ["-o", target] ++ sources ++ Keyword.get(opts, :ldflags, [])

@@ -475,9 +475,7 @@ static ERL_NIF_TERM nif_fmap_import(ErlNifEnv *env, int argc, const ERL_NIF_TERM
 
 static int get_grid(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifBinary *b, int *w, int *h)
 {
-    return enif_inspect_binary(env, argv[0], b) && enif_get_int(env, argv[1], w) &&
-           enif_get_int(env, argv[2], h) && *w > 0 && *h > 0 && (long)*w * *h <= MAX_CELLS &&
-           b->size == (size_t)*w * *h;
+    return tc_grid_args(env, argv, MAX_CELLS, b, w, h);
 }
 
 /* edt(cells, w, h) -> native float32 distances in cells (centre to

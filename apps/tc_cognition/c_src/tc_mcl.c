@@ -128,10 +128,8 @@ ERL_NIF_TERM tc_nif_field_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     ErlNifBinary b;
     int w, h, threshold, strict;
     double res, ox, oy;
-    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
-        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
-        b.size != (size_t)w * h || !tc_number(env, argv[3], &res) || res <= 0 ||
-        !tc_number(env, argv[4], &ox) || !tc_number(env, argv[5], &oy) ||
+    if (!tc_grid_args(env, argv, 1L << 27, &b, &w, &h) || !tc_number(env, argv[3], &res) ||
+        res <= 0 || !tc_number(env, argv[4], &ox) || !tc_number(env, argv[5], &oy) ||
         !enif_get_int(env, argv[6], &threshold) || !enif_get_int(env, argv[7], &strict))
         return enif_make_badarg(env);
     size_t n = (size_t)w * h;

@@ -16,6 +16,7 @@
  * one recorded for its vertex and its second is min(g, rhs).
  */
 #include "tc_plan.h"
+#include "tc_nif.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -140,6 +141,15 @@ static int get_cell(ErlNifEnv *env, ERL_NIF_TERM t, int w, int h, int32_t *out)
     return 1;
 }
 
+/* a planning problem's arguments: the grid (cells, w, h) and the start
+ * and goal cells on it */
+static int get_problem(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifBinary *b, int *w,
+                       int *h, int32_t *s, int32_t *g)
+{
+    return tc_grid_args(env, argv, 1L << 27, b, w, h) && get_cell(env, argv[3], *w, *h, s) &&
+           get_cell(env, argv[4], *w, *h, g);
+}
+
 /* ---- A* ---- */
 
 /* Each thread (a dirty scheduler) keeps its A* scratch between calls: a
@@ -194,11 +204,7 @@ ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     ErlNifBinary b;
     int w, h;
     int32_t s, g;
-    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
-        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
-        b.size != (size_t)w * h || !get_cell(env, argv[3], w, h, &s) ||
-        !get_cell(env, argv[4], w, h, &g))
-        return enif_make_badarg(env);
+    if (!get_problem(env, argv, &b, &w, &h, &s, &g)) return enif_make_badarg(env);
     const uint8_t *cells = b.data;
     size_t n = (size_t)w * h;
     if (!scratch_for(n)) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
@@ -431,11 +437,7 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     ErlNifBinary b;
     int w, h;
     int32_t s, g;
-    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_int(env, argv[1], &w) ||
-        !enif_get_int(env, argv[2], &h) || w <= 0 || h <= 0 || (long)w * h > (1L << 27) ||
-        b.size != (size_t)w * h || !get_cell(env, argv[3], w, h, &s) ||
-        !get_cell(env, argv[4], w, h, &g))
-        return enif_make_badarg(env);
+    if (!get_problem(env, argv, &b, &w, &h, &s, &g)) return enif_make_badarg(env);
     size_t n = (size_t)w * h;
     Dsl *d = enif_alloc_resource(DSL_TYPE, sizeof(Dsl));
     memset(d, 0, sizeof(Dsl));

@@ -64,6 +64,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "tc_port.h"
+
 #define MAX_FRAME (64u * 1024u * 1024u)
 #define READ_CHUNK 16384
 #define HUP_RETRY_MS 50
@@ -140,8 +142,6 @@ static uint64_t now_ms(void) {
     return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
 }
 
-static void put32(uint8_t *p, uint32_t v) { for (int i = 0; i < 4; i++) p[i] = (uint8_t)(v >> (24 - 8 * i)); }
-static uint32_t get32(const uint8_t *p) { uint32_t v = 0; for (int i = 0; i < 4; i++) v = v << 8 | p[i]; return v; }
 
 static const char *errno_name(int e) {
     switch (e) {
@@ -172,32 +172,13 @@ static const char *errno_name(int e) {
     }
 }
 
-static int write_all(int fd, const uint8_t *buf, size_t len) {
-    while (len > 0) {
-        ssize_t n = write(fd, buf, len);
-        if (n < 0) { if (errno == EINTR) continue; return -1; }
-        buf += n; len -= (size_t)n;
-    }
-    return 0;
-}
-
-static int read_all(int fd, uint8_t *buf, size_t len) {
-    while (len > 0) {
-        ssize_t n = read(fd, buf, len);
-        if (n == 0) return -1;
-        if (n < 0) { if (errno == EINTR) continue; return -1; }
-        buf += n; len -= (size_t)n;
-    }
-    return 0;
-}
-
 /* A frame to the BEAM: type byte, then body. */
 static void send_frame(uint8_t type, const void *body, size_t len) {
     uint8_t hdr[5];
-    put32(hdr, (uint32_t)len + 1);
+    tc_put32(hdr, (uint32_t)len + 1);
     hdr[4] = type;
-    write_all(STDOUT_FILENO, hdr, 5);
-    if (len > 0) write_all(STDOUT_FILENO, body, len);
+    tc_write_all(STDOUT_FILENO, hdr, 5);
+    if (len > 0) tc_write_all(STDOUT_FILENO, body, len);
 }
 
 static void reply_ok(const void *body, size_t len) { send_frame('K', body, len); }
@@ -246,7 +227,7 @@ static uint32_t speed_baud(speed_t code) {
 }
 
 static void decode_settings(const uint8_t *p, settings *s) {
-    s->speed = get32(p);
+    s->speed = tc_get32(p);
     s->data_bits = p[4];
     s->parity = p[5];
     s->stop_bits = p[6];
@@ -399,7 +380,7 @@ static void cmd_get(void) {
     if (slave >= 0) close(slave);
     if (r < 0) { reply_error(errno_name(e), "tcgetattr %s: %s", line_path, strerror(e)); return; }
     uint8_t out[8];
-    put32(out, speed_baud(cfgetospeed(&t)));
+    tc_put32(out, speed_baud(cfgetospeed(&t)));
     switch (t.c_cflag & CSIZE) {
     case CS5: out[4] = 5; break;
     case CS6: out[4] = 6; break;
@@ -434,7 +415,7 @@ static void continue_write(void) {
 static void cmd_write(uint8_t *frame, uint32_t len) {
     if (len < 5) { reply_error("einval", "bad write frame"); free(frame); return; }
     if (tty < 0) { reply_error("ebadf", "write: no line is open"); free(frame); return; }
-    wtimeout = get32(frame + 1);
+    wtimeout = tc_get32(frame + 1);
     wdeadline = wtimeout == NO_TIMEOUT ? 0 : now_ms() + wtimeout;
     wbuf = frame;
     woff = 5;
@@ -485,14 +466,14 @@ static void handle_frame(uint8_t *p, uint32_t len) {
 /* Reads one frame from the BEAM; -1 when stdin is closed. */
 static int read_command(void) {
     uint8_t hdr[4];
-    if (read_all(STDIN_FILENO, hdr, 4) < 0) return -1;
-    uint32_t len = get32(hdr);
+    if (tc_read_all(STDIN_FILENO, hdr, 4) < 0) return -1;
+    uint32_t len = tc_get32(hdr);
     if (len > MAX_FRAME) {
         /* skip it to stay in step with the stream */
         uint8_t junk[4096];
         for (uint32_t left = len; left > 0;) {
             uint32_t n = left < sizeof junk ? left : sizeof junk;
-            if (read_all(STDIN_FILENO, junk, n) < 0) return -1;
+            if (tc_read_all(STDIN_FILENO, junk, n) < 0) return -1;
             left -= n;
         }
         reply_error("einval", "frame too long (%u bytes)", len);
@@ -500,7 +481,7 @@ static int read_command(void) {
     }
     uint8_t *p = malloc(len ? len : 1);
     if (!p) { reply_error("enomem", "out of memory for a %u byte frame", len); return -1; }
-    if (read_all(STDIN_FILENO, p, len) < 0) { free(p); return -1; }
+    if (tc_read_all(STDIN_FILENO, p, len) < 0) { free(p); return -1; }
     handle_frame(p, len);
     return 0;
 }
@@ -529,7 +510,7 @@ int main(void) {
     signal(SIGPIPE, SIG_IGN);
 
     uint8_t hello[4 * NSPEEDS];
-    for (size_t i = 0; i < NSPEEDS; i++) put32(hello + 4 * i, speeds[i].baud);
+    for (size_t i = 0; i < NSPEEDS; i++) tc_put32(hello + 4 * i, speeds[i].baud);
     send_frame('H', hello, sizeof hello);
 
     for (;;) {

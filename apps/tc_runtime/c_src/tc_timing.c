@@ -76,6 +76,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "tc_port.h"
+
 #define MAX_ACTIVITIES 64
 #define MAX_COMMAND 4096
 #define MAX_WIRE 4096
@@ -126,29 +128,18 @@ static uint64_t now_ns(void) {
 }
 
 static void put16(uint8_t *p, uint16_t v) { p[0] = v >> 8; p[1] = v; }
-static void put32(uint8_t *p, uint32_t v) { for (int i = 0; i < 4; i++) p[i] = v >> (24 - 8 * i); }
 static void put64(uint8_t *p, uint64_t v) { for (int i = 0; i < 8; i++) p[i] = v >> (56 - 8 * i); }
 static uint16_t get16(const uint8_t *p) { return (uint16_t)(p[0] << 8 | p[1]); }
-static uint32_t get32(const uint8_t *p) { uint32_t v = 0; for (int i = 0; i < 4; i++) v = v << 8 | p[i]; return v; }
 static uint64_t get64(const uint8_t *p) { uint64_t v = 0; for (int i = 0; i < 8; i++) v = v << 8 | p[i]; return v; }
-
-static int write_all(int fd, const uint8_t *buf, size_t len) {
-    while (len > 0) {
-        ssize_t n = write(fd, buf, len);
-        if (n < 0) { if (errno == EINTR) continue; return -1; }
-        buf += n; len -= (size_t)n;
-    }
-    return 0;
-}
 
 /* One frame, written whole under out_lock. */
 static void send_frame(const uint8_t *payload, uint32_t len) {
     uint8_t buf[MAX_FRAME + 4];
     if (len > MAX_FRAME) return;
-    put32(buf, len);
+    tc_put32(buf, len);
     memcpy(buf + 4, payload, len);
     pthread_mutex_lock(&out_lock);
-    write_all(STDOUT_FILENO, buf, len + 4);
+    tc_write_all(STDOUT_FILENO, buf, len + 4);
     pthread_mutex_unlock(&out_lock);
 }
 
@@ -165,7 +156,7 @@ static void send_applied(const activity *a, uint32_t cycle, uint8_t kind, int wi
     uint8_t buf[MAX_FRAME];
     buf[0] = 'P';
     put16(buf + 1, a->id);
-    put32(buf + 3, cycle);
+    tc_put32(buf + 3, cycle);
     buf[7] = kind;
     buf[8] = (uint8_t)(wired != 0);
     put64(buf + 9, response);
@@ -358,7 +349,7 @@ static void *timing_loop(void *arg) {
             uint8_t buf[32];
             buf[0] = 'L';
             put16(buf + 1, best->id);
-            put32(buf + 3, best->cycle);
+            tc_put32(buf + 3, best->cycle);
             put64(buf + 7, scheduled);
             put64(buf + 15, released);
             send_frame(buf, 23);
@@ -489,7 +480,7 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
     case 'C': {
         if (len < 7 || len - 7 > MAX_COMMAND) { send_error("bad result frame"); break; }
         activity *a = find(get16(p + 1));
-        if (a) result(a, get32(p + 3), NULL, 0, p + 7, len - 7);
+        if (a) result(a, tc_get32(p + 3), NULL, 0, p + 7, len - 7);
         break;
     }
     case 'D': {
@@ -499,23 +490,13 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
             break;
         }
         activity *a = find(get16(p + 1));
-        if (a) result(a, get32(p + 3), p + 9, wire_len, p + 9 + wire_len, len - 9 - wire_len);
+        if (a) result(a, tc_get32(p + 3), p + 9, wire_len, p + 9 + wire_len, len - 9 - wire_len);
         break;
     }
     default:
         send_error("unknown frame type");
     }
     pthread_mutex_unlock(&lock);
-}
-
-static int read_all(uint8_t *buf, size_t len) {
-    while (len > 0) {
-        ssize_t n = read(STDIN_FILENO, buf, len);
-        if (n == 0) return -1;
-        if (n < 0) { if (errno == EINTR) continue; return -1; }
-        buf += n; len -= (size_t)n;
-    }
-    return 0;
 }
 
 int main(void) {
@@ -567,14 +548,14 @@ int main(void) {
     static uint8_t frame[MAX_FRAME];
     for (;;) {
         uint8_t hdr[4];
-        if (read_all(hdr, 4) < 0) break;
-        uint32_t len = get32(hdr);
+        if (tc_read_all(STDIN_FILENO, hdr, 4) < 0) break;
+        uint32_t len = tc_get32(hdr);
         if (len > MAX_FRAME) {
             /* unrecoverable framing: refuse and stop, the robot stopped below */
             send_error("frame too long");
             break;
         }
-        if (read_all(frame, len) < 0) break;
+        if (tc_read_all(STDIN_FILENO, frame, len) < 0) break;
         handle_frame(frame, len);
     }
 

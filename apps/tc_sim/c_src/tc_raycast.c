@@ -27,6 +27,8 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "tc_nif.h"
+
 #define CODE_OBST 255u
 #define CODE_MAX_SKIP 254.0
 #define SKIP_MIN 1u
@@ -105,18 +107,6 @@ static inline double ld(const unsigned char *p)
     double d;
     memcpy(&d, p, 8);
     return d;
-}
-
-static int get_number(ErlNifEnv *env, ERL_NIF_TERM t, double *out)
-{
-    ErlNifSInt64 i;
-    if (enif_get_double(env, t, out))
-        return 1;
-    if (enif_get_int64(env, t, &i)) {
-        *out = (double)i;
-        return 1;
-    }
-    return 0;
 }
 
 static ERL_NIF_TERM error_msg(ErlNifEnv *env, const char *msg)
@@ -723,8 +713,8 @@ static ERL_NIF_TERM nif_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         const ERL_NIF_TERM *el;
         if (!enif_get_tuple(env, argv[1], &arity, &el) || arity != 7 ||
             !enif_get_int(env, el[0], &gw) || !enif_get_int(env, el[1], &gh) ||
-            !get_number(env, el[2], &res) || !get_number(env, el[3], &ox) ||
-            !get_number(env, el[4], &oy) || !get_number(env, el[5], &yaw) ||
+            !tc_number(env, el[2], &res) || !tc_number(env, el[3], &ox) ||
+            !tc_number(env, el[4], &oy) || !tc_number(env, el[5], &yaw) ||
             !enif_inspect_binary(env, el[6], &data))
             return error_msg(env, "grid: malformed");
         if (gw <= 0 || gh <= 0) return error_msg(env, "grid: width and height must be positive");
@@ -826,8 +816,8 @@ static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         const ERL_NIF_TERM *el;
         enif_get_list_cell(env, list, &head, &list);
         if (!enif_get_tuple(env, head, &arity, &el) || arity != 3 ||
-            !get_number(env, el[0], &b[i].x) || !get_number(env, el[1], &b[i].y) ||
-            !get_number(env, el[2], &b[i].r) || !(b[i].r >= 0)) {
+            !tc_number(env, el[0], &b[i].x) || !tc_number(env, el[1], &b[i].y) ||
+            !tc_number(env, el[2], &b[i].r) || !(b[i].r >= 0)) {
             enif_free(b);
             return enif_make_badarg(env);
         }
@@ -895,9 +885,9 @@ static ERL_NIF_TERM cast_rays_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         const ERL_NIF_TERM *el;
         double *r = rays + 4 * (size_t)i;
         enif_get_list_cell(env, list, &head, &list);
-        if (!enif_get_tuple(env, head, &arity, &el) || arity != 4 || !get_number(env, el[0], &r[0]) ||
-            !get_number(env, el[1], &r[1]) || !get_number(env, el[2], &r[2]) ||
-            !get_number(env, el[3], &r[3])) {
+        if (!enif_get_tuple(env, head, &arity, &el) || arity != 4 || !tc_number(env, el[0], &r[0]) ||
+            !tc_number(env, el[1], &r[1]) || !tc_number(env, el[2], &r[2]) ||
+            !tc_number(env, el[3], &r[3])) {
             enif_free(rays);
             return enif_make_badarg(env);
         }
@@ -1092,8 +1082,8 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     unsigned nr;
     (void)argc;
     if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
-        arity != 3 || !get_number(env, pose[0], &X) || !get_number(env, pose[1], &Y) ||
-        !get_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
+        arity != 3 || !tc_number(env, pose[0], &X) || !tc_number(env, pose[1], &Y) ||
+        !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
         !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
         return enif_make_badarg(env);
     int ng = groups_header(&gb, &nr, &budget);
@@ -1349,9 +1339,9 @@ static ERL_NIF_TERM nif_clearance(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     double x, y, max;
     int exclude;
     (void)argc;
-    if (!get_world(env, argv[0], &w) || !get_number(env, argv[1], &x) ||
-        !get_number(env, argv[2], &y) || !enif_get_int(env, argv[3], &exclude) ||
-        !get_number(env, argv[4], &max))
+    if (!get_world(env, argv[0], &w) || !tc_number(env, argv[1], &x) ||
+        !tc_number(env, argv[2], &y) || !enif_get_int(env, argv[3], &exclude) ||
+        !tc_number(env, argv[4], &max))
         return enif_make_badarg(env);
     if (!(max > 0)) return enif_make_double(env, 0.0);
     double best = max;

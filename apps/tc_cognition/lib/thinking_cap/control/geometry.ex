@@ -13,13 +13,7 @@ defmodule ThinkingCap.Control.Geometry do
 
   @doc "A world point in the robot frame of `pose`."
   @spec to_robot({number(), number(), number()}, {number(), number()}) :: {float(), float()}
-  def to_robot({x, y, theta}, {px, py}) do
-    dx = px - x
-    dy = py - y
-    c = :math.cos(theta)
-    s = :math.sin(theta)
-    {c * dx + s * dy, -s * dx + c * dy}
-  end
+  defdelegate to_robot(pose, point), to: ThinkingCap.Geometry, as: :to_frame
 
   @doc "Distance and bearing (in (−π, π]) of a robot-frame point."
   @spec polar({number(), number()}) :: {float(), float()}

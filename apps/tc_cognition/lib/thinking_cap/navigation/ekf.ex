@@ -108,18 +108,11 @@ defmodule ThinkingCap.Navigation.EKF do
   frame at `prev`: `{dx, dy, dθ}` with `dθ` normalised to (−π, π].
   """
   @spec relative({number(), number(), number()}, {number(), number(), number()}) :: delta()
-  def relative({x0, y0, th0}, {x1, y1, th1}) do
-    {c, s} = {:math.cos(th0), :math.sin(th0)}
-    {ex, ey} = {x1 - x0, y1 - y0}
-    {c * ex + s * ey, -s * ex + c * ey, normalize_angle(th1 - th0)}
-  end
+  defdelegate relative(prev, now), to: ThinkingCap.Geometry
 
   @doc "The pose reached from `pose` by the robot-frame motion `delta` (pose composition)."
   @spec motion(pose(), delta()) :: pose()
-  def motion({x, y, th}, {dx, dy, dth}) do
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {x + c * dx - s * dy, y + s * dx + c * dy, normalize_angle(th + dth)}
-  end
+  defdelegate motion(pose, delta), to: ThinkingCap.Geometry, as: :compose
 
   @doc """
   The Jacobians `{F, G}` of `motion/2` with respect to the pose (3×3) and

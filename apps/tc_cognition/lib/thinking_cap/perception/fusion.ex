@@ -26,7 +26,9 @@ defmodule ThinkingCap.Perception.Fusion do
   """
 
   alias ThinkingCap.Perception.LPS
-  import ThinkingCap.Geometry, only: [normalize_angle: 1, segment_distance: 3]
+
+  import ThinkingCap.Geometry,
+    only: [compose: 2, normalize_angle: 1, relative: 2, segment_distance: 3, to_frame: 2]
 
   defstruct resolution: 0.1,
             window: 6.0,
@@ -254,38 +256,19 @@ defmodule ThinkingCap.Perception.Fusion do
     walls =
       for {a, b} <- state.walls,
           segment_distance({x, y}, a, b) <= near,
-          do: {to_robot(pose, a), to_robot(pose, b)}
+          do: {to_frame(pose, a), to_frame(pose, b)}
 
     doors =
       for %{centre: centre} = d <- state.doors,
           distance(pose, centre) <= near do
         {_, _, th} = pose
-        %{d | centre: to_robot(pose, centre), heading: normalize_angle(d.heading - th)}
+        %{d | centre: to_frame(pose, centre), heading: normalize_angle(d.heading - th)}
       end
 
     {walls, doors}
   end
 
   ## geometry
-
-  @doc false
-  def compose({x, y, th}, {dx, dy, dth}) do
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {x + c * dx - s * dy, y + s * dx + c * dy, normalize_angle(th + dth)}
-  end
-
-  @doc false
-  def relative({x0, y0, th0}, {x1, y1, th1}) do
-    {c, s} = {:math.cos(th0), :math.sin(th0)}
-    {dx, dy} = {x1 - x0, y1 - y0}
-    {c * dx + s * dy, -s * dx + c * dy, normalize_angle(th1 - th0)}
-  end
-
-  defp to_robot({x, y, th}, {px, py}) do
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {dx, dy} = {px - x, py - y}
-    {c * dx + s * dy, -s * dx + c * dy}
-  end
 
   defp distance({x, y, _}, {px, py}), do: :math.sqrt((px - x) ** 2 + (py - y) ** 2)
 

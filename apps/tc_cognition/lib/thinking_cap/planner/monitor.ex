@@ -97,7 +97,7 @@ defmodule ThinkingCap.Planner.Monitor do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Tuples
   require Tuples
-  import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3]
+  import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3, to_frame: 2]
 
   @defaults [
     tolerance: 0.35,
@@ -848,17 +848,11 @@ defmodule ThinkingCap.Planner.Monitor do
   defp across(state, door) do
     {a, b} = door.jambs
     {p, q} = {lerp(a, b, 0.2), lerp(a, b, 0.8)}
-    {ra, rb} = {to_robot(state.pose, p), to_robot(state.pose, q)}
+    {ra, rb} = {to_frame(state.pose, p), to_frame(state.pose, q)}
 
     Enum.count(state.lps.evidence, fn {px, py, o, e} ->
       min(o, 1 - e) >= 0.5 and segment_distance({px, py}, ra, rb) < 0.1
     end)
-  end
-
-  defp to_robot({x, y, th}, {px, py}) do
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {dx, dy} = {px - x, py - y}
-    {c * dx + s * dy, -s * dx + c * dy}
   end
 
   ## Publishing

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Dashboard.Launcher do
   require Logger
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Config.DashboardOptions
   alias ThinkingCap.Tuples
   require Tuples
 
@@ -24,20 +25,10 @@ defmodule ThinkingCap.Dashboard.Launcher do
     dashboard = Map.new(adf[:dashboard] || %{})
 
     if dashboard[:enabled] && ThinkingCap.Dashboard.config() == nil do
+      # the section was validated with the dashboard's own option fields
       opts =
         dashboard
-        |> Map.take([
-          :host,
-          :port,
-          :rosbridge_port,
-          :estop_port,
-          :public_view,
-          :token_file,
-          :max_connections,
-          :idle_timeout
-        ])
-        |> Enum.reject(fn {_key, value} -> value == nil end)
-        |> Map.new()
+        |> Map.take(DashboardOptions.keys())
         |> Map.put(:world, adf[:wdf])
         |> Enum.to_list()
 

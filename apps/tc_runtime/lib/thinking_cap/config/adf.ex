@@ -1,35 +1,15 @@
 defmodule ThinkingCap.Config.ADF do
-  @dashboard_fields [
+  # the keys only a deployment needs; the dashboard's own options are
+  # defined once, in Config.DashboardOptions
+  @dashboard_deployment_fields [
     enabled: {:boolean, default: false, doc: "serve the web dashboard"},
     node:
       {:atom,
        default: :local,
        doc:
-         "the logical node serving it in a deployment (`:local`: the first of `nodes`); `ThinkingCap.Runtime.start/1` serves it on the starting node"},
-    host: {:string, default: "127.0.0.1", doc: "interface to bind"},
-    port:
-      {{:int_range, 0, 65_535}, default: 4000, doc: "HTTP and WebSocket port (0: any free port)"},
-    rosbridge_port:
-      {{:int_range, 0, 65_535},
-       default: 9090, doc: "rosbridge v2 endpoint port (0: any free port)"},
-    public_view:
-      {:boolean,
-       default: false, doc: "let viewers without the access token watch (never control)"},
-    token_file:
-      {:string,
-       default: nil,
-       doc: "a file holding the access token, readable by its owner only (default: a new token)"},
-    estop_port:
-      {{:int_range, 0, 65_535},
-       default: nil,
-       doc:
-         "a port apart from the web server that only engages E-stops (`curl -X POST HOST:PORT/estop`), reachable during a flood"},
-    max_connections:
-      {{:int_range, 1, 65_535},
-       default: 512, doc: "open connections at most per listener, beyond: closed at once"},
-    idle_timeout:
-      {{:int_range, 100, 600_000}, default: 5_000, doc: "ms an HTTP connection may stay idle"}
+         "the logical node serving it in a deployment (`:local`: the first of `nodes`); `ThinkingCap.Runtime.start/1` serves it on the starting node"}
   ]
+  @dashboard_fields @dashboard_deployment_fields ++ ThinkingCap.Config.DashboardOptions.fields()
 
   @module_fields [
     module: {:module, required: true, doc: "the Elixir module implementing it"},

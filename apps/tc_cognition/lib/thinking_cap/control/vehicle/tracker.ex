@@ -15,6 +15,7 @@ defmodule ThinkingCap.Control.Vehicle.Tracker do
   turning towards its end point.
   """
 
+  alias ThinkingCap.Geometry
   alias ThinkingCap.Robot.Kinematics
 
   @typedoc "A segment ready to follow: direction, points and their arc lengths."
@@ -127,9 +128,7 @@ defmodule ThinkingCap.Control.Vehicle.Tracker do
     wmax = Keyword.get(opts, :max_turn_rate, 1.0)
 
     {lx, ly} = lookahead_point(seg, i, lookahead, last?)
-    {c, s} = {:math.cos(th), :math.sin(th)}
-    {dx, dy} = {lx - x, ly - y}
-    {rx, ry} = {c * dx + s * dy, -s * dx + c * dy}
+    {rx, ry} = Geometry.to_frame({x, y, th}, {lx, ly})
     d2 = max(rx * rx + ry * ry, 1.0e-6)
     kappa = clamp_curvature(2 * ry / d2, k_max)
 

@@ -1,7 +1,6 @@
 defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
   @moduledoc false
 
-  import ThinkingCap.Geometry, only: [normalize_angle: 1]
   # Blackboard payloads as ROS 2 messages (maps ready for
   # ThinkingCap.Dashboard.Core.JSON), and the one message rosbridge takes in
   # (geometry_msgs/Twist) back. Frames follow REP-103/REP-105: `map`, then
@@ -10,6 +9,10 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
   # (`{sec, nanosec}`) from the payloads' stamps (seconds, the simulator's
   # clock for a simulated robot); a payload without a stamp gets the wall
   # clock's.
+
+  import ThinkingCap.Geometry, only: [normalize_angle: 1]
+
+  alias ThinkingCap.Navigation.OccupancyGrid
 
   @type pose2d :: {number(), number(), number()}
 
@@ -236,6 +239,57 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Messages do
       data: for(<<v::signed-8 <- data>>, do: v)
     }
   end
+
+  ## the messages of a blackboard tuple
+
+  @doc """
+  The messages a blackboard tuple `{tag, robot, payload}` makes on a topic
+  it feeds (`Topics.feeds?/4`), each `{stream key, msg}` (the key is the
+  robot's name). `latest` holds each robot's newest odometry and
+  localizer estimate (`%{{robot, :odom} => payload, {robot, :pose} =>
+  payload}`), for `/tf`.
+  """
+  @spec of_tuple(map(), atom(), String.t(), term(), map()) :: [{String.t(), map()}]
+  def of_tuple(%{kind: :scan}, tag, robot, payload, _latest),
+    do: [{robot, laser_scan(payload, frame(robot, tag))}]
+
+  def of_tuple(%{kind: :odom}, _tag, robot, payload, _latest),
+    do: [{robot, odometry(payload, robot)}]
+
+  def of_tuple(%{kind: :pose}, _tag, robot, payload, _latest),
+    do: [{robot, pose_with_covariance(payload)}]
+
+  def of_tuple(%{kind: :cmd_vel}, _tag, robot, payload, _latest) do
+    case payload[:command] do
+      {:velocity, v, w} when is_number(v) and is_number(w) -> [{robot, twist(v, w)}]
+      :stop -> [{robot, twist(0, 0)}]
+      _other -> []
+    end
+  end
+
+  def of_tuple(%{kind: :tf}, _tag, robot, _payload, latest) do
+    case latest_transforms(robot, latest) do
+      [] -> []
+      transforms -> [{robot, tf_message(transforms)}]
+    end
+  end
+
+  def of_tuple(%{kind: :tf_static}, _tag, robot, caps, _latest) do
+    case static_transforms(robot, caps) do
+      [] -> []
+      transforms -> [{robot, tf_message(transforms)}]
+    end
+  end
+
+  def of_tuple(%{kind: :map}, :map, robot, %OccupancyGrid{origin: {x, y}} = map, _latest),
+    do: [{robot, occupancy_grid(%{map | origin: {x, y, 0.0}})}]
+
+  def of_tuple(_topic, _tag, _robot, _payload, _latest), do: []
+
+  @doc "A robot's `/tf` transforms from the newest odometry and estimate in `latest`."
+  @spec latest_transforms(String.t(), map()) :: [map()]
+  def latest_transforms(robot, latest),
+    do: robot_transforms(robot, latest[{robot, :odom}], latest[{robot, :pose}])
 
   ## helpers
 
