@@ -120,7 +120,8 @@ defmodule ThinkingCap.Bench.Localize do
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
         {ThinkingCap.Navigation.MCL,
-         [initial: plan.initial, initial_sigma: {0.5, 0.3}, seed: seed]},
+         [initial: plan.initial, initial_sigma: {0.5, 0.3}, seed: seed] ++
+           NavRun.env_params("TC_MCL")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner: {ThinkingCap.Planner.Monitor, [task: {:patrol, plan.waypoints}], period: 0.5}
     ]
