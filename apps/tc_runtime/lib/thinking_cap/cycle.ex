@@ -62,6 +62,17 @@ defmodule ThinkingCap.Cycle do
   `timing/0` gives each activity's `wire` (its device or `nil`) and
   `wire_errors`.
 
+  ## The release boost
+
+  While any activity's result is pending, the worker holds the BEAM's
+  scheduler threads at `SCHED_FIFO` 20 (the poller at 21) and puts them
+  back when none is, so that a periodic module's release and work go
+  before other programs' low real-time threads
+  (`ThinkingCap.Runtime.Scheduling` says why and how to turn it off).
+  This process names the threads to the worker when it starts it; a
+  worker killed during a boost leaves them boosted, and this process puts
+  them back before it starts the next one.
+
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as
   `{:timing, name, summary}`.
@@ -71,6 +82,7 @@ defmodule ThinkingCap.Cycle do
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Cycle.Stats
+  alias ThinkingCap.Runtime.Scheduling
 
   @type name :: atom()
   @type release :: %{
@@ -261,7 +273,9 @@ defmodule ThinkingCap.Cycle do
       watchers: %{},
       # wire attachments waiting for the worker's answer, by activity id
       attaching: %{},
-      stopping: false
+      stopping: false,
+      # the threads the worker boosts while a result is pending
+      boost: []
     }
 
     {:ok, open(state)}
@@ -522,11 +536,16 @@ defmodule ThinkingCap.Cycle do
     port = Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status, :eof])
     :persistent_term.put({__MODULE__, :port}, port)
 
-    receive do
-      {^port, {:data, <<?H, _::binary>> = hello}} -> handle_frame(hello, %{state | port: port})
-    after
-      5000 -> raise "the timing worker did not say hello within 5 s"
-    end
+    state =
+      receive do
+        {^port, {:data, <<?H, _::binary>> = hello}} -> handle_frame(hello, %{state | port: port})
+      after
+        5000 -> raise "the timing worker did not say hello within 5 s"
+      end
+
+    boost = Scheduling.release_boost()
+    Port.command(port, [?B | for({tid, prio, _base} <- boost, do: <<tid::32, prio>>)])
+    %{state | boost: boost}
   end
 
   defp close_port(port) do
@@ -549,6 +568,8 @@ defmodule ThinkingCap.Cycle do
             applied_ns: nil
           })
 
+    # a worker killed during a boost left the BEAM's threads boosted
+    Scheduling.undo_boost(state.boost)
     state = open(%{state | port: nil, restarts: state.restarts + 1})
 
     # every activity again, with its wire; until its next fresh result, its
