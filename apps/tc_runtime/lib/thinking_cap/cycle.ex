@@ -242,7 +242,8 @@ defmodule ThinkingCap.Cycle do
 
   # what a release and its result go through, loaded before the first
   # release: loading a module on first call waits for the code server and
-  # the file system (measured: a first release 23 ms late under load)
+  # the file system (a first release came 23 ms late under load, most
+  # likely for that)
   @release_path [Activities, Fallbacks, Protocol, Releases, Worker, Stats, Clock]
 
   @impl true
