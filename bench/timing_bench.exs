@@ -19,9 +19,31 @@ defmodule ThinkingCap.Bench.Timing do
   `handle_cycle/2` calls. On time: the fresh result reached the worker
   before the deadline. Uncovered: a released cycle with neither a fresh nor
   a fallback command applied.
+
+  A release's **deviation** is what the module sees: the instant its
+  `handle_cycle/2` starts minus the instant the release was scheduled
+  (period after period from the activity's start, never drifting), both
+  on the worker's clock (`ThinkingCap.Cycle.Clock`). It is never
+  negative, and the time between two consecutive starts differs from the
+  period by no more than the larger of their deviations. A scheduled
+  release the module never saw (the worker skipped it, or the host
+  dropped it as stale behind a slow cycle) counts as a deviation of a
+  whole period.
+
+  The summary line ends with `paper_max_dev_ms=D late=L cyclictest_late=C`:
+  D the largest deviation of any release of the paper experiment's two
+  periodic activities; L the control cycle's late releases in the loaded
+  phase (a deviation of 3 ms, its deadline, or more, or a release skipped);
+  C cyclictest's wake-ups 3 ms late or more over the same phase (its
+  threads on both CPUs together). Targets: D ≤ 1, jitter_ratio ≤ 1.5,
+  uncovered 0, and L ≤ C or on_time_pct ≥ 99.9. Last comes
+  `paper_cyclictest_late`: cyclictest's wake-ups 1 ms late or more beside
+  the paper experiment, where the machine itself stalled every real-time
+  thread (hypervisor steal, the kernel's real-time throttling).
   """
 
   alias ThinkingCap.{Blackboard, Config, Cycle, Runtime}
+  alias ThinkingCap.Cycle.Clock
   alias ThinkingCap.Bench.{Cyclictest, ProcStat, Stats}
 
   @collector :tc_timing_bench
@@ -35,10 +57,12 @@ defmodule ThinkingCap.Bench.Timing do
 
     @impl true
     def handle_cycle(release, report_to) do
+      started = ThinkingCap.Cycle.Clock.now_ns()
+
       send(
         report_to,
         {:control, release.cycle, System.monotonic_time(:microsecond),
-         release.released_ns - release.scheduled_ns}
+         release.released_ns - release.scheduled_ns, {release.scheduled_ns, started}}
       )
 
       {[command: {:vel, 0.2, :math.sin(release.cycle / 100)}], report_to}
@@ -53,10 +77,12 @@ defmodule ThinkingCap.Bench.Timing do
     def init(params, ctx), do: {:ok, {params[:report_to], ctx.name}}
 
     @impl true
-    def handle_cycle(_release, {report_to, name} = state) do
+    def handle_cycle(release, {report_to, name} = state) do
+      started = ThinkingCap.Cycle.Clock.now_ns()
       start = System.monotonic_time(:microsecond)
       ThinkingCap.Bench.Timing.busy(20_000)
-      send(report_to, {:loaded, name, start, System.monotonic_time(:microsecond) - start})
+      cpu = System.monotonic_time(:microsecond) - start
+      send(report_to, {:loaded, name, start, cpu, {release.scheduled_ns, started}})
       {[command: :done], state}
     end
   end
@@ -108,7 +134,7 @@ defmodule ThinkingCap.Bench.Timing do
 
     IO.puts("timing worker: #{status.message}\n")
 
-    paper_load(dir, max(div(seconds, 3), 10))
+    paper = paper_load(dir, max(div(seconds, 3), 10))
     idle = control_run(dir, seconds, 0)
     loaded = control_run(dir, seconds, 2)
 
@@ -120,8 +146,13 @@ defmodule ThinkingCap.Bench.Timing do
 
       IO.puts(
         "  #{String.pad_trailing("", 14)} cycles #{r.cycles}, on time #{Stats.format(r.on_time_pct)} %, fallbacks #{r.fallbacks}, " <>
-          "late #{r.late}, skipped #{r.skipped}, uncovered #{r.uncovered}; module cycle time " <>
+          "late results #{r.late_results}, skipped #{r.skipped}, uncovered #{r.uncovered}; module cycle time " <>
           "#{Stats.format(r.period.mean / 1000)} ms ± #{Stats.format(r.period.std / 1000)} ms (#{Stats.format(r.period_std_pct)} %)"
+      )
+
+      IO.puts(
+        "  #{String.pad_trailing("", 14)} handle_cycle/2 started #{row(r.start)} µs after its scheduled release; " <>
+          "#{r.late} late releases (3 ms or more, or skipped)"
       )
 
       IO.puts(
@@ -141,7 +172,11 @@ defmodule ThinkingCap.Bench.Timing do
       on_time_pct: loaded.on_time_pct,
       fallbacks: loaded.fallbacks,
       uncovered: loaded.uncovered,
-      period_std_pct: loaded.period_std_pct
+      period_std_pct: loaded.period_std_pct,
+      paper_max_dev_ms: paper.max_dev_ms,
+      late: loaded.late,
+      cyclictest_late: loaded.cyclictest.over || "n/a",
+      paper_cyclictest_late: paper.cyclictest.over || "n/a"
     )
   end
 
@@ -159,9 +194,16 @@ defmodule ThinkingCap.Bench.Timing do
       bg: "[module: #{inspect(BackgroundLoad)}, activity: :background]"
     ]
 
+    # the clock's module loaded and its offset measured before the first release
+    Clock.now_ns()
     names = start_modules(dir, "paper", modules)
     feeder = spawn_link(fn -> feed(:rand.seed(:exsss, {1, 2, 3})) end)
+    # cyclictest beside it: what the machine does to every real-time thread
+    cyclictest = Cyclictest.start(seconds + 1)
+    steal_before = ProcStat.steal_ms()
     samples = collect_loaded(System.monotonic_time(:millisecond) + seconds * 1000, %{})
+    steal = ProcStat.steal_ms() - steal_before
+    reference = Cyclictest.finish(cyclictest, 1000)
     Process.unlink(feeder)
     Process.exit(feeder, :kill)
     Enum.each(names, &Runtime.stop/1)
@@ -171,30 +213,66 @@ defmodule ThinkingCap.Bench.Timing do
     )
 
     IO.puts(
-      "   (ms)                         cycle mean   std    min    max | CPU mean   std    min    max"
+      "   (ms)                         cycle mean   std    min    max | CPU mean   std    min    max | deviation p50    p99    max missed"
     )
 
-    for {name, ticks} <- Enum.sort(samples) do
-      starts = ticks |> Enum.map(&elem(&1, 0)) |> Enum.sort()
-
-      cycle =
-        starts
-        |> Enum.chunk_every(2, 1, :discard)
-        |> Enum.map(fn [a, b] -> (b - a) / 1000 end)
-        |> Stats.summarize()
-
-      cpu = ticks |> Enum.map(&(elem(&1, 1) / 1000)) |> Stats.summarize()
-
-      IO.puts(
-        "   #{String.pad_trailing("ThinkingCap #{name}", 28)} #{cols(cycle)} | #{cols(cpu)}"
-      )
-    end
+    devs =
+      for {name, ticks} <- Enum.sort(samples) do
+        dev = deviations(Enum.map(ticks, &elem(&1, 2)), 150_000_000)
+        print_paper_row(name, ticks, dev)
+        dev
+      end
 
     IO.puts(
       "   #{String.pad_trailing("paper, non real-time", 28)} #{cols(%{mean: 146.6, std: 17.5, min: nil, max: 328.0})} |"
     )
 
-    IO.puts("")
+    IO.puts(
+      "   deviation: when handle_cycle/2 started, after its scheduled release; missed: scheduled releases it never saw"
+    )
+
+    IO.puts(
+      "   meanwhile: cyclictest (10 ms, both CPUs) woke #{reference.over} times 1 ms or more late, " <>
+        "at worst #{reference.max} µs; the hypervisor took #{steal} ms (steal)\n"
+    )
+
+    %{
+      max_dev_ms: devs |> Enum.map(& &1.worst_ms) |> Enum.max(fn -> nil end),
+      cyclictest: reference
+    }
+  end
+
+  defp print_paper_row(name, ticks, dev) do
+    starts = ticks |> Enum.map(&elem(&1, 0)) |> Enum.sort()
+
+    cycle =
+      starts
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.map(fn [a, b] -> (b - a) / 1000 end)
+      |> Stats.summarize()
+
+    cpu = ticks |> Enum.map(&(elem(&1, 1) / 1000)) |> Stats.summarize()
+    ms = dev.summary
+
+    IO.puts(
+      "   #{String.pad_trailing("ThinkingCap #{name}", 28)} #{cols(cycle)} | #{cols(cpu)} |" <>
+        "         #{Enum.map_join([ms.p50, ms.p99, ms.max], " ", &String.pad_leading(fmt(&1), 6))} #{String.pad_leading("#{dev.missed}", 6)}"
+    )
+  end
+
+  # Each release's deviation (ms) from `{scheduled_ns, started_ns}` pairs,
+  # and the scheduled releases between the first and the last one seen that
+  # the module never saw. The worst deviation counts a missed release as a
+  # whole period.
+  defp deviations(pairs, period_ns) do
+    pairs = Enum.sort(pairs)
+    ms = Enum.map(pairs, fn {scheduled, started} -> (started - scheduled) / 1.0e6 end)
+    {first, _} = List.first(pairs)
+    {last, _} = List.last(pairs)
+    missed = round((last - first) / period_ns) + 1 - length(pairs)
+    worst = Enum.max(ms)
+    worst = if missed > 0, do: max(worst, period_ns / 1.0e6), else: worst
+    %{ms: ms, summary: Stats.summarize(ms), missed: missed, worst_ms: Float.round(worst, 3)}
   end
 
   # socket-like traffic: bursts of messages at exponential intervals
@@ -212,8 +290,9 @@ defmodule ThinkingCap.Bench.Timing do
       acc
     else
       receive do
-        {:loaded, name, start, cpu} ->
-          collect_loaded(deadline, Map.update(acc, name, [{start, cpu}], &[{start, cpu} | &1]))
+        {:loaded, name, start, cpu, release} ->
+          sample = {start, cpu, release}
+          collect_loaded(deadline, Map.update(acc, name, [sample], &[sample | &1]))
       after
         remaining -> acc
       end
@@ -245,7 +324,15 @@ defmodule ThinkingCap.Bench.Timing do
     drain(System.monotonic_time(:millisecond) + 1000)
     window = System.monotonic_time(:millisecond) + seconds * 1000
     steal_before = ProcStat.steal_ms()
-    result = measure(name, window, %{releases: [], jitter: [], applied: %{}, late: 0}, :window)
+
+    result =
+      measure(
+        name,
+        window,
+        %{releases: [], jitter: [], start: [], applied: %{}, late: 0},
+        :window
+      )
+
     steal = ProcStat.steal_ms() - steal_before
     # the last cycles' commands may land just after the window: match them by cycle
     result = measure(name, System.monotonic_time(:millisecond) + 100, result, :grace)
@@ -271,6 +358,10 @@ defmodule ThinkingCap.Bench.Timing do
     period = Stats.summarize(intervals)
     numbers = Enum.map(result.releases, &elem(&1, 0))
     skipped = Enum.max(numbers) - Enum.min(numbers) + 1 - cycles
+    # late: started 3 ms or more after the scheduled release, or a scheduled
+    # release the module never saw (skipped by the worker or dropped as stale)
+    start = deviations(result.start, 10_000_000)
+    late_releases = Enum.count(start.ms, &(&1 >= 3.0)) + start.missed
 
     %{
       cycles: cycles,
@@ -279,7 +370,9 @@ defmodule ThinkingCap.Bench.Timing do
       # two decimals: a target figure must not be rounded in its favour
       on_time_pct: Float.round(100 * fresh / cycles, 2),
       fallbacks: fallbacks,
-      late: result.late,
+      late_results: result.late,
+      late: late_releases,
+      start: Stats.summarize(Enum.map(start.ms, &(&1 * 1000))),
       skipped: skipped,
       # released cycles that got neither a fresh nor a fallback command,
       # and releases the worker itself skipped
@@ -299,8 +392,14 @@ defmodule ThinkingCap.Bench.Timing do
 
   defp measure_next(name, deadline, acc, phase, remaining) do
     receive do
-      {:control, cycle, at, jitter_ns} when phase == :window ->
-        acc = %{acc | releases: [{cycle, at} | acc.releases], jitter: [jitter_ns | acc.jitter]}
+      {:control, cycle, at, jitter_ns, start} when phase == :window ->
+        acc = %{
+          acc
+          | releases: [{cycle, at} | acc.releases],
+            jitter: [jitter_ns | acc.jitter],
+            start: [start | acc.start]
+        }
+
         measure(name, deadline, acc, phase)
 
       {:tc_cycle, :applied, ^name, %{kind: :late}} ->
@@ -310,7 +409,7 @@ defmodule ThinkingCap.Bench.Timing do
         measure(name, deadline, %{acc | applied: Map.put_new(acc.applied, cycle, kind)}, phase)
 
       # (cyclictest's port messages stay in the mailbox for Cyclictest.finish/1)
-      {:control, _cycle, _at, _jitter} ->
+      {:control, _cycle, _at, _jitter, _start} ->
         measure(name, deadline, acc, phase)
     after
       remaining -> acc
@@ -322,9 +421,9 @@ defmodule ThinkingCap.Bench.Timing do
 
     if remaining > 0 do
       receive do
-        {:control, _, _, _} -> drain(deadline)
+        {:control, _, _, _, _} -> drain(deadline)
         {:tc_cycle, _, _, _} -> drain(deadline)
-        {:loaded, _, _, _} -> drain(deadline)
+        {:loaded, _, _, _, _} -> drain(deadline)
       after
         remaining -> :ok
       end

@@ -39,6 +39,14 @@
  * ends when it is detached ('X'), replaced ('W') or its activity removed
  * ('R'), and when the worker exits: the worker never opens its path again.
  *
+ * The release boost: the BEAM may name its scheduler and poller threads
+ * ('B'), each with a SCHED_FIFO priority. While any activity is released
+ * and its result not yet in (nor its fallback applied), the worker holds
+ * those threads at those priorities; when none is, it puts each back as
+ * it found it (unless someone changed it meanwhile: then it leaves it).
+ * So the BEAM computes a periodic result above other programs' low
+ * real-time threads, and for no longer than the activities' deadlines.
+ *
  * PROTOCOL (integers big-endian)
  *   BEAM -> worker
  *     'A' u16 id, u64 period_ns, u64 deadline_ns, u8 priority, fallback...  add
@@ -49,6 +57,8 @@
  *     'W' u16 id, u16 fallback_len, fallback bytes, path...
  *                              attach a wire (open path; replaces an old one)
  *     'X' u16 id                                        detach the wire (close)
+ *     'B' (u32 tid, u8 priority)...   the threads to boost while a result is
+ *                                     pending (none: no boost)
  *   worker -> BEAM
  *     'H' u8 sched_fifo_granted, u8 mlockall_granted, text...               hello
  *     'L' u16 id, u32 cycle, u64 scheduled_ns, u64 released_ns              release
@@ -117,6 +127,16 @@ typedef struct {
 } activity;
 
 static activity acts[MAX_ACTIVITIES];
+
+/* the release boost: threads and their priorities while a result is pending */
+#define MAX_BOOST 64
+static struct boost {
+    pid_t tid;
+    int priority;
+    int saved_policy;           /* as found, restored when no result is pending */
+    struct sched_param saved;
+} boosts[MAX_BOOST];
+static int n_boosts, boosted, boost_reported;
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static pthread_mutex_t out_lock = PTHREAD_MUTEX_INITIALIZER;
 static pthread_t timing_thread;
@@ -300,6 +320,61 @@ static activity *find(uint16_t id) {
     return NULL;
 }
 
+/* Boosts the threads (saving how they were) or puts them back; under `lock`. */
+static void apply_boost(int on) {
+    if (on == boosted) return;
+    for (int i = 0; i < n_boosts; i++) {
+        struct boost *b = &boosts[i];
+        struct sched_param sp = {.sched_priority = b->priority};
+        if (on) {
+            b->saved_policy = sched_getscheduler(b->tid);
+            if (b->saved_policy < 0 || sched_getparam(b->tid, &b->saved) < 0) {
+                b->saved_policy = -1;
+                continue;
+            }
+            if (sched_setscheduler(b->tid, SCHED_FIFO, &sp) < 0) {
+                b->saved_policy = -1;
+                if (!boost_reported) {
+                    char text[160];
+                    snprintf(text, sizeof text, "boost: thread %d: %s", (int)b->tid, strerror(errno));
+                    send_error(text);
+                    boost_reported = 1;
+                }
+            }
+        } else if (b->saved_policy >= 0) {
+            /* only what the boost set is undone: a thread someone else
+             * rescheduled meanwhile is left as they left it */
+            struct sched_param now;
+            if (sched_getscheduler(b->tid) == SCHED_FIFO && sched_getparam(b->tid, &now) == 0 &&
+                now.sched_priority == b->priority)
+                sched_setscheduler(b->tid, b->saved_policy, &b->saved);
+            b->saved_policy = -1;
+        }
+    }
+    boosted = on;
+}
+
+/* The boost follows the results pending; under `lock`. */
+static void update_boost(void) {
+    int pending = 0;
+    for (int i = 0; i < MAX_ACTIVITIES && !pending; i++) pending = acts[i].used && acts[i].awaiting;
+    apply_boost(pending);
+}
+
+/* 'B': the threads to boost; a boost under way is undone first. */
+static void set_boost(const uint8_t *p, uint32_t len) {
+    if ((len - 1) % 5 != 0 || (len - 1) / 5 > MAX_BOOST) { send_error("bad boost frame"); return; }
+    apply_boost(0);
+    n_boosts = (int)((len - 1) / 5);
+    for (int i = 0; i < n_boosts; i++) {
+        boosts[i].tid = (pid_t)get32(p + 1 + 5 * i);
+        boosts[i].priority = p[5 + 5 * i];
+        boosts[i].saved_policy = -1;
+    }
+    boost_reported = 0;
+    update_boost();
+}
+
 /* The timing thread: releases and deadlines. */
 static void *timing_loop(void *arg) {
     (void)arg;
@@ -345,6 +420,8 @@ static void *timing_loop(void *arg) {
             /* skip releases already missed entirely (the BEAM side counts them) */
             best->next_release = scheduled + best->period;
             while (best->next_release <= released) best->next_release += best->period;
+            /* the BEAM's threads up before the release reaches them */
+            apply_boost(n_boosts > 0);
 
             uint8_t buf[32];
             buf[0] = 'L';
@@ -354,6 +431,7 @@ static void *timing_loop(void *arg) {
             put64(buf + 15, released);
             send_frame(buf, 23);
         }
+        update_boost();
         pthread_mutex_unlock(&lock);
     }
     return NULL;
@@ -493,9 +571,14 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
         if (a) result(a, tc_get32(p + 3), p + 9, wire_len, p + 9 + wire_len, len - 9 - wire_len);
         break;
     }
+    case 'B':
+        set_boost(p, len);
+        break;
     default:
         send_error("unknown frame type");
     }
+    /* a result in, an activity removed or added again: the boost follows */
+    update_boost();
     pthread_mutex_unlock(&lock);
 }
 
@@ -566,7 +649,9 @@ int main(void) {
         if (!acts[i].used) continue;
         apply_fallback(&acts[i], 0);
         close_wire(&acts[i]);
+        acts[i].awaiting = 0;
     }
+    apply_boost(0);
     pthread_mutex_unlock(&lock);
     fprintf(stderr, "tc_timing: input closed, fallbacks applied, exiting\n");
     return 0;

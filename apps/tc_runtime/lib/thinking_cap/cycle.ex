@@ -62,6 +62,17 @@ defmodule ThinkingCap.Cycle do
   `timing/0` gives each activity's `wire` (its device or `nil`) and
   `wire_errors`.
 
+  ## The release boost
+
+  While any activity's result is pending, the worker holds the BEAM's
+  scheduler threads at `SCHED_FIFO` 20 (the poller at 21) and puts them
+  back when none is, so that a periodic module's release and work go
+  before other programs' low real-time threads
+  (`ThinkingCap.Runtime.Scheduling` says why and how to turn it off).
+  This process names the threads to the worker when it starts it; a
+  worker killed during a boost leaves them boosted, and this process puts
+  them back before it starts the next one.
+
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as
   `{:timing, name, summary}`.
@@ -70,7 +81,8 @@ defmodule ThinkingCap.Cycle do
   require Logger
 
   alias ThinkingCap.Blackboard
-  alias ThinkingCap.Cycle.Stats
+  alias ThinkingCap.Cycle.{Clock, Stats}
+  alias ThinkingCap.Cycle.Core.{Activities, Fallbacks, Protocol, Releases, Wires, Worker}
 
   @type name :: atom()
   @type release :: %{
@@ -89,11 +101,8 @@ defmodule ThinkingCap.Cycle do
           applied_ns: integer() | nil
         }
 
-  # the worker's limits on a wire's bytes and a device path
-  @max_wire 4096
-  @max_path 1023
-
-  @kinds %{0 => :fresh, 1 => :fallback, 2 => :late}
+  # the worker's limit on a wire's bytes
+  @max_wire Wires.max_bytes()
 
   @doc "Starts the cycle and its timing worker (registered as `#{inspect(__MODULE__)}`)."
   @spec start_link(keyword()) :: GenServer.on_start()
@@ -149,7 +158,7 @@ defmodule ThinkingCap.Cycle do
   """
   @spec result(release(), term()) :: :ok
   def result(%{id: id, cycle: cycle}, command),
-    do: to_worker(<<?C, id::16, cycle::32, :erlang.term_to_binary(command)::binary>>)
+    do: Worker.send_result(Protocol.result(id, cycle, command))
 
   @doc """
   Like `result/2`, with the bytes to put on the activity's wire
@@ -161,8 +170,7 @@ defmodule ThinkingCap.Cycle do
   def result(%{id: id, cycle: cycle}, command, wire_bytes) do
     case IO.iodata_to_binary(wire_bytes) do
       wire when byte_size(wire) <= @max_wire ->
-        command = :erlang.term_to_binary(command)
-        to_worker(<<?D, id::16, cycle::32, byte_size(wire)::16, wire::binary, command::binary>>)
+        Worker.send_result(Protocol.wired_result(id, cycle, wire, command))
 
       wire ->
         Logger.error(
@@ -180,17 +188,6 @@ defmodule ThinkingCap.Cycle do
       )
 
       :ok
-  end
-
-  defp to_worker(frame) do
-    case :persistent_term.get({__MODULE__, :port}, nil) do
-      nil -> :ok
-      port -> Port.command(port, frame)
-    end
-
-    :ok
-  rescue
-    ArgumentError -> :ok
   end
 
   @doc """
@@ -243,8 +240,15 @@ defmodule ThinkingCap.Cycle do
 
   ## Server
 
+  # what a release and its result go through, loaded before the first
+  # release: loading a module on first call waits for the code server and
+  # the file system (a first release came 23 ms late under load, most
+  # likely for that)
+  @release_path [Activities, Fallbacks, Protocol, Releases, Worker, Stats, Clock]
+
   @impl true
   def init(opts) do
+    Enum.each(@release_path, &Code.ensure_loaded!/1)
     # the cycle's own messages go before ordinary work
     Process.flag(:priority, :high)
     Process.flag(:trap_exit, true)
@@ -261,7 +265,9 @@ defmodule ThinkingCap.Cycle do
       watchers: %{},
       # wire attachments waiting for the worker's answer, by activity id
       attaching: %{},
-      stopping: false
+      stopping: false,
+      # the threads the worker boosts while a result is pending
+      boost: []
     }
 
     {:ok, open(state)}
@@ -278,74 +284,56 @@ defmodule ThinkingCap.Cycle do
     fallback = Keyword.get(opts, :fallback, :stop)
     owner = Keyword.fetch!(opts, :owner)
 
-    case live_owner(state, name) do
+    case Activities.live_owner(state, name) do
       other when is_pid(other) and other != owner ->
         {:reply, {:error, {:name_taken, other}}, state}
 
       _none_or_same ->
-        add_activity(state, name, owner, period, deadline, priority, fallback)
+        {:reply, :ok, Activities.add(state, name, owner, period, deadline, priority, fallback)}
     end
   end
 
-  def handle_call({:remove, name}, _from, state), do: {:reply, :ok, remove_activity(state, name)}
+  def handle_call({:remove, name}, _from, state),
+    do: {:reply, :ok, Fallbacks.remove(state, name)}
 
   def handle_call(:stop_all, _from, state) do
-    names = Map.keys(state.ids) |> Enum.filter(&Map.has_key?(state.activities, state.ids[&1]))
-    state = Enum.reduce(names, state, &remove_activity(&2, &1))
+    names = Activities.names(state)
+    state = Enum.reduce(names, state, &Fallbacks.remove(&2, &1))
     {:reply, names, %{state | stopping: true}}
   end
 
   def handle_call({:attach_wire, name, device, fallback}, from, state) do
-    with {:ok, id} <- activity_id(state, name),
-         {:ok, device} <- check_device(device),
-         {:ok, fallback} <- check_fallback(fallback, device) do
-      wire = %{device: device, fallback: fallback}
-      send_wire(state.port, id, wire)
-      attaching = Map.update(state.attaching, id, [{from, wire}], &(&1 ++ [{from, wire}]))
-      {:noreply, %{state | attaching: attaching}}
-    else
+    case Wires.attach(state, name, device, fallback, from) do
+      {:noreply, state} -> {:noreply, state}
       {:error, message} -> {:reply, {:error, message}, state}
     end
   end
 
-  def handle_call({:detach_wire, name}, _from, state) do
-    case activity_id(state, name) do
-      {:ok, id} ->
-        if state.port, do: Port.command(state.port, <<?X, id::16>>)
-        {:reply, :ok, put_in(state.activities[id].wire, nil)}
+  def handle_call({:detach_wire, name}, _from, state),
+    do: {:reply, :ok, Wires.detach(state, name)}
 
-      {:error, _} ->
-        {:reply, :ok, state}
-    end
-  end
-
-  def handle_call({:subscribe, name, pid}, _from, state) do
-    Process.monitor(pid)
-    watchers = Map.update(state.watchers, name, MapSet.new([pid]), &MapSet.put(&1, pid))
-    {:reply, :ok, %{state | watchers: watchers}}
-  end
+  def handle_call({:subscribe, name, pid}, _from, state),
+    do: {:reply, :ok, Activities.watch(state, name, pid)}
 
   def handle_call(:status, _from, state),
     do: {:reply, Map.put(state.status, :restarts, state.restarts), state}
 
   def handle_call(:timing, _from, state) do
-    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, summary(a)} end), state}
+    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, Activities.summary(a)} end), state}
   end
 
-  def handle_call(:os_pid, _from, state) do
-    {:reply, with({:os_pid, pid} <- Port.info(state.port, :os_pid), do: pid), state}
-  end
+  def handle_call(:os_pid, _from, state), do: {:reply, Worker.os_pid(state.port), state}
 
   @impl true
   def handle_info({port, {:data, frame}}, %{port: port} = state),
-    do: {:noreply, handle_frame(frame, state)}
+    do: {:noreply, handle_frame(Protocol.decode(frame), state)}
 
   def handle_info({port, :eof}, %{port: port} = state) do
     Logger.error(
       "timing worker closed its output (it died); restarting it, robot stopped until a fresh command"
     )
 
-    close_port(port)
+    Worker.close(port)
     {:noreply, restart(state)}
   end
 
@@ -355,7 +343,7 @@ defmodule ThinkingCap.Cycle do
     )
 
     # with :eof the port outlives its program until closed
-    close_port(port)
+    Worker.close(port)
     {:noreply, restart(state)}
   end
 
@@ -366,33 +354,14 @@ defmodule ThinkingCap.Cycle do
 
   def handle_info({:EXIT, _other, _reason}, state), do: {:noreply, state}
 
-  def handle_info({:DOWN, _ref, :process, pid, _reason}, state) do
-    state =
-      Enum.reduce(state.activities, state, fn
-        {_id, %{owner: ^pid, name: name}}, st -> remove_activity(st, name)
-        _other, st -> st
-      end)
+  def handle_info({:DOWN, _ref, :process, pid, _reason}, state),
+    do: {:noreply, Activities.down(state, pid, &Fallbacks.remove/2)}
 
-    watchers =
-      for {name, pids} <- state.watchers,
-          pids = MapSet.delete(pids, pid),
-          MapSet.size(pids) > 0,
-          into: %{},
-          do: {name, pids}
-
-    {:noreply, %{state | watchers: watchers}}
-  end
-
-  def handle_info({:cpu, id, ns}, state) do
-    case state.activities do
-      %{^id => a} -> {:noreply, put_in(state.activities[id].stats, Stats.cpu(a.stats, ns))}
-      _ -> {:noreply, state}
-    end
-  end
+  def handle_info({:cpu, id, ns}, state), do: {:noreply, Releases.cpu(state, id, ns)}
 
   def handle_info(:publish, state) do
     for {_id, a} <- state.activities,
-        do: Blackboard.out({:timing, a.name, summary(a)}, key: {:timing, a.name})
+        do: Blackboard.out({:timing, a.name, Activities.summary(a)}, key: {:timing, a.name})
 
     {:noreply, state}
   end
@@ -402,7 +371,7 @@ defmodule ThinkingCap.Cycle do
   @impl true
   def terminate(_reason, state) do
     if state.port, do: Port.close(state.port)
-    :persistent_term.erase({__MODULE__, :port})
+    Worker.forget()
     :ok
   catch
     _, _ -> :ok
@@ -410,316 +379,53 @@ defmodule ThinkingCap.Cycle do
 
   ## Frames
 
-  defp handle_frame(<<?L, id::16, cycle::32, scheduled::64, released::64>>, state) do
-    case state.activities do
-      %{^id => a} ->
-        send(
-          a.owner,
-          {:tc_cycle, :release, a.name,
-           %{id: id, cycle: cycle, scheduled_ns: scheduled, released_ns: released}}
-        )
+  defp handle_frame({:release, id, cycle, scheduled, released}, state),
+    do: Releases.release(state, id, cycle, scheduled, released)
 
-        a = %{a | stats: Stats.release(a.stats, scheduled, released), release: {cycle, released}}
-        put_in(state.activities[id], a)
+  defp handle_frame({:applied, id, frame}, state), do: Releases.applied(state, id, frame)
 
-      _ ->
-        state
-    end
-  end
-
-  defp handle_frame(<<?P, id::16, cycle::32, kind, wired, response::64, command::binary>>, state)
-       when is_map_key(@kinds, kind) do
-    case state.activities do
-      %{^id => a} ->
-        kind = Map.fetch!(@kinds, kind)
-        command = if command == "", do: nil, else: :erlang.binary_to_term(command)
-
-        event = %{
-          cycle: cycle,
-          kind: kind,
-          command: command,
-          wired: wired == 1,
-          response_us: response / 1000,
-          applied_ns: applied_ns(a.release, cycle, kind, response)
-        }
-
-        tell(state, a, event)
-        put_in(state.activities[id].stats, Stats.applied(a.stats, kind, response))
-
-      _ ->
-        state
-    end
-  end
-
-  defp handle_frame(<<?H, fifo, mlock, text::binary>>, state) do
-    status = %{sched_fifo: fifo == 1, mlockall: mlock == 1, message: text}
-    Logger.info("timing worker: #{text}")
+  defp handle_frame({:hello, status}, state) do
+    Logger.info("timing worker: #{status.message}")
     %{state | status: status}
   end
 
-  defp handle_frame(<<?V, id::16, status, text::binary>>, state) do
-    name = with %{name: name} <- state.activities[id], do: name
+  defp handle_frame({:wire_status, id, status, text}, state),
+    do: Wires.status(state, id, status, text)
 
-    case Map.get(state.attaching, id, []) do
-      [{from, wire} | rest] when status in [0, 1] ->
-        state = %{state | attaching: Map.put(state.attaching, id, rest)}
+  defp handle_frame({:wire_error, rest}, state), do: Wires.error(state, rest)
 
-        cond do
-          status == 0 ->
-            GenServer.reply(from, {:error, text})
-            state
-
-          name == nil ->
-            GenServer.reply(from, {:error, "#{wire.device}: the activity was removed"})
-            state
-
-          true ->
-            GenServer.reply(from, :ok)
-            put_in(state.activities[id].wire, wire)
-        end
-
-      _ ->
-        wire_report(state, id, name, status, text)
-    end
-  end
-
-  # a wire's error: "wire <id> <path>: ..."
-  defp handle_frame(<<?E, "wire ", rest::binary>>, state) do
-    with [id, _] <- String.split(rest, " ", parts: 2),
-         {id, ""} <- Integer.parse(id),
-         %{^id => a} <- state.activities do
-      Logger.error("activity #{inspect(a.name)}: wire #{rest}")
-      put_in(state.activities[id].wire_errors, a.wire_errors + 1)
-    else
-      _ ->
-        Logger.error("timing worker: wire #{rest}")
-        state
-    end
-  end
-
-  defp handle_frame(<<?E, text::binary>>, state) do
+  defp handle_frame({:error, text}, state) do
     Logger.error("timing worker refused a frame: #{text}")
     state
   end
 
-  defp handle_frame(other, state) do
+  defp handle_frame({:unknown, other}, state) do
     Logger.error("unexpected frame from the timing worker: #{inspect(other, limit: 20)}")
     state
   end
 
-  # the worker reports a cycle's release before what it applied in it
-  defp applied_ns({cycle, released}, cycle, kind, response) when kind != :late,
-    do: released + response
-
-  defp applied_ns(_release, _cycle, _kind, _response), do: nil
-
   ## Worker
 
   defp open(state) do
-    path = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")
-    # :eof: the worker's output closing is the first sign of its death
-    # (its exit status comes later, through the child-process helper)
-    port = Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status, :eof])
-    :persistent_term.put({__MODULE__, :port}, port)
-
-    receive do
-      {^port, {:data, <<?H, _::binary>> = hello}} -> handle_frame(hello, %{state | port: port})
-    after
-      5000 -> raise "the timing worker did not say hello within 5 s"
-    end
-  end
-
-  defp close_port(port) do
-    Port.close(port)
-  rescue
-    ArgumentError -> :ok
+    {port, status, boost} = Worker.open()
+    %{state | port: port, status: status, boost: boost}
   end
 
   defp restart(state) do
-    # the dead worker applies nothing: every activity's fallback holds from
-    # now (its owner drives it), before a new worker is even spawned
-    for {_id, a} <- state.activities,
-        do:
-          tell(state, a, %{
-            cycle: 0,
-            kind: :fallback,
-            command: a.fallback,
-            wired: false,
-            response_us: 0.0,
-            applied_ns: nil
-          })
-
+    Fallbacks.worker_died(state)
+    # a worker killed during a boost left the BEAM's threads boosted
+    Worker.undo_boost(state.boost)
     state = open(%{state | port: nil, restarts: state.restarts + 1})
 
     # every activity again, with its wire; until its next fresh result, its
     # fallback holds (told above, before the new worker was spawned)
     for {id, a} <- state.activities do
-      send_add(state.port, a)
-      if a.wire, do: send_wire(state.port, id, a.wire)
+      Worker.command(state.port, Protocol.add(a))
+      if a.wire, do: Worker.command(state.port, Protocol.wire(id, a.wire))
     end
 
-    # attachments the dead worker did not answer: asked of the new one
-    for {id, pending} <- state.attaching,
-        {_from, wire} <- pending,
-        do: send_wire(state.port, id, wire)
-
+    Wires.resend_pending(state)
     state
-  end
-
-  # a wire's answer nobody waits for: re-attached after a restart, reopened
-  defp wire_report(state, id, name, status, text) do
-    case state.activities do
-      %{^id => %{wire: wire}} when wire != nil and status == 0 ->
-        Logger.error(
-          "activity #{inspect(name)}: its wire could not be attached again: #{text}; " <>
-            "its commands are not on the line until it is attached"
-        )
-
-        put_in(state.activities[id].wire, nil)
-
-      %{^id => _} ->
-        Logger.info("activity #{inspect(name)}: wire #{text}")
-        state
-
-      _ ->
-        state
-    end
-  end
-
-  defp summary(a) do
-    a.stats
-    |> Stats.summary()
-    |> Map.merge(%{wire: a.wire && a.wire.device, wire_errors: a.wire_errors})
-  end
-
-  defp send_wire(port, id, %{device: device, fallback: fallback}) do
-    Port.command(port, <<?W, id::16, byte_size(fallback)::16, fallback::binary, device::binary>>)
-  end
-
-  defp add_activity(state, name, owner, period, deadline, priority, fallback) do
-    {id, state} = id_for(state, name)
-    Process.monitor(owner)
-
-    # added again: the worker keeps its wire, and so does this side
-    old = Map.get(state.activities, id, %{})
-
-    activity = %{
-      id: id,
-      name: name,
-      period_ns: round(period * 1.0e9),
-      deadline_ns: round(deadline * 1.0e9),
-      priority: priority,
-      fallback: fallback,
-      owner: owner,
-      wire: Map.get(old, :wire),
-      wire_errors: Map.get(old, :wire_errors, 0),
-      stats: Stats.new(round(period * 1.0e9)),
-      # the last release: {cycle, released_ns}
-      release: nil
-    }
-
-    send_add(state.port, activity)
-    {:reply, :ok, put_in(state.activities[id], activity)}
-  end
-
-  # the live process that owns activity `name`, if any (a restarted
-  # module's predecessor may be dead before its DOWN arrives here)
-  defp live_owner(state, name) do
-    with %{^name => id} <- state.ids,
-         %{owner: pid} <- state.activities[id],
-         true <- Process.alive?(pid) do
-      pid
-    else
-      _ -> nil
-    end
-  end
-
-  defp activity_id(state, name) do
-    case state.ids do
-      %{^name => id} when is_map_key(state.activities, id) -> {:ok, id}
-      _ -> {:error, "no activity #{inspect(name)} to attach a wire to"}
-    end
-  end
-
-  defp check_device(device) do
-    device = if is_list(device), do: List.to_string(device), else: device
-
-    cond do
-      not is_binary(device) or device == "" ->
-        {:error, "the wire's device must be a path, got #{inspect(device)}"}
-
-      byte_size(device) > @max_path or String.contains?(device, <<0>>) ->
-        {:error, "#{inspect(device)}: not a device path (too long, or a NUL byte in it)"}
-
-      true ->
-        {:ok, device}
-    end
-  rescue
-    _ in [ArgumentError, UnicodeConversionError] ->
-      {:error, "the wire's device must be a path, got #{inspect(device)}"}
-  end
-
-  defp check_fallback(fallback, device) do
-    case IO.iodata_to_binary(fallback) do
-      bytes when byte_size(bytes) <= @max_wire -> {:ok, bytes}
-      bytes -> {:error, "#{device}: #{byte_size(bytes)} fallback bytes, over #{@max_wire}"}
-    end
-  rescue
-    ArgumentError -> {:error, "#{device}: the fallback must be iodata, got #{inspect(fallback)}"}
-  end
-
-  # an applied command goes to the activity's owner and its watchers
-  defp tell(state, a, event) do
-    message = {:tc_cycle, :applied, a.name, event}
-    send(a.owner, message)
-
-    for pid <- Map.get(state.watchers, a.name, []), pid != a.owner, do: send(pid, message)
-    :ok
-  end
-
-  defp send_add(port, a) do
-    fallback = :erlang.term_to_binary(a.fallback)
-
-    Port.command(
-      port,
-      <<?A, a.id::16, a.period_ns::64, a.deadline_ns::64, a.priority, fallback::binary>>
-    )
-  end
-
-  # The worker applies a removed activity's fallback; its subscribers hear
-  # it here, since the activity is gone when the worker's frame arrives.
-  defp remove_activity(state, name) do
-    case state.ids do
-      %{^name => id} when is_map_key(state.activities, id) ->
-        a = state.activities[id]
-        if state.port, do: Port.command(state.port, <<?R, id::16>>)
-
-        # what the worker does: the fallback bytes on the wire, if any
-        tell(state, a, %{
-          cycle: 0,
-          kind: :fallback,
-          command: a.fallback,
-          wired: state.port != nil and a.wire != nil,
-          response_us: 0.0,
-          applied_ns: nil
-        })
-
-        %{state | activities: Map.delete(state.activities, id)}
-
-      _ ->
-        state
-    end
-  end
-
-  defp id_for(state, name) do
-    case state.ids do
-      %{^name => id} ->
-        {id, state}
-
-      _ ->
-        {state.next_id,
-         %{state | ids: Map.put(state.ids, name, state.next_id), next_id: state.next_id + 1}}
-    end
   end
 
   defp seconds!(opts, key) do

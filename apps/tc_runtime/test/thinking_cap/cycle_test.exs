@@ -154,6 +154,69 @@ defmodule ThinkingCap.CycleTest do
     assert {_, %{kind: :fresh, command: :go_again}} = fresh_result(name, :go_again, nil)
   end
 
+  describe "the release boost" do
+    @root System.cmd("id", ["-u"]) == {"0\n", 0}
+
+    # {scheduler priorities, poller priority}
+    defp priorities do
+      policies = ThinkingCap.Runtime.Scheduling.policies()
+      {pollers, schedulers} = Enum.split_with(policies, fn {n, _} -> n =~ "_poller" end)
+      priority = fn threads -> threads |> Enum.map(&elem(&1, 1).rt_priority) |> Enum.uniq() end
+      {priority.(schedulers), priority.(pollers)}
+    end
+
+    # other tests' activities may be pending a moment: the boost ends then
+    defp unboosted do
+      try do
+        ThinkingCap.Testing.Cluster.wait_until(fn -> priorities() == {[1], [2]} end, 5000)
+      rescue
+        RuntimeError -> :not_in_time
+      end
+
+      priorities()
+    end
+
+    test "while a result is pending the BEAM's schedulers run at 20 and its poller at 21",
+         %{name: name} do
+      if @root do
+        assert unboosted() == {[1], [2]}
+        :ok = Cycle.add(name, period: 1.0)
+        r = release(name)
+        assert priorities() == {[20], [21]}
+        Cycle.result(r, :go)
+        assert %{kind: :fresh} = applied(name)
+        assert unboosted() == {[1], [2]}
+      else
+        assert ThinkingCap.Runtime.Scheduling.release_boost() == []
+      end
+    end
+
+    test "a missed deadline ends the boost with the fallback", %{name: name} do
+      if @root do
+        :ok = Cycle.add(name, period: 1.0, deadline: 0.05)
+        _r = release(name)
+        assert %{kind: :fallback} = applied(name)
+        assert unboosted() == {[1], [2]}
+      end
+    end
+
+    test "a worker killed during a boost: the threads are put back before the next one starts",
+         %{name: name} do
+      if @root do
+        :ok = Cycle.add(name, period: 1.0)
+        _r = release(name)
+        assert priorities() == {[20], [21]}
+        restarts = Cycle.status().restarts
+        {_, 0} = System.cmd("kill", ["-9", "#{Cycle.worker_os_pid()}"])
+        assert %{kind: :fallback, cycle: 0} = applied_until(name, &(&1.cycle == 0))
+        # (a call: answered once the restart is done)
+        assert Cycle.status().restarts == restarts + 1
+        # the new worker's first release is a second away
+        assert priorities() == {[1], [2]}
+      end
+    end
+  end
+
   test "when the BEAM side closes, the worker applies every fallback and exits", %{tmp_dir: dir} do
     out = Path.join(dir, "out.bin")
     worker = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")

@@ -35,6 +35,35 @@ defmodule ThinkingCap.Runtime.Scheduling do
   and 0.5 % of cycles missed their deadline; at `SCHED_FIFO` 1, 0.4 % and
   0.03 %.
 
+  ## The release boost
+
+  At `SCHED_FIFO` 1 the BEAM is still one real-time program among others:
+  threads of the same priority never preempt each other, so another
+  program's busy thread at priority 1 or 2 kept a periodic module from its
+  release for up to 800 ms (`mix tc.bench timing` beside other BEAMs at
+  `SCHED_FIFO` 1). So while a periodic activity's result is pending
+  (released, neither its result in nor its fallback applied), the timing
+  worker holds the schedulers at **`SCHED_FIFO` 20** and the poller at 21,
+  and puts them back as it found them when no result is pending
+  (`release_boost/0` names the threads; the worker does the rest):
+
+    * the module's release and its work go before other programs' low
+      real-time threads, the BEAM's background work (which shares the
+      schedulers) only within those windows;
+    * the windows end at the activities' deadlines at the latest: a
+      module stuck in its cycle gets its fallback and the boost ends;
+    * 20 stays below the kernel's interrupt threads (50) and the timing
+      worker (80).
+
+  Measured with `mix tc.bench timing` (the paper's two 150 ms activities,
+  three event and one background activity, while other agents' BEAMs ran
+  at `SCHED_FIFO` 1): without the boost the activities' releases reached
+  `handle_cycle/2` up to 91 and 811 ms late; with it, see the README.
+
+  The `:tc_runtime, :periodic_priority` setting is the boost's scheduler
+  priority (20; the poller one above); `nil` turns it off. There is no
+  boost unless the schedulers run at real-time priority.
+
   The `:tc_runtime, :beam_priority` setting chooses: `:realtime` (the
   default; falls back to nice −10 where real-time priority is refused),
   `{:nice, n}`, or `nil` to leave the BEAM as it is. Both need root or
@@ -68,6 +97,65 @@ defmodule ThinkingCap.Runtime.Scheduling do
     end)
   end
 
+  @typedoc "A thread the timing worker boosts: its id, its boost priority and its own."
+  @type boost :: {tid :: pos_integer(), boost :: 1..98, base :: 1..98}
+
+  @doc """
+  The threads the timing worker boosts while a periodic result is
+  pending: each scheduler at `:periodic_priority` (default 20), the poller
+  one above, with the `SCHED_FIFO` priority each has now. `[]` when the
+  boost is off or the schedulers do not run at real-time priority below
+  their boost.
+  """
+  @spec release_boost() :: [boost()]
+  def release_boost do
+    with priority when is_integer(priority) <- periodic_priority(),
+         policies = for(tid <- threads(), do: {tid, safe_policy(tid)}),
+         true <- policies != [] and Enum.all?(policies, &below_boost?(&1, priority)) do
+      for {tid, %{rt_priority: base}} <- policies do
+        prio = if String.ends_with?(comm(tid), "_poller"), do: priority + 1, else: priority
+        {String.to_integer(tid), prio, base}
+      end
+    else
+      _ -> []
+    end
+  end
+
+  defp below_boost?({_tid, %{policy: :fifo, rt_priority: p}}, priority), do: p < priority
+  defp below_boost?(_thread, _priority), do: false
+
+  @doc """
+  Puts back threads a timing worker left boosted (it was killed during a
+  boost): each thread still at its boost priority goes back to its own.
+  Threads someone else rescheduled are left alone.
+  """
+  @spec undo_boost([boost()]) :: :ok
+  def undo_boost(boost) do
+    for {tid, prio, base} <- boost,
+        match?(%{policy: :fifo, rt_priority: ^prio}, safe_policy("#{tid}")),
+        do: System.cmd("chrt", ["-f", "-p", "#{base}", "#{tid}"], stderr_to_stdout: true)
+
+    :ok
+  rescue
+    ErlangError -> :ok
+  end
+
+  @doc "The scheduler priority of the release boost (`:periodic_priority`), or nil when it is off."
+  @spec periodic_priority() :: 2..97 | nil
+  def periodic_priority do
+    case Application.get_env(:tc_runtime, :periodic_priority, 20) do
+      nil ->
+        nil
+
+      p when is_integer(p) and p in 2..97 ->
+        p
+
+      other ->
+        raise ArgumentError,
+              ":tc_runtime, :periodic_priority must be 2..97 or nil, got #{inspect(other)}"
+    end
+  end
+
   @doc "Sets the nice value of the BEAM's scheduler and poller threads (back to `SCHED_OTHER`)."
   @spec nice(integer()) :: {:ok, [String.t()]} | {:error, String.t()}
   def nice(value) do
@@ -80,17 +168,26 @@ defmodule ThinkingCap.Runtime.Scheduling do
   @doc "How each of the BEAM's scheduler and poller threads is scheduled, by thread name."
   @spec policies() :: %{String.t() => thread_policy()}
   def policies do
-    for tid <- threads(), into: %{} do
-      stat = File.read!("/proc/#{System.pid()}/task/#{tid}/stat")
-      # the fields after the ")" closing the thread name start at field 3
-      fields = stat |> String.split(") ", parts: 2) |> List.last() |> String.split(" ")
-      field = fn n -> fields |> Enum.at(n - 3) |> String.to_integer() end
+    for tid <- threads(), into: %{}, do: {comm(tid), thread_policy(tid)}
+  end
 
-      policy =
-        Map.get(%{0 => :other, 1 => :fifo, 2 => :rr, 3 => :batch, 5 => :idle}, field.(41), :other)
+  defp thread_policy(tid) do
+    stat = File.read!("/proc/#{System.pid()}/task/#{tid}/stat")
+    # the fields after the ")" closing the thread name start at field 3
+    fields = stat |> String.split(") ", parts: 2) |> List.last() |> String.split(" ")
+    field = fn n -> fields |> Enum.at(n - 3) |> String.to_integer() end
 
-      {comm(tid), %{policy: policy, rt_priority: field.(40), nice: field.(19)}}
-    end
+    policy =
+      Map.get(%{0 => :other, 1 => :fifo, 2 => :rr, 3 => :batch, 5 => :idle}, field.(41), :other)
+
+    %{policy: policy, rt_priority: field.(40), nice: field.(19)}
+  end
+
+  # a thread may end between the listing and the reading
+  defp safe_policy(tid) do
+    thread_policy(tid)
+  rescue
+    File.Error -> nil
   end
 
   @doc "True when the VM was started with scheduler busy-waiting off (`+sbwt none`)."
