@@ -367,7 +367,7 @@ static void set_boost(const uint8_t *p, uint32_t len) {
     apply_boost(0);
     n_boosts = (int)((len - 1) / 5);
     for (int i = 0; i < n_boosts; i++) {
-        boosts[i].tid = (pid_t)get32(p + 1 + 5 * i);
+        boosts[i].tid = (pid_t)tc_get32(p + 1 + 5 * i);
         boosts[i].priority = p[5 + 5 * i];
         boosts[i].saved_policy = -1;
     }

@@ -75,12 +75,14 @@ defmodule ThinkingCap.Cycle do
 
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as
-  `{:timing, name, summary}`.
+  `{:timing, name, summary}` (`ThinkingCap.Tuples.timing/2`).
   """
   use GenServer
   require Logger
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
   alias ThinkingCap.Cycle.{Clock, Stats}
   alias ThinkingCap.Cycle.Core.{Activities, Fallbacks, Protocol, Releases, Wires, Worker}
 
@@ -360,8 +362,10 @@ defmodule ThinkingCap.Cycle do
   def handle_info({:cpu, id, ns}, state), do: {:noreply, Releases.cpu(state, id, ns)}
 
   def handle_info(:publish, state) do
-    for {_id, a} <- state.activities,
-        do: Blackboard.out({:timing, a.name, Activities.summary(a)}, key: {:timing, a.name})
+    for {_id, a} <- state.activities do
+      {tuple, opts} = Tuples.keyed(Tuples.timing(a.name, Activities.summary(a)))
+      Blackboard.out(tuple, opts)
+    end
 
     {:noreply, state}
   end

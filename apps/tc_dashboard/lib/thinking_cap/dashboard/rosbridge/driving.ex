@@ -6,6 +6,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Driving do
   # has taken them meanwhile.
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
   alias ThinkingCap.Dashboard.Control
 
   @doc "The id of the robot named `name`: a known robot's, else one on the blackboard."
@@ -34,8 +36,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Driving do
   @doc "Hands `robot` back, unless someone else has taken it meanwhile."
   @spec release(atom(), String.t()) :: :ok
   def release(robot, by) do
-    case Blackboard.rdp({:teleop, robot, :_}) do
-      {:ok, {:teleop, ^robot, %{by: ^by, command: {:velocity, _, _}}}} ->
+    case Blackboard.rdp(Tuples.teleop(robot)) do
+      {:ok, Tuples.teleop(^robot, %{by: ^by, command: {:velocity, _, _}})} ->
         Control.teleop_release(robot, by)
 
       _ ->

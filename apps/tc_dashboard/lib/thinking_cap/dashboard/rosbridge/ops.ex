@@ -6,6 +6,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Ops do
   # A bad message gets a `status` error (the id echoed) and changes nothing.
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
   alias ThinkingCap.Dashboard.Control
   alias ThinkingCap.Dashboard.Core.{Access, JSON}
 
@@ -141,7 +143,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Ops do
       service when is_binary(service) and byte_size(service) <= 256 ->
         service = Topics.absolute(service)
         # /map when there is a world, or a map a robot learned
-        map? = state.world != nil or Blackboard.rdp({:map, :_, :_}) != :none
+        map? = state.world != nil or Blackboard.rdp(Tuples.map()) != :none
         topics = Topics.list(state.robots, map?)
 
         response =

@@ -27,6 +27,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
   @behaviour ThinkingCap.Dashboard.Core.Socket
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
   alias ThinkingCap.Dashboard.Rosbridge.{Driving, Frames, Ops, Snapshot, Subscriptions}
 
   @impl true
@@ -70,11 +72,11 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
 
   @impl true
   def handle_info(:open, state) do
-    {:ok, ref} = Blackboard.subscribe({:robot, :_, :_})
+    {:ok, ref} = Blackboard.subscribe(Tuples.robot())
 
     robots =
-      for {:robot, id, caps} when is_atom(id) and is_map(caps) <-
-            Blackboard.rd_all({:robot, :_, :_}),
+      for Tuples.robot(id, caps) when is_atom(id) and is_map(caps) <-
+            Blackboard.rd_all(Tuples.robot()),
           into: %{},
           do: {Atom.to_string(id), %{id: id, caps: caps}}
 
@@ -86,7 +88,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Session do
     robot = Atom.to_string(id)
 
     state =
-      if tag == :robot do
+      if tag == Tuples.tag(:robot) do
         robots = Map.put(state.robots, robot, %{id: id, caps: payload})
         %{state | robots: robots, tags: Subscriptions.sync_tags(state.tags, state.subs, robots)}
       else

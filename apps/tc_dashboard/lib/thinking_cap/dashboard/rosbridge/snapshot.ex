@@ -7,6 +7,8 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Snapshot do
   # payload}`).
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Tuples
+  require Tuples
   alias ThinkingCap.Dashboard.Rosbridge.{Messages, Topics, WorldMap}
   alias ThinkingCap.Navigation.OccupancyGrid
 
@@ -19,7 +21,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Snapshot do
           {:ok, [{String.t() | nil, map()}], map()} | {:error, String.t()}
   def initial(%{kind: :map, robot: only} = topic, _robots, world, latest) do
     # a request that has no map to send (or only an error) costs nothing
-    nothing = world == nil and Blackboard.rdp({:map, :_, :_}) == :none
+    nothing = world == nil and Blackboard.rdp(Tuples.map()) == :none
 
     if nothing or WorldMap.allow_send?(),
       do: initial_map(topic, only, world, latest),
@@ -66,7 +68,7 @@ defmodule ThinkingCap.Dashboard.Rosbridge.Snapshot do
   # the map a robot learned (ThinkingCap.Navigation.Mapper), else the world's
   defp initial_map(topic, only, world, latest) do
     learned =
-      for {:map, id, %OccupancyGrid{} = map} <- Blackboard.rd_all({:map, :_, :_}),
+      for Tuples.map(id, %OccupancyGrid{} = map) <- Blackboard.rd_all(Tuples.map()),
           robot = to_string(id),
           only == nil or only == robot,
           message <- Messages.of_tuple(topic, :map, robot, map, latest),
