@@ -37,6 +37,7 @@ defmodule ThinkingCap.BlackBox.MixProject do
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
       compilers: [:tc_mcap | Mix.compilers()],
+      elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       # the simulator only for the tests that record a whole robot
       deps: [{:tc_cognition, in_umbrella: true}, {:tc_sim, in_umbrella: true, only: :test}]
     ]

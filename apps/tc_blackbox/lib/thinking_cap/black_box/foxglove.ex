@@ -148,6 +148,9 @@ defmodule ThinkingCap.BlackBox.Foxglove do
          time_ns
        )
        when is_list(ranges) and is_number(a0) and is_number(a1) and is_atom(robot) do
+    # a range that is not a number would make the scan unreadable
+    true = :lists.all(&is_number/1, ranges)
+
     json = %{
       timestamp: timestamp(scan, time_ns),
       frame_id: "#{robot}/base_link",
