@@ -8,7 +8,7 @@ defmodule ThinkingCap.MCAPTest do
 
   # two schemas, three channels (one without a schema), messages
   # interleaved with times out of order, enough to fill several chunks
-  defp sample(opts) do
+  defp sample(opts, count \\ 600) do
     {:ok, w} = Writer.new(opts)
     {:ok, s1, w} = Writer.add_schema(w, "foxglove.LaserScan", "jsonschema", ~s({"type":"object"}))
     {:ok, s2, w} = Writer.add_schema(w, "thinkingcap.Tuple", "jsonschema", "{}")
@@ -17,7 +17,7 @@ defmodule ThinkingCap.MCAPTest do
     {:ok, c2, w} = Writer.add_channel(w, 0, "/r1/raw", "application/octet-stream")
 
     {w, sent} =
-      Enum.reduce(1..600, {w, []}, fn i, {w, sent} ->
+      Enum.reduce(1..count, {w, []}, fn i, {w, sent} ->
         channel = Enum.at([c0, c1, c2], rem(i, 3))
         # a little out of order: every tenth message is stamped earlier
         log_time = 1_000_000_000 + i * 1_000 - if(rem(i, 10) == 0, do: 5_500, else: 0)
@@ -192,15 +192,18 @@ defmodule ThinkingCap.MCAPTest do
       assert {:error, {:too_big, :total}} = Reader.read_binary(bin, max_total_bytes: 10_000)
     end
 
+    # 3,000 reads: the limits keep a length made huge from allocating much
+    @tag timeout: 300_000
     test "thousands of random mutations: an answer each time, never an exception" do
       for algorithm <- @algorithms do
-        {bin, _} = sample(compression: algorithm, chunk_bytes: 2_000)
+        # a small file of a few chunks: every mutation lands near something
+        {bin, _} = sample([compression: algorithm, chunk_bytes: 1_000], 90)
         linear = strip_summary(bin)
         :rand.seed(:exsss, {1, 2, 3})
 
-        for _ <- 1..1_000, source <- [bin, linear] do
+        for _ <- 1..500, source <- [bin, linear] do
           mutated = mutate(source)
-          result = Reader.read_binary(mutated, max_total_bytes: 10_000_000)
+          result = Reader.read_binary(mutated, max_chunk_bytes: 100_000, max_total_bytes: 300_000)
           assert match?({:ok, %Reader{}}, result) or match?({:error, _}, result)
         end
       end
