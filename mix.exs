@@ -24,6 +24,7 @@ defmodule ThinkingCap.Umbrella.MixProject do
           tc_robot: :permanent,
           tc_sim: :permanent,
           tc_cognition: :permanent,
+          tc_blackbox: :permanent,
           tc_dashboard: :permanent,
           # loaded, not started: the dashboard starts it when an ADF wants
           # it (apps/tc_dashboard/mix.exs puts it on the code path)

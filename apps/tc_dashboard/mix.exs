@@ -44,6 +44,7 @@ defmodule ThinkingCap.Dashboard.MixProject do
       elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       deps: [
         {:tc_cognition, in_umbrella: true},
+        {:tc_blackbox, in_umbrella: true},
         {:tc_sim, in_umbrella: true}
       ]
     ]

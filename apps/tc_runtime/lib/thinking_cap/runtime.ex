@@ -73,8 +73,8 @@ defmodule ThinkingCap.Runtime do
   an ADF file) on its node. Returns what was started, or every module that
   could not be, with the reason. A started ADF is announced on the
   blackboard as `{:adf, robot, %{node:, file:, rdf:, wdf:, dashboard:,
-  modules:}}` (the services that follow an ADF, such as the dashboard, start
-  from it).
+  record:, modules:}}` (the services that follow an ADF, such as the
+  dashboard and the recorder, start from it).
   """
   @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
   def start(%ADF{} = adf) do
@@ -463,6 +463,7 @@ defmodule ThinkingCap.Runtime do
             rdf: adf.rdf,
             wdf: adf.wdf,
             dashboard: adf.dashboard,
+            record: adf.record,
             modules: Enum.map(adf.modules, & &1.name)
           }
         )

@@ -62,8 +62,8 @@ defmodule ThinkingCap.Tuples do
      "`%{module:, layer:, node:, reason:, restarts:, seconds:, stopped:, at:}` " <>
        "(key `{:module_gave_up, robot, module}`)", "supervision warden",
      "dashboard, console, `Runtime.resume/1`"},
-    {:adf, :robot, "`%{node:, file:, rdf:, wdf:, dashboard:, modules:}`: an ADF started",
-     "runtime", "dashboard launcher"},
+    {:adf, :robot, "`%{node:, file:, rdf:, wdf:, dashboard:, record:, modules:}`: an ADF started",
+     "runtime", "dashboard launcher, recorder launcher"},
     {:cluster, :robot,
      "`%{node:, logical:, up:, missing:, unplaced:}` (key `{:cluster, robot, node}`)",
      "deployment", "dashboard"},
@@ -205,6 +205,7 @@ defmodule ThinkingCap.Tuples do
              rdf: Path.t() | nil,
              wdf: Path.t() | nil,
              dashboard: term(),
+             record: map(),
              modules: [atom()]
            }}
   @type cluster ::

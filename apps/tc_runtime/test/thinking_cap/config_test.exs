@@ -179,6 +179,38 @@ defmodule ThinkingCap.ConfigTest do
     end
   end
 
+  describe "the ADF's record: section" do
+    test "is off by default, filled with defaults when given, and checked", %{tmp_dir: dir} do
+      assert {:ok, adf} = Config.read(write(dir, "plain.adf", "[robot: :r1, modules: []]"))
+      assert %{enabled: false, dir: "recordings", compression: :zstd} = adf.record
+
+      on = """
+      [robot: :r1, record: [enabled: true, dir: "runs", compression: :lz4,
+        templates: [{:laser, :r1, :_}]], modules: []]
+      """
+
+      assert {:ok, adf} = Config.read(write(dir, "on.adf", on))
+
+      assert %{
+               enabled: true,
+               dir: "runs",
+               compression: :lz4,
+               chunk_bytes: 1_048_576,
+               chunk_seconds: 1.0,
+               file_seconds: 600.0,
+               templates: [{:laser, :r1, :_}]
+             } = adf.record
+
+      bad = """
+      [robot: :r1, record: [enabled: true, compresion: :lz4, chunk_seconds: 0], modules: []]
+      """
+
+      assert [unknown, seconds] = errors(write(dir, "bad.adf", bad))
+      assert unknown =~ "unknown key :compresion in record; did you mean :compression?"
+      assert seconds =~ "record.chunk_seconds: expected a number from 0.01 to 60, got 0"
+    end
+  end
+
   describe "ADF checks across keys" do
     test "nodes that are not declared, timing that cannot hold, referenced files that are missing",
          %{tmp_dir: dir} do

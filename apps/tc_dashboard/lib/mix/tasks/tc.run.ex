@@ -12,11 +12,14 @@ defmodule Mix.Tasks.Tc.Run do
   to watch the robot and drive it by hand.
 
       mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P] [--estop-port P]
-                 [--token-file PATH]
+                 [--token-file PATH] [--record DIR]
 
   `--port`, `--rosbridge-port` and `--estop-port` override the ADF's dashboard ports (0:
   any free port); `--token-file` gives the access token (a file its owner
-  alone may read) instead of a new one.
+  alone may read) instead of a new one. `--record DIR` records the robot's
+  tuples into MCAP files in DIR (`ThinkingCap.BlackBox.Recorder`): it
+  turns on the ADF's `record:` section, with its other keys as the ADF
+  gives them.
 
   `bin/run` does the set-up and starts it.
   """
@@ -36,7 +39,8 @@ defmodule Mix.Tasks.Tc.Run do
           port: :integer,
           rosbridge_port: :integer,
           estop_port: :integer,
-          token_file: :string
+          token_file: :string,
+          record: :string
         ]
       )
 
@@ -45,7 +49,7 @@ defmodule Mix.Tasks.Tc.Run do
 
     adf =
       case ThinkingCap.Config.read(adf_path) do
-        {:ok, adf} -> dashboard_ports(adf, opts)
+        {:ok, adf} -> adf |> dashboard_ports(opts) |> record(opts[:record])
         {:error, errors} -> Mix.raise(ThinkingCap.Config.format_errors(errors))
       end
 
@@ -60,6 +64,8 @@ defmodule Mix.Tasks.Tc.Run do
       {:error, failed} ->
         Mix.raise("could not start #{adf_path}: #{inspect(failed)}")
     end
+
+    if adf.record[:enabled], do: IO.puts("record: #{Path.expand(adf.record.dir)}")
 
     if adf.dashboard[:enabled] do
       case ThinkingCap.Dashboard.await(10_000) do
@@ -79,6 +85,9 @@ defmodule Mix.Tasks.Tc.Run do
     end
 
     report(adf.robot, opts[:seconds])
+    # the VM halts when the task returns: the recording's last file is
+    # closed first, with its summary (a stop by signal closes it too)
+    if adf.record[:enabled], do: ThinkingCap.BlackBox.stop(adf.robot)
   end
 
   defp dashboard_ports(adf, opts) do
@@ -90,6 +99,10 @@ defmodule Mix.Tasks.Tc.Run do
 
     %{adf | dashboard: Map.merge(adf.dashboard, Map.new(overrides))}
   end
+
+  # the recorder starts from the ADF's announcement (ThinkingCap.BlackBox)
+  defp record(adf, nil), do: adf
+  defp record(adf, dir), do: %{adf | record: Map.merge(adf.record, %{enabled: true, dir: dir})}
 
   defp report(_robot, 0), do: :ok
 

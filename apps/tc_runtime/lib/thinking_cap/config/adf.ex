@@ -11,6 +11,41 @@ defmodule ThinkingCap.Config.ADF do
   ]
   @dashboard_fields @dashboard_deployment_fields ++ ThinkingCap.Config.DashboardOptions.fields()
 
+  # also the options of ThinkingCap.BlackBox.Recorder (tc_blackbox), which
+  # validates them with this same list: the runtime only checks them
+  @record_fields [
+    enabled:
+      {:boolean,
+       default: false,
+       doc:
+         "record the robot's tuples into MCAP files (`ThinkingCap.BlackBox.Recorder`, started by the node that starts the ADF)"},
+    dir:
+      {:string,
+       default: "recordings",
+       doc: "the directory of the files; a relative one is taken from the working directory"},
+    compression:
+      {{:one_of, [:zstd, :lz4, :none]},
+       default: :zstd, doc: "the chunks' compression (zstd: smallest; lz4: fastest)"},
+    chunk_bytes:
+      {{:int_range, 4_096, 67_108_864},
+       default: 1_048_576, doc: "a chunk is closed when it holds this many bytes (uncompressed)"},
+    chunk_seconds:
+      {{:number_range, 0.01, 60},
+       default: 1.0,
+       doc: "and at the latest this many seconds after it opened: a crash loses at most that much"},
+    file_bytes:
+      {{:int_range, 65_536, 1_099_511_627_776},
+       default: 268_435_456, doc: "a file is closed and the next begun past this many bytes"},
+    file_seconds:
+      {{:number_range, 1, 86_400},
+       default: 600.0, doc: "and at the latest this many seconds after it was begun"},
+    templates:
+      {{:list, :template},
+       default: [],
+       doc:
+         "the blackboard templates recorded; empty: every tuple of the robot, `{:_, robot, :_}`"}
+  ]
+
   @module_fields [
     module: {:module, required: true, doc: "the Elixir module implementing it"},
     node:
@@ -73,6 +108,9 @@ defmodule ThinkingCap.Config.ADF do
        default: [], doc: "how a deployment's nodes find each other (below)"},
     dashboard:
       {{:keyword, @dashboard_fields}, default: [], doc: "web dashboard settings (below)"},
+    record:
+      {{:keyword, @record_fields},
+       default: [], doc: "recording the robot's tuples to MCAP files (below)"},
     modules:
       {{:keyword_of, {:keyword, @module_fields}},
        required: true, doc: "`name: [module keys]` (below)"}
@@ -112,11 +150,29 @@ defmodule ThinkingCap.Config.ADF do
   ## Dashboard keys
 
   #{ThinkingCap.Config.Schema.describe(@dashboard_fields)}
+
+  ## Record keys
+
+  The runtime only checks them: the recorder is in `tc_blackbox`, above
+  the runtime, which starts one for the robot when the ADF it announces
+  (`{:adf, robot, %{record: ...}}`) enables it.
+
+  #{ThinkingCap.Config.Schema.describe(@record_fields)}
   """
 
   alias ThinkingCap.Config.Schema
 
-  defstruct [:file, :robot, :rdf, :wdf, nodes: %{}, cluster: %{}, dashboard: %{}, modules: []]
+  defstruct [
+    :file,
+    :robot,
+    :rdf,
+    :wdf,
+    nodes: %{},
+    cluster: %{},
+    dashboard: %{},
+    record: %{},
+    modules: []
+  ]
 
   @typedoc """
   One module entry, with defaults filled in (`deadline` defaults to
@@ -147,8 +203,16 @@ defmodule ThinkingCap.Config.ADF do
           nodes: %{atom() => node()},
           cluster: %{connect_every: float(), settle: float()},
           dashboard: map(),
+          record: map(),
           modules: [module_spec()]
         }
+
+  @doc """
+  The `record:` section's fields (a `ThinkingCap.Config.Schema`): the
+  recorder validates its options with them too.
+  """
+  @spec record_fields() :: Schema.fields()
+  def record_fields, do: @record_fields
 
   @doc false
   # Validates the data of an ADF read from `file`.
@@ -192,6 +256,7 @@ defmodule ThinkingCap.Config.ADF do
            | nodes: Map.new(nodes),
              cluster: value.cluster,
              dashboard: resolve_dashboard_node(value.dashboard, nodes),
+             record: value.record,
              modules: modules
          }}
 

@@ -1,0 +1,263 @@
+defmodule ThinkingCap.BlackBox.Foxglove do
+  @moduledoc """
+  Blackboard tuples as Foxglove messages: JSON (message encoding
+  `json`) with JSON schemas (schema encoding `jsonschema`), so that a
+  recording opens in Foxglove and the MCAP tools, and the Foxglove
+  WebSocket endpoint can send the same messages.
+
+  | tuple | topic | schema |
+  |---|---|---|
+  | a laser's reading (`ranges`, `angle_min`, `angle_max`) | `/ROBOT/SENSOR` | `foxglove.LaserScan`, frame `ROBOT/base_link` |
+  | `:map` (an `OccupancyGrid`) | `/ROBOT/map` | `foxglove.Grid`, frame `map`, one `INT8` cell per byte |
+  | `:pose` (the estimate) | `/ROBOT/pose` and `/ROBOT/tf` | `foxglove.PoseInFrame` in `map`, `foxglove.FrameTransform` `map` → `ROBOT/base_link` |
+  | `:sim_pose` (the simulator's truth) | `/ROBOT/sim_pose` | `foxglove.PoseInFrame` in `map` |
+  | any other | `/ID/TAG` | `thinkingcap.Tuple`: `tag`, `robot` (the id), `payload` |
+
+  The payload of a `thinkingcap.Tuple` is the term as JSON, whatever it
+  holds: atoms as strings, tuples as arrays, structs as objects with
+  their `"__struct__"`, binaries that are not UTF-8 as
+  `{"base64": ...}`, pids and functions printed. A Foxglove message's
+  `timestamp` is the payload's `stamp` (seconds on the robot's clock)
+  when it has one, else the time given.
+
+  Field names follow the `@foxglove/schemas` package (2.x); the schemas
+  here are written for this module and hold the fields it fills.
+  """
+
+  alias ThinkingCap.BlackBox.Core.JSON
+  alias ThinkingCap.Navigation.OccupancyGrid
+  alias ThinkingCap.Tuples
+  require Tuples
+
+  @typedoc "A message to record: its topic, its schema's name and its JSON."
+  @type message :: {topic :: String.t(), schema :: String.t(), json :: iodata()}
+
+  # foxglove.NumericType
+  @int8 2
+
+  time = %{
+    "type" => "object",
+    "properties" => %{
+      "sec" => %{"type" => "integer", "minimum" => 0},
+      "nsec" => %{"type" => "integer", "minimum" => 0, "maximum" => 999_999_999}
+    }
+  }
+
+  vector3 = %{
+    "type" => "object",
+    "properties" => Map.new(~w(x y z), &{&1, %{"type" => "number"}})
+  }
+
+  quaternion = %{
+    "type" => "object",
+    "properties" => Map.new(~w(x y z w), &{&1, %{"type" => "number"}})
+  }
+
+  pose = %{
+    "type" => "object",
+    "properties" => %{"position" => vector3, "orientation" => quaternion}
+  }
+
+  string = %{"type" => "string"}
+  number = %{"type" => "number"}
+  numbers = %{"type" => "array", "items" => number}
+
+  schema = fn name, properties ->
+    %{"title" => name, "type" => "object", "properties" => properties}
+  end
+
+  @schemas %{
+    "foxglove.LaserScan" =>
+      schema.("foxglove.LaserScan", %{
+        "timestamp" => time,
+        "frame_id" => string,
+        "pose" => pose,
+        "start_angle" => number,
+        "end_angle" => number,
+        "ranges" => numbers,
+        "intensities" => numbers
+      }),
+    "foxglove.Grid" =>
+      schema.("foxglove.Grid", %{
+        "timestamp" => time,
+        "frame_id" => string,
+        "pose" => pose,
+        "column_count" => %{"type" => "integer", "minimum" => 0},
+        "cell_size" => %{
+          "type" => "object",
+          "properties" => %{"x" => number, "y" => number}
+        },
+        "row_stride" => %{"type" => "integer", "minimum" => 0},
+        "cell_stride" => %{"type" => "integer", "minimum" => 0},
+        "fields" => %{
+          "type" => "array",
+          "items" => %{
+            "type" => "object",
+            "properties" => %{
+              "name" => string,
+              "offset" => %{"type" => "integer", "minimum" => 0},
+              "type" => %{"type" => "integer", "minimum" => 0, "maximum" => 8}
+            }
+          }
+        },
+        "data" => %{"type" => "string", "contentEncoding" => "base64"}
+      }),
+    "foxglove.PoseInFrame" =>
+      schema.("foxglove.PoseInFrame", %{"timestamp" => time, "frame_id" => string, "pose" => pose}),
+    "foxglove.FrameTransform" =>
+      schema.("foxglove.FrameTransform", %{
+        "timestamp" => time,
+        "parent_frame_id" => string,
+        "child_frame_id" => string,
+        "translation" => vector3,
+        "rotation" => quaternion
+      }),
+    "thinkingcap.Tuple" =>
+      schema.("thinkingcap.Tuple", %{
+        "tag" => string,
+        "robot" => string,
+        "payload" => %{
+          "description" =>
+            "the payload as JSON: atoms as strings, tuples as arrays, structs as objects with __struct__"
+        }
+      })
+  }
+
+  @doc "The schemas' names."
+  @spec schema_names() :: [String.t()]
+  def schema_names, do: Map.keys(@schemas)
+
+  @doc "A schema's JSON schema (schema encoding `jsonschema`)."
+  @spec schema(String.t()) :: binary()
+  def schema(name), do: @schemas |> Map.fetch!(name) |> :jiffy.encode()
+
+  @doc """
+  The messages recording `tuple` gives (one, or two for a pose);
+  `time_ns` is the message's time when the payload has no `stamp`.
+  """
+  @spec messages(tuple(), non_neg_integer()) :: [message()]
+  def messages(tuple, time_ns) do
+    convert(tuple, time_ns)
+  catch
+    # a payload of a known tag but an unexpected shape: recorded as it is
+    _kind, _reason -> generic(tuple)
+  end
+
+  defp convert(
+         Tuples.reading(sensor, robot, %{ranges: ranges, angle_min: a0, angle_max: a1} = scan),
+         time_ns
+       )
+       when is_list(ranges) and is_number(a0) and is_number(a1) and is_atom(robot) do
+    # a range that is not a number would make the scan unreadable
+    true = :lists.all(&is_number/1, ranges)
+
+    json = %{
+      timestamp: timestamp(scan, time_ns),
+      frame_id: "#{robot}/base_link",
+      pose: identity(),
+      start_angle: a0,
+      end_angle: a1,
+      ranges: ranges,
+      intensities: []
+    }
+
+    [{topic(robot, sensor), "foxglove.LaserScan", :jiffy.encode(json)}]
+  end
+
+  defp convert(Tuples.map(robot, %OccupancyGrid{} = grid), time_ns) do
+    {x, y} = grid.origin
+
+    json = %{
+      timestamp: timestamp(grid, time_ns),
+      frame_id: "map",
+      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: %{x: 0, y: 0, z: 0, w: 1}},
+      column_count: grid.width,
+      cell_size: %{x: grid.resolution, y: grid.resolution},
+      row_stride: grid.width,
+      cell_stride: 1,
+      fields: [%{name: "occupancy", offset: 0, type: @int8}],
+      data: Base.encode64(grid.data)
+    }
+
+    [{topic(robot, :map), "foxglove.Grid", :jiffy.encode(json)}]
+  end
+
+  defp convert(Tuples.pose(robot, %{pose: {x, y, theta}} = estimate), time_ns)
+       when is_number(x) and is_number(y) and is_number(theta) do
+    stamp = timestamp(estimate, time_ns)
+    q = yaw(theta)
+
+    pose = %{
+      timestamp: stamp,
+      frame_id: "map",
+      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: q}
+    }
+
+    transform = %{
+      timestamp: stamp,
+      parent_frame_id: "map",
+      child_frame_id: "#{robot}/base_link",
+      translation: %{x: x, y: y, z: 0.0},
+      rotation: q
+    }
+
+    [
+      {topic(robot, :pose), "foxglove.PoseInFrame", :jiffy.encode(pose)},
+      {topic(robot, :tf), "foxglove.FrameTransform", :jiffy.encode(transform)}
+    ]
+  end
+
+  defp convert(Tuples.sim_pose(robot, %{pose: {x, y, theta}} = truth), time_ns)
+       when is_number(x) and is_number(y) and is_number(theta) do
+    pose = %{
+      timestamp: timestamp(truth, time_ns),
+      frame_id: "map",
+      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: yaw(theta)}
+    }
+
+    [{topic(robot, :sim_pose), "foxglove.PoseInFrame", :jiffy.encode(pose)}]
+  end
+
+  defp convert(tuple, _time_ns), do: generic(tuple)
+
+  defp generic({tag, id, payload}) do
+    json = %{tag: JSON.to_ejson(tag), robot: JSON.to_ejson(id), payload: JSON.to_ejson(payload)}
+    [{topic(id, tag), "thinkingcap.Tuple", :jiffy.encode(json, [:use_nil])}]
+  end
+
+  defp generic(other) do
+    json = %{tag: nil, robot: nil, payload: JSON.to_ejson(other)}
+    [{"/tuple/#{tuple_size(other)}", "thinkingcap.Tuple", :jiffy.encode(json, [:use_nil])}]
+  end
+
+  @doc """
+  The stamp of a tuple's payload in nanoseconds (its `stamp:` in
+  seconds), or nil when it has none.
+  """
+  @spec stamp_ns(tuple()) :: non_neg_integer() | nil
+  def stamp_ns({_tag, _id, %{stamp: stamp}}) when is_number(stamp) and stamp >= 0,
+    do: round(stamp * 1.0e9)
+
+  def stamp_ns(_tuple), do: nil
+
+  @doc "A topic's name: `/ID/TAG` (ids and tags printed as they are, atoms without the colon)."
+  @spec topic(term(), term()) :: String.t()
+  def topic(id, tag), do: "/" <> name(id) <> "/" <> name(tag)
+
+  defp name(a) when is_atom(a), do: Atom.to_string(a)
+  defp name(s) when is_binary(s), do: if(String.valid?(s), do: s, else: inspect(s))
+  defp name(other), do: inspect(other)
+
+  defp timestamp(%{stamp: stamp}, _time_ns) when is_number(stamp) and stamp >= 0,
+    do: time(round(stamp * 1.0e9))
+
+  defp timestamp(_payload, time_ns), do: time(time_ns)
+
+  defp time(ns), do: %{sec: div(ns, 1_000_000_000), nsec: rem(ns, 1_000_000_000)}
+
+  defp identity,
+    do: %{position: %{x: 0.0, y: 0.0, z: 0.0}, orientation: %{x: 0, y: 0, z: 0, w: 1}}
+
+  # a rotation by theta about z, as a quaternion
+  defp yaw(theta), do: %{x: 0.0, y: 0.0, z: :math.sin(theta / 2), w: :math.cos(theta / 2)}
+end

@@ -1,0 +1,53 @@
+Code.require_file("../../mix/c_build.exs", __DIR__)
+
+defmodule Mix.Tasks.Compile.TcMcap do
+  @moduledoc false
+  # Builds the MCAP compression NIF (c_src/tc_mcap.c -> priv/lib/tc_mcap.so),
+  # linked to Debian's libzstd and liblz4.
+  use Mix.Task.Compiler
+
+  # run inside the app's project (cwd), not the umbrella's
+  @recursive true
+  @target "priv/lib/tc_mcap.so"
+
+  @impl true
+  def run(_args) do
+    ThinkingCap.Build.C.compile("tc_mcap", __DIR__, ["c_src/tc_mcap.c"], @target,
+      nif: true,
+      ldflags: ["-lzstd", "-llz4"]
+    )
+  end
+
+  @impl true
+  def clean, do: File.rm(Path.join(__DIR__, @target))
+end
+
+defmodule ThinkingCap.BlackBox.MixProject do
+  use Mix.Project
+
+  def project do
+    [
+      app: :tc_blackbox,
+      version: "0.1.0",
+      build_path: "../../_build",
+      config_path: "../../config/config.exs",
+      deps_path: "../../deps",
+      lockfile: "../../mix.lock",
+      elixir: "~> 1.14",
+      elixirc_options: [warnings_as_errors: true],
+      start_permanent: Mix.env() == :prod,
+      compilers: [:tc_mcap | Mix.compilers()],
+      elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
+      # the simulator only for the tests that record a whole robot
+      deps: [{:tc_cognition, in_umbrella: true}, {:tc_sim, in_umbrella: true, only: :test}]
+    ]
+  end
+
+  def application do
+    # jiffy: Debian's JSON NIF, the recorder's message encoder
+    [
+      mod: {ThinkingCap.BlackBox.Application, []},
+      extra_applications: [:logger, :jiffy]
+    ]
+  end
+end

@@ -1,0 +1,137 @@
+defmodule ThinkingCap.BlackBox.FoxgloveTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.BlackBox.Foxglove
+  alias ThinkingCap.Navigation.OccupancyGrid
+  alias ThinkingCap.Tuples
+  require Tuples
+
+  defp decode(json), do: :jiffy.decode(json, [:return_maps, :use_nil])
+
+  defp one(tuple, time \\ 7_000_000_000) do
+    [{topic, schema, json}] = Foxglove.messages(tuple, time)
+    {topic, schema, decode(json)}
+  end
+
+  test "a laser reading is a foxglove.LaserScan in the robot's frame" do
+    scan = %{
+      ranges: [1.0, 2.5, 8.0],
+      angle_min: -1.5,
+      angle_max: 1.5,
+      angle_increment: 1.5,
+      range_min: 0.1,
+      range_max: 8.0,
+      stamp: 12.25
+    }
+
+    assert {"/r1/laser", "foxglove.LaserScan", json} = one(Tuples.reading(:laser, :r1, scan))
+    assert json["timestamp"] == %{"sec" => 12, "nsec" => 250_000_000}
+    assert json["frame_id"] == "r1/base_link"
+    assert json["start_angle"] == -1.5 and json["end_angle"] == 1.5
+    assert json["ranges"] == [1.0, 2.5, 8.0]
+    assert json["intensities"] == []
+    assert json["pose"]["orientation"] == %{"x" => 0, "y" => 0, "z" => 0, "w" => 1}
+    assert Foxglove.stamp_ns(Tuples.reading(:laser, :r1, scan)) == 12_250_000_000
+  end
+
+  test "the map is a foxglove.Grid of signed bytes, base64" do
+    grid = %{
+      OccupancyGrid.new(3, 2, resolution: 0.5, origin: {-1.0, 2.0})
+      | data: <<0, 100, -1::signed-8, 50, 0, 0>>
+    }
+
+    assert {"/r1/map", "foxglove.Grid", json} = one(Tuples.map(:r1, grid))
+    assert json["frame_id"] == "map"
+    assert json["column_count"] == 3
+    assert json["row_stride"] == 3 and json["cell_stride"] == 1
+    assert json["cell_size"] == %{"x" => 0.5, "y" => 0.5}
+    assert json["pose"]["position"] == %{"x" => -1.0, "y" => 2.0, "z" => 0.0}
+    # foxglove.NumericType INT8 is 2
+    assert json["fields"] == [%{"name" => "occupancy", "offset" => 0, "type" => 2}]
+    assert Base.decode64!(json["data"]) == grid.data
+    # no stamp: the time given
+    assert json["timestamp"] == %{"sec" => 7, "nsec" => 0}
+  end
+
+  test "the pose estimate is a PoseInFrame in the map and the transform to the robot" do
+    pose = Tuples.pose(:r1, %{pose: {1.0, 2.0, :math.pi() / 2}, covariance: nil, stamp: 3.0})
+
+    assert [
+             {"/r1/pose", "foxglove.PoseInFrame", p},
+             {"/r1/tf", "foxglove.FrameTransform", t}
+           ] = Foxglove.messages(pose, 0)
+
+    p = decode(p)
+    t = decode(t)
+    assert p["frame_id"] == "map"
+    assert p["pose"]["position"] == %{"x" => 1.0, "y" => 2.0, "z" => 0.0}
+    assert_in_delta p["pose"]["orientation"]["z"], :math.sqrt(0.5), 1.0e-12
+    assert_in_delta p["pose"]["orientation"]["w"], :math.sqrt(0.5), 1.0e-12
+    assert t["parent_frame_id"] == "map" and t["child_frame_id"] == "r1/base_link"
+    assert t["translation"] == p["pose"]["position"]
+    assert t["rotation"] == p["pose"]["orientation"]
+    assert t["timestamp"] == %{"sec" => 3, "nsec" => 0}
+  end
+
+  test "the simulator's truth is a PoseInFrame of its own" do
+    assert {"/r1/sim_pose", "foxglove.PoseInFrame", json} =
+             one(Tuples.sim_pose(:r1, %{pose: {4.0, 5.0, 0.0}, stamp: 1.5}))
+
+    assert json["pose"]["orientation"]["w"] == 1.0
+  end
+
+  test "any other tuple is a thinkingcap.Tuple, whatever its payload holds" do
+    payload = %{
+      command: {:velocity, 0.5, -0.1},
+      by: nil,
+      flag: true,
+      text: "héllo",
+      bytes: <<255, 0, 1>>,
+      bits: <<1::3>>,
+      pid: self(),
+      ref: make_ref(),
+      fun: &Enum.map/2,
+      improper: [1 | 2],
+      nested: %{{:a, 1} => [:b], "k" => %URI{host: "x"}},
+      big: 123_456_789_012_345_678_901_234_567_890
+    }
+
+    assert {"/r1/teleop", "thinkingcap.Tuple", json} = one(Tuples.teleop(:r1, payload))
+    assert json["tag"] == "teleop" and json["robot"] == "r1"
+    p = json["payload"]
+    assert p["command"] == ["velocity", 0.5, -0.1]
+    assert p["by"] == nil and p["flag"] == true
+    assert p["text"] == "héllo"
+    assert p["bytes"] == %{"base64" => Base.encode64(<<255, 0, 1>>)}
+    assert p["pid"] == inspect(self())
+    assert p["improper"] == [1, 2]
+    assert p["nested"]["{:a, 1}"] == ["b"]
+    assert p["nested"]["k"]["__struct__"] == "URI" and p["nested"]["k"]["host"] == "x"
+    assert p["big"] == 123_456_789_012_345_678_901_234_567_890
+  end
+
+  test "a known tag with an unexpected payload is recorded as it is, not lost" do
+    assert {"/r1/laser", "thinkingcap.Tuple", json} =
+             one(Tuples.reading(:laser, :r1, %{ranges: [1.0, :nan], angle_min: 0, angle_max: 1}))
+
+    assert json["payload"]["ranges"] == [1.0, "nan"]
+    assert {"/r1/map", "thinkingcap.Tuple", _} = one(Tuples.map(:r1, %{bogus: true}))
+    # ids that are not robots (an activity's timing) name the topic too
+    assert {"/base/timing", "thinkingcap.Tuple", _} = one(Tuples.timing(:base, %{cycles: 1}))
+  end
+
+  test "every schema is a JSON schema titled with its name" do
+    for name <- Foxglove.schema_names() do
+      schema = decode(Foxglove.schema(name))
+      assert schema["title"] == name and schema["type"] == "object"
+    end
+
+    assert Enum.sort(Foxglove.schema_names()) == [
+             "foxglove.FrameTransform",
+             "foxglove.Grid",
+             "foxglove.LaserScan",
+             "foxglove.PoseInFrame",
+             "thinkingcap.Tuple"
+           ]
+  end
+end

@@ -1,0 +1,95 @@
+defmodule ThinkingCap.BlackBox.KilledVMTest do
+  # A VM recording a robot is killed with SIGKILL: its file must read up
+  # to its last chunk.
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.MCAP.Reader
+
+  @moduletag :tmp_dir
+  @moduletag timeout: 120_000
+
+  @script ~S"""
+  [dir] = System.argv()
+  {:ok, _} = Application.ensure_all_started(:tc_blackbox)
+  {:ok, _} = ThinkingCap.BlackBox.record(:victim, dir: dir, chunk_seconds: 0.05)
+  IO.puts("os_pid #{System.pid()}")
+
+  Stream.iterate(1, &(&1 + 1))
+  |> Enum.each(fn i ->
+    ThinkingCap.Blackboard.out({:drive, :victim, %{command: {:velocity, 0.1, 0.0}, i: i}})
+    if rem(i, 20) == 0, do: Process.sleep(2)
+  end)
+  """
+
+  test "a killed VM leaves a file readable up to its last chunk", %{tmp_dir: dir} do
+    script = Path.join(dir, "victim.exs")
+    File.write!(script, @script)
+    recordings = Path.join(dir, "recordings")
+
+    paths =
+      Enum.flat_map(
+        Path.wildcard(Path.join(Mix.Project.build_path(), "lib/*/ebin")),
+        &["-pa", &1]
+      )
+
+    port =
+      Port.open({:spawn_executable, System.find_executable("elixir")}, [
+        :binary,
+        :exit_status,
+        :stderr_to_stdout,
+        {:line, 1024},
+        args: paths ++ [script, recordings],
+        env: [{~c"ELIXIR_ERL_OPTIONS", ~c"+sbwt none +sbwtdcpu none +sbwtdio none"}]
+      ])
+
+    os_pid = await_os_pid(port)
+    # it records: chunks reach the disk while it runs
+    seen = await_file(recordings, 500)
+
+    {_, 0} = System.cmd("kill", ["-KILL", os_pid])
+    assert_receive {^port, {:exit_status, 137}}, 10_000
+
+    assert [file] = Path.wildcard(Path.join(recordings, "*.mcap"))
+    assert {:ok, mcap} = Reader.read(file)
+    assert mcap.mode == :linear and mcap.truncated
+    assert mcap.chunks >= 1
+    assert length(mcap.messages) >= seen
+
+    # every message up to the last chunk, in order, none missing
+    ids =
+      for m <- mcap.messages do
+        %{"payload" => %{"i" => i}} = :jiffy.decode(m.data, [:return_maps])
+        assert m.sequence == i
+        i
+      end
+
+    assert ids == Enum.to_list(1..length(ids))
+  end
+
+  defp await_os_pid(port) do
+    receive do
+      {^port, {:data, {:eol, "os_pid " <> pid}}} -> pid
+      {^port, {:data, _other}} -> await_os_pid(port)
+      {^port, {:exit_status, status}} -> flunk("the recording VM exited with #{status}")
+    after
+      60_000 -> flunk("the recording VM did not start")
+    end
+  end
+
+  # waits until the file being written reads with at least `n` messages
+  defp await_file(dir, n, tries \\ 500) do
+    seen =
+      with [file] <- Path.wildcard(Path.join(dir, "*.mcap")),
+           {:ok, mcap} <- Reader.read(file) do
+        length(mcap.messages)
+      else
+        _ -> 0
+      end
+
+    cond do
+      seen >= n -> seen
+      tries == 0 -> flunk("the file holds #{seen} messages")
+      true -> Process.sleep(20) && await_file(dir, n, tries - 1)
+    end
+  end
+end

@@ -1,0 +1,216 @@
+defmodule ThinkingCap.BlackBox.RecorderTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.{BlackBox, Blackboard}
+  alias ThinkingCap.BlackBox.Recorder
+  alias ThinkingCap.BlackBox.Test.NodeReader
+  alias ThinkingCap.MCAP.Reader
+  alias ThinkingCap.Navigation.OccupancyGrid
+  alias ThinkingCap.Tuples
+  require Tuples
+
+  @moduletag :tmp_dir
+
+  defp robot, do: :"rec#{System.unique_integer([:positive])}"
+
+  defp scan(i),
+    do: %{
+      ranges: Enum.map(1..90, &(&1 * 0.05 + i * 0.001)),
+      angle_min: -1.57,
+      angle_max: 1.57,
+      angle_increment: 3.14 / 89,
+      range_min: 0.05,
+      range_max: 8.0,
+      stamp: i * 0.1
+    }
+
+  # laser scans, poses, one map and a command per step
+  defp publish(robot, steps) do
+    Blackboard.out(Tuples.map(robot, OccupancyGrid.new(40, 30, resolution: 0.1)))
+
+    for i <- 1..steps do
+      Blackboard.out(Tuples.reading(:laser, robot, scan(i)))
+      Blackboard.out(Tuples.pose(robot, %{pose: {i * 0.01, 1.0, 0.1}, stamp: i * 0.1}))
+      Blackboard.out(Tuples.drive(robot, %{command: {:velocity, 0.2, 0.0}}))
+    end
+  end
+
+  # waits until the recorder has written `n` messages
+  defp await_messages(pid, n, tries \\ 200) do
+    cond do
+      Recorder.info(pid).messages >= n ->
+        :ok
+
+      tries == 0 ->
+        flunk("the recorder wrote #{Recorder.info(pid).messages} messages, not #{n}")
+
+      true ->
+        Process.sleep(10)
+        await_messages(pid, n, tries - 1)
+    end
+  end
+
+  for compression <- [:zstd, :lz4, :none] do
+    test "records a robot's tuples, read back by our reader and by @mcap/core (#{compression})",
+         %{tmp_dir: dir} do
+      robot = robot()
+      r = Atom.to_string(robot)
+      {:ok, pid} = BlackBox.record(robot, dir: dir, compression: unquote(compression))
+      assert BlackBox.recorder(robot) == pid
+      assert robot in BlackBox.recording()
+
+      # another robot's tuples are not recorded
+      Blackboard.out(Tuples.reading(:laser, :someone_else, scan(1)))
+      publish(robot, 50)
+      # 1 map + 50 x (scan, pose and its transform, drive)
+      await_messages(pid, 201)
+      assert :ok = BlackBox.stop(robot)
+      assert BlackBox.recorder(robot) == nil
+
+      assert [file] = Path.wildcard(Path.join(dir, "*.mcap"))
+      assert Path.basename(file) =~ ~r/^#{r}_\d{8}T\d{6}\.\d{3}Z\.mcap$/
+
+      assert {:ok, mcap} = Reader.read(file)
+      assert mcap.mode == :indexed and mcap.data_crc == :valid and mcap.summary_crc == :valid
+      topics = Map.new(mcap.channels, fn {id, c} -> {id, c.topic} end)
+
+      counts = Enum.frequencies_by(mcap.messages, &topics[&1.channel_id])
+
+      assert counts == %{
+               "/#{r}/laser" => 50,
+               "/#{r}/pose" => 50,
+               "/#{r}/tf" => 50,
+               "/#{r}/drive" => 50,
+               "/#{r}/map" => 1
+             }
+
+      # publish time: the stamp; log time: the receipt, on the epoch's clock
+      laser = Enum.find(mcap.messages, &(topics[&1.channel_id] == "/#{r}/laser"))
+      assert laser.publish_time == 100_000_000
+      assert abs(laser.log_time - System.os_time(:nanosecond)) < 60_000_000_000
+      json = :jiffy.decode(laser.data, [:return_maps])
+      assert json["ranges"] == scan(1).ranges
+
+      assert {:ok, node} = NodeReader.read(file)
+      assert node["chunkIndexes"] >= 1
+
+      assert node["compressions"] == [
+               %{zstd: "zstd", lz4: "lz4", none: ""}[unquote(compression)]
+             ]
+
+      assert node["summaryCrc"] == "valid" and node["dataSectionCrc"] == "valid"
+      assert node["messages"] == 201 and node["ordered"]
+
+      assert node["schemas"] == [
+               "foxglove.FrameTransform",
+               "foxglove.Grid",
+               "foxglove.LaserScan",
+               "foxglove.PoseInFrame",
+               "thinkingcap.Tuple"
+             ]
+
+      assert node["channels"]["/#{r}/laser"] == %{
+               "schema" => "foxglove.LaserScan",
+               "encoding" => "json",
+               "count" => 50
+             }
+
+      assert node["channels"]["/#{r}/map"]["schema"] == "foxglove.Grid"
+      assert node["channels"]["/#{r}/pose"]["schema"] == "foxglove.PoseInFrame"
+      assert node["statistics"]["channelMessageCounts"] == counts
+      assert node["first"]["/#{r}/map"]["column_count"] == 40
+    end
+  end
+
+  test "chunks are written every chunk_seconds: the open file reads up to its last chunk",
+       %{tmp_dir: dir} do
+    robot = robot()
+    {:ok, pid} = BlackBox.record(robot, dir: dir, chunk_seconds: 0.05)
+    publish(robot, 20)
+    await_messages(pid, 81)
+    # a tick or two later, the chunk is on disk, the file still open
+    Process.sleep(200)
+    %{file: file} = Recorder.info(pid)
+    assert {:ok, mcap} = Reader.read(file)
+    assert mcap.mode == :linear and mcap.truncated
+    assert length(mcap.messages) == 81
+    :ok = BlackBox.stop(robot)
+  end
+
+  test "files rotate by size, each one whole", %{tmp_dir: dir} do
+    robot = robot()
+
+    {:ok, pid} =
+      BlackBox.record(robot, dir: dir, file_bytes: 65_536, chunk_bytes: 8_192, compression: :none)
+
+    publish(robot, 300)
+    await_messages(pid, 1201)
+    :ok = BlackBox.stop(robot)
+
+    files = Path.wildcard(Path.join(dir, "*.mcap"))
+    assert length(files) > 3
+
+    total =
+      for file <- files, reduce: 0 do
+        n ->
+          assert {:ok, %{mode: :indexed, data_crc: :valid} = mcap} = Reader.read(file)
+          # each file declares the channels it uses
+          assert Enum.all?(mcap.messages, &Map.has_key?(mcap.channels, &1.channel_id))
+          n + length(mcap.messages)
+      end
+
+    assert total == 1201
+  end
+
+  test "files rotate by time", %{tmp_dir: dir} do
+    robot = robot()
+    {:ok, pid} = BlackBox.record(robot, dir: dir, file_seconds: 1, chunk_seconds: 0.05)
+    publish(robot, 1)
+    await_messages(pid, 5)
+    Process.sleep(1_300)
+    assert length(Recorder.info(pid).files) >= 2
+    :ok = BlackBox.stop(robot)
+
+    assert {:ok, first} =
+             dir |> Path.join("*.mcap") |> Path.wildcard() |> Enum.min() |> Reader.read()
+
+    assert length(first.messages) == 5
+  end
+
+  test "chosen templates only", %{tmp_dir: dir} do
+    robot = robot()
+    {:ok, pid} = BlackBox.record(robot, dir: dir, templates: [Tuples.drive(robot)])
+    publish(robot, 10)
+    await_messages(pid, 10)
+    :ok = BlackBox.stop(robot)
+    {:ok, mcap} = dir |> Path.join("*.mcap") |> Path.wildcard() |> hd() |> Reader.read()
+    assert Enum.map(mcap.channels, fn {_, c} -> c.topic end) == ["/#{robot}/drive"]
+    assert length(mcap.messages) == 10
+  end
+
+  test "options are checked before anything starts", %{tmp_dir: dir} do
+    assert {:error, message} = BlackBox.record(:r9, dir: dir, compresion: :lz4)
+    assert message =~ "unknown key :compresion in recorder; did you mean :compression?"
+
+    assert {:error, message} = BlackBox.record(:r9, dir: dir, compression: :gzip, file_bytes: 1)
+    assert message =~ "recorder.compression: expected one of :zstd, :lz4, :none, got :gzip"
+    assert message =~ "recorder.file_bytes: expected an integer from 65536"
+
+    assert_raise ArgumentError, ~r/missing required key :robot/, fn ->
+      Recorder.start_link(dir: dir)
+    end
+
+    assert BlackBox.recorder(:r9) == nil
+    assert BlackBox.stop(:r9) == {:error, :not_recording}
+
+    {:ok, _} = BlackBox.record(:r9, dir: dir)
+    assert BlackBox.record(:r9, dir: dir) == {:error, :already_recording}
+    :ok = BlackBox.stop(:r9)
+  end
+
+  test "a directory it cannot write to is an error at start, not a crash later", %{tmp_dir: dir} do
+    file = Path.join(dir, "a_file")
+    File.write!(file, "")
+    assert {:error, {:cannot_record, _, _}} = BlackBox.record(:r8, dir: Path.join(file, "sub"))
+  end
+end
