@@ -119,7 +119,7 @@ defmodule ThinkingCap.Navigation.MCL do
       a wall (default 30: a wall seen once, from afar, is already one;
       beams that end near it would otherwise weigh less than beams that
       end in unknown space, and pull the estimate off);
-    * `lost_through` (0.2), `lost_hits` (0.6), `lost_after` (3),
+    * `lost_through` (0.12), `lost_hits` (0.6), `lost_after` (3),
       `lost_margin` (0.3), `search_step` (0.2 m), `search_headings` (72).
 
   The params the filter reads as it runs (`beams`, `update_distance`,
@@ -167,7 +167,7 @@ defmodule ThinkingCap.Navigation.MCL do
     calibrate:
       {:boolean,
        default: false, read_only: true, doc: "in SLAM, calibrate the odometry's systematic errors"},
-    lost_through: {:probability, default: 0.2, doc: "share of beams through walls: poor"},
+    lost_through: {:probability, default: 0.12, doc: "share of beams through walls: poor"},
     lost_hits: {:probability, default: 0.6, doc: "share of the usual hits below which: poor"},
     lost_after: {:pos_integer, default: 3, doc: "poor scans before lost"},
     lost_margin:
