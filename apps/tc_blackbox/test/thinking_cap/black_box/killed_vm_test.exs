@@ -10,6 +10,10 @@ defmodule ThinkingCap.BlackBox.KilledVMTest do
 
   @script ~S"""
   [dir] = System.argv()
+  # never outlive the test: gone when the test's end of the pipe closes,
+  # and after a minute in any case
+  spawn(fn -> IO.read(:stdio, :line) && System.halt(1) end)
+  spawn(fn -> Process.sleep(60_000) && System.halt(1) end)
   {:ok, _} = Application.ensure_all_started(:tc_blackbox)
   {:ok, _} = ThinkingCap.BlackBox.record(:victim, dir: dir, chunk_seconds: 0.05)
   IO.puts("os_pid #{System.pid()}")
@@ -43,6 +47,7 @@ defmodule ThinkingCap.BlackBox.KilledVMTest do
       ])
 
     os_pid = await_os_pid(port)
+    on_exit(fn -> System.cmd("kill", ["-KILL", os_pid], stderr_to_stdout: true) end)
     # it records: chunks reach the disk while it runs
     seen = await_file(recordings, 500)
 
