@@ -195,6 +195,30 @@ static inline void set_g(int32_t i, int64_t v)
     scratch.seen[i] = scratch.gen;
 }
 
+/* Relaxes the edges of the closed cell u: a neighbour reached cheaper
+ * gets its g and is queued, keyed by f = g + octile to (gc, gr) with ties
+ * to the larger g (A*), or by g alone when gc < 0 (Dijkstra). 0 when the
+ * queue could not grow. */
+static int relax(const uint8_t *cells, int w, int h, int32_t u, Heap *heap, int gc, int gr)
+{
+    int32_t to[8];
+    int64_t cost[8];
+    int ok = 1;
+    int64_t gu = get_g(u);
+    int m = edges(cells, w, h, u, to, cost);
+    for (int k = 0; k < m; k++) {
+        int32_t v = to[k];
+        int64_t gv = gu + cost[k];
+        if (!is_closed(v) && (!seen(v) || gv < get_g(v))) {
+            set_g(v, gv);
+            ok = (gc < 0 ? heap_push(heap, gv, 0, v)
+                         : heap_push(heap, gv + octile(v % w, v / w, gc, gr), -gv, v)) &&
+                 ok;
+        }
+    }
+    return ok;
+}
+
 /* astar(cells, w, h, start, goal) -> {:ok, path, cost_units, expanded} |
  * {:error, :no_path, expanded}; start and goal passable, distinct. Ties on
  * f go to the larger g (the deeper cell). */
@@ -227,16 +251,7 @@ ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
             found = 1;
             break;
         }
-        int64_t gu = get_g(u);
-        int m = edges(cells, w, h, u, to, cost);
-        for (int k = 0; k < m; k++) {
-            int32_t v = to[k];
-            int64_t gv = gu + cost[k];
-            if (!is_closed(v) && (!seen(v) || gv < get_g(v))) {
-                set_g(v, gv);
-                ok = heap_push(&heap, gv + octile(v % w, v / w, gc, gr), -gv, v) && ok;
-            }
-        }
+        ok = relax(cells, w, h, u, &heap, gc, gr);
     }
     ERL_NIF_TERM result;
     if (!ok) {
@@ -326,24 +341,13 @@ ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     Heap heap = {0};
     set_g(s, 0);
     int ok = heap_push(&heap, 0, 0, s);
-    int32_t to[8];
-    int64_t cost[8];
     while (ok && heap.n > 0 && left > 0) {
         Entry e = heap_pop(&heap);
         int32_t u = e.u;
         if (is_closed(u)) continue;
         close_cell(u);
         for (unsigned k = 0; k < count; k++) left -= targets[k] == u;
-        int64_t gu = get_g(u);
-        int m = edges(cells, w, h, u, to, cost);
-        for (int k = 0; k < m; k++) {
-            int32_t v = to[k];
-            int64_t gv = gu + cost[k];
-            if (!is_closed(v) && (!seen(v) || gv < get_g(v))) {
-                set_g(v, gv);
-                ok = heap_push(&heap, gv, 0, v) && ok;
-            }
-        }
+        ok = relax(cells, w, h, u, &heap, -1, -1);
     }
     free(heap.e);
     ERL_NIF_TERM result;
