@@ -125,7 +125,9 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
     # lost again while lost: no new trigger
     Blackboard.out(Tuples.pose(robot, %{pose: {0.0, 0.0, 0.0}, status: :lost, stamp: 1.1}))
     await_count(pid, 14)
-    assert %{reasons: ["estop", "localization_lost", "module_gave_up"]} = RingBuffer.info(pid).pending
+
+    assert %{reasons: ["estop", "localization_lost", "module_gave_up"]} =
+             RingBuffer.info(pid).pending
 
     dump = await_dump(robot)
     assert dump.reasons == ["estop", "localization_lost", "module_gave_up"]
@@ -138,7 +140,10 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
     activity = :"ctl_#{robot}"
     pid = keep(robot, dir, activities: [activity], misses: 5)
 
-    timing = fn name, fallbacks -> Blackboard.out(Tuples.timing(name, %{fallbacks: fallbacks})) end
+    timing = fn name, fallbacks ->
+      Blackboard.out(Tuples.timing(name, %{fallbacks: fallbacks}))
+    end
+
     # another robot's activity, and a streak broken by a summary without a miss
     timing.(:someone_elses, 100)
     timing.(activity, 2)
@@ -159,7 +164,9 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
     # in batches, so that the subscription's own queue never overflows
     for batch <- 0..5 do
       for i <- (batch * 500 + 1)..(batch * 500 + 500) do
-        Blackboard.out(Tuples.reading(:laser, robot, %{scan(i) | ranges: List.duplicate(1.0, 50)}))
+        Blackboard.out(
+          Tuples.reading(:laser, robot, %{scan(i) | ranges: List.duplicate(1.0, 50)})
+        )
       end
 
       await_count(pid, batch * 500 + 500)
