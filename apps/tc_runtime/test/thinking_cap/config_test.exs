@@ -220,7 +220,7 @@ defmodule ThinkingCap.ConfigTest do
 
       on = "[robot: :r1, black_box: [enabled: true, seconds: 10, after: 0], modules: []]"
       assert {:ok, adf} = Config.read(write(dir, "on.adf", on))
-      assert %{enabled: true, seconds: 10, after: 0, max_messages: 500_000} = adf.black_box
+      assert %{enabled: true, seconds: 10.0, after: +0.0, max_messages: 500_000} = adf.black_box
 
       bad = "[robot: :r1, black_box: [seconds: 0, afer: 1], modules: []]"
       assert [unknown, seconds] = errors(write(dir, "bad.adf", bad))
