@@ -15,6 +15,7 @@ defmodule ThinkingCap.Console do
       iex> gave_up()               # modules whose supervision layer gave up
       iex> resume(:r1)             # bring their layers back
       iex> release_estop(:r1)
+      iex> dump(:r1)               # write the black box's last minute to a file
 
   Each prints a table and returns its data, so the result can be worked
   on in the shell.
@@ -35,6 +36,22 @@ defmodule ThinkingCap.Console do
     :ok = Blackboard.out(estop, opts)
     IO.puts("#{robot}: E-stop engaged")
   end
+
+  @doc """
+  Asks the black box of `robot` (`ThinkingCap.BlackBox`, wherever it
+  runs) to dump its last seconds to an MCAP file. The dump goes on for
+  the black box's `after:` seconds; it is announced on the blackboard as
+  `{:black_box_dump, robot, %{path: ...}}` when written.
+  """
+  @spec dump(atom(), String.t() | atom()) :: :ok
+  def dump(robot, reason \\ "console") do
+    request = Tuples.black_box_request(robot, %{reason: reason, by: :console, at: now_ms()})
+    {request, opts} = Tuples.keyed(request)
+    :ok = Blackboard.out(request, opts)
+    IO.puts("#{robot}: black-box dump requested (#{reason})")
+  end
+
+  defp now_ms, do: System.os_time(:millisecond)
 
   @doc "Releases the E-stop of `robot`: autonomy (or teleoperation) drives again."
   @spec release_estop(atom()) :: :ok

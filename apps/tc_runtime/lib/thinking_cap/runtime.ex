@@ -73,8 +73,8 @@ defmodule ThinkingCap.Runtime do
   an ADF file) on its node. Returns what was started, or every module that
   could not be, with the reason. A started ADF is announced on the
   blackboard as `{:adf, robot, %{node:, file:, rdf:, wdf:, dashboard:,
-  record:, modules:}}` (the services that follow an ADF, such as the
-  dashboard and the recorder, start from it).
+  record:, black_box:, modules:}}` (the services that follow an ADF, such
+  as the dashboard, the recorder and the black box, start from it).
   """
   @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
   def start(%ADF{} = adf) do
@@ -464,6 +464,7 @@ defmodule ThinkingCap.Runtime do
             wdf: adf.wdf,
             dashboard: adf.dashboard,
             record: adf.record,
+            black_box: adf.black_box,
             modules: Enum.map(adf.modules, & &1.name)
           }
         )

@@ -62,8 +62,16 @@ defmodule ThinkingCap.Tuples do
      "`%{module:, layer:, node:, reason:, restarts:, seconds:, stopped:, at:}` " <>
        "(key `{:module_gave_up, robot, module}`)", "supervision warden",
      "dashboard, console, `Runtime.resume/1`"},
-    {:adf, :robot, "`%{node:, file:, rdf:, wdf:, dashboard:, record:, modules:}`: an ADF started",
-     "runtime", "dashboard launcher, recorder launcher"},
+    {:adf, :robot,
+     "`%{node:, file:, rdf:, wdf:, dashboard:, record:, black_box:, modules:}`: an ADF started",
+     "runtime", "dashboard launcher, black-box launcher"},
+    {:black_box_request, :robot,
+     "`%{reason:, by:, at: epoch_ms}`: dump the robot's black box now (key `{:black_box_request, robot}`)",
+     "console", "black box (`ThinkingCap.BlackBox.RingBuffer`)"},
+    {:black_box_dump, :robot,
+     "`%{path:, reason:, reasons:, from: epoch_ms, to: epoch_ms, messages:, node:}`: " <>
+       "a black-box dump written (key `{:black_box_dump, robot}`)", "black box",
+     "dashboard, console"},
     {:cluster, :robot,
      "`%{node:, logical:, up:, missing:, unplaced:}` (key `{:cluster, robot, node}`)",
      "deployment", "dashboard"},
@@ -206,7 +214,21 @@ defmodule ThinkingCap.Tuples do
              wdf: Path.t() | nil,
              dashboard: term(),
              record: map(),
+             black_box: map(),
              modules: [atom()]
+           }}
+  @type black_box_request ::
+          {:black_box_request, robot(), %{reason: String.t() | atom(), by: term(), at: integer()}}
+  @type black_box_dump ::
+          {:black_box_dump, robot(),
+           %{
+             path: Path.t(),
+             reason: String.t(),
+             reasons: [String.t()],
+             from: integer(),
+             to: integer(),
+             messages: non_neg_integer(),
+             node: node()
            }}
   @type cluster ::
           {:cluster, robot(),
@@ -240,6 +262,8 @@ defmodule ThinkingCap.Tuples do
           | param()
           | module_gave_up()
           | adf()
+          | black_box_request()
+          | black_box_dump()
           | cluster()
           | timing()
 

@@ -211,6 +211,24 @@ defmodule ThinkingCap.ConfigTest do
     end
   end
 
+  describe "the ADF's black_box: section" do
+    test "is filled with defaults, its switch left unset, and checked", %{tmp_dir: dir} do
+      assert {:ok, adf} = Config.read(write(dir, "plain.adf", "[robot: :r1, modules: []]"))
+
+      assert %{enabled: nil, seconds: 60.0, after: 5.0, dir: "black_box", misses: 5} =
+               adf.black_box
+
+      on = "[robot: :r1, black_box: [enabled: true, seconds: 10, after: 0], modules: []]"
+      assert {:ok, adf} = Config.read(write(dir, "on.adf", on))
+      assert %{enabled: true, seconds: 10.0, after: +0.0, max_messages: 500_000} = adf.black_box
+
+      bad = "[robot: :r1, black_box: [seconds: 0, afer: 1], modules: []]"
+      assert [unknown, seconds] = errors(write(dir, "bad.adf", bad))
+      assert unknown =~ "unknown key :afer in black_box; did you mean :after?"
+      assert seconds =~ "black_box.seconds: expected a number from 1 to 3600, got 0"
+    end
+  end
+
   describe "ADF checks across keys" do
     test "nodes that are not declared, timing that cannot hold, referenced files that are missing",
          %{tmp_dir: dir} do

@@ -13,6 +13,13 @@ defmodule ThinkingCap.BlackBox.Application do
        strategy: :one_for_one,
        max_restarts: 10,
        max_seconds: 60},
+      # the robots' ring buffers, and the tasks writing their dumps
+      {DynamicSupervisor,
+       name: ThinkingCap.BlackBox.RingBuffers,
+       strategy: :one_for_one,
+       max_restarts: 10,
+       max_seconds: 60},
+      {Task.Supervisor, name: ThinkingCap.BlackBox.DumpWriters},
       ThinkingCap.BlackBox.Launcher
     ]
 

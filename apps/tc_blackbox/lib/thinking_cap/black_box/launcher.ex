@@ -1,9 +1,11 @@
 defmodule ThinkingCap.BlackBox.Launcher do
   @moduledoc false
-  # Starts a robot's recorder when ThinkingCap.Runtime starts, on this
-  # node, an ADF whose `record:` section enables it (the runtime announces
-  # every ADF it starts as `{:adf, robot, %{node:, record:, ...}}`; it
-  # checked the section when it read the file).
+  # Starts a robot's recorder and ring buffer when ThinkingCap.Runtime
+  # starts, on this node, an ADF whose `record:` and `black_box:`
+  # sections enable them (the runtime announces every ADF it starts as
+  # `{:adf, robot, %{node:, record:, black_box:, ...}}`; it checked the
+  # sections when it read the file). The black box's `enabled:` unset is
+  # this app's `:black_box_by_default` env (default true).
   use GenServer
   require Logger
 
@@ -39,8 +41,40 @@ defmodule ThinkingCap.BlackBox.Launcher do
       end
     end
 
+    keep(robot, adf)
     {:noreply, state}
   end
 
   def handle_info(_message, state), do: {:noreply, state}
+
+  defp keep(robot, adf) do
+    black_box = Map.new(adf[:black_box] || %{})
+
+    enabled =
+      case black_box[:enabled] do
+        nil -> Application.get_env(:tc_blackbox, :black_box_by_default, true)
+        enabled -> enabled
+      end
+
+    if enabled do
+      opts =
+        black_box
+        |> Map.delete(:enabled)
+        |> Map.put(:activities, adf[:modules] || [])
+        |> Enum.to_list()
+
+      case ThinkingCap.BlackBox.keep(robot, opts) do
+        {:ok, _pid} ->
+          Logger.info(
+            "black box of #{inspect(robot)} on, dumps into #{Path.expand(opts[:dir] || ".")}"
+          )
+
+        {:error, :already_keeping} ->
+          :ok
+
+        {:error, reason} ->
+          Logger.error("black box of #{inspect(robot)} could not start: #{inspect(reason)}")
+      end
+    end
+  end
 end

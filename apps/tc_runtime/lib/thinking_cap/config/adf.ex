@@ -46,6 +46,39 @@ defmodule ThinkingCap.Config.ADF do
          "the blackboard templates recorded; empty: every tuple of the robot, `{:_, robot, :_}`"}
   ]
 
+  # also the options of ThinkingCap.BlackBox.RingBuffer (tc_blackbox),
+  # which validates them with this same list: the runtime only checks them
+  @black_box_fields [
+    enabled:
+      {:boolean,
+       doc:
+         "keep the robot's last `seconds` in memory and dump them to an MCAP file on an incident (`ThinkingCap.BlackBox.RingBuffer`, started by the node that starts the ADF); unset: on wherever the black-box app runs, unless its `:black_box_by_default` env is false"},
+    seconds:
+      {{:number_range, 1, 3_600},
+       default: 60.0, doc: "the seconds kept, and dumped before a trigger"},
+    after:
+      {{:number_range, 0, 600},
+       default: 5.0, doc: "the seconds a dump goes on after its (last) trigger"},
+    dir:
+      {:string,
+       default: "black_box",
+       doc: "the directory of the dumps; a relative one is taken from the working directory"},
+    max_bytes:
+      {{:int_range, 65_536, 17_179_869_184},
+       default: 268_435_456,
+       doc: "the most bytes kept (the tuples' external size): the oldest go first past it"},
+    max_messages:
+      {{:int_range, 100, 100_000_000},
+       default: 500_000, doc: "the most tuples kept: the oldest go first past it"},
+    misses:
+      {{:int_range, 1, 1_000_000},
+       default: 5,
+       doc:
+         "a dump when this many deadline misses of the robot's periodic modules come in a streak (each `:timing` summary with a new miss, none without)"},
+    compression:
+      {{:one_of, [:zstd, :lz4, :none]}, default: :zstd, doc: "the dumps' chunk compression"}
+  ]
+
   @module_fields [
     module: {:module, required: true, doc: "the Elixir module implementing it"},
     node:
@@ -111,6 +144,9 @@ defmodule ThinkingCap.Config.ADF do
     record:
       {{:keyword, @record_fields},
        default: [], doc: "recording the robot's tuples to MCAP files (below)"},
+    black_box:
+      {{:keyword, @black_box_fields},
+       default: [], doc: "the black box: the last seconds, dumped on incidents (below)"},
     modules:
       {{:keyword_of, {:keyword, @module_fields}},
        required: true, doc: "`name: [module keys]` (below)"}
@@ -158,6 +194,13 @@ defmodule ThinkingCap.Config.ADF do
   (`{:adf, robot, %{record: ...}}`) enables it.
 
   #{ThinkingCap.Config.Schema.describe(@record_fields)}
+
+  ## Black-box keys
+
+  Checked here too; the ring buffer is in `tc_blackbox`, which starts it
+  from the announcement (`{:adf, robot, %{black_box: ...}}`).
+
+  #{ThinkingCap.Config.Schema.describe(@black_box_fields)}
   """
 
   alias ThinkingCap.Config.Schema
@@ -171,6 +214,7 @@ defmodule ThinkingCap.Config.ADF do
     cluster: %{},
     dashboard: %{},
     record: %{},
+    black_box: %{},
     modules: []
   ]
 
@@ -204,6 +248,7 @@ defmodule ThinkingCap.Config.ADF do
           cluster: %{connect_every: float(), settle: float()},
           dashboard: map(),
           record: map(),
+          black_box: map(),
           modules: [module_spec()]
         }
 
@@ -213,6 +258,13 @@ defmodule ThinkingCap.Config.ADF do
   """
   @spec record_fields() :: Schema.fields()
   def record_fields, do: @record_fields
+
+  @doc """
+  The `black_box:` section's fields (a `ThinkingCap.Config.Schema`): the
+  ring buffer validates its options with them too.
+  """
+  @spec black_box_fields() :: Schema.fields()
+  def black_box_fields, do: @black_box_fields
 
   @doc false
   # Validates the data of an ADF read from `file`.
@@ -257,6 +309,7 @@ defmodule ThinkingCap.Config.ADF do
              cluster: value.cluster,
              dashboard: resolve_dashboard_node(value.dashboard, nodes),
              record: value.record,
+             black_box: value.black_box,
              modules: modules
          }}
 
