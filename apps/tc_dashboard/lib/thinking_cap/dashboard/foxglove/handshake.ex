@@ -14,7 +14,7 @@ defmodule ThinkingCap.Dashboard.Foxglove.Handshake do
 
   @subprotocols ["foxglove.sdk.v1", "foxglove.websocket.v1"]
   @max_headers 64
-  @guid "258EAFA5-E914-47DA-95CA-C5AB0DC11B85"
+  @guid "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 
   @type request :: %{path: String.t(), query: map(), headers: %{String.t() => String.t()}}
 
