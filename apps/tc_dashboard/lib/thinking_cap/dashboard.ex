@@ -2,7 +2,9 @@ defmodule ThinkingCap.Dashboard do
   @moduledoc """
   The web dashboard: live monitoring and teleoperation in the browser, and
   a rosbridge v2 endpoint for the tools robotics engineers already use
-  (roslibjs apps, Foxglove).
+  (roslibjs apps, Foxglove), and a Foxglove WebSocket endpoint
+  (`ThinkingCap.Dashboard.Foxglove`, on its own port when
+  `foxglove_port` is set).
 
   It runs embedded yaws (Debian `erlang-yaws`) with two servers: the page
   (`http://HOST:PORT/`, its static files, and `/ws`, the WebSocket of
@@ -48,6 +50,7 @@ defmodule ThinkingCap.Dashboard do
           host: String.t(),
           port: :inet.port_number(),
           rosbridge_port: :inet.port_number() | nil,
+          foxglove_port: :inet.port_number() | nil,
           estop_port: :inet.port_number() | nil
         }
 
@@ -108,11 +111,13 @@ defmodule ThinkingCap.Dashboard do
     with {:ok, _} <- start_telemetry(config),
          {:ok, ports} <- Yaws.start(servers, limits),
          {:ok, _} <- start_child({ThinkingCap.Dashboard.Core.Watchdog, {servers, limits}}),
+         {:ok, foxglove} <- start_foxglove(%{config | max_connections: limits.max_connections}),
          {:ok, estop} <- start_estop(config) do
       config =
         Map.merge(config, %{
           port: ports.page,
           rosbridge_port: ports[:rosbridge],
+          foxglove_port: foxglove && ThinkingCap.Dashboard.Foxglove.Listener.port(),
           estop_port: estop && ThinkingCap.Dashboard.Core.EstopListener.port(),
           ready: true
         })
@@ -156,6 +161,7 @@ defmodule ThinkingCap.Dashboard do
           host: c.host,
           port: c.port,
           rosbridge_port: c.rosbridge_port,
+          foxglove_port: c.foxglove_port,
           estop_port: c.estop_port
         }
 
@@ -208,6 +214,11 @@ defmodule ThinkingCap.Dashboard do
   defp token(opts), do: {:ok, opts.token || Access.new_token()}
 
   defp start_telemetry(config), do: start_child({ThinkingCap.Dashboard.Telemetry, config})
+
+  defp start_foxglove(%{foxglove_port: nil}), do: {:ok, nil}
+
+  defp start_foxglove(config),
+    do: start_child({ThinkingCap.Dashboard.Foxglove.Listener, config})
 
   defp start_estop(%{estop_port: nil}), do: {:ok, nil}
 

@@ -11,11 +11,12 @@ defmodule Mix.Tasks.Tc.Run do
   dashboard: its URL, with the access token, is printed at start; open it
   to watch the robot and drive it by hand.
 
-      mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P] [--estop-port P]
-                 [--token-file PATH] [--record DIR]
+      mix tc.run [--adf PATH] [--seconds N] [--port P] [--rosbridge-port P] [--foxglove-port P]
+                 [--estop-port P] [--token-file PATH] [--record DIR]
 
-  `--port`, `--rosbridge-port` and `--estop-port` override the ADF's dashboard ports (0:
-  any free port); `--token-file` gives the access token (a file its owner
+  `--port`, `--rosbridge-port`, `--foxglove-port` and `--estop-port` override the ADF's
+  dashboard ports (0: any free port); the Foxglove endpoint's URL
+  (`ThinkingCap.Dashboard.Foxglove`) is printed beside the dashboard's; `--token-file` gives the access token (a file its owner
   alone may read) instead of a new one. `--record DIR` records the robot's
   tuples into MCAP files in DIR (`ThinkingCap.BlackBox.Recorder`): it
   turns on the ADF's `record:` section, with its other keys as the ADF
@@ -38,6 +39,7 @@ defmodule Mix.Tasks.Tc.Run do
           adf: :string,
           port: :integer,
           rosbridge_port: :integer,
+          foxglove_port: :integer,
           estop_port: :integer,
           token_file: :string,
           record: :string
@@ -76,6 +78,9 @@ defmodule Mix.Tasks.Tc.Run do
             do:
               IO.puts("rosbridge: ws://#{info.host}:#{info.rosbridge_port}/?token=#{info.token}")
 
+          foxglove = ThinkingCap.Dashboard.Foxglove.url(info)
+          if foxglove, do: IO.puts("foxglove: #{foxglove}")
+
           if info.estop_port,
             do: IO.puts("E-stop: curl -X POST http://#{info.host}:#{info.estop_port}/estop")
 
@@ -93,7 +98,7 @@ defmodule Mix.Tasks.Tc.Run do
   defp dashboard_ports(adf, opts) do
     overrides =
       opts
-      |> Keyword.take([:port, :rosbridge_port, :estop_port, :token_file])
+      |> Keyword.take([:port, :rosbridge_port, :foxglove_port, :estop_port, :token_file])
       |> Keyword.update(:token_file, nil, &Path.expand/1)
       |> Enum.reject(fn {_key, value} -> value == nil end)
 

@@ -10,6 +10,11 @@ defmodule ThinkingCap.Config.DashboardOptions do
     rosbridge_port:
       {@port_or_nil,
        default: 9090, doc: "the rosbridge v2 endpoint's port (0: any free port, nil: none)"},
+    foxglove_port:
+      {@port_or_nil,
+       default: nil,
+       doc:
+         "the Foxglove WebSocket endpoint's port (0: any free port, nil: none; Foxglove's usual one is 8765)"},
     public_view:
       {:boolean,
        default: false, doc: "let viewers without the access token watch (never control)"},
