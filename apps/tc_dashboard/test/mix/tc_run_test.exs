@@ -13,7 +13,7 @@ defmodule Mix.Tasks.Tc.RunTest do
     {output, status} =
       System.cmd(
         "mix",
-        ["tc.run", "--seconds", "4", "--port", "0", "--rosbridge-port", "0", "--estop-port", "0"],
+        ~w(tc.run --seconds 4 --port 0 --rosbridge-port 0 --estop-port 0 --foxglove-port 0),
         cd: root,
         env: [
           {"MIX_ENV", "test"},
@@ -29,6 +29,8 @@ defmodule Mix.Tasks.Tc.RunTest do
     assert output =~ ~r"dashboard: http://127\.0\.0\.1:\d+/\?token=[\w-]{16,}"
     # and the port that only engages E-stops
     assert output =~ ~r"E-stop: curl -X POST http://127\.0\.0\.1:\d+/estop"
+    # and the Foxglove WebSocket endpoint, with the same token
+    assert output =~ ~r"foxglove: ws://127\.0\.0\.1:\d+/\?token=[\w-]{16,}"
 
     poses =
       for [x, y] <-

@@ -18,7 +18,7 @@ defmodule ThinkingCap.BlackBox.RunRecordTest do
     {output, status} =
       System.cmd(
         "mix",
-        ~w(tc.run --seconds 10 --port 0 --rosbridge-port 0 --estop-port 0 --record) ++
+        ~w(tc.run --seconds 10 --port 0 --rosbridge-port 0 --estop-port 0 --foxglove-port 0 --record) ++
           [recordings],
         cd: root,
         env: [
