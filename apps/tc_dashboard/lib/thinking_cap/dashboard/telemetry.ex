@@ -221,7 +221,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
     rows =
       for Tuples.module_gave_up(robot, %{module: name} = g) <- gave_up,
           {status, stopped} <- [
-            {:gave_up, name} | for(s <- g.stopped, s != name, do: {:stopped, s})
+            {:gave_up, name} | for(s <- List.wrap(g[:stopped]), s != name, do: {:stopped, s})
           ],
           stopped != nil,
           not MapSet.member?(running, {robot, stopped}) do
@@ -229,13 +229,13 @@ defmodule ThinkingCap.Dashboard.Telemetry do
           name: stopped,
           robot: robot,
           module: nil,
-          node: g.node,
+          node: g[:node],
           activity: nil,
-          layer: g.layer,
+          layer: g[:layer],
           status: status,
           reason:
             if(status == :gave_up,
-              do: "#{g.reason} (more than #{g.restarts} restarts in #{g.seconds} s)",
+              do: gave_up_reason(g),
               else: "stopped with #{name || "its layer"}"
             ),
           pid: nil,
@@ -246,6 +246,13 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
     Enum.uniq_by(rows, &{&1.robot, &1.name})
   end
+
+  # the runtime's give-up says why and after how many restarts; a tuple
+  # written by someone else may say less
+  defp gave_up_reason(%{reason: reason, restarts: n, seconds: s}),
+    do: "#{reason} (more than #{n} restarts in #{s} s)"
+
+  defp gave_up_reason(g), do: "#{Map.get(g, :reason, "gave up")}"
 
   # to 0.1 mm, 0.1 mrad, 0.1 ms: what a screen can show, in a third of
   # the text a browser must parse

@@ -51,6 +51,9 @@ defmodule ThinkingCap.Dashboard.FoxgloveClientTest do
 
     on_exit(fn ->
       Runtime.stop(:"base_#{robot}")
+      # the tuples written below go with the robot: other tests count maps
+      Blackboard.takep(Tuples.pose(robot))
+      Blackboard.takep(Tuples.map(robot))
 
       with {:ok, sim} <- ThinkingCap.Sim.Worlds.lookup("#{@examples}/office.wdf"),
            do: ThinkingCap.Sim.remove_robot(sim, robot)
