@@ -64,8 +64,9 @@ defmodule ThinkingCap.BlackBox do
   @doc "The process recording `robot`, or nil."
   @spec recorder(atom()) :: pid() | nil
   def recorder(robot) do
+    # the registry forgets a stopped recorder a moment after it is gone
     case Registry.lookup(@registry, robot) do
-      [{pid, _}] -> pid
+      [{pid, _}] -> if Process.alive?(pid), do: pid
       [] -> nil
     end
   end
