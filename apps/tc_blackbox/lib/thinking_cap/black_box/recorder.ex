@@ -45,9 +45,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   use GenServer
   require Logger
 
+  alias ThinkingCap.BlackBox.Core.Options
   alias ThinkingCap.BlackBox.Foxglove
   alias ThinkingCap.Blackboard
-  alias ThinkingCap.Config.{ADF, Schema}
+  alias ThinkingCap.Config.ADF
   alias ThinkingCap.MCAP.Writer
 
   @type option :: {atom(), term()}
@@ -74,20 +75,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
       | Keyword.delete(ADF.record_fields(), :enabled)
     ]
 
-    # nested, so that the messages name the options: "recorder.dir: ..."
-    case Schema.validate(
-           [recorder: opts],
-           {:keyword, [recorder: {{:keyword, fields}, required: true}]},
-           "recorder options",
-           %{}
-         ) do
-      {%{recorder: value}, []} -> {:ok, value}
-      {_value, errors} -> {:error, Enum.map_join(errors, "; ", & &1.message)}
-    end
+    Options.validate(opts, :recorder, fields, "recorder options")
   end
 
-  def validate(other),
-    do: {:error, "recorder options: expected a keyword list, got #{inspect(other)}"}
+  def validate(other), do: Options.validate(other, :recorder, [], "recorder options")
 
   @doc "The recorder's child spec; options as `start_link/1`."
   def child_spec(opts),

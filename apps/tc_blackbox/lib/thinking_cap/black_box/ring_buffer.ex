@@ -52,9 +52,9 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   use GenServer
   require Logger
 
-  alias ThinkingCap.BlackBox.Core.{DumpFile, Ring, Triggers}
+  alias ThinkingCap.BlackBox.Core.{DumpFile, Options, Ring, Triggers}
   alias ThinkingCap.Blackboard
-  alias ThinkingCap.Config.{ADF, Schema}
+  alias ThinkingCap.Config.ADF
   alias ThinkingCap.Tuples
   require Tuples
 
@@ -78,19 +78,10 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
       | Keyword.delete(ADF.black_box_fields(), :enabled)
     ]
 
-    case Schema.validate(
-           [black_box: opts],
-           {:keyword, [black_box: {{:keyword, fields}, required: true}]},
-           "black-box options",
-           %{}
-         ) do
-      {%{black_box: value}, []} -> {:ok, value}
-      {_value, errors} -> {:error, Enum.map_join(errors, "; ", & &1.message)}
-    end
+    Options.validate(opts, :black_box, fields, "black-box options")
   end
 
-  def validate(other),
-    do: {:error, "black-box options: expected a keyword list, got #{inspect(other)}"}
+  def validate(other), do: Options.validate(other, :black_box, [], "black-box options")
 
   @doc "The child spec; options as `start_link/1`."
   def child_spec(opts),
