@@ -25,7 +25,9 @@ defmodule ThinkingCap.BlackBox do
   `dump(:r1)`). It is on by default: the launcher starts one for every
   ADF started on this node, unless the ADF says `black_box: [enabled:
   false]` (or this app's `:black_box_by_default` env is false, as in the
-  tests). `keep/2` starts one by hand; `dumps/1` lists the files.
+  tests). `keep/2` starts one by hand; `dumps/1` lists the files and
+  `dump_file/3` finds one by its name (for a download); `snapshot/2`
+  copies what a black box holds (for the dashboard's timeline).
   """
 
   alias ThinkingCap.BlackBox.{Recorder, RingBuffer}
@@ -127,6 +129,22 @@ defmodule ThinkingCap.BlackBox do
     end
   end
 
+  @doc """
+  A copy of what the black box of `robot` holds now
+  (`ThinkingCap.BlackBox.RingBuffer.snapshot/3`). Options: `tags:` the
+  tuples' tags kept (default `:all`), `timeout:` (ms, default 30 000).
+  """
+  @spec snapshot(atom(), keyword()) :: {:ok, RingBuffer.snapshot()} | {:error, :not_keeping}
+  def snapshot(robot, opts \\ []) do
+    case ring_buffer(robot) do
+      nil ->
+        {:error, :not_keeping}
+
+      pid ->
+        {:ok, RingBuffer.snapshot(pid, Keyword.get(opts, :tags, :all), opts[:timeout] || 30_000)}
+    end
+  end
+
   @typedoc "A dump file, as `dumps/1` lists it."
   @type dump_file :: %{
           path: Path.t(),
@@ -161,6 +179,32 @@ defmodule ThinkingCap.BlackBox do
     end
     |> Enum.sort_by(&Path.basename(&1.path), :desc)
   end
+
+  @doc """
+  The dump of `robot` named `name` (a file name `dumps/2` lists, such as
+  `r1_20260101T120000.000Z_estop.mcap`), in the same directory as
+  `dumps/2` (options alike). Anything else, a path above all, is refused
+  with a message that says why: the name is only ever looked up among
+  the dumps listed, never opened as given.
+  """
+  @spec dump_file(atom(), term(), keyword()) :: {:ok, dump_file()} | {:error, String.t()}
+  def dump_file(robot, name, opts \\ [])
+
+  def dump_file(robot, name, opts) when is_binary(name) do
+    if byte_size(name) <= 255 and name =~ ~r/\A[A-Za-z0-9][A-Za-z0-9_.-]*\.mcap\z/ do
+      case Enum.find(dumps(robot, opts), &(Path.basename(&1.path) == name)) do
+        nil -> {:error, "no dump #{inspect(name)} of #{robot}"}
+        dump -> {:ok, dump}
+      end
+    else
+      {:error,
+       "a dump's name is a file name such as #{robot}_20260101T120000.000Z_estop.mcap, " <>
+         "not #{inspect(name, printable_limit: 80)}"}
+    end
+  end
+
+  def dump_file(robot, name, _opts),
+    do: {:error, "a dump's name is a string, not #{inspect(name, limit: 5)} (#{robot})"}
 
   defp time(
          <<y::binary-4, mo::binary-2, d::binary-2, "T", h::binary-2, mi::binary-2, s::binary-2,

@@ -114,6 +114,31 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   def dump(server, reason, timeout \\ 120_000),
     do: GenServer.call(server, {:dump, Triggers.text(reason)}, timeout)
 
+  @typedoc """
+  What `snapshot/3` answers: the tuples held (those of the tags asked
+  for), oldest first, each with its receipt time, and the span they
+  cover, `from` (the oldest tuple held, of any tag) to `to` (the
+  moment of the snapshot); times in ns since the epoch. `dropped`
+  counts the tuples dropped for size or count since the start.
+  """
+  @type snapshot :: %{
+          robot: atom(),
+          from: integer(),
+          to: integer(),
+          entries: [{integer(), tuple()}],
+          dropped: non_neg_integer()
+        }
+
+  @doc """
+  A copy of what it holds now, for replay (the dashboard's timeline):
+  the tuples whose tag is in `tags` (`:all`: every one). The buffer goes
+  on; the copy does not move.
+  """
+  @spec snapshot(GenServer.server(), [atom()] | :all, timeout()) :: snapshot()
+  def snapshot(server, tags \\ :all, timeout \\ 30_000)
+      when tags == :all or is_list(tags),
+      do: GenServer.call(server, {:snapshot, tags}, timeout)
+
   @doc "What it holds: tuples, bytes, drops (size or count), the dump waiting, the dumps written."
   @spec info(GenServer.server()) :: info()
   def info(server), do: GenServer.call(server, :info)
@@ -184,6 +209,20 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   @impl true
   def handle_call({:dump, reason}, from, state) do
     {:noreply, state |> trigger(reason, System.os_time(:nanosecond), from) |> maybe_write()}
+  end
+
+  def handle_call({:snapshot, tags}, _from, state) do
+    now = System.os_time(:nanosecond)
+
+    snapshot = %{
+      robot: state.robot,
+      from: Ring.oldest(state.ring) || now,
+      to: now,
+      entries: Ring.select(state.ring, tags),
+      dropped: state.ring.dropped
+    }
+
+    {:reply, snapshot, state}
   end
 
   def handle_call(:info, _from, state) do

@@ -123,6 +123,59 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
     assert BlackBox.dump(:nobody_keeps_this, "x") == {:error, :not_keeping}
   end
 
+  test "dump_file/3 finds a listed dump by its name and refuses anything else",
+       %{tmp_dir: dir} do
+    robot = robot()
+    keep(robot, dir)
+    publish(robot, 1..3)
+    {:ok, path} = BlackBox.dump(robot, "asked")
+    name = Path.basename(path)
+
+    assert {:ok, %{path: ^path, reason: "asked"}} = BlackBox.dump_file(robot, name)
+
+    # a file beside the dumps that is not one, and paths out of the directory
+    File.write!(Path.join(dir, "#{robot}_notes.mcap"), "x")
+    assert {:error, "no dump \"#{robot}_notes.mcap\" of #{robot}"} ==
+             BlackBox.dump_file(robot, "#{robot}_notes.mcap")
+
+    for bad <- ["../#{name}", "/etc/passwd", "#{dir}/#{name}", ".hidden.mcap", "x.txt", ""] do
+      assert {:error, message} = BlackBox.dump_file(robot, bad)
+      assert message =~ "a dump's name is a file name such as #{robot}_"
+    end
+
+    # another robot's dump is not this one's
+    assert {:error, "no dump " <> _} = BlackBox.dump_file(:"#{robot}x", name, dir: dir)
+    assert {:error, "a dump's name is a string, not 42" <> _} = BlackBox.dump_file(robot, 42)
+  end
+
+  test "a snapshot copies what is held, of the tags asked for",
+       %{tmp_dir: dir} do
+    robot = robot()
+    pid = keep(robot, dir)
+    publish(robot, 1..10)
+    await_count(pid, 20)
+
+    assert {:ok, all} = BlackBox.snapshot(robot)
+    assert length(all.entries) == 20 and all.robot == robot and all.dropped == 0
+    assert all.from <= all.to
+    assert Enum.all?(all.entries, fn {t, _} -> t >= all.from and t <= all.to end)
+    times = Enum.map(all.entries, &elem(&1, 0))
+    assert times == Enum.sort(times)
+
+    assert {:ok, poses} = BlackBox.snapshot(robot, tags: [:pose])
+    assert length(poses.entries) == 10
+
+    assert Enum.map(poses.entries, fn {_, Tuples.pose(^robot, p)} -> elem(p.pose, 0) end) ==
+             Enum.map(1..10, &(&1 * 0.1))
+
+    # the buffer goes on: a later snapshot holds what came since
+    publish(robot, 11..12)
+    await_count(pid, 24)
+    assert {:ok, %{entries: more}} = BlackBox.snapshot(robot, tags: [:pose])
+    assert length(more) == 12
+    assert BlackBox.snapshot(:nobody_keeps_this) == {:error, :not_keeping}
+  end
+
   test "triggers that come while a dump waits join it", %{tmp_dir: dir} do
     robot = robot()
     pid = keep(robot, dir, after: 2)

@@ -66,6 +66,19 @@ defmodule ThinkingCap.BlackBox.Core.Ring do
     for {t, _, _} = e <- :queue.to_list(ring.queue), t >= from_ns, t <= to_ns, do: e
   end
 
+  # The tuples whose tag (first element) is in `tags` (every tuple for
+  # `:all`), oldest first, each with its receipt time.
+  @spec select(t(), [atom()] | :all) :: [{integer(), tuple()}]
+  def select(ring, :all), do: for({t, tuple, _} <- :queue.to_list(ring.queue), do: {t, tuple})
+
+  def select(ring, tags) do
+    tags = MapSet.new(tags)
+
+    for {t, tuple, _} <- :queue.to_list(ring.queue),
+        MapSet.member?(tags, elem(tuple, 0)),
+        do: {t, tuple}
+  end
+
   # The receipt time of the oldest entry, or nil.
   @spec oldest(t()) :: integer() | nil
   def oldest(ring) do
