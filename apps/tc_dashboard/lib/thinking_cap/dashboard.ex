@@ -79,7 +79,10 @@ defmodule ThinkingCap.Dashboard do
           host: config.host,
           port: config.port,
           docroot: config.static_dir,
-          appmods: [{"/ws", ThinkingCap.Dashboard.Core.Appmod}],
+          appmods: [
+            {"/ws", ThinkingCap.Dashboard.Core.Appmod},
+            {"/dumps", ThinkingCap.Dashboard.Core.Download}
+          ],
           opaque: [handler: ThinkingCap.Dashboard.Session, view_needs_token: true]
         }
       ] ++

@@ -135,6 +135,7 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
 
     # a file beside the dumps that is not one, and paths out of the directory
     File.write!(Path.join(dir, "#{robot}_notes.mcap"), "x")
+
     assert {:error, "no dump \"#{robot}_notes.mcap\" of #{robot}"} ==
              BlackBox.dump_file(robot, "#{robot}_notes.mcap")
 

@@ -7,6 +7,8 @@ defmodule ThinkingCap.Dashboard.Application do
   #     telemetry collector, its web server's watchdog (Core.Watchdog) and
   #     its E-stop port (Core.EstopListener), started by
   #     ThinkingCap.Dashboard.start/1,
+  #   * Dashboard.Timelines, a DynamicSupervisor of the open black-box
+  #     timelines (Dashboard.Timeline), at most Timeline.max_open/0,
   #   * Core.RestartLimit, how often clients may restart modules,
   #   * Dashboard.Launcher, which starts the dashboard when an ADF that
   #     enables it starts on this node.
@@ -20,6 +22,10 @@ defmodule ThinkingCap.Dashboard.Application do
     children = [
       {Registry, keys: :duplicate, name: ThinkingCap.Dashboard.Sockets},
       {DynamicSupervisor, name: ThinkingCap.Dashboard.Supervisor, strategy: :one_for_one},
+      {DynamicSupervisor,
+       name: ThinkingCap.Dashboard.Timelines,
+       strategy: :one_for_one,
+       max_children: ThinkingCap.Dashboard.Timeline.max_open()},
       ThinkingCap.Dashboard.Core.RestartLimit,
       ThinkingCap.Dashboard.Launcher
     ]

@@ -19,7 +19,7 @@ defmodule ThinkingCap.Dashboard.Session do
   @behaviour ThinkingCap.Dashboard.Core.Socket
 
   alias ThinkingCap.Blackboard
-  alias ThinkingCap.Dashboard.{Control, Telemetry}
+  alias ThinkingCap.Dashboard.{Control, Dumps, Telemetry, Timeline}
   alias ThinkingCap.Dashboard.Core.JSON
   alias ThinkingCap.Tuples
   require Tuples
@@ -43,7 +43,9 @@ defmodule ThinkingCap.Dashboard.Session do
        # client acknowledges one: then the window applies)
        seq: 0,
        acked: nil,
-       tails: %{}
+       tails: %{},
+       # the black-box timeline this page scrubs: %{pid, robot}, or nil
+       timeline: nil
      }}
   end
 
@@ -222,6 +224,53 @@ defmodule ThinkingCap.Dashboard.Session do
     end
   end
 
+  # the black box: its dumps, a dump now, the timeline of its last minute
+
+  defp handle("dumps", m, state) do
+    with {:ok, robot} <- robot(m) do
+      list = Dumps.list(robot)
+      reply = %{op: :dumps, id: m["id"], robot: robot, keeping: list.keeping, dumps: list.dumps}
+      {:ok, encode(reply), state}
+    end
+  end
+
+  defp handle("dump", m, state) do
+    with :ok <- may_control(m, state),
+         {:ok, robot} <- robot(m),
+         :ok <- wrap(m, Dumps.request(robot, state.by)) do
+      {:ok, ok(m), state}
+    end
+  end
+
+  defp handle("timeline", m, state) do
+    with {:ok, robot} <- robot(m) do
+      state = close_timeline(state)
+
+      case Timeline.open(robot, self()) do
+        {:ok, pid, summary} ->
+          reply = Map.merge(summary, %{op: :timeline, id: m["id"]})
+          {:ok, encode(reply), %{state | timeline: %{pid: pid, robot: robot}}}
+
+        {:error, reason} ->
+          {:error, m["id"], reason}
+      end
+    end
+  end
+
+  defp handle("timeline_frame", m, %{timeline: %{pid: pid, robot: robot}} = state) do
+    with {:ok, at} <- number(m, "at", 1.0e15),
+         {:ok, have} <- have_map(m),
+         {:ok, body} <- wrap(m, Timeline.frame(pid, at, have)) do
+      head = [~s({"op":"timeline_frame","id":), encode(m["id"]), ~s(,"robot":)]
+      {:ok, [head, encode(robot), ?,, body, ?}], state}
+    end
+  end
+
+  defp handle("timeline_frame", m, _state),
+    do: {:error, m["id"], "no timeline is open: open one (op timeline) first"}
+
+  defp handle("timeline_close", m, state), do: {:ok, ok(m), close_timeline(state)}
+
   defp handle("query", m, state) do
     with {:ok, template} <- template(m) do
       tuples = Blackboard.rd_all(template)
@@ -251,7 +300,22 @@ defmodule ThinkingCap.Dashboard.Session do
   defp handle(nil, m, _state), do: {:error, m["id"], "a message needs an \"op\""}
   defp handle(op, m, _state), do: {:error, m["id"], "unknown op #{inspect(op)}"}
 
+  defp close_timeline(%{timeline: nil} = state), do: state
+
+  defp close_timeline(%{timeline: %{pid: pid}} = state) do
+    Timeline.close(pid)
+    %{state | timeline: nil}
+  end
+
   ## checks
+
+  # the map the page has: an integer a frame gave, or none
+  defp have_map(%{"map" => id}) when is_integer(id), do: {:ok, id}
+  defp have_map(%{"map" => nil}), do: {:ok, nil}
+  defp have_map(m) when not is_map_key(m, "map"), do: {:ok, nil}
+
+  defp have_map(m),
+    do: {:error, m["id"], "map is the integer a frame gave, or null, not #{inspect(m["map"])}"}
 
   defp may_control(m, state) do
     if state.control,

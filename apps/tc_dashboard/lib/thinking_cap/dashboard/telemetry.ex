@@ -8,13 +8,13 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   last saw (`changes_since/1`), so a slow browser gets fewer, fresher frames
   and never a queue, and the blackboard's writers never wait for a browser.
 
-  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology)a)}`
+  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology black_box_dump)a)}`
   (`{tag, id, payload}` tuples, keyed `"tag/id"`), plus `modules/all`, the
   modules running in the cluster, once a second, with those whose layer
   gave up (`{:module_gave_up, robot, _}`, `ThinkingCap.Runtime.Supervision`)
   and are not running again: `status: "gave_up"`, the `reason` and the
   modules stopped with them (`status: "stopped"`). A learned map (`map`)
-  of more than #{250_000} cells is shrunk for display
+  of more than #{ThinkingCap.Dashboard.Core.Payload.map_cells()} cells is shrunk for display
   (`ThinkingCap.Navigation.OccupancyGrid.shrink/2`), its cells sent as
   base64.
   """
@@ -22,7 +22,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   require Logger
 
   alias ThinkingCap.Blackboard
-  alias ThinkingCap.Dashboard.Core.JSON
+  alias ThinkingCap.Dashboard.Core.{JSON, Payload}
   alias ThinkingCap.Tuples
   require Tuples
 
@@ -46,9 +46,9 @@ defmodule ThinkingCap.Dashboard.Telemetry do
     Tuples.tag(:door),
     Tuples.tag(:map),
     Tuples.tag(:particles),
-    Tuples.tag(:topology)
+    Tuples.tag(:topology),
+    Tuples.tag(:black_box_dump)
   ]
-  @map_cells 250_000
   @modules_every 1_000
 
   @doc false
@@ -139,7 +139,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
 
     rows =
       for {key, payload} <- state.dirty do
-        {{:item, key}, version, encode(key, payload)}
+        {{:item, key}, version, Payload.encode(key, payload)}
       end
 
     :ets.insert(state.table, rows)
@@ -253,21 +253,6 @@ defmodule ThinkingCap.Dashboard.Telemetry do
     do: "#{reason} (more than #{n} restarts in #{s} s)"
 
   defp gave_up_reason(g), do: "#{Map.get(g, :reason, "gave up")}"
-
-  # to 0.1 mm, 0.1 mrad, 0.1 ms: what a screen can show, in a third of
-  # the text a browser must parse
-  defp encode(key, %ThinkingCap.Navigation.OccupancyGrid{} = map) do
-    small = ThinkingCap.Navigation.OccupancyGrid.shrink(map, @map_cells)
-    encode(key, %{Map.from_struct(small) | data: Base.encode64(small.data)})
-  end
-
-  defp encode(key, payload) do
-    payload |> JSON.encode!(decimals: 4) |> IO.iodata_to_binary()
-  rescue
-    e ->
-      Logger.warning("dashboard: #{key} could not be encoded: #{Exception.message(e)}")
-      "null"
-  end
 
   # ids are robot names (atoms) by convention, but any term may be there
   defp key(tag, id) when is_atom(id) or is_binary(id) or is_number(id), do: "#{tag}/#{id}"

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Dashboard.Core.Records do
   @external_resource @hrl
 
   Record.defrecord(:arg, Record.extract(:arg, from: @hrl))
+  Record.defrecord(:http_request, Record.extract(:http_request, from: @hrl))
   Record.defrecord(:headers, Record.extract(:headers, from: @hrl))
   Record.defrecord(:ws_state, Record.extract(:ws_state, from: @hrl))
 end
