@@ -10,6 +10,7 @@ import { TimingPanel } from './timing.js';
 import { ModulesPanel } from './modules.js';
 import { BlackboardPanel } from './blackboard.js';
 import { ParamsPanel } from './params.js';
+import { BlackBoxPanel } from './blackbox.js';
 import { Teleop } from './teleop.js';
 import { $, el, fmt, fmtCommand, pose3, setChildren } from './util.js';
 
@@ -84,6 +85,7 @@ const timing = new TimingPanel($('#tab-timing'), store);
 new ModulesPanel($('#tab-modules'), store, conn, toast);
 const bb = new BlackboardPanel($('#tab-blackboard'), store, conn);
 const params = new ParamsPanel($('#tab-params'), store, conn, toast);
+const blackbox = new BlackBoxPanel($('#tab-blackbox'), store, conn, map, toast);
 
 const tabs = [...document.querySelectorAll('.tabs button')];
 function showTab(name) {
@@ -91,6 +93,7 @@ function showTab(name) {
   for (const p of document.querySelectorAll('.tab-panel')) p.hidden = p.id !== `tab-${name}`;
   timing.setVisible(name === 'timing');
   params.setVisible(name === 'params');
+  blackbox.setVisible(name === 'blackbox');
   try {
     localStorage.setItem('tc.tab', name);
   } catch (e) {
@@ -225,7 +228,14 @@ window.tc = {
     return { command: teleop.command && { ...teleop.command }, robot: teleop.robot, sent: teleop.sent };
   },
   select(id) { store.select(id); },
-  /** shows a tab of the sidebar: "timing" | "modules" | "params" | "blackboard" */
+  /**
+   * the black box's timeline: {open, robot, from, to, at, map, frames, streams, keys}
+   * (at: the instant the map shows, ms since the epoch; frames: frames received)
+   */
+  get timeline() { return blackbox.state; },
+  /** whether the map shows a past instant (the timeline) rather than the live robots */
+  get replaying() { return map.replaying; },
+  /** shows a tab of the sidebar: "timing" | "modules" | "params" | "blackboard" | "blackbox" */
   showTab(name) { showTab(name); },
 };
 

@@ -8,6 +8,10 @@
 //
 // World coordinates are metres, x east, y north (REP-103); the view keeps
 // the world point at the canvas centre and a scale in CSS pixels per metre.
+//
+// It draws from a source: the live store, or another object that reads
+// alike (get(key), robots, selected, world), such as the black box's
+// timeline (timeline.js) showing one past instant with this same code.
 
 import { obj, pt, pose3, PALETTE } from './util.js';
 
@@ -36,6 +40,9 @@ export class MapView {
   constructor(canvas, store, { onGoal, onSelect, onCursor } = {}) {
     this.canvas = canvas;
     this.ctx = canvas.getContext('2d', { alpha: false });
+    /** the live store: its events, the robots' colours, the goals */
+    this.live = store;
+    /** what is drawn: the live store, or a replay (setSource) */
     this.store = store;
     this.onGoal = onGoal;
     this.onSelect = onSelect;
@@ -72,6 +79,19 @@ export class MapView {
     });
     store.on('telemetry', () => this.invalidate());
     store.on('select', () => this.invalidate());
+  }
+
+  /** Draws from `source` (null: the live store again), e.g. the black box's timeline. */
+  setSource(source) {
+    this.store = source || this.live;
+    // learned maps are cached per robot and version: not across sources
+    this._learned = {};
+    this.invalidate();
+  }
+
+  /** Whether a replay is drawn, not the live store. */
+  get replaying() {
+    return this.store !== this.live;
   }
 
   // Asks for one draw in the next animation frame. No frame is requested
@@ -220,7 +240,8 @@ export class MapView {
         return;
       }
     }
-    if (!this.goalMode || !this.onGoal) return;
+    // a replay is the past: no goals sent from it
+    if (!this.goalMode || !this.onGoal || this.replaying) return;
     // a waypoint under the cursor: go there by name
     const w = this.store.world;
     for (const wp of (w && w.waypoints) || []) {
@@ -255,7 +276,8 @@ export class MapView {
   }
 
   robotColor(id) {
-    const i = this.store.robots.indexOf(id);
+    // the live robots' order: a robot keeps its colour in a replay
+    const i = this.live.robots.indexOf(id);
     return PALETTE[(i < 0 ? 0 : i) % PALETTE.length];
   }
 
