@@ -258,7 +258,8 @@ defmodule ThinkingCap.Dashboard.Session do
   end
 
   defp handle("timeline_frame", m, %{timeline: %{pid: pid, robot: robot}} = state) do
-    with {:ok, at} <- number(m, "at", 1.0e15),
+    with {:ok, _} <- number(m, "at", 1.0e15),
+         at = m["at"],
          {:ok, have} <- have_map(m),
          {:ok, body} <- wrap(m, Timeline.frame(pid, at, have)) do
       head = [~s({"op":"timeline_frame","id":), encode(m["id"]), ~s(,"robot":)]

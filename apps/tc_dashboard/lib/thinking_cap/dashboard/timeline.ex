@@ -153,7 +153,7 @@ defmodule ThinkingCap.Dashboard.Timeline do
   end
 
   def handle_call({:frame, at_ms, have_map}, _from, %{scrub: scrub} = state) do
-    t = at_ms |> Kernel.*(1_000_000) |> round() |> max(scrub.from) |> min(scrub.to)
+    t = at_ms |> ns() |> max(scrub.from) |> min(scrub.to)
     picks = Scrub.at(scrub, t)
 
     map =
@@ -188,6 +188,15 @@ defmodule ThinkingCap.Dashboard.Timeline do
   def handle_info({:DOWN, _ref, :process, _owner, _reason}, state), do: {:stop, :normal, state}
   def handle_info(:timeout, state), do: {:stop, :normal, state}
   def handle_info(_other, state), do: {:noreply, state, @idle_ms}
+
+  # ms since the epoch in ns, exactly: a float of today's ns has lost
+  # its last digits (beyond 2^53)
+  defp ns(ms) when is_integer(ms), do: ms * 1_000_000
+
+  defp ns(ms) when is_float(ms) do
+    whole = trunc(ms)
+    whole * 1_000_000 + round((ms - whole) * 1.0e6)
+  end
 
   # the robot's laser sensors, from its capabilities
   defp lasers(robot) do

@@ -117,6 +117,9 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     # the end of the snapshot: the last pose, the box of the map, the plan
     assert_drawn_at(b, ctx.name, 10.0, 1.8)
     assert orange?(b, 8.5, 1.0), "the learned map's box is drawn"
+    # the scan's beam at 0.4 rad hits 1 m away; the plan's goal flag
+    assert laser_hit?(b, 10.0 + :math.cos(0.4), 1.8 + :math.sin(0.4))
+    assert flag?(b, ctx.name, 12.0, 1.8)
     assert eval!(b, "document.getElementById('replay-badge').hidden") == false
     Browser.screenshot(b, "black_box_timeline_end")
 
@@ -135,6 +138,9 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     wait!(b, "!tc.timeline.keys.includes('map/' + #{name})")
     assert_drawn_at(b, ctx.name, 4.0, 1.8)
     refute orange?(b, 8.5, 1.0), "no learned map yet"
+    refute flag?(b, ctx.name, 12.0, 1.8)
+    # the first scan came after the first pose
+    refute laser_hit?(b, 4.0 + :math.cos(0.4), 1.8 + :math.sin(0.4))
     assert "plan/#{ctx.name}" not in eval!(b, "tc.timeline.keys")
     Browser.screenshot(b, "black_box_timeline_start")
 
@@ -255,18 +261,39 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
 
   # whether the map's pixel at a world point is the learned map's orange
   defp orange?(b, x, y) do
+    [r, _g, bl] = pixel(b, eval!(b, "tc.worldToScreen(#{x}, #{y})"))
+    r > 150 and r > bl + 60
+  end
+
+  # whether a laser hit (#ff5252, 2 px) is drawn at a world point: in
+  # the 5 x 5 pixels around it (a hit's square falls across pixels)
+  defp laser_hit?(b, x, y) do
     [sx, sy] = eval!(b, "tc.worldToScreen(#{x}, #{y})")
 
-    [r, _g, bl | _] =
-      eval!(b, """
-      (() => {
-        const c = document.getElementById('map');
-        const dpr = window.devicePixelRatio || 1;
-        return [...c.getContext('2d').getImageData(Math.round(#{sx} * dpr), Math.round(#{sy} * dpr), 1, 1).data];
-      })()
-      """)
+    Enum.any?(for(dx <- -2..2, dy <- -2..2, do: {dx, dy}), fn {dx, dy} ->
+      [r, g, bl] = pixel(b, [sx + dx, sy + dy])
+      r > 200 and g < 130 and bl < 130
+    end)
+  end
 
-    r > 150 and r > bl + 60
+  # whether the goal's flag is drawn at a world point, in the robot's colour
+  defp flag?(b, name, x, y) do
+    [sx, sy] = eval!(b, "tc.worldToScreen(#{x}, #{y})")
+    "#" <> hex = eval!(b, "tc.robotColor(#{js(name)})")
+    colour = for <<c::binary-size(2) <- hex>>, do: String.to_integer(c, 16)
+    # inside the flag's triangle, right of its pole
+    got = pixel(b, [sx + 3, sy - 14])
+    Enum.all?(Enum.zip(colour, got), fn {want, have} -> abs(want - have) < 30 end)
+  end
+
+  defp pixel(b, [sx, sy]) do
+    eval!(b, """
+    (() => {
+      const c = document.getElementById('map');
+      const dpr = window.devicePixelRatio || 1;
+      return [...c.getContext('2d').getImageData(Math.round(#{sx} * dpr), Math.round(#{sy} * dpr), 1, 1).data].slice(0, 3);
+    })()
+    """)
   end
 
   defp open!(b, url), do: assert({:ok, %{"status" => 200}} = Browser.open(b, url))
