@@ -67,7 +67,7 @@ defmodule ThinkingCap.Tuples do
      "runtime", "dashboard launcher, black-box launcher"},
     {:black_box_request, :robot,
      "`%{reason:, by:, at: epoch_ms}`: dump the robot's black box now (key `{:black_box_request, robot}`)",
-     "console", "black box (`ThinkingCap.BlackBox.RingBuffer`)"},
+     "console, dashboard", "black box (`ThinkingCap.BlackBox.RingBuffer`)"},
     {:black_box_dump, :robot,
      "`%{path:, reason:, reasons:, from: epoch_ms, to: epoch_ms, messages:, node:}`: " <>
        "a black-box dump written (key `{:black_box_dump, robot}`)", "black box",
