@@ -111,7 +111,8 @@ export class BlackBoxPanel {
       return;
     }
     const token = this.conn.token ? `?token=${encodeURIComponent(this.conn.token)}` : '';
-    setChildren(this.list, note, el('table.dumps-table', null,
+    const more = reply.total > dumps.length ? el('p.muted', null, `The ${dumps.length} newest of ${reply.total}.`) : null;
+    setChildren(this.list, note, more, el('table.dumps-table', null,
       el('thead', null, el('tr', null, el('th', null, 'time'), el('th', null, 'reason'), el('th', null, 'size'), el('th'))),
       el('tbody', null, dumps.map((d) => el('tr', { dataset: { name: String(d.name) } },
         el('td.mono', { title: String(d.name) }, fmtTime(d.time)),

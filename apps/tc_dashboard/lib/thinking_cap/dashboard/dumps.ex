@@ -18,6 +18,9 @@ defmodule ThinkingCap.Dashboard.Dumps do
   alias ThinkingCap.Tuples
   require Tuples
 
+  # the most dumps a list holds (a page is no file manager)
+  @most 200
+
   @typedoc "A dump as the page lists it: its file name, time (ms since the epoch), reason, size."
   @type entry :: %{
           name: String.t(),
@@ -27,11 +30,16 @@ defmodule ThinkingCap.Dashboard.Dumps do
           url: String.t()
         }
 
-  @doc "The dumps of `robot`, newest first, and whether it has a black box on this node."
-  @spec list(atom()) :: %{dumps: [entry()], keeping: boolean()}
+  @doc """
+  The dumps of `robot`, newest first (the #{@most} newest), how many
+  there are, and whether it has a black box on this node.
+  """
+  @spec list(atom()) :: %{dumps: [entry()], total: non_neg_integer(), keeping: boolean()}
   def list(robot) when is_atom(robot) do
+    all = BlackBox.dumps(robot)
+
     dumps =
-      for d <- BlackBox.dumps(robot) do
+      for d <- Enum.take(all, @most) do
         name = Path.basename(d.path)
 
         %{
@@ -43,7 +51,7 @@ defmodule ThinkingCap.Dashboard.Dumps do
         }
       end
 
-    %{dumps: dumps, keeping: BlackBox.ring_buffer(robot) != nil}
+    %{dumps: dumps, total: length(all), keeping: BlackBox.ring_buffer(robot) != nil}
   end
 
   @doc "The dump of `robot` named `name`, or why not (see `ThinkingCap.BlackBox.dump_file/3`)."

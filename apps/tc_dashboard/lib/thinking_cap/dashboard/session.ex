@@ -229,7 +229,7 @@ defmodule ThinkingCap.Dashboard.Session do
   defp handle("dumps", m, state) do
     with {:ok, robot} <- robot(m) do
       list = Dumps.list(robot)
-      reply = %{op: :dumps, id: m["id"], robot: robot, keeping: list.keeping, dumps: list.dumps}
+      reply = Map.merge(list, %{op: :dumps, id: m["id"], robot: robot})
       {:ok, encode(reply), state}
     end
   end

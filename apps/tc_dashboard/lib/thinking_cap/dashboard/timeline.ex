@@ -1,4 +1,7 @@
 defmodule ThinkingCap.Dashboard.Timeline do
+  @max 4
+  @idle_ms 600_000
+
   @moduledoc """
   The black box's last minute, for scrubbing in the dashboard: one
   process per open timeline holds a snapshot of a robot's black box
@@ -19,9 +22,9 @@ defmodule ThinkingCap.Dashboard.Timeline do
   What goes to the browser is bounded: one instant per frame, asked for
   by time, and the map (the largest payload, shrunk as the live one is)
   only when it is not the one the page already has. At most
-  #{4} timelines are open on a node (each holds its snapshot in memory);
+  #{@max} timelines are open on a node (each holds its snapshot in memory);
   one closes with the process that opened it, with `close/1`, or after
-  #{10} minutes without a frame.
+  #{div(@idle_ms, 60_000)} minutes without a frame.
   """
   use GenServer
 
@@ -31,8 +34,6 @@ defmodule ThinkingCap.Dashboard.Timeline do
   require Tuples
 
   @supervisor ThinkingCap.Dashboard.Timelines
-  @max 4
-  @idle_ms 600_000
   @streams [
     Tuples.tag(:pose),
     Tuples.tag(:sim_pose),
