@@ -181,7 +181,7 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
 
     :ok = Browser.click(b, "#tab-blackbox .panel-head button")
     row = "#tab-blackbox table.dumps-table tbody tr"
-    wait!(b, "document.querySelector(#{js(row)})", timeout: 10_000)
+    wait!(b, "document.querySelector(#{js(row)})", timeout: 20_000)
     assert [dump] = BlackBox.dumps(ctx.robot)
     assert dump.reason == "dashboard"
     assert eval!(b, "document.querySelector(#{js(row)}).dataset.name") == Path.basename(dump.path)
@@ -305,8 +305,9 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     end
   end
 
+  # generous: the machine may be busy; these are not timing measurements
   defp wait!(b, expr, opts \\ []) do
-    case Browser.wait(b, expr, Keyword.put_new(opts, :timeout, 5_000)) do
+    case Browser.wait(b, expr, Keyword.put_new(opts, :timeout, 15_000)) do
       {:ok, value} ->
         value
 
