@@ -80,6 +80,9 @@ defmodule ThinkingCap.Planner.Monitor do
 
   `task`, `tolerance` (0.35 m), `stuck_after` (12 s), `max_replans` (3),
   `retry_after` (10 s), `replan_every` (1 s), `margin` (0.08 m),
+  `clearance` (0.35 m: the path is moved up to this far from the walls
+  beyond the robot's radius where there is room,
+  `ThinkingCap.Navigation.PathPlanner.keep_clear/2`; nil: not moved),
   `radius` (default the RDF's footprint, else 0.2 m), `resolution` (the
   planning cell, default the map's, at least 0.05 m), `reach` (20 m),
   `compare` (time A* beside each plan, for benchmarks; default false),
@@ -107,6 +110,7 @@ defmodule ThinkingCap.Planner.Monitor do
     replan_every: 1.0,
     resolution: nil,
     margin: 0.08,
+    clearance: 0.35,
     reach: 20.0,
     compare: false,
     map_timeout: 10.0,
@@ -124,7 +128,8 @@ defmodule ThinkingCap.Planner.Monitor do
       PathPlanner.new(
         radius: radius + params[:margin],
         resolution: max(params[:resolution] || 0.05, 0.05),
-        compare: params[:compare]
+        compare: params[:compare],
+        clearance: if(params[:clearance], do: radius + params[:clearance])
       )
 
     state = %{
@@ -597,7 +602,8 @@ defmodule ThinkingCap.Planner.Monitor do
 
     with {:ok, goal} <- goal(state, state.target),
          {:ok, cells, planner, state} <- path_to(state, {x, y}, goal) do
-      path = simplify(cells) ++ [goal]
+      {goal, state} = stand_in(state, goal, cells)
+      path = PathPlanner.keep_clear(planner, Enum.dedup(simplify(cells) ++ [goal]))
       length = path_length(path)
       progress = if opts[:keep_progress], do: state.progress, else: {length, state.time}
 
@@ -615,6 +621,17 @@ defmodule ThinkingCap.Planner.Monitor do
       {:error, reason} -> elem(give_up(state, reason), 1)
     end
   end
+
+  # A frontier's point may lie where the robot does not fit (by a wall,
+  # in a nook): the planner then ends the path at the nearest cell it
+  # fits in. Exploring, that cell is the target: driving on to the
+  # point itself would push the robot against the wall until it gave up.
+  defp stand_in(%{task: :explore} = state, _goal, [_ | _] = cells) do
+    last = List.last(cells)
+    {last, %{state | target: last}}
+  end
+
+  defp stand_in(state, goal, _cells), do: {goal, state}
 
   defp path_to(state, from, goal) do
     case PathPlanner.plan(state.planner, from, goal) do
