@@ -99,8 +99,9 @@ defmodule ThinkingCap.Navigation.KeepClear do
     end
   end
 
-  # the least clearance along a segment, sampled every half cell
-  defp segment_clearance(%{grid: grid} = field, {ax, ay} = a, {bx, by}) do
+  @doc "The least clearance (m) along a segment, sampled every half cell."
+  @spec segment_clearance(field(), point(), point()) :: float()
+  def segment_clearance(%{grid: grid} = field, {ax, ay} = a, {bx, by}) do
     length = :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
     n = max(1, ceil(length / (grid.resolution / 2)))
 

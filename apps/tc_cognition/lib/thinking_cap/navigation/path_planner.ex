@@ -148,6 +148,24 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   def keep_clear(%__MODULE__{}, path), do: path
 
+  @doc """
+  How far (m) a point is from the nearest obstacle of the map (before it
+  is grown); `0.0` without a `clearance` or a map.
+  """
+  @spec clearance(t(), point()) :: float()
+  def clearance(%__MODULE__{field: nil}, _point), do: 0.0
+  def clearance(%__MODULE__{field: field}, point), do: KeepClear.clearance(field, point)
+
+  @doc """
+  Whether the straight line between two points crosses no obstacle of
+  the map (before it is grown); `true` without a `clearance` or a map.
+  """
+  @spec in_sight?(t(), point(), point()) :: boolean()
+  def in_sight?(%__MODULE__{field: nil}, _a, _b), do: true
+
+  def in_sight?(%__MODULE__{field: field}, a, b),
+    do: KeepClear.segment_clearance(field, a, b) >= field.grid.resolution
+
   # whether the search must start anew (:reset: a new frame), may have
   # cells to repair (:changed) or has nothing new (:none)
   defp changes(%{grid: nil}, _grid), do: :reset
