@@ -128,7 +128,9 @@ defmodule ThinkingCap.Bench.Explore do
         {ThinkingCap.Navigation.Mapper,
          [initial: {sx, sy}, size: {size, size}] ++ NavRun.env_params("TC_MAPPER")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
-      planner: {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved], period: 0.5}
+      planner:
+        {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved, clearance: 0.35],
+         period: 0.5}
     ]
 
     :ok =
