@@ -128,7 +128,9 @@ defmodule ThinkingCap.Bench.Explore do
         {ThinkingCap.Navigation.Mapper,
          [initial: {sx, sy}, size: {size, size}] ++ NavRun.env_params("TC_MAPPER")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
-      planner: {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved], period: 0.5}
+      planner:
+        {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved, clearance: 0.35],
+         period: 0.5}
     ]
 
     :ok =
@@ -196,7 +198,7 @@ defmodule ThinkingCap.Bench.Explore do
 
             IO.puts(
               "    t=#{NavRun.fmt(t + i * dt)} x=#{NavRun.fmt(x)} y=#{NavRun.fmt(y)} th=#{NavRun.fmt(th)} err=#{NavRun.fmt(e)} dth=#{NavRun.fmt(dth)} " <>
-                "#{p[:status]} conf=#{NavRun.fmt(p[:confidence] || 0.0)}"
+                "#{p[:status]} conf=#{NavRun.fmt(p[:confidence] || 0.0)}" <> control(c.lock)
             )
 
           _ ->
@@ -206,6 +208,28 @@ defmodule ThinkingCap.Bench.Explore do
     else
       Sim.run_for(sim, 10.0)
     end
+  end
+
+  # what the controller drove and which behaviours were active
+  defp control(lock) do
+    command =
+      case Lockstep.latest(lock, Tuples.drive(:explorer)) do
+        Tuples.drive(_, %{command: {:velocity, v, w}}) -> " v=#{NavRun.fmt(v)} w=#{NavRun.fmt(w)}"
+        _ -> ""
+      end
+
+    active =
+      case Lockstep.latest(lock, Tuples.activation(:explorer)) do
+        Tuples.activation(_, a) when is_map(a) ->
+          a
+          |> Enum.filter(fn {_, d} -> d > 0.05 end)
+          |> Enum.map_join(",", fn {b, d} -> "#{b}:#{NavRun.fmt(d)}" end)
+
+        _ ->
+          ""
+      end
+
+    command <> " act=" <> active
   end
 
   ## scoring

@@ -13,8 +13,11 @@ defmodule ThinkingCap.Control.CrossDoor do
 
   Quantities: the target's `bearing` (the terms of
   `ThinkingCap.Control.GoToPoint`) and the robot's `offset` from the axis,
-  as a fraction of the room it has in the door (`width / 2 - radius`):
-  `:centred` below 0.2, `:off` from 0.6.
+  as a fraction of the room it has: in the door `width / 2 - radius`,
+  and before it that widened by `funnel` times the distance still to go
+  (a robot 1.5 m before a door need not yet be on its axis to the
+  centimetre, and should not crawl there): `:centred` below 0.2, `:off`
+  from 0.6.
 
   Rules (`rules/0`): the bearing turns as in go-to; ahead and centred →
   medium speed; ahead and off → slow; left or right → slow; hard → stop.
@@ -30,7 +33,7 @@ defmodule ThinkingCap.Control.CrossDoor do
   robot to its centre.
 
   Params: `lookahead: 0.5`, `approach: 2.5`, `beyond: 0.3`, `match: 0.4`
-  (m).
+  (m), `funnel: 0.5`.
   """
   use ThinkingCap.Control.Behaviour
 
@@ -38,7 +41,7 @@ defmodule ThinkingCap.Control.CrossDoor do
   alias ThinkingCap.Perception.LPS
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
-  defstruct lookahead: 0.5, approach: 2.5, beyond: 0.3, match: 0.4
+  defstruct lookahead: 0.5, approach: 2.5, beyond: 0.3, match: 0.4, funnel: 0.5
 
   @type t :: %__MODULE__{}
 
@@ -128,7 +131,8 @@ defmodule ThinkingCap.Control.CrossDoor do
     %{centre: {cx, cy}, heading: phi, along: s, lateral: e} = door
     t = s + max(p.lookahead, -s / 2)
     {_, bearing} = Geometry.polar({cx + t * :math.cos(phi), cy + t * :math.sin(phi)})
-    room = max(door.width / 2 - inputs.radius, 0.01)
+    to_go = max(-s - inputs.radius, 0.0)
+    room = max(door.width / 2 - inputs.radius, 0.01) + p.funnel * to_go
     crisp = %{bearing: bearing, offset: abs(e) / room}
     Behaviour.control(rules(), crisp, variables(), inputs)
   end

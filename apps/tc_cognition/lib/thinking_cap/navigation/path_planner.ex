@@ -22,6 +22,13 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   repairs the path from there. A new frame (the map grew), a new goal,
   or more than `max_changes` changed cells start a new search.
 
+  **Keeping clear.** With `clearance` (m), the planner also keeps the
+  distance field of the obstacles (before they are grown), and
+  `keep_clear/2` moves a path's points away from them up to that distance
+  where there is room (`ThinkingCap.Navigation.KeepClear`): a path down
+  the middle of a corridor and through the middle of a door, not along
+  the wall at the robot's radius.
+
   Every `plan/3` records what it did in `last`: `%{kind: :initial |
   :repair, us: microseconds, expanded: vertices, changed: cells}` (`us`
   covers the robot's move, finding and repairing the changed cells, and
@@ -30,7 +37,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   more).
   """
 
-  alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, OccupancyGrid}
+  alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, KeepClear, OccupancyGrid}
   alias ThinkingCap.Navigation.Core.{Cost, GridNif}
   require Cost
 
@@ -39,7 +46,9 @@ defmodule ThinkingCap.Navigation.PathPlanner do
             resolution: 0.05,
             max_changes: 20_000,
             compare: false,
+            clearance: nil,
             grid: nil,
+            field: nil,
             version: nil,
             pending: :reset,
             search: nil,
@@ -53,7 +62,9 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           resolution: float(),
           max_changes: pos_integer(),
           compare: boolean(),
+          clearance: float() | nil,
           grid: Grid.t() | nil,
+          field: KeepClear.field() | nil,
           version: term(),
           pending: :none | :changed | :reset,
           search: DStarLite.t() | nil,
@@ -68,12 +79,15 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           | :start_blocked
           | :no_path
 
-  @doc "A planner without a map. Options: `radius`, `threshold`, `resolution`, `max_changes`, `compare`."
+  @doc """
+  A planner without a map. Options: `radius`, `threshold`, `resolution`,
+  `max_changes`, `compare`, `clearance`.
+  """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
     struct!(
       __MODULE__,
-      Keyword.take(opts, [:radius, :threshold, :resolution, :max_changes, :compare])
+      Keyword.take(opts, [:radius, :threshold, :resolution, :max_changes, :compare, :clearance])
     )
   end
 
@@ -88,8 +102,19 @@ defmodule ThinkingCap.Navigation.PathPlanner do
       do: planner
 
   def set_map(%__MODULE__{} = planner, %OccupancyGrid{} = map) do
-    grid = cost_grid(planner, map)
-    %{planner | grid: grid, version: map.version, pending: changes(planner, grid)}
+    {grid, blocked} = grids(planner, map)
+
+    field =
+      if planner.clearance,
+        do: %{grid: grid, distances: GridNif.edt(blocked, grid.width, grid.height)}
+
+    %{
+      planner
+      | grid: grid,
+        field: field,
+        version: map.version,
+        pending: changes(planner, grid)
+    }
   end
 
   @doc """
@@ -97,14 +122,49 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   whose blocked cells are obstacles grown by the planner's radius.
   """
   @spec cost_grid(t(), OccupancyGrid.t()) :: Grid.t()
-  def cost_grid(%__MODULE__{} = planner, %OccupancyGrid{width: w, height: h} = map) do
+  def cost_grid(%__MODULE__{} = planner, %OccupancyGrid{} = map),
+    do: elem(grids(planner, map), 0)
+
+  # the cost map, and the blocked cells before they are grown
+  defp grids(planner, %OccupancyGrid{width: w, height: h} = map) do
     k = max(1, round(planner.resolution / map.resolution))
     blocked = GridNif.blocked(map.data, planner.threshold, 0)
     {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.downsample(blocked, w, h, k)
     res = map.resolution * k
     cells = GridNif.inflate(coarse, cw, ch, planner.radius / res)
-    Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin)
+    {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), coarse}
   end
+
+  @doc """
+  A path (world points, from the robot to the goal) moved away from the
+  obstacles up to the planner's `clearance` where there is room
+  (`ThinkingCap.Navigation.KeepClear.push/3`); the ends stay. The path as
+  given without a `clearance` or a map.
+  """
+  @spec keep_clear(t(), [point()]) :: [point()]
+  def keep_clear(%__MODULE__{clearance: c, field: field} = planner, path)
+      when is_number(c) and field != nil,
+      do: KeepClear.push(path, field, prefer: c, radius: planner.radius)
+
+  def keep_clear(%__MODULE__{}, path), do: path
+
+  @doc """
+  How far (m) a point is from the nearest obstacle of the map (before it
+  is grown); `0.0` without a `clearance` or a map.
+  """
+  @spec clearance(t(), point()) :: float()
+  def clearance(%__MODULE__{field: nil}, _point), do: 0.0
+  def clearance(%__MODULE__{field: field}, point), do: KeepClear.clearance(field, point)
+
+  @doc """
+  Whether the straight line between two points crosses no obstacle of
+  the map (before it is grown); `true` without a `clearance` or a map.
+  """
+  @spec in_sight?(t(), point(), point()) :: boolean()
+  def in_sight?(%__MODULE__{field: nil}, _a, _b), do: true
+
+  def in_sight?(%__MODULE__{field: field}, a, b),
+    do: KeepClear.segment_clearance(field, a, b) >= field.grid.resolution
 
   # whether the search must start anew (:reset: a new frame), may have
   # cells to repair (:changed) or has nothing new (:none)

@@ -223,6 +223,21 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert v > 0.4 * @vmax
     end
 
+    test "off the axis, it slows down near the door, not far before it" do
+      # 0.12 m to the left of the axis of a 0.8 m door, facing along it
+      door = %{centre: {0.4, -0.12}, heading: 0.0, width: 0.8}
+      {_, v_near, _} = run(CrossDoor, [], inputs([], door: door))
+      {_, v_far, _} = run(CrossDoor, [], inputs([], door: %{door | centre: {1.6, -0.12}}))
+      assert v_near < 0.3 * @vmax
+      assert v_far > 0.35 * @vmax
+
+      # without the funnel, as slow far as near
+      {_, v_far_strict, _} =
+        run(CrossDoor, [funnel: 0.0], inputs([], door: %{door | centre: {1.6, -0.12}}))
+
+      assert v_far_strict < 0.3 * @vmax
+    end
+
     test "applies to a door near and ahead only, that the robot fits through" do
       assert {+0.0, nil, nil} = run(CrossDoor, [], inputs([]))
       # crossed

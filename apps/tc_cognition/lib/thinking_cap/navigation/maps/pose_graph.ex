@@ -35,6 +35,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   defstruct nodes: %{},
             odometry: %{},
             points: %{},
+            along: %{},
             edges: [],
             next: 0,
             params: %{}
@@ -51,6 +52,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           nodes: %{non_neg_integer() => pose()},
           odometry: %{non_neg_integer() => pose() | nil},
           points: %{non_neg_integer() => binary()},
+          along: %{non_neg_integer() => float()},
           edges: [edge()],
           next: non_neg_integer(),
           params: map()
@@ -63,6 +65,10 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     loop_radius: 4.0,
     window: 0.5,
     window_angle: 0.2,
+    window_growth: 0.01,
+    window_angle_growth: 0.002,
+    max_window: 1.2,
+    max_window_angle: 0.35,
     min_score: 0.45,
     max_sigma: 0.08,
     max_sigma_angle: 0.03,
@@ -75,7 +81,11 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   An empty graph. Options (defaults in brackets): `node_distance` [0.3],
   `node_angle` [0.35], `loop_gap` [30], `loop_radius` [4.0], `window`
   [0.5 m] and `window_angle` [0.2 rad] (how far from the estimate a loop
-  match is sought), `min_score` [0.45], `max_sigma` [0.08],
+  match is sought, at least), `window_growth` [0.01 m per m] and
+  `window_angle_growth` [0.002 rad per m] (how much wider the window is
+  for every metre the robot drove from the old node to the new one: the
+  drift a long way round gathers), `max_window` [1.2 m],
+  `max_window_angle` [0.35 rad], `min_score` [0.45], `max_sigma` [0.08],
   `max_sigma_angle` [0.03], `max_chi2` [16], `resolution` [0.05],
   `submap_nodes` [5] (the old nodes matched against: those within this
   many of the nearest; a short stretch of the chain is true to itself,
@@ -119,9 +129,16 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   """
   @spec add_node(t(), pose(), pose() | nil, binary()) :: {non_neg_integer(), t()}
   def add_node(%__MODULE__{next: id} = g, pose, odometry, points) when is_binary(points) do
+    along =
+      case id do
+        0 -> 0.0
+        _ -> g.along[id - 1] + distance(pose(g, id - 1), pose)
+      end
+
     g = %{
       g
       | nodes: Map.put(g.nodes, id, pose),
+        along: Map.put(g.along, id, along),
         odometry: Map.put(g.odometry, id, odometry),
         points: Map.put(g.points, id, points),
         next: id + 1
@@ -175,7 +192,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           {:closed, t(), pose(), pose()} | {:none, t()}
   def close_loop(%__MODULE__{} = g, id) do
     with {:ok, anchor, ref} <- submap(g, id),
-         {:ok, matched, cov} <- match(g, id, ref),
+         {:ok, matched, cov} <- match(g, id, ref, window(g, anchor, id)),
          {:ok, edge} <- loop_edge(g, anchor, id, matched, cov) do
       if agrees?(g, edge) do
         # the graph already says so: kept, nothing to optimize
@@ -233,7 +250,18 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
       do: <<x + c * px - s * py::float-native, y + s * px + c * py::float-native>>
   end
 
-  defp match(%__MODULE__{params: p} = g, id, ref) do
+  # the search window round the estimate: wider the longer the way the
+  # robot drove from the old node (the drift it may have gathered)
+  defp window(%__MODULE__{params: p} = g, anchor, id) do
+    driven = g.along[id] - g.along[anchor]
+
+    {min(max(p.window, p.window_growth * driven), p.max_window),
+     min(max(p.window_angle, p.window_angle_growth * driven), p.max_window_angle)}
+  end
+
+  defp distance({ax, ay, _}, {bx, by, _}), do: :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+
+  defp match(%__MODULE__{params: p} = g, id, ref, window) do
     query = Map.fetch!(g.points, id)
 
     if byte_size(query) < 16 * 20 do
@@ -243,7 +271,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
              ref,
              query,
              pose(g, id),
-             {p.window, p.window_angle},
+             window,
              p.resolution,
              p.resolution
            ) do

@@ -190,6 +190,54 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     end
   end
 
+  describe "the loop window" do
+    # round the room's centre; each step the estimate slips 6 cm in x
+    # from where the graph has the node before (heading true): 0.9 m
+    # off by the time the loop can close
+    defp slipping(walls, opts) do
+      {truth, _} = DriftingCircle.poses(30)
+
+      truth
+      |> Enum.chunk_every(2, 1)
+      |> Enum.with_index()
+      |> Enum.reduce({PoseGraph.new(opts), 0}, fn {[true_pose | _], k}, {g, closed} ->
+        estimate =
+          case k do
+            0 ->
+              true_pose
+
+            _ ->
+              {px, py, _} = PoseGraph.pose(g, k - 1)
+              {ax, ay, _} = Enum.at(truth, k - 1)
+              {x, y, th} = true_pose
+              {px + x - ax + 0.06, py + y - ay, th}
+          end
+
+        {id, g} = PoseGraph.add_node(g, estimate, nil, bin(seen(walls, true_pose)))
+
+        case PoseGraph.close_loop(g, id) do
+          {:closed, g, _from, _to} -> {g, closed + 1}
+          {:none, g} -> {g, closed}
+        end
+      end)
+    end
+
+    test "grows with the way driven: a loop drifted beyond the least window closes" do
+      walls = room(8.0, 6.0)
+      common = [loop_gap: 15, window_angle_growth: 0.0, max_window: 1.5]
+
+      {fixed, none} = slipping(walls, common ++ [window_growth: 0.0])
+      assert none == 0
+
+      {grown, closed} = slipping(walls, common ++ [window_growth: 0.25])
+      assert closed > 0
+      {truth, _} = DriftingCircle.poses(30)
+
+      assert distance(PoseGraph.pose(grown, PoseGraph.last(grown)), List.last(truth)) <
+               distance(PoseGraph.pose(fixed, PoseGraph.last(fixed)), List.last(truth)) / 4
+    end
+  end
+
   test "scan_points/3: the endpoints with an echo, in the robot's frame" do
     scan = %{ranges: [1.0, 8.0, 2.0], angle_min: -0.5, angle_increment: 0.5, range_max: 8.0}
     points = PoseGraph.scan_points(scan, {0.1, 0.0, 0.0})
