@@ -8,7 +8,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.{Raycast, World}
-  alias ThinkingCap.Sim.Core.Shard
+  alias ThinkingCap.Sim.Core.{Contacts, Shard}
 
   @far {1.0e9, 1.0e9, 0.0}
 
@@ -160,6 +160,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
 
   def handle_info({:stepped, _ref, _poses}, state), do: {:noreply, state}
+  def handle_info({:moved, _ref, _moves}, state), do: {:noreply, state}
 
   def handle_info(message, state) do
     Logger.debug("ThinkingCap.Sim: unexpected message #{inspect(message, limit: 10)}")
@@ -174,13 +175,17 @@ defmodule ThinkingCap.Sim.Core.Server do
     end
   end
 
-  # One step: every shard steps its robots in parallel, then the bodies
-  # move in the ray caster.
+  # One step: every shard moves its robots in parallel; the moves that ran
+  # two robots into each other are taken back (Contacts); every shard reads
+  # its robots' sensors and runs their controllers in parallel; then the
+  # bodies move in the ray caster.
   defp do_step(state) do
     ref = make_ref()
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
-    Enum.each(shards, &GenServer.cast(&1, {:step, ref, state.step, time}))
+    Enum.each(shards, &GenServer.cast(&1, {:move, ref}))
+    taken_back = ref |> collect_moves(length(shards), []) |> Contacts.taken_back()
+    Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
     bodies = collect(ref, length(shards), state.bodies)
     {walkers, bodies} = walk(state.walkers, bodies, state.dt)
     set_bodies(state.world, bodies, state.next_index)
@@ -288,6 +293,14 @@ defmodule ThinkingCap.Sim.Core.Server do
       {i, _} when i == w.index -> true
       {_, {bx, by, r}} -> (bx - x) ** 2 + (by - y) ** 2 > (r + w.radius + 0.05) ** 2
     end)
+  end
+
+  defp collect_moves(_ref, 0, moves), do: moves
+
+  defp collect_moves(ref, n, moves) do
+    receive do
+      {:moved, ^ref, more} -> collect_moves(ref, n - 1, more ++ moves)
+    end
   end
 
   defp collect(_ref, 0, bodies), do: bodies
