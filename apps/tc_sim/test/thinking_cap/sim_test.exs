@@ -353,6 +353,39 @@ defmodule ThinkingCap.SimTest do
     end
   end
 
+  describe "shards" do
+    test "a shard starts for every 32 robots; the run does not depend on them", %{tmp_dir: dir} do
+      world = T.world!(dir, walls: T.box(30, 30))
+      robot = T.robot!(dir, sensors: [@laser])
+
+      run = fn shards ->
+        sim = sim(world, step: 0.1, shards: shards)
+
+        for k <- 0..69 do
+          at = {1 + rem(k, 10) * 2.8, 1 + div(k, 10) * 2.8 + 0.5, k * 0.7}
+          :ok = Sim.add_robot(sim, :"s#{k}", description: robot, at: at, controller: Sim.Wander)
+        end
+
+        :ok = Sim.run_for(sim, 3.0)
+        result = {Sim.robots(sim), Sim.status(sim)}
+        GenServer.stop(sim)
+        result
+      end
+
+      {poses, status} = run.(1)
+      assert status.shards == 3
+      {poses_8, status_8} = run.(8)
+      assert status_8.shards == 8
+      assert poses == poses_8
+      # they moved
+      assert Enum.count(poses, fn {_, {x, _, _}} ->
+               abs(x - 1 - round((x - 1) / 2.8) * 2.8) > 0.01
+             end) > 10
+
+      assert status.rays == status_8.rays and status.rays > 0
+    end
+  end
+
   describe "walkers" do
     test "a walker walks its route back and forth, seen by the laser", %{tmp_dir: dir} do
       sim = sim(T.world!(dir, walls: T.box(10, 10)))
