@@ -1,7 +1,8 @@
 defmodule ThinkingCap.Bench.Sim do
   @moduledoc """
-  `mix tc.bench sim [--seconds S] [--robots N]`: the simulator on the
-  workload of Stage's `cave.world` benchmark.
+  `mix tc.bench sim [--seconds S] [--robots N] [--scale-seconds T]`: the
+  simulator on the workload of Stage's `cave.world` benchmark, then at fleet
+  scale.
 
   N robots (default 100), each with a ring of 16 sonars (15° cone, 5 m,
   three rays per cone, up to two specular bounces, crosstalk on) and a
@@ -10,6 +11,11 @@ defmodule ThinkingCap.Bench.Sim do
   map (`bench/warehouse.wdf`, 30 m × 50 m at 3 cm), as fast as possible
   for S simulated seconds (default 600); then the same with 1 and 10
   robots.
+
+  Fleet scale (`sim_scale` line): 10 × N robots in the warehouse map tiled
+  5 × 2 (150 m × 100 m: the same robot density), for T simulated seconds
+  (default 60). `ray_ratio` is its rays per wall second over those of the
+  N-robot run: 1.0 when the cost per ray does not depend on the fleet.
 
   Real-time factor: simulated seconds per wall second. Rays: the rays of
   every sample (sonar cone rays and laser beams, without counting bounces)
@@ -24,7 +30,11 @@ defmodule ThinkingCap.Bench.Sim do
   @dir Path.expand(".", __DIR__)
 
   def run(args) do
-    {opts, _, _} = OptionParser.parse(args, strict: [seconds: :float, robots: :integer])
+    {opts, _, _} =
+      OptionParser.parse(args,
+        strict: [seconds: :float, robots: :integer, scale_seconds: :float]
+      )
+
     seconds = opts[:seconds] || 600.0
     n = opts[:robots] || 100
 
@@ -55,6 +65,38 @@ defmodule ThinkingCap.Bench.Sim do
       "sim: robots=#{n} rtf=#{fmt(main.rtf)} rays_per_s=#{round(main.rays_per_s)} " <>
         "rtf_1=#{fmt(results[1].rtf)} rtf_10=#{fmt(results[10].rtf)}"
     )
+
+    scale_seconds = opts[:scale_seconds] || 60.0
+
+    {:ok, big} =
+      Sim.World.from_wdf(%{world.wdf | name: "warehouse 5x2", grid: tile(world.wdf.grid, 5, 2)})
+
+    r = measure(big, description, 10 * n, scale_seconds)
+
+    IO.puts(
+      "  #{10 * n} robots, warehouse tiled 5 x 2, #{scale_seconds} simulated s: " <>
+        "#{fmt(r.wall)} s wall, rtf #{fmt(r.rtf)}, #{fmt(r.rays_per_s / 1.0e6)} M rays/s, " <>
+        "#{r.bumps} blocked robot-steps"
+    )
+
+    IO.puts(
+      "sim_scale: robots=#{10 * n} rtf=#{fmt(r.rtf)} " <>
+        "ray_ratio=#{fmt(r.rays_per_s / main.rays_per_s)} rays_per_s=#{round(r.rays_per_s)}"
+    )
+  end
+
+  # the occupancy grid repeated nx times across and ny times up
+  defp tile(grid, nx, ny) do
+    w = grid.width
+
+    rows =
+      for row <- 0..(grid.height - 1) do
+        line = binary_part(grid.data, row * w, w)
+        :binary.copy(line, nx)
+      end
+
+    band = IO.iodata_to_binary(rows)
+    %{grid | width: w * nx, height: grid.height * ny, data: :binary.copy(band, ny)}
   end
 
   defp measure(world, description, robots, seconds) do

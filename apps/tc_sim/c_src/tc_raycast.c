@@ -16,9 +16,13 @@
  *     the code is 0 (within 2.5 cells of obstacles) rays step cell by cell
  *     (Amanatides-Woo), so the hit is the exact entry point of the first
  *     obstacle cell along the ray;
- *   - dynamic circular bodies. A scan sorts the bodies within its reach
- *     into sectors of direction around the robot, so a ray's first leg
- *     tests only the bodies of its sector.
+ *   - dynamic circular bodies, indexed by a uniform grid of buckets (by
+ *     centre, rebuilt by every set_bodies), so that a scan, a cast or a
+ *     clearance query looks only at the bodies near it: the cost does not
+ *     grow with the number of bodies, only with their density. A scan
+ *     then sorts the bodies within its reach into sectors of direction
+ *     around the robot, so a ray's first leg tests only the bodies of its
+ *     sector.
  * Readers (casts, clearance) take the world's read lock, setters the write
  * lock, so several processes cast concurrently.
  */
@@ -57,6 +61,18 @@ typedef struct {
     int id;
 } Body;
 
+/* The bodies and their bucket grid. A body is listed in the bucket of its
+ * centre (clamped to the grid, so bodies outside it sit in the edge
+ * buckets); a query for everything within r of a point visits the buckets
+ * within r + rmax, clamped the same way. */
+typedef struct {
+    int n;
+    Body *b; /* by id */
+    double rmax, x0, y0, inv;
+    int w, h;
+    int32_t *start, *items; /* bucket k: items[start[k] .. start[k + 1]) */
+} BodyIndex;
+
 typedef struct {
     ErlNifRWLock *lock;
     /* segments and their bucket index */
@@ -71,8 +87,7 @@ typedef struct {
     double res, inv_res, gox, goy, gc, gs;
     uint8_t *code; /* in 8x8-cell tiles of 64 bytes, see cell_index */
     /* bodies */
-    int nbody;
-    Body *body;
+    BodyIndex bodies;
 } World;
 
 typedef struct {
@@ -147,6 +162,108 @@ static inline double uniform(uint64_t *s) { return (double)(splitmix64(s) >> 11)
 /* ------------------------------------------------------------------ */
 /* world lifetime                                                       */
 
+static void body_index_free(BodyIndex *x)
+{
+    if (x->b) enif_free(x->b);
+    if (x->start) enif_free(x->start);
+    if (x->items) enif_free(x->items);
+    memset(x, 0, sizeof(*x));
+}
+
+/* the bucket of coordinate u (in bucket units) on an axis of n buckets;
+ * outside (and NaN) clamps to the edges */
+static inline int bucket_of(double u, int n)
+{
+    if (!(u >= 0)) return 0;
+    if (u >= n) return n - 1;
+    return (int)u;
+}
+
+/* Builds the bucket grid of x->n bodies x->b. Buckets cover the bounding
+ * box of the centres within BODY_BOX of the origin, about one body per
+ * bucket (at least 0.5 m), at most 4n + 16 of them. */
+#define BODY_BOX 1e7
+static int body_index_build(BodyIndex *x)
+{
+    const int n = x->n;
+    double minx = BIG, miny = BIG, maxx = -BIG, maxy = -BIG, rmax = 0;
+    int near = 0;
+    for (int i = 0; i < n; i++) {
+        const Body *b = &x->b[i];
+        if (b->r > rmax) rmax = b->r;
+        if (!(fabs(b->x) <= BODY_BOX && fabs(b->y) <= BODY_BOX)) continue;
+        near++;
+        minx = fmin(minx, b->x);
+        maxx = fmax(maxx, b->x);
+        miny = fmin(miny, b->y);
+        maxy = fmax(maxy, b->y);
+    }
+    if (near == 0) minx = miny = maxx = maxy = 0;
+    double ex = fmax(maxx - minx, 1e-3), ey = fmax(maxy - miny, 1e-3);
+    double h = fmax(sqrt(ex * ey / (near > 0 ? near : 1)), 0.5);
+    while ((floor(ex / h) + 1) * (floor(ey / h) + 1) > 4.0 * n + 16)
+        h *= 2;
+    x->rmax = rmax;
+    x->x0 = minx;
+    x->y0 = miny;
+    x->inv = 1.0 / h;
+    x->w = (int)floor(ex / h) + 1;
+    x->h = (int)floor(ey / h) + 1;
+    const int nb = x->w * x->h;
+    x->start = enif_alloc(((size_t)nb + 1) * sizeof(int32_t));
+    x->items = enif_alloc(((size_t)n + 1) * sizeof(int32_t));
+    int32_t *cell = enif_alloc(((size_t)n + 1) * sizeof(int32_t));
+    if (!x->start || !x->items || !cell) {
+        if (cell) enif_free(cell);
+        return 0;
+    }
+    memset(x->start, 0, ((size_t)nb + 1) * sizeof(int32_t));
+    for (int i = 0; i < n; i++) {
+        const Body *b = &x->b[i];
+        cell[i] = bucket_of((b->y - miny) * x->inv, x->h) * x->w +
+                  bucket_of((b->x - minx) * x->inv, x->w);
+        x->start[cell[i] + 1]++;
+    }
+    for (int k = 0; k < nb; k++)
+        x->start[k + 1] += x->start[k];
+    /* ids ascending within a bucket */
+    for (int i = 0; i < n; i++)
+        x->items[x->start[cell[i]]++] = i;
+    for (int k = nb; k > 0; k--)
+        x->start[k] = x->start[k - 1];
+    x->start[0] = 0;
+    enif_free(cell);
+    return 1;
+}
+
+/* Copies into `out` the bodies other than `exclude` that reach into the box
+ * [x0, x1] x [y0, y1]; with `disc`, only those that also reach within
+ * `radius` of (cx, cy). Returns the count. */
+static int bodies_near(const BodyIndex *x, int exclude, double x0, double y0, double x1,
+                       double y1, int disc, double cx, double cy, double radius, Body *out)
+{
+    if (x->n == 0) return 0;
+    const double m = x->rmax;
+    const int i0 = bucket_of((x0 - m - x->x0) * x->inv, x->w);
+    const int i1 = bucket_of((x1 + m - x->x0) * x->inv, x->w);
+    const int j0 = bucket_of((y0 - m - x->y0) * x->inv, x->h);
+    const int j1 = bucket_of((y1 + m - x->y0) * x->inv, x->h);
+    int n = 0;
+    for (int j = j0; j <= j1; j++)
+        for (int k = x->start[j * x->w + i0]; k < x->start[j * x->w + i1 + 1]; k++) {
+            const Body *b = &x->b[x->items[k]];
+            if (b->id == exclude) continue;
+            if (b->x + b->r < x0 || b->x - b->r > x1 || b->y + b->r < y0 || b->y - b->r > y1)
+                continue;
+            if (disc) {
+                double dx = b->x - cx, dy = b->y - cy, rr = radius + b->r;
+                if (dx * dx + dy * dy > rr * rr) continue;
+            }
+            out[n++] = *b;
+        }
+    return n;
+}
+
 static void world_free(World *w)
 {
     if (w->seg) enif_free(w->seg);
@@ -154,12 +271,11 @@ static void world_free(World *w)
     if (w->sstart) enif_free(w->sstart);
     if (w->sitems) enif_free(w->sitems);
     if (w->code) enif_free(w->code);
-    if (w->body) enif_free(w->body);
+    body_index_free(&w->bodies);
     w->seg = NULL;
     w->seg_on = NULL;
     w->sstart = w->sitems = NULL;
     w->code = NULL;
-    w->body = NULL;
 }
 
 static void world_dtor(ErlNifEnv *env, void *obj)
@@ -808,8 +924,10 @@ static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     (void)argc;
     if (!get_world(env, argv[0], &w) || !enif_get_list_length(env, argv[1], &len))
         return enif_make_badarg(env);
-    Body *b = len ? enif_alloc((size_t)len * sizeof(Body)) : NULL;
-    if (len && !b) return enif_make_badarg(env);
+    BodyIndex x;
+    memset(&x, 0, sizeof(x));
+    Body *b = enif_alloc((size_t)(len ? len : 1) * sizeof(Body));
+    if (!b) return enif_make_badarg(env);
     ERL_NIF_TERM list = argv[1], head;
     for (unsigned i = 0; i < len; i++) {
         int arity;
@@ -823,12 +941,17 @@ static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         }
         b[i].id = (int)i;
     }
+    x.n = (int)len;
+    x.b = b;
+    if (!body_index_build(&x)) {
+        body_index_free(&x);
+        return enif_make_badarg(env);
+    }
     enif_rwlock_rwlock(w->lock);
-    Body *old = w->body;
-    w->body = b;
-    w->nbody = (int)len;
+    BodyIndex old = w->bodies;
+    w->bodies = x;
     enif_rwlock_rwunlock(w->lock);
-    if (old) enif_free(old);
+    body_index_free(&old);
     return A_OK;
 }
 
@@ -844,24 +967,6 @@ static ERL_NIF_TERM kind_atom(int kind)
     default:
         return A_NONE;
     }
-}
-
-/* copies the bodies other than `exclude` into `out` (with `cull`, only those
- * that reach within `radius` of (x, y)); returns the count */
-static int collect_bodies(const World *w, int exclude, int cull, double x, double y, double radius,
-                          Body *out)
-{
-    int n = 0;
-    for (int i = 0; i < w->nbody; i++) {
-        const Body *b = &w->body[i];
-        if (b->id == exclude) continue;
-        if (cull) {
-            double dx = b->x - x, dy = b->y - y, rr = radius + b->r;
-            if (dx * dx + dy * dy > rr * rr) continue;
-        }
-        out[n++] = *b;
-    }
-    return n;
 }
 
 /* cast_rays(world, rays, exclude, max_bounces, cos_crit) */
@@ -897,9 +1002,20 @@ static ERL_NIF_TERM cast_rays_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         enif_free(rays);
         return enif_make_badarg(env);
     }
+    /* a ray (with its reflections) stays within its range of its origin */
+    double bx0 = BIG, by0 = BIG, bx1 = -BIG, by1 = -BIG;
+    for (unsigned i = 0; i < len; i++) {
+        const double *r = rays + 4 * (size_t)i, reach = fmax(r[3], 0);
+        bx0 = fmin(bx0, r[0] - reach);
+        bx1 = fmax(bx1, r[0] + reach);
+        by0 = fmin(by0, r[1] - reach);
+        by1 = fmax(by1, r[1] + reach);
+    }
     enif_rwlock_rlock(w->lock);
-    Body *bodies = w->nbody ? enif_alloc((size_t)w->nbody * sizeof(Body)) : NULL;
-    Ctx c = {w, bodies, bodies ? collect_bodies(w, exclude, 0, 0, 0, 0, bodies) : 0};
+    const BodyIndex *bi = &w->bodies;
+    Body *bodies = bi->n && len ? enif_alloc((size_t)bi->n * sizeof(Body)) : NULL;
+    Ctx c = {w, bodies,
+             bodies ? bodies_near(bi, exclude, bx0, by0, bx1, by1, 0, 0, 0, 0, bodies) : 0};
     for (unsigned i = 0; i < len; i++) {
         const double *r = rays + 4 * (size_t)i;
         cast_one(&c, &c, r[0], r[1], cos(r[2]), sin(r[2]), r[3], max_bounces, cos_crit, &res[i]);
@@ -1115,14 +1231,16 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     /* the bodies within reach of the scan (a ray never gets farther than its
      * max range from its sensor) for the legs after a reflection, and by
      * sector for the first legs */
-    const int nb = w->nbody;
+    const BodyIndex *bi = &w->bodies;
     Body *bodies = NULL;
     SectorTable sectors;
     sectors.b = NULL;
     int nscan = 0;
-    if (nb > 0) {
-        bodies = enif_alloc((size_t)nb * sizeof(Body));
-        if (bodies) nscan = collect_bodies(w, exclude, 1, X, Y, reach, bodies);
+    if (bi->n > 0) {
+        bodies = enif_alloc((size_t)bi->n * sizeof(Body));
+        if (bodies)
+            nscan = bodies_near(bi, exclude, X - reach, Y - reach, X + reach, Y + reach, 1, X, Y,
+                                reach, bodies);
         if (!bodies || (nscan > 0 && !build_sectors(&sectors, bodies, nscan, X, Y, offset))) {
             enif_rwlock_runlock(w->lock);
             if (bodies) enif_free(bodies);
@@ -1371,11 +1489,22 @@ static ERL_NIF_TERM nif_clearance(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
             }
         }
     }
-    for (int i = 0; i < w->nbody; i++) {
-        const Body *b = &w->body[i];
-        if (b->id == exclude) continue;
-        double d = hypot(x - b->x, y - b->y) - b->r;
-        best = fmin(best, d > 0 ? d : 0);
+    const BodyIndex *bi = &w->bodies;
+    if (bi->n > 0) {
+        /* the bodies whose bucket is within best + rmax; the others are
+         * farther than best */
+        const double m = best + bi->rmax;
+        const int i0 = bucket_of((x - m - bi->x0) * bi->inv, bi->w);
+        const int i1 = bucket_of((x + m - bi->x0) * bi->inv, bi->w);
+        const int j0 = bucket_of((y - m - bi->y0) * bi->inv, bi->h);
+        const int j1 = bucket_of((y + m - bi->y0) * bi->inv, bi->h);
+        for (int j = j0; j <= j1; j++)
+            for (int k = bi->start[j * bi->w + i0]; k < bi->start[j * bi->w + i1 + 1]; k++) {
+                const Body *b = &bi->b[bi->items[k]];
+                if (b->id == exclude) continue;
+                double d = hypot(x - b->x, y - b->y) - b->r;
+                best = fmin(best, d > 0 ? d : 0);
+            }
     }
     if (w->has_grid && best > 0) best = grid_clearance(w, x, y, best);
     enif_rwlock_runlock(w->lock);

@@ -82,7 +82,8 @@ defmodule ThinkingCap.Sim do
     * `:running` - start stepping at once (default `true`; `:fast` mode
       with `running: false` waits for `run_for/2` or `step/2`);
     * `:publish` - publish readings on the blackboard (default `false`);
-    * `:shards` - processes stepping robots (default: the schedulers online);
+    * `:shards` - processes stepping robots at the start (default: the
+      schedulers online); another starts when each holds 32 robots;
     * `:walkers` - people walking in the world: `[{id, opts}]` as
       `add_walker/3`;
     * `:name` - a name to register.

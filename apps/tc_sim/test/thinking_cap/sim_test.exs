@@ -302,6 +302,90 @@ defmodule ThinkingCap.SimTest do
     end
   end
 
+  describe "contacts between robots" do
+    test "robots driven into each other stop at contact, bumpers pressed, never overlapping", %{
+      tmp_dir: dir
+    } do
+      # eight robots on a circle, all driving to its centre, with the
+      # benchmark's 0.1 s step (each moves up to 5 cm a step)
+      sim = sim(T.world!(dir, walls: T.box(10, 10)), step: 0.1)
+      robot = T.robot!(dir, sensors: [[name: :bumper, type: :bumper, rate: 10]])
+      ids = for k <- 0..7, do: :"c#{k}"
+
+      for {id, k} <- Enum.with_index(ids) do
+        a = k * :math.pi() / 4
+        at = {5 + 3 * :math.cos(a), 5 + 3 * :math.sin(a), a + :math.pi()}
+        :ok = Sim.add_robot(sim, id, description: robot, at: at, owner: self())
+        Sim.command(sim, id, {:velocity, 0.5, 0.0})
+      end
+
+      for _ <- 1..80 do
+        :ok = Sim.step(sim)
+        poses = Map.values(Sim.robots(sim))
+
+        for {x1, y1, _} = p <- poses, {x2, y2, _} = q <- poses, p < q do
+          assert :math.sqrt((x1 - x2) ** 2 + (y1 - y2) ** 2) >= 0.4 - 1.0e-9
+        end
+      end
+
+      # they met: each touches a neighbour (within one step) and feels it
+      poses = Sim.robots(sim)
+
+      for {id, {x, y, _}} <- poses do
+        nearest =
+          for(
+            {other, {u, v, _}} <- poses,
+            other != id,
+            do: :math.sqrt((x - u) ** 2 + (y - v) ** 2)
+          )
+          |> Enum.min()
+
+        assert nearest < 0.4 + 0.05 + 1.0e-9
+      end
+
+      for id <- ids, do: flush(id)
+      :ok = Sim.step(sim)
+
+      for id <- ids do
+        assert_receive {:tc_sim, :readings, ^id, readings}, 1000
+        assert %{pressed: true} = Map.new(readings).bumper
+      end
+    end
+  end
+
+  describe "shards" do
+    test "a shard starts for every 32 robots; the run does not depend on them", %{tmp_dir: dir} do
+      world = T.world!(dir, walls: T.box(30, 30))
+      robot = T.robot!(dir, sensors: [@laser])
+
+      run = fn shards ->
+        sim = sim(world, step: 0.1, shards: shards)
+
+        for k <- 0..69 do
+          at = {1 + rem(k, 10) * 2.8, 1 + div(k, 10) * 2.8 + 0.5, k * 0.7}
+          :ok = Sim.add_robot(sim, :"s#{k}", description: robot, at: at, controller: Sim.Wander)
+        end
+
+        :ok = Sim.run_for(sim, 3.0)
+        result = {Sim.robots(sim), Sim.status(sim)}
+        GenServer.stop(sim)
+        result
+      end
+
+      {poses, status} = run.(1)
+      assert status.shards == 3
+      {poses_8, status_8} = run.(8)
+      assert status_8.shards == 8
+      assert poses == poses_8
+      # they moved
+      assert Enum.count(poses, fn {_, {x, _, _}} ->
+               abs(x - 1 - round((x - 1) / 2.8) * 2.8) > 0.01
+             end) > 10
+
+      assert status.rays == status_8.rays and status.rays > 0
+    end
+  end
+
   describe "walkers" do
     test "a walker walks its route back and forth, seen by the laser", %{tmp_dir: dir} do
       sim = sim(T.world!(dir, walls: T.box(10, 10)))

@@ -27,7 +27,11 @@ defmodule ThinkingCap.Sim.Raycast do
       cell, and the hit is the exact entry point of the first obstacle cell
       along the ray.
     * Bodies are circles; a body's list index is its id, and a caller
-      excludes its own body (`exclude`, −1 for none).
+      excludes its own body (`exclude`, −1 for none). `set_bodies/2`
+      indexes them by centre in a uniform grid of buckets (about one body
+      per bucket), so a scan, a cast or a clearance query looks only at the
+      bodies within its reach: its cost depends on how dense the bodies
+      are, not on how many there are.
 
   ## Reflection model (sonar)
 

@@ -87,6 +87,13 @@ defmodule ThinkingCap.Sim.Core.Body do
     end
   end
 
+  @doc """
+  Takes back a move (`moved` is `before` moved by `move/3`): the robot
+  stays where it was, blocked, as when `move/3` refuses the move.
+  """
+  def block(before, moved),
+    do: %{before | twist: {0.0, 0.0}, odom_twist: {0.0, 0.0}, err: moved.err, bumped: true}
+
   defp covering([], radius), do: [{0.0, 0.0, radius * 1.0}]
   defp covering(circles, _radius), do: circles
 

@@ -25,7 +25,8 @@ defmodule ThinkingCap.Sim.Core.Shard do
        truth_every: max(1, round(0.1 / opts[:dt])),
        world: opts[:world],
        counters: opts[:counters],
-       bodies: %{}
+       bodies: %{},
+       before: %{}
      }}
   end
 
@@ -89,20 +90,46 @@ defmodule ThinkingCap.Sim.Core.Shard do
 
   def handle_cast({:world, world}, state), do: {:noreply, %{state | world: world}}
 
-  def handle_cast({:step, ref, step, time}, state) do
-    bodies = Map.new(state.bodies, fn {id, body} -> {id, step_body(body, step, time, state)} end)
+  # A step in two phases. First every robot moves (each checks the walls
+  # and the other robots where they stood); the server then takes back the
+  # moves that ran two robots into each other, and every robot senses and
+  # runs its controller.
+  def handle_cast({:move, ref}, state) do
+    moved =
+      Map.new(state.bodies, fn {id, body} -> {id, Body.move(body, state.world, state.dt)} end)
+
+    moves =
+      for {id, b} <- moved do
+        {x, y, _} = state.bodies[id].pose
+        {b.index, {x, y}, b.pose, b.radius}
+      end
+
+    send(state.server, {:moved, ref, moves})
+    {:noreply, %{state | bodies: moved, before: state.bodies}}
+  end
+
+  def handle_cast({:sense, ref, step, time, taken_back}, state) do
+    bodies =
+      Map.new(state.bodies, fn {id, body} ->
+        body =
+          if MapSet.member?(taken_back, body.index),
+            do: Body.block(state.before[id], body),
+            else: body
+
+        {id, sense_body(body, step, time, state)}
+      end)
+
     rays = Enum.reduce(bodies, 0, fn {_id, b}, acc -> acc + b.rays end)
     blocked = Enum.count(bodies, fn {_id, b} -> b.bumped end)
     if rays > 0, do: :counters.add(state.counters, 1, rays)
     if blocked > 0, do: :counters.add(state.counters, 2, blocked)
     send(state.server, {:stepped, ref, poses(bodies)})
-    {:noreply, %{state | bodies: bodies}}
+    {:noreply, %{state | bodies: bodies, before: %{}}}
   end
 
   defp poses(bodies), do: for({_id, b} <- bodies, do: {b.index, b.pose, b.radius})
 
-  defp step_body(body, step, time, state) do
-    body = Body.move(body, state.world, state.dt)
+  defp sense_body(body, step, time, state) do
     {readings, body} = Body.sense(body, state.world, step, time, state.seed)
 
     readings =
