@@ -48,10 +48,13 @@ defmodule ThinkingCap.BlackBox.Recorder do
   With `replay: false`, only the first: Foxglove's messages, about half
   the bytes, and a recording that does not replay.
 
+  ## Times
 
   A message's **log time is the time the recorder received the tuple**,
-  in nanoseconds since the Unix epoch (`System.os_time/1`): one clock
-  for every channel, in the order the tuples came. Its **publish time is
+  in nanoseconds since the Unix epoch: the system's time when the
+  recorder started, advanced by the monotonic clock (so that a change of
+  the system's time cannot put messages out of order); one clock for
+  every channel, in the order the tuples came. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
   time. Foxglove messages carry the stamp in their `timestamp` too.
@@ -161,6 +164,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
       writer: nil,
       path: nil,
       started: nil,
+      epoch: System.os_time(:nanosecond) - System.monotonic_time(:nanosecond),
       replay: config.replay,
       chans: Channels.new(config.robot, terms: config.replay),
       files: [],
@@ -188,7 +192,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
     do: {:noreply, state}
 
   def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple) do
-    case Channels.write_tuple(state.writer, state.chans, tuple, System.os_time(:nanosecond)) do
+    case Channels.write_tuple(state.writer, state.chans, tuple, now(state)) do
       {:ok, w, chans, n} ->
         state = %{state | writer: w, chans: chans, messages: state.messages + n}
         {:noreply, maybe_rotate_by_size(state)}
@@ -203,9 +207,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
     do: {:noreply, state}
 
   def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state) do
-    now = System.os_time(:nanosecond)
-
-    case Channels.write_trace(state.writer, state.chans, name, n, event, now) do
+    case Channels.write_trace(state.writer, state.chans, name, n, event, now(state)) do
       {:ok, w, chans} ->
         state = %{
           state
@@ -361,4 +363,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp safe(robot), do: robot |> Atom.to_string() |> String.replace(~r/[^A-Za-z0-9_-]/, "_")
 
   defp now_ms, do: System.monotonic_time(:millisecond)
+
+  # the log time: the epoch's, on the monotonic clock
+  defp now(state), do: state.epoch + System.monotonic_time(:nanosecond)
 end

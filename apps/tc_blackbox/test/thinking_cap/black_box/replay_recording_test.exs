@@ -175,6 +175,31 @@ defmodule ThinkingCap.BlackBox.ReplayRecordingTest do
                "(the recorder dropped it, or its templates left it out)"
   end
 
+  test "only a ThinkingCap.Module's code is run, whatever a recording names", %{tmp_dir: dir} do
+    rec = recording([1, 2])
+    {{:init, info}, outputs} = rec.init
+    rec = %{rec | init: {{:init, %{info | module: File}}, outputs}}
+    report = compare(write(dir, rec))
+    assert report.callbacks == 0
+
+    assert report.stopped ==
+             "File is not a ThinkingCap.Module here (not loaded, or not one): " <>
+               ":summer cannot be run again"
+  end
+
+  test "a trace that is not one is refused when the recording is opened", %{tmp_dir: dir} do
+    path = Path.join(dir, "bogus.mcap")
+    {:ok, w} = Writer.open(path, compression: "")
+    chans = Channels.new(@robot)
+    {:ok, w, chans, _} = Channels.write_tuple(w, chans, {:tick, @robot, %{n: 1}}, 1)
+    {:ok, w, _chans} = Channels.write_trace(w, chans, :summer, 0, {{:init, :nothing}, []}, 2)
+    {:ok, _} = Writer.close(w)
+    assert {:error, message} = Replay.open(path)
+
+    assert message ==
+             "/trace/summing_robot/summer (callback 0): not a traced callback: {{:init, :nothing}, []}"
+  end
+
   test "what cannot be replayed is refused, saying why", %{tmp_dir: dir} do
     text = Path.join(dir, "notes.mcap")
     File.write!(text, "not an MCAP file")

@@ -55,17 +55,25 @@ defmodule ThinkingCap.BlackBox.Core.Comparison do
         do: %{cmp | restarts: cmp.restarts + 1},
         else: %{cmp | started: true}
 
-    {rerun, outcome} = Rerun.init(cmp.name, info)
+    if module?(info.module) do
+      {rerun, outcome} = Rerun.init(cmp.name, info)
 
-    cmp = %{
-      cmp
-      | module: info.module,
-        rerun: rerun,
-        measurements: Trace.measurements(info.module),
-        next: 1
-    }
+      cmp = %{
+        cmp
+        | module: info.module,
+          rerun: rerun,
+          measurements: Trace.measurements(info.module),
+          next: 1
+      }
 
-    compare(cmp, rec, time, n, {:init, info.module}, recorded, outcome)
+      compare(cmp, rec, time, n, {:init, info.module}, recorded, outcome)
+    else
+      {stop(
+         %{cmp | module: info.module},
+         "#{inspect(info.module)} is not a ThinkingCap.Module here (not loaded, or not one): " <>
+           "#{inspect(cmp.name)} cannot be run again"
+       ), []}
+    end
   end
 
   def step(%{started: false} = cmp, _rec, {_time, n, _event}) do
@@ -85,7 +93,29 @@ defmodule ThinkingCap.BlackBox.Core.Comparison do
     {stop(cmp, "#{inspect(cmp.name)} raised in init/2 and the recording has no restart"), []}
   end
 
-  def step(cmp, rec, {time, n, {input, recorded}}) do
+  def step(cmp, rec, {time, n, {{:swap, module}, _recorded} = event}) do
+    if module?(module),
+      do: run(cmp, rec, time, n, event),
+      else:
+        {stop(
+           cmp,
+           "#{inspect(cmp.name)} was swapped to #{inspect(module)}, not a ThinkingCap.Module here"
+         ), []}
+  end
+
+  def step(cmp, rec, {time, n, event}), do: run(cmp, rec, time, n, event)
+
+  # the code a recording names is run only when it is a module's
+  defp module?(module) do
+    behaviours =
+      if Code.ensure_loaded?(module),
+        do: module.module_info(:attributes) |> Keyword.get_values(:behaviour) |> List.flatten(),
+        else: []
+
+    ThinkingCap.Module in behaviours
+  end
+
+  defp run(cmp, rec, time, n, {input, recorded}) do
     case found(rec, input, time) do
       {:ok, input} ->
         {rerun, outcome} = Rerun.call(cmp.rerun, input)

@@ -138,6 +138,9 @@ defmodule ThinkingCap.BlackBox.Core.Recording do
             :other ->
               {:cont, {:ok, ts, tr, budget}}
 
+            {:trace, nil} ->
+              {:halt, {:error, not_traced(c, m, term)}}
+
             {:trace, name} ->
               case atom(name, budget) do
                 {:ok, name, budget} ->
@@ -160,10 +163,39 @@ defmodule ThinkingCap.BlackBox.Core.Recording do
 
   defp kind(%{topic: "/etf/" <> _}, term) when is_tuple(term), do: :tuple
 
-  defp kind(%{topic: "/trace/" <> _, metadata: %{"module" => name}}, {_input, _outputs}),
-    do: {:trace, name}
+  defp kind(%{topic: "/trace/" <> _, metadata: %{"module" => name}}, event) do
+    if traced?(event), do: {:trace, name}, else: {:trace, nil}
+  end
 
   defp kind(_channel, _term), do: :other
+
+  defp not_traced(c, m, term),
+    do:
+      "#{c.topic} (callback #{m.sequence}): not a traced callback: " <>
+        inspect(term, limit: 5, printable_limit: 60)
+
+  # a callback as ThinkingCap.Runtime.Trace sends it: a file may hold anything
+  defp traced?({input, outputs}), do: input?(input) and outputs?(outputs)
+  defp traced?(_other), do: false
+
+  defp input?({:init, %{module: m, params: p, context: %{robot: r}, activity: a}})
+       when is_atom(m) and (is_list(p) or is_map(p) or p == nil) and is_atom(r) and is_atom(a),
+       do: true
+
+  defp input?({:tuple, {:hash, _tag, h}}) when is_integer(h), do: true
+  defp input?({:tuple, {:term, t}}) when is_tuple(t), do: true
+  defp input?({:cycle, %{}}), do: true
+  defp input?({:applied, %{}}), do: true
+  defp input?({:param, key, _value}) when is_atom(key), do: true
+  defp input?(:background), do: true
+  defp input?({:info, _message}), do: true
+  defp input?({:swap, m}) when is_atom(m), do: true
+  defp input?(_other), do: false
+
+  defp outputs?(list) when is_list(list), do: true
+  defp outputs?({:refused, m}) when is_binary(m), do: true
+  defp outputs?({:raised, k, m}) when is_atom(k) and is_binary(m), do: true
+  defp outputs?(_other), do: false
 
   # a robot's or a module's name, counted against the atom budget
   defp atom(name, budget) do
