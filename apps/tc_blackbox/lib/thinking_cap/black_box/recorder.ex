@@ -38,9 +38,11 @@ defmodule ThinkingCap.BlackBox.Recorder do
       (`:erlang.term_to_binary/1`; message encoding `etf`, no schema): the
       exact terms the modules received, atoms, tuples and floats as they
       were (Foxglove lists these topics and does not decode them);
-    * `/trace/ROBOT/NAME`, module `NAME`'s trace, one message per callback
-      (`etf` too; its sequence is the callback's count since the module's
-      `init/2`). Modules are traced from their start when the recorder
+    * `/trace/ROBOT/NAME`, module `NAME`'s trace: its callbacks, up to
+      64 in a message, `[{n, us, callback}]` (`etf` too; `n` counts the
+      callbacks since the module's `init/2`, and is the message's
+      sequence for its first; `us` is when the recorder got it, in µs
+      after the message's log time). Modules are traced from their start when the recorder
       starts with the ADF (its `record:` section, `bin/run --record`):
       the runtime waits for it before it starts the first module
       (`ThinkingCap.Runtime.Starting`).
@@ -68,6 +70,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
   """
   use GenServer
   require Logger
+
+  # a module's traced callbacks written in one message
+  @batch 64
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
   alias ThinkingCap.Blackboard
@@ -166,6 +171,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
       started: nil,
       epoch: System.os_time(:nanosecond) - System.monotonic_time(:nanosecond),
       replay: config.replay,
+      batches: %{},
       chans: Channels.new(config.robot, terms: config.replay),
       files: [],
       messages: 0,
@@ -206,22 +212,23 @@ defmodule ThinkingCap.BlackBox.Recorder do
   def handle_info({:tc_trace, _robot, _name, _n, _event}, %{writer: nil} = state),
     do: {:noreply, state}
 
+  # kept a moment, and written `@batch` at a time (or at the chunk's
+  # end): one message per callback would cost more in record headers
+  # and indexes than the callbacks themselves
   def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state) do
-    case Channels.write_trace(state.writer, state.chans, name, n, event, now(state)) do
-      {:ok, w, chans} ->
-        state = %{
-          state
-          | writer: w,
-            chans: chans,
-            messages: state.messages + 1,
-            callbacks: state.callbacks + 1
-        }
+    now = now(state)
+    {time, events, count} = Map.get(state.batches, name, {now, [], 0})
+    # each with its own receipt time, in µs after the message's log time
+    batches =
+      Map.put(
+        state.batches,
+        name,
+        {time, [{n, div(now - time, 1000), event} | events], count + 1}
+      )
 
-        {:noreply, maybe_rotate_by_size(state)}
-
-      {:error, reason, chans} ->
-        {:noreply, failed(%{state | chans: chans}, reason)}
-    end
+    state = %{state | batches: batches, callbacks: state.callbacks + 1}
+    state = if count + 1 >= @batch, do: write_batch(state, name), else: state
+    {:noreply, maybe_rotate_by_size(state)}
   end
 
   def handle_info(:tick, state) do
@@ -274,9 +281,27 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp close_chunk(%{writer: nil} = state), do: state
 
   defp close_chunk(state) do
-    case Writer.close_chunk(state.writer) do
+    state = write_batches(state)
+
+    case state.writer && Writer.close_chunk(state.writer) do
+      nil -> state
       {:ok, w} -> %{state | writer: w}
       {:error, reason} -> failed(state, reason)
+    end
+  end
+
+  defp write_batches(state),
+    do: state.batches |> Map.keys() |> Enum.reduce(state, &write_batch(&2, &1))
+
+  defp write_batch(%{writer: nil} = state, _name), do: %{state | batches: %{}}
+
+  defp write_batch(state, name) do
+    {{time, events, _count}, batches} = Map.pop(state.batches, name)
+    state = %{state | batches: batches}
+
+    case Channels.write_trace(state.writer, state.chans, name, Enum.reverse(events), time) do
+      {:ok, w, chans} -> %{state | writer: w, chans: chans, messages: state.messages + 1}
+      {:error, reason, chans} -> failed(%{state | chans: chans}, reason)
     end
   end
 
@@ -321,7 +346,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp end_file(%{writer: nil} = state), do: state
 
   defp end_file(state) do
-    case Writer.close(state.writer) do
+    state = write_batches(state)
+
+    case state.writer && Writer.close(state.writer) do
+      nil -> state
       {:ok, _bytes} -> %{state | writer: nil, path: nil}
       {:error, reason} -> failed(state, reason)
     end

@@ -328,8 +328,9 @@ defmodule ThinkingCap.BlackBox.Replay do
     end
   end
 
-  # the positions of the recorded tuples the modules run again wrote, and
-  # the count of their outputs not in the recording
+  # the positions of the recorded tuples the modules run again wrote (a
+  # tuple written twice alike is two positions), and the count of their
+  # outputs not in the recording
   defp attribute(rec, names) do
     for name <- names,
         {time, _n, {_input, outputs}} <- rec.traces[name],
@@ -337,7 +338,7 @@ defmodule ThinkingCap.BlackBox.Replay do
         {:out, ref, _opts} <- outputs,
         reduce: {MapSet.new(), 0} do
       {set, missing} ->
-        case Recording.resolve(rec, ref, time) do
+        case Recording.resolve(rec, ref, time, set) do
           {:ok, nil, _tuple} -> {set, missing}
           {:ok, i, _tuple} -> {MapSet.put(set, i), missing}
           :missing -> {set, missing + 1}

@@ -103,7 +103,7 @@ defmodule ThinkingCap.BlackBox.ReplayRecordingTest do
     if drop.({:trace, n}) do
       {w, chans}
     else
-      {:ok, w, chans} = Channels.write_trace(w, chans, :summer, n, event, t)
+      {:ok, w, chans} = Channels.write_trace(w, chans, :summer, [{n, 0, event}], t)
       {w, chans}
     end
   end
@@ -192,12 +192,15 @@ defmodule ThinkingCap.BlackBox.ReplayRecordingTest do
     {:ok, w} = Writer.open(path, compression: "")
     chans = Channels.new(@robot)
     {:ok, w, chans, _} = Channels.write_tuple(w, chans, {:tick, @robot, %{n: 1}}, 1)
-    {:ok, w, _chans} = Channels.write_trace(w, chans, :summer, 0, {{:init, :nothing}, []}, 2)
+
+    {:ok, w, _chans} =
+      Channels.write_trace(w, chans, :summer, [{0, 0, {{:init, :nothing}, []}}], 2)
+
     {:ok, _} = Writer.close(w)
     assert {:error, message} = Replay.open(path)
 
-    assert message ==
-             "/trace/summing_robot/summer (callback 0): not a traced callback: {{:init, :nothing}, []}"
+    assert message =~
+             "/trace/summing_robot/summer (sequence 0): not a list of traced callbacks: [{0, 0,"
   end
 
   test "what cannot be replayed is refused, saying why", %{tmp_dir: dir} do

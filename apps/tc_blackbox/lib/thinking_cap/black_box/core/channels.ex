@@ -6,8 +6,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # the MCAP tools) and whole, in Erlang's external term format
   # (`:erlang.term_to_binary/1`, message encoding "etf", no schema), on
   # `/etf/ID/TAG`, for a replay. A module's trace
-  # (ThinkingCap.Runtime.Trace) goes on `/trace/ROBOT/NAME`, one message
-  # per callback ("etf" too), its sequence the callback's count. A
+  # (ThinkingCap.Runtime.Trace) goes on `/trace/ROBOT/NAME`, callbacks
+  # `[{n, us, callback}]` a message ("etf" too), its sequence the
+  # first's `n`, `us` each one's time after the message's. A
   # channel (and its schema) is declared in the file on first use.
 
   alias ThinkingCap.BlackBox.Foxglove
@@ -53,15 +54,22 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     end)
   end
 
-  # Writes one traced callback of module `name` (its `n`th since init).
-  @spec write_trace(Writer.t(), t(), atom(), non_neg_integer(), term(), non_neg_integer()) ::
-          {:ok, Writer.t(), t()} | {:error, term(), t()}
-  def write_trace(w, chans, name, n, event, time) do
+  # Writes traced callbacks of module `name`, `[{n, us, callback}]` (its
+  # `n`th since init, received `us` after `time`), in one message whose
+  # sequence is the first's `n`.
+  @spec write_trace(
+          Writer.t(),
+          t(),
+          atom(),
+          [{non_neg_integer(), non_neg_integer(), term()}],
+          non_neg_integer()
+        ) :: {:ok, Writer.t(), t()} | {:error, term(), t()}
+  def write_trace(w, chans, name, [{first, _, _} | _] = events, time) do
     topic = trace_topic(chans.robot, name)
     metadata = %{"module" => Atom.to_string(name)}
     {channel, w, chans} = channel(w, chans, topic, nil, metadata)
 
-    case Writer.add_message(w, channel, time, time, :erlang.term_to_binary(event), n) do
+    case Writer.add_message(w, channel, time, time, :erlang.term_to_binary(events), first) do
       {:ok, w} -> {:ok, w, chans}
       {:error, reason} -> {:error, reason, chans}
     end

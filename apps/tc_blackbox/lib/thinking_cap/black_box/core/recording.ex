@@ -144,7 +144,8 @@ defmodule ThinkingCap.BlackBox.Core.Recording do
             {:trace, name} ->
               case atom(name, budget) do
                 {:ok, name, budget} ->
-                  {:cont, {:ok, ts, [{time, m.sequence, term, name} | tr], budget}}
+                  traced = for {n, us, event} <- term, do: {time + us * 1000, n, event, name}
+                  {:cont, {:ok, ts, Enum.reverse(traced, tr), budget}}
 
                 {:error, message} ->
                   {:halt, {:error, "#{c.topic}: #{message}"}}
@@ -163,19 +164,25 @@ defmodule ThinkingCap.BlackBox.Core.Recording do
 
   defp kind(%{topic: "/etf/" <> _}, term) when is_tuple(term), do: :tuple
 
-  defp kind(%{topic: "/trace/" <> _, metadata: %{"module" => name}}, event) do
-    if traced?(event), do: {:trace, name}, else: {:trace, nil}
+  defp kind(%{topic: "/trace/" <> _, metadata: %{"module" => name}}, events) do
+    if is_list(events) and events != [] and Enum.all?(events, &traced?/1),
+      do: {:trace, name},
+      else: {:trace, nil}
   end
 
   defp kind(_channel, _term), do: :other
 
   defp not_traced(c, m, term),
     do:
-      "#{c.topic} (callback #{m.sequence}): not a traced callback: " <>
+      "#{c.topic} (sequence #{m.sequence}): not a list of traced callbacks: " <>
         inspect(term, limit: 5, printable_limit: 60)
 
-  # a callback as ThinkingCap.Runtime.Trace sends it: a file may hold anything
-  defp traced?({input, outputs}), do: input?(input) and outputs?(outputs)
+  # `{n, us, callback}`, the callback as ThinkingCap.Runtime.Trace sends
+  # it: a file may hold anything
+  defp traced?({n, us, {input, outputs}})
+       when is_integer(n) and n >= 0 and is_integer(us) and us >= 0,
+       do: input?(input) and outputs?(outputs)
+
   defp traced?(_other), do: false
 
   defp input?({:init, %{module: m, params: p, context: %{robot: r}, activity: a}})
@@ -222,13 +229,15 @@ defmodule ThinkingCap.BlackBox.Core.Recording do
   # hash nearest in time (hashes that agree, within a few seconds, are the
   # same tuple but for a chance of one in four billion per pair), with its
   # position; or whole when the trace has it whole.
-  @spec resolve(t(), Trace.ref(), integer()) ::
+  # Positions in `taken` are passed over.
+  @spec resolve(t(), Trace.ref(), integer(), MapSet.t()) ::
           {:ok, non_neg_integer() | nil, tuple()} | :missing
-  def resolve(_rec, {:term, tuple}, _time), do: {:ok, nil, tuple}
+  def resolve(rec, ref, time, taken \\ MapSet.new())
+  def resolve(_rec, {:term, tuple}, _time, _taken), do: {:ok, nil, tuple}
 
-  def resolve(rec, {:hash, tag, hash}, time) do
-    case Map.get(rec.index, {tag, hash}) do
-      nil ->
+  def resolve(rec, {:hash, tag, hash}, time, taken) do
+    case Enum.reject(Map.get(rec.index, {tag, hash}, []), &MapSet.member?(taken, &1)) do
+      [] ->
         :missing
 
       positions ->
