@@ -10,7 +10,7 @@ defmodule ThinkingCap.BlackBox.Replay do
       Replay.run(rec, speed: 2.0)    # the blackboard fed, twice as fast
 
   `mix tc.replay` runs `run/2` from a shell; `ThinkingCap.Testing.Replay`
-  runs `compare/2` in a test.
+  runs `compare/3` in a test.
 
   ## What a recording holds for it
 
@@ -46,9 +46,12 @@ defmodule ThinkingCap.BlackBox.Replay do
     * `handle_info/2` messages are given back as recorded, but pids and
       references in them name processes of the recorded run;
     * a module started before the recording began (a recorder started by
-      hand while the robot ran): its state then is not in the recording.
-      A recorder started with the ADF (its `record:` section, `bin/run
-      --record`) is ready before the first module starts;
+      hand while the robot ran, or by the announcement of a deployment
+      across nodes, `ThinkingCap.Runtime.deploy/1`, which starts its
+      modules first): its state then is not in the recording. A
+      recorder started with the ADF by `ThinkingCap.Runtime.start/1`
+      (its `record:` section, `bin/run --record`) is ready before the
+      first module starts;
     * a recording that lost tuples (the recorder's subscription dropped
       them, `Recorder.info/1`'s `dropped`) or narrowed them (`templates:`)
       runs a module up to the first input it lacks;
