@@ -185,6 +185,25 @@ defmodule ThinkingCap.BlackBox.ReplayTest do
     refute output =~ ~r/^localization: \d+ callbacks/m
     assert output =~ ~r/replay: fed=\d+ left_out=\d+ outputs=\d+ equal=\d+ replay_equal_pct=100.0/
 
+    # stepped: Enter for one, a number for that many, q to stop
+    output =
+      capture_io("\n3\nq\n", fn ->
+        Mix.Tasks.Tc.Replay.run(files ++ ~w(--step --only planner))
+      end)
+
+    assert [_, _, _] = Regex.scan(~r/t=\d+\.\d{3} s (fed|planner callback) .*? > /, output)
+    assert output =~ ~r/planner: \d+ callbacks/
+    assert output =~ ~r/replay: fed=\d+ /
+
+    [_, fed] = Regex.run(~r/replay: fed=(\d+)/, output)
+    [_, callbacks] = Regex.run(~r/planner: (\d+) callbacks/, output)
+    # one, then three: four in all before the q
+    assert String.to_integer(fed) + String.to_integer(callbacks) == 4
+
+    assert_raise Mix.Error, ~r/give --speed or --step, not both/, fn ->
+      Mix.Tasks.Tc.Replay.run(files ++ ~w(--step --speed 2))
+    end
+
     assert_raise Mix.Error, ~r/--only: no module nosuch in the recording/, fn ->
       capture_io(fn -> Mix.Tasks.Tc.Replay.run(files ++ ~w(--only nosuch)) end)
     end
