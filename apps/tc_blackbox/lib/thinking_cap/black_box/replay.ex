@@ -256,7 +256,7 @@ defmodule ThinkingCap.BlackBox.Replay do
   def run(%Recording{} = rec, opts \\ []) do
     with :ok <- check(opts),
          {:ok, names} <- rerun_names(rec, opts) do
-      {left_out, rest} = attribute(rec, names)
+      left_out = attribute(rec, names)
       items = items(rec, names, left_out)
       start = %{wall: System.monotonic_time(:millisecond), first: rec.first || 0}
       speed = Keyword.get(opts, :speed, 1.0)
@@ -267,7 +267,7 @@ defmodule ThinkingCap.BlackBox.Replay do
       {:ok,
        %{
          fed: acc.fed,
-         left_out: MapSet.size(left_out) + rest,
+         left_out: MapSet.size(left_out),
          modules: Map.new(acc.cmps, fn {name, cmp} -> {name, Comparison.report(cmp)} end)
        }}
     end
@@ -332,19 +332,17 @@ defmodule ThinkingCap.BlackBox.Replay do
   end
 
   # the positions of the recorded tuples the modules run again wrote (a
-  # tuple written twice alike is two positions), and the count of their
-  # outputs not in the recording
+  # tuple written twice alike is two positions)
   defp attribute(rec, names) do
     for name <- names,
         {time, _n, {_input, outputs}} <- rec.traces[name],
         is_list(outputs),
         {:out, ref, _opts} <- outputs,
-        reduce: {MapSet.new(), 0} do
-      {set, missing} ->
+        reduce: MapSet.new() do
+      set ->
         case Recording.resolve(rec, ref, time, set) do
-          {:ok, nil, _tuple} -> {set, missing}
-          {:ok, i, _tuple} -> {MapSet.put(set, i), missing}
-          :missing -> {set, missing + 1}
+          {:ok, i, _tuple} when is_integer(i) -> MapSet.put(set, i)
+          _whole_or_missing -> set
         end
     end
   end
