@@ -7,7 +7,7 @@
 // {"chunkIndexes": n, "compressions": [...], "schemas": [...],
 //  "channels": {topic: {schema, encoding, count}}, "messages": n,
 //  "statistics": {...}, "summaryCrc": "valid", "dataSectionCrc": "valid",
-//  "first": {topic: the first message's JSON}}
+//  "first": {topic: the first message's JSON, for JSON channels}}
 //
 // The reader checks the summary's CRC when it opens the file and each
 // chunk's CRC as it reads its messages; the data section's CRC is checked
@@ -61,7 +61,10 @@ async function main(path) {
     messages += 1;
     if (message.logTime < lastTime) ordered = false;
     lastTime = message.logTime;
-    if (!(topic in first)) first[topic] = JSON.parse(decoder.decode(message.data));
+    // JSON channels are Foxglove's; the others (whole Erlang terms,
+    // traces: "etf") are counted, not decoded, as Foxglove would
+    if (!(topic in first) && channels[topic].encoding === "json")
+      first[topic] = JSON.parse(decoder.decode(message.data));
   }
 
   // the data section's CRC: everything before the Data End record

@@ -193,7 +193,12 @@ defmodule ThinkingCap.Robot do
       @impl ThinkingCap.Robot
       def poll(state), do: {[], state}
 
-      defoverridable poll: 1
+      # a driver's inputs are its hardware, its outputs what the robot
+      # sensed: a replay feeds them, it does not run the driver again
+      @impl ThinkingCap.Module
+      def replay, do: [trace: false]
+
+      defoverridable poll: 1, replay: 0
     end
   end
 end

@@ -132,6 +132,26 @@ defmodule ThinkingCap.Module do
   When a module is replaced while running (`ThinkingCap.Runtime.swap/2`),
   the new module's `handle_swap/3` (old module, old state, context) gives
   its first state; without it, `init/2` does.
+
+  **Replay.** While its robot is recorded, the runtime traces every
+  callback of a module, what it was given and what it returned
+  (`ThinkingCap.Runtime.Trace`), so that a recording can run the module
+  again on exactly what it received and compare its outputs
+  (`ThinkingCap.Testing.Replay`, `mix tc.replay`). A module replays
+  identically when its outputs depend only on what the framework gives
+  it: its params and context, the tuples delivered, its releases, the
+  commands applied, live param changes, and random numbers drawn from a
+  seed among its params. It does not when it reads a clock, the
+  blackboard (`rd`, `rdp`), files other than its RDF and WDF, or other
+  processes itself. A module may implement `replay/0`, a keyword list:
+  `trace: false` (a robot's driver: its inputs are its hardware, and
+  `use ThinkingCap.Robot` says so) and `measurements: [{tag, path}]`,
+  the parts of its outputs that measure the machine it ran on (a search's
+  duration in microseconds): a replay compares the outputs without them,
+  and counts them apart.
+
+      @impl true
+      def replay, do: [measurements: [{:plan, [:planning, :us]}]]
   """
 
   @type action ::
@@ -168,8 +188,9 @@ defmodule ThinkingCap.Module do
   @callback params() :: ThinkingCap.Config.Schema.fields()
   @callback handle_param(key :: atom(), value :: term(), state :: term()) ::
               {actions(), term()} | {:error, reason :: String.t(), term()}
+  @callback replay() :: [trace: boolean(), measurements: [{atom(), [term()]}]]
 
-  @optional_callbacks handle_swap: 3, handoff: 1, params: 0, handle_param: 3
+  @optional_callbacks handle_swap: 3, handoff: 1, params: 0, handle_param: 3, replay: 0
 
   defmacro __using__(_opts) do
     quote do

@@ -74,10 +74,14 @@ defmodule ThinkingCap.Runtime do
   could not be, with the reason. A started ADF is announced on the
   blackboard as `{:adf, robot, %{node:, file:, rdf:, wdf:, dashboard:,
   record:, black_box:, modules:}}` (the services that follow an ADF, such
-  as the dashboard, the recorder and the black box, start from it).
+  as the dashboard and the black box, start from it). Before the first
+  module starts, the services that must be ready for it (the recorder)
+  are told and waited for (`ThinkingCap.Runtime.Starting`).
   """
   @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
   def start(%ADF{} = adf) do
+    # a recorder starts first: it records the modules from their init on
+    :ok = ThinkingCap.Runtime.Starting.notify(adf.robot, announcement(adf))
     results = for spec <- adf.modules, do: {spec.name, start_module(adf, spec)}
 
     case for({name, {:error, reason}} <- results, do: {name, reason}) do
@@ -453,24 +457,21 @@ defmodule ThinkingCap.Runtime do
   # What was started, for the services that follow an ADF (the dashboard
   # starts itself on the announcing node when the ADF enables it)
   def announce(%ADF{} = adf) do
-    {tuple, opts} =
-      Tuples.keyed(
-        Tuples.adf(
-          adf.robot,
-          %{
-            node: node(),
-            file: adf.file,
-            rdf: adf.rdf,
-            wdf: adf.wdf,
-            dashboard: adf.dashboard,
-            record: adf.record,
-            black_box: adf.black_box,
-            modules: Enum.map(adf.modules, & &1.name)
-          }
-        )
-      )
-
+    {tuple, opts} = Tuples.keyed(Tuples.adf(adf.robot, announcement(adf)))
     Blackboard.out(tuple, opts)
+  end
+
+  defp announcement(adf) do
+    %{
+      node: node(),
+      file: adf.file,
+      rdf: adf.rdf,
+      wdf: adf.wdf,
+      dashboard: adf.dashboard,
+      record: adf.record,
+      black_box: adf.black_box,
+      modules: Enum.map(adf.modules, & &1.name)
+    }
   end
 
   defp node_of(_adf, :local), do: node()

@@ -216,4 +216,45 @@ defmodule ThinkingCap.Test.Modules do
 
     def handle_applied(_applied, state), do: {[], state}
   end
+
+  defmodule Traced do
+    @moduledoc false
+    # sums the ticks it is sent, times a live gain; crashes when asked
+    use ThinkingCap.Module
+
+    @impl true
+    def params, do: [gain: {{:number_range, 0.0, 10.0}, default: 1.0, doc: "times each tick"}]
+
+    @impl true
+    def init(params, ctx),
+      do:
+        {[subscribe: {:tick, ctx.robot, :_}],
+         %{robot: ctx.robot, gain: params[:gain] || 1.0, sum: 0.0}}
+
+    @impl true
+    def handle_tuple({:tick, _robot, %{n: :crash}}, _state), do: raise("asked to crash")
+
+    def handle_tuple({:tick, robot, %{n: n}}, state) do
+      sum = state.sum + n * state.gain
+      {[out: {{:sum, robot, %{sum: sum}}, [key: {:sum, robot}]}], %{state | sum: sum}}
+    end
+
+    @impl true
+    def handle_param(:gain, gain, state), do: {[], %{state | gain: gain}}
+
+    @impl true
+    def handle_cycle(_release, state), do: {[command: {:sum, state.sum}], state}
+  end
+
+  defmodule Untraced do
+    @moduledoc false
+    # what a driver says: its callbacks are not traced
+    use ThinkingCap.Module
+
+    @impl true
+    def replay, do: [trace: false]
+
+    @impl true
+    def init(_params, ctx), do: {[subscribe: {:tick, ctx.robot, :_}], nil}
+  end
 end

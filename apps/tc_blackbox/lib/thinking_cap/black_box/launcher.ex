@@ -6,10 +6,16 @@ defmodule ThinkingCap.BlackBox.Launcher do
   # `{:adf, robot, %{node:, record:, black_box:, ...}}`; it checked the
   # sections when it read the file). The black box's `enabled:` unset is
   # this app's `:black_box_by_default` env (default true).
+  #
+  # The recorder starts before the ADF's modules: the runtime tells this
+  # process of the ADF and waits for it (ThinkingCap.Runtime.Starting), so
+  # that the modules are traced from their init (a replay needs it). The
+  # announcement, after, starts it for an ADF started otherwise.
   use GenServer
   require Logger
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Runtime.Starting
   alias ThinkingCap.Tuples
   require Tuples
 
@@ -18,12 +24,28 @@ defmodule ThinkingCap.BlackBox.Launcher do
   @impl true
   def init(nil) do
     {:ok, _ref} = Blackboard.subscribe(Tuples.adf())
+    :ok = Starting.listen()
     {:ok, nil}
+  end
+
+  @impl true
+  def handle_info({:tc_adf_starting, _ref, _from, robot, adf} = starting, state) do
+    record(robot, adf)
+    Starting.ready(starting)
+    {:noreply, state}
   end
 
   @impl true
   def handle_info({:blackboard, _ref, Tuples.adf(robot, %{node: node} = adf)}, state)
       when node == node() do
+    record(robot, adf)
+    keep(robot, adf)
+    {:noreply, state}
+  end
+
+  def handle_info(_message, state), do: {:noreply, state}
+
+  defp record(robot, adf) do
     record = Map.new(adf[:record] || %{})
 
     if record[:enabled] do
@@ -40,12 +62,7 @@ defmodule ThinkingCap.BlackBox.Launcher do
           Logger.error("recorder for #{inspect(robot)} could not start: #{inspect(reason)}")
       end
     end
-
-    keep(robot, adf)
-    {:noreply, state}
   end
-
-  def handle_info(_message, state), do: {:noreply, state}
 
   defp keep(robot, adf) do
     black_box = Map.new(adf[:black_box] || %{})

@@ -2,8 +2,11 @@ defmodule ThinkingCap.BlackBox.Recorder do
   @moduledoc """
   Records one robot's blackboard tuples into MCAP files: a process that
   subscribes to the tuples, turns each into Foxglove messages
-  (`ThinkingCap.BlackBox.Foxglove`) and writes them with
-  `ThinkingCap.MCAP.Writer`.
+  (`ThinkingCap.BlackBox.Foxglove`), keeps it whole too, and writes them
+  with `ThinkingCap.MCAP.Writer`; and that records what the robot's
+  modules received and returned, callback by callback
+  (`ThinkingCap.Runtime.Trace`), so that they can be replayed
+  (`ThinkingCap.Testing.Replay`, `mix tc.replay`).
 
       {:ok, pid} = Recorder.start_link(robot: :r1, dir: "recordings", compression: :zstd)
 
@@ -27,29 +30,55 @@ defmodule ThinkingCap.BlackBox.Recorder do
   `chunk_seconds` old: if the VM dies, the file is valid up to its last
   chunk and `ThinkingCap.MCAP.Reader` reads it so.
 
+  ## Channels
+
+    * `/ID/TAG`, JSON on a Foxglove schema (`ThinkingCap.BlackBox.Foxglove`),
+      for Foxglove and the MCAP tools;
+    * `/etf/ID/TAG`, the tuple whole, in Erlang's external term format
+      (`:erlang.term_to_binary/1`; message encoding `etf`, no schema): the
+      exact terms the modules received, atoms, tuples and floats as they
+      were (Foxglove lists these topics and does not decode them);
+    * `/trace/ROBOT/NAME`, module `NAME`'s trace: its callbacks, up to
+      64 in a message, `[{n, us, callback}]` (`etf` too; `n` counts the
+      callbacks since the module's `init/2`, and is the message's
+      sequence for its first; `us` is when the recorder got it, in µs
+      after the message's log time). Modules are traced from their start when the recorder
+      starts with the ADF (its `record:` section, `bin/run --record`):
+      the runtime waits for it before it starts the first module
+      (`ThinkingCap.Runtime.Starting`).
+
+  With `replay: false`, only the first: Foxglove's messages, about half
+  the bytes, and a recording that does not replay.
+
   ## Times
 
   A message's **log time is the time the recorder received the tuple**,
-  in nanoseconds since the Unix epoch (`System.os_time/1`): one clock
-  for every channel, in the order the tuples came. Its **publish time is
+  in nanoseconds since the Unix epoch: the system's time when the
+  recorder started, advanced by the monotonic clock (so that a change of
+  the system's time cannot put messages out of order); one clock for
+  every channel, in the order the tuples came. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
   time. Foxglove messages carry the stamp in their `timestamp` too.
 
   ## Cost
 
-  Per tuple: the conversion to JSON (jiffy, in C) and a record header;
-  the file gets one write per chunk. The subscription drops tuples when
-  the recorder falls `max_queue` (1000) behind; `info/1` counts them.
+  Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
+  and two record headers; per traced callback, a small term. The file
+  gets one write per chunk. The subscription drops tuples when the
+  recorder falls `max_queue` (1000) behind; `info/1` counts them.
   """
   use GenServer
   require Logger
 
-  alias ThinkingCap.BlackBox.Core.Options
-  alias ThinkingCap.BlackBox.Foxglove
+  # a module's traced callbacks written in one message
+  @batch 64
+
+  alias ThinkingCap.BlackBox.Core.{Channels, Options}
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Config.ADF
   alias ThinkingCap.MCAP.Writer
+  alias ThinkingCap.Runtime.Trace
 
   @type option :: {atom(), term()}
 
@@ -60,6 +89,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
           file: Path.t() | nil,
           files: [Path.t()],
           messages: non_neg_integer(),
+          callbacks: non_neg_integer(),
           dropped: non_neg_integer(),
           error: term()
         }
@@ -106,7 +136,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
     end
   end
 
-  @doc "What the recorder is doing: its files, the messages written, the tuples dropped."
+  @doc """
+  What the recorder is doing: its files, the messages written (`callbacks`
+  of them the modules' traced callbacks), the tuples dropped.
+  """
   @spec info(GenServer.server()) :: info()
   def info(server), do: GenServer.call(server, :info)
 
@@ -136,17 +169,20 @@ defmodule ThinkingCap.BlackBox.Recorder do
       writer: nil,
       path: nil,
       started: nil,
-      channels: %{},
-      schemas: %{},
-      sequence: %{},
+      epoch: System.os_time(:nanosecond) - System.monotonic_time(:nanosecond),
+      replay: config.replay,
+      batches: %{},
+      chans: Channels.new(config.robot, terms: config.replay),
       files: [],
       messages: 0,
+      callbacks: 0,
       error: nil
     }
 
     with :ok <- File.mkdir_p(state.dir),
          {:ok, state} <- begin_file(state) do
       refs = for t <- templates, do: elem(Blackboard.subscribe(t), 1)
+      if config.replay, do: :ok = Trace.attach(config.robot)
       :timer.send_interval(round(config.chunk_seconds * 1000), :tick)
       {:ok, %{state | refs: refs}}
     else
@@ -162,14 +198,36 @@ defmodule ThinkingCap.BlackBox.Recorder do
     do: {:noreply, state}
 
   def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple) do
-    now = System.os_time(:nanosecond)
-    publish = Foxglove.stamp_ns(tuple) || now
+    case Channels.write_tuple(state.writer, state.chans, tuple, now(state)) do
+      {:ok, w, chans, n} ->
+        state = %{state | writer: w, chans: chans, messages: state.messages + n}
+        {:noreply, maybe_rotate_by_size(state)}
 
-    state =
-      Enum.reduce(Foxglove.messages(tuple, now), state, fn {topic, schema, json}, state ->
-        write_message(state, topic, schema, json, now, publish)
-      end)
+      {:error, reason, chans} ->
+        {:noreply, failed(%{state | chans: chans}, reason)}
+    end
+  end
 
+  # a module's callback (ThinkingCap.Runtime.Trace)
+  def handle_info({:tc_trace, _robot, _name, _n, _event}, %{writer: nil} = state),
+    do: {:noreply, state}
+
+  # kept a moment, and written `@batch` at a time (or at the chunk's
+  # end): one message per callback would cost more in record headers
+  # and indexes than the callbacks themselves
+  def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state) do
+    now = now(state)
+    {time, events, count} = Map.get(state.batches, name, {now, [], 0})
+    # each with its own receipt time, in µs after the message's log time
+    batches =
+      Map.put(
+        state.batches,
+        name,
+        {time, [{n, div(now - time, 1000), event} | events], count + 1}
+      )
+
+    state = %{state | batches: batches, callbacks: state.callbacks + 1}
+    state = if count + 1 >= @batch, do: write_batch(state, name), else: state
     {:noreply, maybe_rotate_by_size(state)}
   end
 
@@ -196,6 +254,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
       file: state.path,
       files: Enum.reverse(state.files),
       messages: state.messages,
+      callbacks: state.callbacks,
       dropped: dropped,
       error: state.error
     }
@@ -219,57 +278,30 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Files
 
-  defp write_message(%{writer: nil} = state, _topic, _schema, _json, _now, _publish), do: state
-
-  defp write_message(state, topic, schema, json, now, publish) do
-    {channel, state} = channel(state, topic, schema)
-    sequence = Map.get(state.sequence, channel, 0) + 1
-
-    case Writer.add_message(state.writer, channel, now, publish, json, sequence) do
-      {:ok, w} ->
-        %{
-          state
-          | writer: w,
-            sequence: Map.put(state.sequence, channel, sequence),
-            messages: state.messages + 1
-        }
-
-      {:error, reason} ->
-        failed(state, reason)
-    end
-  end
-
-  # a topic's channel, declared (with its schema) in this file on first use
-  defp channel(state, topic, schema) do
-    case state.channels do
-      %{^topic => id} ->
-        {id, state}
-
-      _ ->
-        {schema_id, state} = schema(state, schema)
-        metadata = %{"robot" => Atom.to_string(state.robot)}
-        {:ok, id, w} = Writer.add_channel(state.writer, schema_id, topic, "json", metadata)
-        {id, %{state | writer: w, channels: Map.put(state.channels, topic, id)}}
-    end
-  end
-
-  defp schema(state, name) do
-    case state.schemas do
-      %{^name => id} ->
-        {id, state}
-
-      _ ->
-        {:ok, id, w} = Writer.add_schema(state.writer, name, "jsonschema", Foxglove.schema(name))
-        {id, %{state | writer: w, schemas: Map.put(state.schemas, name, id)}}
-    end
-  end
-
   defp close_chunk(%{writer: nil} = state), do: state
 
   defp close_chunk(state) do
-    case Writer.close_chunk(state.writer) do
+    state = write_batches(state)
+
+    case state.writer && Writer.close_chunk(state.writer) do
+      nil -> state
       {:ok, w} -> %{state | writer: w}
       {:error, reason} -> failed(state, reason)
+    end
+  end
+
+  defp write_batches(state),
+    do: state.batches |> Map.keys() |> Enum.reduce(state, &write_batch(&2, &1))
+
+  defp write_batch(%{writer: nil} = state, _name), do: %{state | batches: %{}}
+
+  defp write_batch(state, name) do
+    {{time, events, _count}, batches} = Map.pop(state.batches, name)
+    state = %{state | batches: batches}
+
+    case Channels.write_trace(state.writer, state.chans, name, Enum.reverse(events), time) do
+      {:ok, w, chans} -> %{state | writer: w, chans: chans, messages: state.messages + 1}
+      {:error, reason, chans} -> failed(%{state | chans: chans}, reason)
     end
   end
 
@@ -301,9 +333,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
            | writer: w,
              path: path,
              started: now_ms(),
-             channels: %{},
-             schemas: %{},
-             sequence: %{},
+             chans: Channels.new(state.robot, terms: state.replay),
              files: [path | state.files],
              error: nil
          }}
@@ -316,7 +346,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp end_file(%{writer: nil} = state), do: state
 
   defp end_file(state) do
-    case Writer.close(state.writer) do
+    state = write_batches(state)
+
+    case state.writer && Writer.close(state.writer) do
+      nil -> state
       {:ok, _bytes} -> %{state | writer: nil, path: nil}
       {:error, reason} -> failed(state, reason)
     end
@@ -358,4 +391,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp safe(robot), do: robot |> Atom.to_string() |> String.replace(~r/[^A-Za-z0-9_-]/, "_")
 
   defp now_ms, do: System.monotonic_time(:millisecond)
+
+  # the log time: the epoch's, on the monotonic clock
+  defp now(state), do: state.epoch + System.monotonic_time(:nanosecond)
 end

@@ -3,6 +3,7 @@ defmodule ThinkingCap.BlackBox.KilledVMTest do
   # to its last chunk.
   use ExUnit.Case, async: true
 
+  alias ThinkingCap.BlackBox.Test.Topics
   alias ThinkingCap.MCAP.Reader
 
   @moduletag :tmp_dir
@@ -62,18 +63,29 @@ defmodule ThinkingCap.BlackBox.KilledVMTest do
 
     # every message written up to the last chunk reads back, in order.
     # The recorder may drop tuples when it falls far behind (a loaded
-    # machine); it never skips a sequence number among those it wrote.
-    sequences = Enum.map(mcap.messages, & &1.sequence)
-    assert sequences == Enum.to_list(1..length(sequences))
+    # machine); it never skips a sequence number among those it wrote,
+    # on either channel (Foxglove's JSON, the tuple whole)
+    by_channel = Enum.group_by(mcap.messages, & &1.channel_id)
+    assert map_size(by_channel) == 2
+
+    for {_channel, messages} <- by_channel do
+      sequences = Enum.map(messages, & &1.sequence)
+      assert sequences == Enum.to_list(1..length(sequences))
+    end
 
     ids =
-      for m <- mcap.messages do
+      for m <- Topics.messages(mcap, "json") do
         %{"payload" => %{"i" => i}} = :jiffy.decode(m.data, [:return_maps])
         i
       end
 
     assert hd(ids) == 1
     assert ids == Enum.sort(Enum.uniq(ids))
+
+    whole = for m <- Topics.messages(mcap, "etf"), do: :erlang.binary_to_term(m.data)
+
+    assert Enum.map(whole, fn {:drive, :victim, %{i: i}} -> i end) ==
+             Enum.take(ids, length(whole))
   end
 
   defp await_os_pid(port) do

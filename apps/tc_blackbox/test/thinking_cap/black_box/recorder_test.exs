@@ -3,7 +3,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
 
   alias ThinkingCap.{BlackBox, Blackboard}
   alias ThinkingCap.BlackBox.Recorder
-  alias ThinkingCap.BlackBox.Test.NodeReader
+  alias ThinkingCap.BlackBox.Test.{NodeReader, Topics}
   alias ThinkingCap.MCAP.Reader
   alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Tuples
@@ -72,8 +72,9 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
       # another robot's tuples are not recorded
       Blackboard.out(Tuples.reading(:laser, :someone_else, scan(1)))
       publish(robot, 50)
-      # 1 map + 50 x (scan, pose and its transform, drive)
-      await_messages(pid, 201)
+      # 1 map + 50 x (scan, pose and its transform, drive) for Foxglove,
+      # and the 151 tuples whole
+      await_messages(pid, 352)
       assert :ok = BlackBox.stop(robot)
       assert BlackBox.recorder(robot) == nil
 
@@ -84,7 +85,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
       assert mcap.mode == :indexed and mcap.data_crc == :valid and mcap.summary_crc == :valid
       topics = Map.new(mcap.channels, fn {id, c} -> {id, c.topic} end)
 
-      counts = Enum.frequencies_by(mcap.messages, &topics[&1.channel_id])
+      counts = Topics.counts(mcap, "json")
 
       assert counts == %{
                "/#{r}/laser" => 50,
@@ -93,6 +94,25 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
                "/#{r}/drive" => 50,
                "/#{r}/map" => 1
              }
+
+      # and each tuple whole, exactly as it was written: atoms, tuples, floats
+      terms = Topics.counts(mcap, "etf")
+
+      assert terms == %{
+               "/etf/#{r}/laser" => 50,
+               "/etf/#{r}/pose" => 50,
+               "/etf/#{r}/drive" => 50,
+               "/etf/#{r}/map" => 1
+             }
+
+      assert Topics.terms(mcap, "/etf/#{r}/laser") ==
+               for(i <- 1..50, do: Tuples.reading(:laser, robot, scan(i)))
+
+      assert [Tuples.drive(^robot, %{command: {:velocity, 0.2, 0.0}}) | _] =
+               Topics.terms(mcap, "/etf/#{r}/drive")
+
+      assert [Tuples.map(^robot, %OccupancyGrid{width: 40, height: 30})] =
+               Topics.terms(mcap, "/etf/#{r}/map")
 
       # publish time: the stamp; log time: the receipt, on the epoch's clock
       laser = Enum.find(mcap.messages, &(topics[&1.channel_id] == "/#{r}/laser"))
@@ -109,7 +129,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
              ]
 
       assert node["summaryCrc"] == "valid" and node["dataSectionCrc"] == "valid"
-      assert node["messages"] == 201 and node["ordered"]
+      assert node["messages"] == 352 and node["ordered"]
 
       assert node["schemas"] == [
                "foxglove.FrameTransform",
@@ -127,7 +147,14 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
 
       assert node["channels"]["/#{r}/map"]["schema"] == "foxglove.Grid"
       assert node["channels"]["/#{r}/pose"]["schema"] == "foxglove.PoseInFrame"
-      assert node["statistics"]["channelMessageCounts"] == counts
+
+      assert node["channels"]["/etf/#{r}/laser"] == %{
+               "schema" => :null,
+               "encoding" => "etf",
+               "count" => 50
+             }
+
+      assert node["statistics"]["channelMessageCounts"] == Map.merge(counts, terms)
       assert node["first"]["/#{r}/map"]["column_count"] == 40
     end
   end
@@ -137,13 +164,14 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     robot = robot()
     {:ok, pid} = BlackBox.record(robot, dir: dir, chunk_seconds: 0.05)
     publish(robot, 20)
-    await_messages(pid, 81)
+    # 81 for Foxglove, 61 tuples whole
+    await_messages(pid, 142)
     # a tick or two later, the chunk is on disk, the file still open
     Process.sleep(200)
     %{file: file} = Recorder.info(pid)
     assert {:ok, mcap} = Reader.read(file)
     assert mcap.mode == :linear and mcap.truncated
-    assert length(mcap.messages) == 81
+    assert length(mcap.messages) == 142
     :ok = BlackBox.stop(robot)
   end
 
@@ -154,7 +182,8 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
       BlackBox.record(robot, dir: dir, file_bytes: 65_536, chunk_bytes: 8_192, compression: :none)
 
     publish(robot, 300)
-    await_messages(pid, 1201)
+    # 1201 for Foxglove, 901 tuples whole
+    await_messages(pid, 2102)
     :ok = BlackBox.stop(robot)
 
     files = Path.wildcard(Path.join(dir, "*.mcap"))
@@ -169,14 +198,15 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
           n + length(mcap.messages)
       end
 
-    assert total == 1201
+    assert total == 2102
   end
 
   test "files rotate by time", %{tmp_dir: dir} do
     robot = robot()
     {:ok, pid} = BlackBox.record(robot, dir: dir, file_seconds: 1, chunk_seconds: 0.05)
     publish(robot, 1)
-    await_messages(pid, 5)
+    # 5 for Foxglove, 4 tuples whole
+    await_messages(pid, 9)
     Process.sleep(1_300)
     assert length(Recorder.info(pid).files) >= 2
     :ok = BlackBox.stop(robot)
@@ -184,18 +214,33 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     assert {:ok, first} =
              dir |> Path.join("*.mcap") |> Path.wildcard() |> Enum.min() |> Reader.read()
 
-    assert length(first.messages) == 5
+    assert length(first.messages) == 9
   end
 
   test "chosen templates only", %{tmp_dir: dir} do
     robot = robot()
     {:ok, pid} = BlackBox.record(robot, dir: dir, templates: [Tuples.drive(robot)])
     publish(robot, 10)
-    await_messages(pid, 10)
+    await_messages(pid, 20)
     :ok = BlackBox.stop(robot)
     {:ok, mcap} = dir |> Path.join("*.mcap") |> Path.wildcard() |> hd() |> Reader.read()
-    assert Enum.map(mcap.channels, fn {_, c} -> c.topic end) == ["/#{robot}/drive"]
-    assert length(mcap.messages) == 10
+    topics = mcap.channels |> Enum.map(fn {_, c} -> c.topic end) |> Enum.sort()
+    assert topics == ["/etf/#{robot}/drive", "/#{robot}/drive"]
+    assert length(mcap.messages) == 20
+  end
+
+  test "replay: false records Foxglove's messages only, and does not replay", %{tmp_dir: dir} do
+    robot = robot()
+    {:ok, pid} = BlackBox.record(robot, dir: dir, replay: false)
+    publish(robot, 10)
+    await_messages(pid, 41)
+    :ok = BlackBox.stop(robot)
+    [file] = Path.wildcard(Path.join(dir, "*.mcap"))
+    {:ok, mcap} = Reader.read(file)
+    assert length(mcap.messages) == 41
+    assert Topics.messages(mcap, "etf") == []
+    assert {:error, message} = ThinkingCap.BlackBox.Replay.open(file)
+    assert message =~ "no whole terms"
   end
 
   test "options are checked before anything starts", %{tmp_dir: dir} do

@@ -5,6 +5,7 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
 
   alias ThinkingCap.{BlackBox, Blackboard}
   alias ThinkingCap.BlackBox.RingBuffer
+  alias ThinkingCap.BlackBox.Test.Topics
   alias ThinkingCap.MCAP.Reader
   alias ThinkingCap.Tuples
   require Tuples
@@ -242,7 +243,8 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
 
     {:ok, path} = BlackBox.dump(robot, :flood)
     {:ok, mcap} = Reader.read(path)
-    assert length(mcap.messages) <= 101
+    assert length(Topics.messages(mcap, "json")) <= 101
+    assert length(Topics.messages(mcap, "etf")) == length(Topics.messages(mcap, "json"))
     # the newest kept: the last scan is there
     assert Enum.any?(mcap.messages, &(&1.publish_time == round(3_000 * 0.1 * 1.0e9)))
   end

@@ -78,7 +78,8 @@ defmodule ThinkingCap.Planner.Monitor do
   why the robot is not moving on (a sentence, or nil); `source` the map
   planned on (`:wdf`, `:sensed` or nil); `planning` what the last
   planning did (`ThinkingCap.Navigation.PathPlanner`'s `last`) and
-  `planned_at` when (the cycle's time, s). Doors
+  `planned_at` when (the cycle's time, s; `planning.us`, the search's
+  duration, is the one output a replay cannot reproduce). Doors
   seen shut are also published as `{:door, name, %{open: false, stamp: t}}`.
 
   ## Parameters
@@ -186,6 +187,16 @@ defmodule ThinkingCap.Planner.Monitor do
        subscribe: Tuples.topology(context.robot)
      ], state}
   end
+
+  @doc """
+  What a replay cannot reproduce (`c:ThinkingCap.Module.replay/0`): the
+  planning's duration, measured on the machine it ran on
+  (`planning.us`, and `planning.astar_us` with `compare: true`).
+  """
+  @impl true
+  @spec replay() :: keyword()
+  def replay,
+    do: [measurements: [{:plan, [:planning, :us]}, {:plan, [:planning, :astar_us]}]]
 
   @doc """
   What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the

@@ -43,7 +43,12 @@ defmodule ThinkingCap.Config.ADF do
       {{:list, :template},
        default: [],
        doc:
-         "the blackboard templates recorded; empty: every tuple of the robot, `{:_, robot, :_}`"}
+         "the blackboard templates recorded; empty: every tuple of the robot, `{:_, robot, :_}`"},
+    replay:
+      {:boolean,
+       default: true,
+       doc:
+         "keep each tuple whole too and trace the robot's modules, so that the recording replays (`mix tc.replay`); false: Foxglove's messages only, about half the bytes"}
   ]
 
   # also the options of ThinkingCap.BlackBox.RingBuffer (tc_blackbox),

@@ -13,6 +13,10 @@ defmodule ThinkingCap.Runtime.Host do
 
   alias ThinkingCap.{Blackboard, Cycle}
   alias ThinkingCap.Module.Core.{Actions, Params}
+  alias ThinkingCap.Runtime.Trace
+
+  # the count of the module's callbacks since its init, for its trace
+  @trace_n :"$tc_trace_n"
 
   def start_link(spec), do: GenServer.start_link(__MODULE__, spec)
 
@@ -48,8 +52,25 @@ defmodule ThinkingCap.Runtime.Host do
       params: params.values
     }
 
+    traced = Trace.traced?(spec.module)
+    Process.put(@trace_n, 0)
+
+    init = fn ->
+      {:init,
+       %{
+         module: spec.module,
+         params: spec.params,
+         context: context,
+         activity: spec.activity,
+         period: Map.get(spec, :period),
+         node: node()
+       }}
+    end
+
     {effects, module_state} =
-      interpret(spec.module.init(spec.params, context), spec.module, :init, spec.activity)
+      trace(spec, traced, init, fn ->
+        interpret(spec.module.init(spec.params, context), spec.module, :init, spec.activity)
+      end)
 
     state = %{
       spec: spec,
@@ -57,6 +78,7 @@ defmodule ThinkingCap.Runtime.Host do
       mstate: module_state,
       context: context,
       params: params,
+      traced: traced,
       started: System.system_time(:millisecond)
     }
 
@@ -207,22 +229,22 @@ defmodule ThinkingCap.Runtime.Host do
   # Replaced in place, between two messages: the activity, its cycle slot
   # and its subscriptions stay, so no release is missed.
   def handle_call({:swap, new_module}, _from, state) do
-    mstate =
-      if Code.ensure_loaded?(new_module) and function_exported?(new_module, :handle_swap, 3) do
-        {[], mstate} =
-          new_module.handle_swap(state.module, state.mstate, state.context)
-          |> interpret(new_module, :handle_swap, state.spec.activity)
+    traced = Trace.traced?(new_module)
 
-        mstate
-      else
-        {effects, mstate} =
+    {effects, mstate} =
+      trace(state.spec, traced, fn -> {:swap, new_module} end, fn ->
+        if Code.ensure_loaded?(new_module) and function_exported?(new_module, :handle_swap, 3) do
+          {[], _mstate} =
+            new_module.handle_swap(state.module, state.mstate, state.context)
+            |> interpret(new_module, :handle_swap, state.spec.activity)
+        else
           new_module.init(state.spec.params, state.context)
           |> interpret(new_module, :init, state.spec.activity)
+        end
+      end)
 
-        # init's actions run below, with the new module in place
-        send(self(), {:tc_run_effects, effects})
-        mstate
-      end
+    # init's actions run below, with the new module in place
+    if effects != [], do: send(self(), {:tc_run_effects, effects})
 
     state.module.terminate(:swapped, state.mstate)
     # the new module's schema, the values set so far kept where it declares them
@@ -239,6 +261,7 @@ defmodule ThinkingCap.Runtime.Host do
        | module: new_module,
          mstate: mstate,
          params: params,
+         traced: traced,
          context: %{state.context | params: params.values},
          spec: %{state.spec | module: new_module}
      }}
@@ -273,8 +296,40 @@ defmodule ThinkingCap.Runtime.Host do
   # a callback's result read by the one core both Host and Lockstep use
   # (ThinkingCap.Module.Core.Actions); what it cannot read stops the module
   # with an error naming the module and the callback
-  defp callback(state, name, args),
-    do: interpret(apply(state.module, name, args), state.module, name, state.spec.activity)
+  defp callback(state, name, args) do
+    trace(state.spec, state.traced, fn -> Trace.input(name, args, state.spec.robot) end, fn ->
+      interpret(apply(state.module, name, args), state.module, name, state.spec.activity)
+    end)
+  end
+
+  # Runs a callback (`run` gives {effects, mstate}) and, while the robot's
+  # trace has sinks (it is being recorded), sends them its input and its
+  # outputs, or what it raised (ThinkingCap.Runtime.Trace).
+  defp trace(spec, traced, input, run) do
+    n = Process.get(@trace_n, 0)
+    Process.put(@trace_n, n + 1)
+
+    case if(traced, do: Trace.sinks(spec.robot), else: []) do
+      [] ->
+        run.()
+
+      sinks ->
+        try do
+          {effects, mstate} = run.()
+          outputs = if is_list(effects), do: Trace.outputs(effects, spec.robot), else: effects
+          event = {input.(), outputs}
+          Trace.send(sinks, spec.robot, spec.name, n, event)
+          {effects, mstate}
+        catch
+          kind, reason ->
+            Trace.send(sinks, spec.robot, spec.name, n, {input.(), raised(kind, reason)})
+            :erlang.raise(kind, reason, __STACKTRACE__)
+        end
+    end
+  end
+
+  defp raised(kind, reason),
+    do: {:raised, kind, kind |> Exception.format_banner(reason) |> String.slice(0, 500)}
 
   defp interpret(result, module, callback, activity) do
     case Actions.interpret(result, module, callback, activity) do
@@ -284,15 +339,15 @@ defmodule ThinkingCap.Runtime.Host do
   end
 
   defp set_param(state, key, value, by, own) do
-    case Params.set(
-           state.params,
-           state.module,
-           state.mstate,
-           key,
-           value,
-           state.spec.activity,
-           own
-         ) do
+    set = fn ->
+      Params.set(state.params, state.module, state.mstate, key, value, state.spec.activity, own)
+    end
+
+    # a change asked from outside is an input of the module: traced (its
+    # own changes are its outputs, traced with the callback that asked)
+    result = if own, do: set.(), else: trace_param(state, key, value, set)
+
+    case result do
       {:ok, value, effects, mstate, params} ->
         {tuple, opts} = Params.record(state.spec.robot, state.spec.name, key, value, by)
         Blackboard.out(tuple, opts)
@@ -312,6 +367,19 @@ defmodule ThinkingCap.Runtime.Host do
       {:crash, error} ->
         raise error
     end
+  end
+
+  defp trace_param(state, key, value, set) do
+    {_, result} =
+      trace(state.spec, state.traced, fn -> {:param, key, value} end, fn ->
+        case set.() do
+          {:ok, _value, effects, _mstate, _params} = ok -> {effects, ok}
+          {:error, message, _mstate} = error -> {{:refused, message}, error}
+          {:crash, error} -> raise error
+        end
+      end)
+
+    result
   end
 
   # the module keeps running without a wire when its device cannot be opened

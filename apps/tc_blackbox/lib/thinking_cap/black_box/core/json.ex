@@ -11,10 +11,10 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   def encode(term), do: :jiffy.encode(to_ejson(term), [:use_nil])
 
   @spec to_ejson(term()) :: term()
-  def to_ejson(nil), do: nil
-  def to_ejson(true), do: true
-  def to_ejson(false), do: false
-  def to_ejson(term) when is_atom(term), do: Atom.to_string(term)
+  # jiffy writes atoms as strings itself (nil, with :use_nil, as null,
+  # booleans as booleans): all but :null, which it would write as null
+  def to_ejson(:null), do: "null"
+  def to_ejson(term) when is_atom(term), do: term
   def to_ejson(term) when is_number(term), do: term
 
   def to_ejson(term) when is_binary(term) do
@@ -22,8 +22,15 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   end
 
   def to_ejson(term) when is_bitstring(term), do: %{"bits" => inspect(term)}
-  def to_ejson(term) when is_list(term), do: list(term)
-  def to_ejson(term) when is_tuple(term), do: term |> Tuple.to_list() |> list()
+
+  # numbers as they are (a scan's ranges, a point): nothing to convert
+  def to_ejson(term) when is_list(term),
+    do: if(numbers?(term), do: term, else: list(term))
+
+  def to_ejson(term) when is_tuple(term) do
+    list = Tuple.to_list(term)
+    if numbers?(list), do: list, else: list(list)
+  end
 
   def to_ejson(%module{} = struct) when is_atom(module) do
     struct
@@ -35,7 +42,22 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   def to_ejson(term) when is_map(term), do: map(term)
   def to_ejson(term), do: inspect(term)
 
-  defp map(term), do: Map.new(term, fn {k, v} -> {key(k), to_ejson(v)} end)
+  # keys jiffy writes as they are (atoms, UTF-8 strings) stay
+  defp map(term) do
+    if Enum.all?(Map.keys(term), &plain_key?/1),
+      do: :maps.map(fn _k, v -> to_ejson(v) end, term),
+      else: Map.new(term, fn {k, v} -> {key(k), to_ejson(v)} end)
+  end
+
+  defp plain_key?(:null), do: false
+  defp plain_key?(k) when is_atom(k), do: true
+  defp plain_key?(k) when is_binary(k), do: String.valid?(k)
+  defp plain_key?(_k), do: false
+
+  # a proper list of numbers only
+  defp numbers?([]), do: true
+  defp numbers?([h | t]) when is_number(h), do: numbers?(t)
+  defp numbers?(_), do: false
 
   defp list([]), do: []
   defp list([h | t]) when is_list(t), do: [to_ejson(h) | list(t)]

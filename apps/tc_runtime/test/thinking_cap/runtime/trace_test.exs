@@ -1,0 +1,176 @@
+defmodule ThinkingCap.Runtime.TraceTest do
+  # Hosts modules in this node's runtime: not beside other tests.
+  use ExUnit.Case, async: false
+
+  alias ThinkingCap.{Blackboard, Config, Runtime}
+  alias ThinkingCap.Module.Core.Rerun
+  alias ThinkingCap.Runtime.{Starting, Trace}
+
+  @moduletag :tmp_dir
+
+  defp adf(dir, modules) do
+    robot = :"tr#{System.unique_integer([:positive])}"
+    body = Enum.map_join(modules, ",\n", fn {name, spec} -> "    #{name}: #{spec}" end)
+    path = Path.join(dir, "#{robot}.adf")
+    File.write!(path, "[\n  robot: :#{robot},\n  modules: [\n#{body}\n  ]\n]\n")
+    adf = Config.read!(path)
+
+    on_exit(fn ->
+      for m <- adf.modules, do: Runtime.stop({robot, m.name})
+      drain({:_, robot, :_})
+    end)
+
+    {adf, robot}
+  end
+
+  defp drain(template) do
+    if Blackboard.takep(template) != :none, do: drain(template)
+  end
+
+  defp traced(robot, name, timeout \\ 2_000) do
+    receive do
+      {:tc_trace, ^robot, ^name, n, event} -> {n, event}
+    after
+      timeout -> flunk("no trace of #{inspect(name)} within #{timeout} ms")
+    end
+  end
+
+  # the next traced callback of `name` whose input matches
+  defp traced_input(robot, name, kind) do
+    {n, {input, _outputs} = event} = traced(robot, name)
+    if kind(input) == kind, do: {n, event}, else: traced_input(robot, name, kind)
+  end
+
+  defp kind(input) when is_tuple(input), do: elem(input, 0)
+  defp kind(input), do: input
+
+  test "a module's callbacks are traced: inputs, outputs, in order from init", %{tmp_dir: dir} do
+    name = :"traced_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [
+        {name,
+         "[module: ThinkingCap.Test.Modules.Traced, activity: :periodic, period: 0.05, " <>
+           "params: [gain: 1.0]]"}
+      ])
+
+    :ok = Trace.attach(robot)
+    assert self() in Trace.sinks(robot)
+    {:ok, _} = Runtime.start(adf)
+
+    # its start: the params and context it was given, what it returned
+    assert {0, {{:init, info}, outputs}} = traced(robot, name)
+    assert info.module == ThinkingCap.Test.Modules.Traced
+    assert info.params == [gain: 1.0]
+    assert info.context.robot == robot and info.context.name == name
+    assert info.activity == :periodic and info.period == 0.05
+    assert outputs == [{:subscribe, {:tick, robot, :_}}]
+
+    # a tuple delivered: named by its tag and hash; the tuple it wrote too
+    tick = {:tick, robot, %{n: 2}}
+    Blackboard.out(tick)
+    {n1, {{:tuple, ref}, outputs}} = traced_input(robot, name, :tuple)
+    assert ref == {:hash, :tick, Trace.hash(tick)}
+    sum = {:sum, robot, %{sum: 2.0}}
+    assert outputs == [{:out, {:hash, :sum, Trace.hash(sum)}, [key: {:sum, robot}]}]
+
+    # a release: its times, and the cycle's command
+    {_n, {{:cycle, release}, outputs}} = traced_input(robot, name, :cycle)
+    assert %{cycle: _, scheduled_ns: _, released_ns: _} = release
+    assert [{:cycle_result, {:sum, 2.0}, nil}] = outputs
+
+    # live param changes, taken and refused
+    assert :ok = Runtime.set_param({robot, name}, :gain, 3)
+    assert {_n, {{:param, :gain, 3}, []}} = traced_input(robot, name, :param)
+    assert {:error, message} = Runtime.set_param({robot, name}, :gain, 11)
+    assert {_n, {{:param, :gain, 11}, {:refused, ^message}}} = traced_input(robot, name, :param)
+
+    # a crash: what it raised, then its restart from init
+    Blackboard.out({:tick, robot, %{n: :crash}})
+    {n2, {{:tuple, _}, raised}} = traced_input(robot, name, :tuple)
+    assert raised == {:raised, :error, "** (RuntimeError) asked to crash"}
+    assert n2 > n1
+    assert {0, {{:init, _}, _}} = traced_input(robot, name, :init)
+
+    # detached: nothing more
+    :ok = Trace.detach(robot)
+    Blackboard.out(tick)
+    Process.sleep(100)
+    flush = fn f -> receive do: ({:tc_trace, ^robot, _, _, _} -> f.(f)), after: (0 -> :ok) end
+    flush.(flush)
+    Blackboard.out(tick)
+    refute_receive {:tc_trace, ^robot, _, _, _}, 200
+  end
+
+  test "the callbacks count on without gaps while traced, and rerun to the same outputs",
+       %{tmp_dir: dir} do
+    name = :"rerun_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+
+    :ok = Trace.attach(robot)
+    {:ok, _} = Runtime.start(adf)
+    ticks = for n <- 1..20, do: {:tick, robot, %{n: n}}
+    Enum.each(ticks, &Blackboard.out/1)
+    events = for _ <- 0..20, do: traced(robot, name)
+    assert Enum.map(events, &elem(&1, 0)) == Enum.to_list(0..20)
+
+    # run again on the same inputs, out of any process: the same outputs
+    by_hash = Map.new(ticks, &{Trace.hash(&1), &1})
+    [{0, {{:init, info}, init_outputs}} | rest] = events
+    {rerun, outcome} = Rerun.init(name, info)
+    assert Rerun.traced(outcome, robot) == init_outputs
+
+    Enum.reduce(rest, rerun, fn {_n, {{:tuple, {:hash, :tick, h}}, outputs}}, rerun ->
+      {rerun, outcome} = Rerun.call(rerun, {:tuple, Map.fetch!(by_hash, h)})
+      assert Rerun.traced(outcome, robot) == outputs
+      rerun
+    end)
+  end
+
+  test "a module that says trace: false is not traced", %{tmp_dir: dir} do
+    name = :"untraced_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Untraced, activity: :event]"}])
+
+    refute Trace.traced?(ThinkingCap.Test.Modules.Untraced)
+    assert Trace.traced?(ThinkingCap.Test.Modules.Traced)
+    :ok = Trace.attach(robot)
+    {:ok, _} = Runtime.start(adf)
+    Blackboard.out({:tick, robot, %{n: 1}})
+    refute_receive {:tc_trace, ^robot, _, _, _}, 300
+  end
+
+  test "the runtime waits for its listeners before it starts an ADF's modules",
+       %{tmp_dir: dir} do
+    name = :"late_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+
+    test = self()
+
+    listener =
+      spawn_link(fn ->
+        :ok = Starting.listen()
+        send(test, :listening)
+
+        receive do
+          {:tc_adf_starting, _ref, _from, ^robot, announced} = starting ->
+            # nothing started yet, however long it takes
+            Process.sleep(200)
+            send(test, {:heard, announced, Runtime.whereis({robot, name})})
+            Starting.ready(starting)
+        end
+      end)
+
+    assert_receive :listening
+    {:ok, [%{pid: pid}]} = Runtime.start(adf)
+    assert_received {:heard, announced, nil}
+    assert announced.modules == [name]
+    assert Runtime.whereis({robot, name}) == pid
+    Process.unlink(listener)
+  end
+end
