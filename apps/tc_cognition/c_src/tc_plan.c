@@ -10,10 +10,9 @@
  * A* keeps its scratch per thread between calls, stamped with the search
  * it belongs to, so a search costs only the cells it touches. D* Lite (Koenig & Likhachev,
  * the optimized version of their figure 4) is a resource holding its own
- * copy of the grid, g and rhs (as INF - value, so zeroed memory is
- * infinite), each queued vertex's first key (0: not queued) and a binary
- * heap with lazy deletion: an entry is live while its first key is the
- * one recorded for its vertex and its second is min(g, rhs).
+ * copy of the grid, each vertex's g and rhs side by side (as INF - value,
+ * so zeroed memory is infinite), and its queue: an indexed 4-ary heap
+ * that holds each inconsistent vertex once and changes keys in place.
  */
 #include "tc_plan.h"
 #include "tc_nif.h"
@@ -367,32 +366,52 @@ ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 
 /* ---- D* Lite ---- */
 
+/* A vertex: g and rhs as INF - value, so zeroed memory is infinite; side
+ * by side, as the search reads them together. */
+typedef struct {
+    int64_t g, rhs;
+} Vertex;
+
+/* A queued vertex and its key: [min(g, rhs) + h + km, min(g, rhs)],
+ * compared in that order. */
+typedef struct {
+    int64_t k1, k2;
+    int32_t u;
+} Queued;
+
 typedef struct {
     ErlNifMutex *lock;
     int w, h;
     uint8_t *cells;
-    int64_t *g, *rhs; /* INF - value: zeroed memory is infinite */
-    int64_t *key;     /* first key + 1 of a queued vertex, 0 if not queued */
-    Heap heap;
+    Vertex *v;
+    /* the queue: an indexed 4-ary heap holding each inconsistent vertex
+     * once (pos: its index + 1, 0 when not queued), its key changed in
+     * place */
+    Queued *q;
+    size_t qn, qcap;
+    int32_t *pos;
+    /* a bit per vertex: looked at by the update being applied (small, so
+     * it stays in cache; cleared after each update) */
+    uint64_t *seen;
     int64_t km;
     int32_t start, goal;
-    long work;
+    int sc, sr; /* the start's column and row */
 } Dsl;
 
-#define G(d, i) (INF - (d)->g[i])
-#define RHS(d, i) (INF - (d)->rhs[i])
-#define SET_G(d, i, v) ((d)->g[i] = INF - (v))
-#define SET_RHS(d, i, v) ((d)->rhs[i] = INF - (v))
+#define G(d, i) (INF - (d)->v[i].g)
+#define RHS(d, i) (INF - (d)->v[i].rhs)
+#define SET_G(d, i, x) ((d)->v[i].g = INF - (x))
+#define SET_RHS(d, i, x) ((d)->v[i].rhs = INF - (x))
 
 static void dsl_free(ErlNifEnv *env, void *obj)
 {
     (void)env;
     Dsl *d = obj;
     free(d->cells);
-    free(d->g);
-    free(d->rhs);
-    free(d->key);
-    free(d->heap.e);
+    free(d->v);
+    free(d->q);
+    free(d->pos);
+    free(d->seen);
     if (d->lock) enif_mutex_destroy(d->lock);
 }
 
@@ -408,16 +427,92 @@ int tc_plan_load(ErlNifEnv *env)
     return DSL_TYPE == NULL;
 }
 
+static inline int qless(const Queued *a, const Queued *b)
+{
+    return a->k1 < b->k1 || (a->k1 == b->k1 && a->k2 < b->k2);
+}
+
+static inline void q_put(Dsl *d, size_t i, Queued x)
+{
+    d->q[i] = x;
+    d->pos[x.u] = (int32_t)i + 1;
+}
+
+static void q_up(Dsl *d, size_t i, Queued x)
+{
+    while (i > 0) {
+        size_t p = (i - 1) / 4;
+        if (!qless(&x, &d->q[p])) break;
+        q_put(d, i, d->q[p]);
+        i = p;
+    }
+    q_put(d, i, x);
+}
+
+static void q_down(Dsl *d, size_t i, Queued x)
+{
+    size_t n = d->qn;
+    for (;;) {
+        size_t c = 4 * i + 1;
+        if (c >= n) break;
+        size_t best = c, end = c + 4 < n ? c + 4 : n;
+        for (size_t j = c + 1; j < end; j++)
+            if (qless(&d->q[j], &d->q[best])) best = j;
+        if (!qless(&d->q[best], &x)) break;
+        q_put(d, i, d->q[best]);
+        i = best;
+    }
+    q_put(d, i, x);
+}
+
+/* queues u with this key, or moves it to this key if it is queued */
+static int q_set(Dsl *d, int32_t u, int64_t k1, int64_t k2)
+{
+    Queued x = {k1, k2, u};
+    int32_t p = d->pos[u];
+    if (p) {
+        size_t i = (size_t)p - 1;
+        if (qless(&x, &d->q[i]))
+            q_up(d, i, x);
+        else
+            q_down(d, i, x);
+        return 1;
+    }
+    if (d->qn == d->qcap) {
+        size_t cap = d->qcap ? 2 * d->qcap : 1024;
+        Queued *q = realloc(d->q, cap * sizeof(Queued));
+        if (!q) return 0;
+        d->q = q;
+        d->qcap = cap;
+    }
+    q_up(d, d->qn++, x);
+    return 1;
+}
+
+static void q_remove(Dsl *d, int32_t u)
+{
+    int32_t p = d->pos[u];
+    if (!p) return;
+    d->pos[u] = 0;
+    size_t i = (size_t)p - 1;
+    Queued last = d->q[--d->qn];
+    if (i == d->qn) return;
+    if (qless(&last, &d->q[i]))
+        q_up(d, i, last);
+    else
+        q_down(d, i, last);
+}
+
+/* UpdateVertex: queued with its key if inconsistent, out of the queue if
+ * not; 0 when the queue could not grow */
 static int update_vertex(Dsl *d, int32_t u)
 {
     int64_t g = G(d, u), rhs = RHS(d, u);
     if (g != rhs) {
-        int64_t k2 = g < rhs ? g : rhs;
-        int64_t k1 = k2 + octile(d->start % d->w, d->start / d->w, u % d->w, u / d->w) + d->km;
-        d->key[u] = k1 + 1;
-        return heap_push(&d->heap, k1, k2, u);
+        int64_t k = g < rhs ? g : rhs;
+        return q_set(d, u, k + octile(d->sc, d->sr, u % d->w, u / d->w) + d->km, k);
     }
-    d->key[u] = 0;
+    q_remove(d, u);
     return 1;
 }
 
@@ -448,13 +543,15 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->w = w;
     d->h = h;
     d->cells = malloc(n);
-    d->g = calloc(n, sizeof(int64_t));
-    d->rhs = calloc(n, sizeof(int64_t));
-    d->key = calloc(n, sizeof(int64_t));
+    d->v = calloc(n, sizeof(Vertex));
+    d->pos = calloc(n, sizeof(int32_t));
+    d->seen = calloc(n / 64 + 1, sizeof(uint64_t));
     d->lock = enif_mutex_create("tc_plan_dsl");
     d->start = s;
+    d->sc = s % w;
+    d->sr = s / w;
     d->goal = g;
-    if (!d->cells || !d->g || !d->rhs || !d->key || !d->lock) {
+    if (!d->cells || !d->v || !d->pos || !d->seen || !d->lock) {
         enif_release_resource(d);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
@@ -480,37 +577,52 @@ static int set_cell(Dsl *d, int32_t i, int blocked)
 
 /* After cells changed (their new values already in d->cells, so every
  * rhs below sees the new grid): the rhs of each changed cell and of its
- * 8 neighbours (the vertices whose outgoing edges changed) is looked at
- * again, and queued if that made it inconsistent. Only blocking changes
- * next to a vertex whose rhs is infinite (unexplored) leave it alone: its
- * rhs cannot fall. A vertex next to several changed cells is looked at
- * once per change (cheap: changes come in small patches). Returns the
- * number of vertices looked at, or -1 out of memory. */
+ * 8 neighbours (the vertices whose outgoing edges changed) is computed
+ * again, once per vertex however many changed cells it touches, and the
+ * vertex queued if that made it inconsistent. A vertex whose rhs is
+ * infinite (unexplored) next to cells that were only blocked is left
+ * alone: its rhs cannot fall. Returns the number of vertices looked at,
+ * or -1 out of memory. */
 static long repair_rhs(Dsl *d, const int32_t *changed, size_t m)
 {
     long looked = 0;
-    for (size_t k = 0; k < m; k++) {
+    int w = d->w, h = d->h, ok = 1;
+    uint64_t *seen = d->seen;
+    for (size_t k = 0; k < m && ok; k++) {
         int32_t i = changed[k];
         int freed = !d->cells[i];
-        int c = i % d->w, r = i / d->w;
-        for (int dr = -1; dr <= 1; dr++)
-            for (int dc = -1; dc <= 1; dc++) {
-                int cc = c + dc, rr = r + dr;
-                if (cc < 0 || rr < 0 || cc >= d->w || rr >= d->h) continue;
-                int32_t u = rr * d->w + cc;
-                if (u == d->goal) continue;
+        int c = i % w, r = i / w;
+        for (int rr = r - 1; rr <= r + 1; rr++) {
+            if (rr < 0 || rr >= h) continue;
+            for (int cc = c - 1; cc <= c + 1; cc++) {
+                if (cc < 0 || cc >= w) continue;
+                int32_t u = rr * w + cc;
+                uint64_t bit = 1ULL << (u & 63);
+                if (u == d->goal || (seen[u >> 6] & bit)) continue;
                 int64_t old = RHS(d, u);
                 if (!freed && old >= INF) continue;
+                seen[u >> 6] |= bit;
                 looked++;
                 int64_t v = best_rhs(d, u);
                 if (v != old) {
                     SET_RHS(d, u, v);
-                    if (!update_vertex(d, u)) return -1;
+                    ok = ok && update_vertex(d, u);
                 }
             }
+        }
     }
-    d->work += looked;
-    return looked;
+    /* clear the bits set above: the words of the changed cells' rows */
+    for (size_t k = 0; k < m; k++) {
+        int32_t i = changed[k];
+        int c = i % w, r = i / w;
+        for (int rr = r - 1; rr <= r + 1; rr++) {
+            if (rr < 0 || rr >= h) continue;
+            int32_t a = rr * w + (c > 0 ? c - 1 : 0), z = rr * w + (c + 1 < w ? c + 1 : c);
+            seen[a >> 6] = 0;
+            seen[z >> 6] = 0;
+        }
+    }
+    return ok ? looked : -1;
 }
 
 /* dsl_update(dsl, changes): changes is a list of {{col, row}, blocked?}
@@ -663,68 +775,42 @@ ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         !get_cell(env, argv[1], d->w, d->h, &s))
         return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
-    d->km += octile(d->start % d->w, d->start / d->w, s % d->w, s / d->w);
+    d->km += octile(d->sc, d->sr, s % d->w, s / d->w);
     d->start = s;
+    d->sc = s % d->w;
+    d->sr = s / d->w;
     enif_mutex_unlock(d->lock);
     return A_OK;
 }
 
-/* rebuilds the heap from its live entries once stale ones pile up */
-static void compact(Dsl *d)
-{
-    size_t j = 0;
-    for (size_t k = 0; k < d->heap.n; k++) {
-        Entry e = d->heap.e[k];
-        int64_t g = G(d, e.u), rhs = RHS(d, e.u);
-        if (d->key[e.u] == e.k1 + 1 && (g < rhs ? g : rhs) == e.k2) d->heap.e[j++] = e;
-    }
-    Heap h = {d->heap.e, 0, d->heap.cap};
-    for (size_t k = 0; k < j; k++) {
-        /* re-heapify in place: entries 0..k-1 form a heap */
-        Entry x = h.e[k];
-        size_t i = h.n++;
-        while (i > 0) {
-            size_t p = (i - 1) / 2;
-            if (!less(&x, &h.e[p])) break;
-            h.e[i] = h.e[p];
-            i = p;
-        }
-        h.e[i] = x;
-    }
-    d->heap = h;
-}
 
 /* ComputeShortestPath, processing at most `budget` vertices (0: no
  * limit); returns the vertices processed, -1 out of memory, and sets
- * *done when the start is consistent (or nothing is left to do) */
+ * *done when the start is consistent (or nothing is left to do). A
+ * vertex whose key was a lower bound (queued before the robot moved) is
+ * moved to its key and looked at again, as in the paper. */
 static long compute(Dsl *d, long budget, int *done)
 {
     int w = d->w;
-    int sc = d->start % w, sr = d->start / w;
     long processed = 0;
     int32_t to[8];
     int64_t cost[8];
     *done = 1;
-    while (d->heap.n > 0) {
+    while (d->qn > 0) {
         if (budget && processed >= budget) {
             *done = 0;
             break;
         }
-        Entry e = d->heap.e[0];
-        int64_t gu = G(d, e.u), ru = RHS(d, e.u);
-        if (d->key[e.u] != e.k1 + 1 || (gu < ru ? gu : ru) != e.k2) {
-            heap_pop(&d->heap); /* stale */
-            continue;
-        }
+        Queued e = d->q[0];
+        int32_t u = e.u;
         int64_t gs = G(d, d->start), rs = RHS(d, d->start);
         int64_t ms = gs < rs ? gs : rs;
         if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < ms) || rs > gs)) break;
-        heap_pop(&d->heap);
-        int32_t u = e.u;
-        int64_t n1 = e.k2 + octile(sc, sr, u % w, u / w) + d->km;
-        if (e.k1 < n1) {
-            d->key[u] = n1 + 1;
-            if (!heap_push(&d->heap, n1, e.k2, u)) return -1;
+        int64_t gu = G(d, u), ru = RHS(d, u);
+        int64_t k1 = e.k2 + octile(d->sc, d->sr, u % w, u / w) + d->km;
+        if (e.k1 < k1) {
+            e.k1 = k1;
+            q_down(d, 0, e);
             continue;
         }
         processed++;
@@ -732,7 +818,7 @@ static long compute(Dsl *d, long budget, int *done)
         if (gu > ru) {
             /* overconsistent: settle it, offer the new g to its predecessors */
             SET_G(d, u, ru);
-            d->key[u] = 0;
+            q_remove(d, u);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
                 if (s == d->goal) continue;
@@ -797,20 +883,12 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     if (!done) {
-        d->work += processed;
         enif_mutex_unlock(d->lock);
         ERL_NIF_TERM args[2] = {argv[0], enif_make_long(env, before + processed)};
         return enif_schedule_nif(env, "dsl_plan", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_plan_dirty, 2,
                                  args);
     }
-    d->work += processed;
     processed += before;
-    /* compacting a big heap is long work: on a dirty scheduler only */
-    if ((size_t)d->work > (size_t)(n / 4 > 4096 ? n / 4 : 4096) && d->heap.n > 1024 &&
-        (budget == 0 || d->heap.n < 65536)) {
-        compact(d);
-        d->work = 0;
-    }
     ERL_NIF_TERM result;
     if (RHS(d, d->start) >= INF) {
         result = enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
