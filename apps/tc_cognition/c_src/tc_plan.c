@@ -13,6 +13,8 @@
  * copy of the grid, each vertex's g and rhs side by side (as INF - value,
  * so zeroed memory is infinite), and its queue: an indexed 4-ary heap
  * that holds each inconsistent vertex once and changes keys in place.
+ * A plan walks its path again only from the start to the first cell of
+ * the last path it meets, while nothing near that path changed.
  */
 #include "tc_plan.h"
 #include "tc_nif.h"
@@ -393,6 +395,18 @@ typedef struct {
     /* a bit per vertex: looked at by the update being applied (small, so
      * it stays in cache; cleared after each update) */
     uint64_t *seen;
+    /* the last path (plen cells, start to goal) and a bit per cell of
+     * it (on). While no g-value and no cell within one cell of it has
+     * changed (valid), the walk from any of its cells to the goal is the
+     * rest of it. The vertices whose g or cell changed since it was
+     * walked are listed (touched, tn of them; past TOUCHED the path is
+     * walked again whole) and checked when the next path is walked. */
+    int32_t *path, *spare;
+    size_t plen, pcap, scap;
+    uint64_t *on;
+    int32_t *touched;
+    size_t tn;
+    int valid;
     int64_t km;
     int32_t start, goal;
     int sc, sr; /* the start's column and row */
@@ -400,8 +414,25 @@ typedef struct {
 
 #define G(d, i) (INF - (d)->v[i].g)
 #define RHS(d, i) (INF - (d)->v[i].rhs)
-#define SET_G(d, i, x) ((d)->v[i].g = INF - (x))
 #define SET_RHS(d, i, x) ((d)->v[i].rhs = INF - (x))
+#define BIT(map, i) (((map)[(i) >> 6] >> ((i)&63)) & 1)
+#define TOUCHED 4096
+
+/* u's g-value or cell changes */
+static inline void touch(Dsl *d, int32_t u)
+{
+    if (!d->valid) return;
+    if (d->tn < TOUCHED)
+        d->touched[d->tn++] = u;
+    else
+        d->valid = 0;
+}
+
+static inline void dsl_set_g(Dsl *d, int32_t u, int64_t x)
+{
+    touch(d, u);
+    d->v[u].g = INF - x;
+}
 
 static void dsl_free(ErlNifEnv *env, void *obj)
 {
@@ -412,6 +443,10 @@ static void dsl_free(ErlNifEnv *env, void *obj)
     free(d->q);
     free(d->pos);
     free(d->seen);
+    free(d->path);
+    free(d->spare);
+    free(d->on);
+    free(d->touched);
     if (d->lock) enif_mutex_destroy(d->lock);
 }
 
@@ -546,12 +581,14 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->v = calloc(n, sizeof(Vertex));
     d->pos = calloc(n, sizeof(int32_t));
     d->seen = calloc(n / 64 + 1, sizeof(uint64_t));
+    d->on = calloc(n / 64 + 1, sizeof(uint64_t));
+    d->touched = malloc(TOUCHED * sizeof(int32_t));
     d->lock = enif_mutex_create("tc_plan_dsl");
     d->start = s;
     d->sc = s % w;
     d->sr = s / w;
     d->goal = g;
-    if (!d->cells || !d->v || !d->pos || !d->seen || !d->lock) {
+    if (!d->cells || !d->v || !d->pos || !d->seen || !d->on || !d->touched || !d->lock) {
         enif_release_resource(d);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
@@ -571,6 +608,7 @@ static int set_cell(Dsl *d, int32_t i, int blocked)
 {
     uint8_t v = blocked ? 1 : 0;
     if (d->cells[i] == v) return 0;
+    touch(d, i);
     d->cells[i] = v;
     return 1;
 }
@@ -784,6 +822,20 @@ ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
 }
 
 
+/* dsl_forget_path(dsl): the next plan walks its path from the start to
+ * the goal whole (for tests: a walk that joins the last path must give
+ * the same path) */
+ERL_NIF_TERM tc_nif_dsl_forget_path(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    d->valid = 0;
+    enif_mutex_unlock(d->lock);
+    return A_OK;
+}
+
 /* ComputeShortestPath, processing at most `budget` vertices (0: no
  * limit); returns the vertices processed, -1 out of memory, and sets
  * *done when the start is consistent (or nothing is left to do). A
@@ -817,7 +869,7 @@ static long compute(Dsl *d, long budget, int *done)
         int m = edges(d->cells, w, d->h, u, to, cost);
         if (gu > ru) {
             /* overconsistent: settle it, offer the new g to its predecessors */
-            SET_G(d, u, ru);
+            dsl_set_g(d, u, ru);
             q_remove(d, u);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
@@ -830,7 +882,7 @@ static long compute(Dsl *d, long budget, int *done)
             }
         } else {
             /* underconsistent: forget its g; predecessors that relied on it look again */
-            SET_G(d, u, INF);
+            dsl_set_g(d, u, INF);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
                 if (s == d->goal) continue;
@@ -843,6 +895,107 @@ static long compute(Dsl *d, long budget, int *done)
         }
     }
     return processed;
+}
+
+/* sets (on) or clears the bits of cells */
+static void mark(uint64_t *map, const int32_t *cells, size_t n, int on)
+{
+    for (size_t k = 0; k < n; k++) {
+        int32_t i = cells[k];
+        if (on)
+            map[i >> 6] |= 1ULL << (i & 63);
+        else
+            map[i >> 6] &= ~(1ULL << (i & 63));
+    }
+}
+
+/* whether a cell of the last path lies within one cell of u */
+static int near_path(Dsl *d, int32_t u)
+{
+    int w = d->w, c = u % w, r = u / w;
+    for (int rr = r > 0 ? r - 1 : 0; rr <= r + 1 && rr < d->h; rr++)
+        for (int cc = c > 0 ? c - 1 : 0; cc <= c + 1 && cc < w; cc++)
+            if (BIT(d->on, rr * w + cc)) return 1;
+    return 0;
+}
+
+static void forget_path(Dsl *d)
+{
+    mark(d->on, d->path, d->plen, 0);
+    d->plen = 0;
+    d->valid = 0;
+    d->tn = 0;
+}
+
+/* The path from the start: from each cell to the successor minimising
+ * c + g, until the goal. While the last path is valid (no vertex near it
+ * touched since), the walk stops at the first of its cells it meets and
+ * the rest is copied. Returns 1 with the path in d->path, 0 if the walk
+ * does not reach the goal, -1 out of memory. */
+static int walk(Dsl *d)
+{
+    for (size_t k = 0; k < d->tn && d->valid; k++)
+        if (near_path(d, d->touched[k])) d->valid = 0;
+    d->tn = 0;
+    size_t n = (size_t)d->w * d->h, len = 0, cap = d->scap;
+    int32_t *next_path = d->spare, to[8];
+    int64_t cost[8];
+    int32_t u = d->start;
+    size_t from = d->plen; /* where the last path is joined */
+    for (;;) {
+        if (d->valid && BIT(d->on, u)) {
+            for (from = 0; d->path[from] != u; from++)
+                ;
+            break;
+        }
+        if (len == cap) {
+            cap = cap ? 2 * cap : 1024;
+            int32_t *p = realloc(next_path, cap * sizeof(int32_t));
+            if (!p) return -1;
+            d->spare = next_path = p;
+            d->scap = cap;
+        }
+        next_path[len++] = u;
+        if (u == d->goal || len > n) break;
+        int m = edges(d->cells, d->w, d->h, u, to, cost);
+        int64_t best = INF;
+        int32_t next = -1;
+        for (int k = 0; k < m; k++) {
+            int64_t gv = G(d, to[k]);
+            if (gv < INF && cost[k] + gv < best) best = cost[k] + gv, next = to[k];
+        }
+        if (next < 0) break;
+        u = next;
+    }
+    size_t rest = d->plen - from;
+    if (len + rest > cap) {
+        cap = len + rest;
+        int32_t *p = realloc(next_path, cap * sizeof(int32_t));
+        if (!p) return -1;
+        d->spare = next_path = p;
+        d->scap = cap;
+    }
+    memcpy(next_path + len, d->path + from, rest * sizeof(int32_t));
+    /* the cells of the last path left out lose their bit, the walked
+     * ones get one (the walk met no cell of the last path before it
+     * joined it) */
+    mark(d->on, d->path, from, 0);
+    size_t walked = len;
+    len += rest;
+    d->spare = d->path;
+    d->scap = d->pcap;
+    d->path = next_path;
+    d->pcap = cap;
+    d->plen = len;
+    if (next_path[len - 1] != d->goal) {
+        mark(d->on, next_path + walked, rest, 0);
+        d->plen = 0;
+        d->valid = 0;
+        return 0;
+    }
+    mark(d->on, next_path, walked, 1);
+    d->valid = 1;
+    return 1;
 }
 
 /* dsl_plan(dsl) -> {:ok, path, expanded} | {:error, :no_path, expanded}.
@@ -871,7 +1024,6 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
     Dsl *d;
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
-    long n = (long)d->w * d->h;
     if (d->cells[d->start] || d->cells[d->goal]) {
         enif_mutex_unlock(d->lock);
         return enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, 0));
@@ -891,46 +1043,17 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
     processed += before;
     ERL_NIF_TERM result;
     if (RHS(d, d->start) >= INF) {
+        forget_path(d);
         result = enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
     } else {
-        /* from the start, always to the successor minimising c + g */
-        size_t cap = 1024, len = 0;
-        int32_t *path = malloc(cap * sizeof(int32_t));
-        int32_t u = d->start, to[8];
-        int64_t cost[8];
-        int ok = path != NULL;
-        while (ok) {
-            if (len == cap) {
-                int32_t *p = realloc(path, 2 * cap * sizeof(int32_t));
-                if (!p) {
-                    ok = 0;
-                    break;
-                }
-                path = p;
-                cap *= 2;
-            }
-            path[len++] = u;
-            if (u == d->goal || (long)len > n) break;
-            int m = edges(d->cells, d->w, d->h, u, to, cost);
-            int64_t best = INF;
-            int32_t next = -1;
-            for (int k = 0; k < m; k++) {
-                int64_t gv = G(d, to[k]);
-                if (gv < INF && cost[k] + gv < best) best = cost[k] + gv, next = to[k];
-            }
-            if (next < 0) break;
-            u = next;
-        }
-        if (!ok) {
-            free(path);
+        int ok = walk(d);
+        if (ok < 0) {
             enif_mutex_unlock(d->lock);
             return enif_raise_exception(env, enif_make_atom(env, "enomem"));
         }
-        result = path[len - 1] == d->goal
-                     ? enif_make_tuple3(env, A_OK, path_term(env, path, len, d->w),
-                                        enif_make_long(env, processed))
-                     : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
-        free(path);
+        result = ok ? enif_make_tuple3(env, A_OK, path_term(env, d->path, d->plen, d->w),
+                                       enif_make_long(env, processed))
+                    : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
     }
     enif_mutex_unlock(d->lock);
     return result;
