@@ -910,6 +910,7 @@ static ErlNifFunc funcs[] = {
     {"dsl_sync", 3, tc_nif_dsl_sync, 0},
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
+    {"dsl_forget_path", 1, tc_nif_dsl_forget_path, 0},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

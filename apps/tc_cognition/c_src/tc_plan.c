@@ -10,10 +10,11 @@
  * A* keeps its scratch per thread between calls, stamped with the search
  * it belongs to, so a search costs only the cells it touches. D* Lite (Koenig & Likhachev,
  * the optimized version of their figure 4) is a resource holding its own
- * copy of the grid, g and rhs (as INF - value, so zeroed memory is
- * infinite), each queued vertex's first key (0: not queued) and a binary
- * heap with lazy deletion: an entry is live while its first key is the
- * one recorded for its vertex and its second is min(g, rhs).
+ * copy of the grid, each vertex's g and rhs side by side (as INF - value,
+ * so zeroed memory is infinite), and its queue: an indexed 4-ary heap
+ * that holds each inconsistent vertex once and changes keys in place.
+ * A plan walks its path again only from the start to the first cell of
+ * the last path it meets, while nothing near that path changed.
  */
 #include "tc_plan.h"
 #include "tc_nif.h"
@@ -367,32 +368,85 @@ ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 
 /* ---- D* Lite ---- */
 
+/* A vertex: g and rhs as INF - value, so zeroed memory is infinite; side
+ * by side, as the search reads them together. */
+typedef struct {
+    int64_t g, rhs;
+} Vertex;
+
+/* A queued vertex and its key: [min(g, rhs) + h + km, min(g, rhs)],
+ * compared in that order. */
+typedef struct {
+    int64_t k1, k2;
+    int32_t u;
+} Queued;
+
 typedef struct {
     ErlNifMutex *lock;
     int w, h;
     uint8_t *cells;
-    int64_t *g, *rhs; /* INF - value: zeroed memory is infinite */
-    int64_t *key;     /* first key + 1 of a queued vertex, 0 if not queued */
-    Heap heap;
+    Vertex *v;
+    /* the queue: an indexed 4-ary heap holding each inconsistent vertex
+     * once (pos: its index + 1, 0 when not queued), its key changed in
+     * place */
+    Queued *q;
+    size_t qn, qcap;
+    int32_t *pos;
+    /* a bit per vertex: looked at by the update being applied (small, so
+     * it stays in cache; cleared after each update) */
+    uint64_t *seen;
+    /* the last path (plen cells, start to goal) and a bit per cell of
+     * it (on). While no g-value and no cell within one cell of it has
+     * changed (valid), the walk from any of its cells to the goal is the
+     * rest of it. The vertices whose g or cell changed since it was
+     * walked are listed (touched, tn of them; past TOUCHED the path is
+     * walked again whole) and checked when the next path is walked. */
+    int32_t *path, *spare;
+    size_t plen, pcap, scap;
+    uint64_t *on;
+    int32_t *touched;
+    size_t tn;
+    int valid;
     int64_t km;
     int32_t start, goal;
-    long work;
+    int sc, sr; /* the start's column and row */
 } Dsl;
 
-#define G(d, i) (INF - (d)->g[i])
-#define RHS(d, i) (INF - (d)->rhs[i])
-#define SET_G(d, i, v) ((d)->g[i] = INF - (v))
-#define SET_RHS(d, i, v) ((d)->rhs[i] = INF - (v))
+#define G(d, i) (INF - (d)->v[i].g)
+#define RHS(d, i) (INF - (d)->v[i].rhs)
+#define SET_RHS(d, i, x) ((d)->v[i].rhs = INF - (x))
+#define BIT(map, i) (((map)[(i) >> 6] >> ((i)&63)) & 1)
+#define TOUCHED 4096
+
+/* u's g-value or cell changes */
+static inline void touch(Dsl *d, int32_t u)
+{
+    if (!d->valid) return;
+    if (d->tn < TOUCHED)
+        d->touched[d->tn++] = u;
+    else
+        d->valid = 0;
+}
+
+static inline void dsl_set_g(Dsl *d, int32_t u, int64_t x)
+{
+    touch(d, u);
+    d->v[u].g = INF - x;
+}
 
 static void dsl_free(ErlNifEnv *env, void *obj)
 {
     (void)env;
     Dsl *d = obj;
     free(d->cells);
-    free(d->g);
-    free(d->rhs);
-    free(d->key);
-    free(d->heap.e);
+    free(d->v);
+    free(d->q);
+    free(d->pos);
+    free(d->seen);
+    free(d->path);
+    free(d->spare);
+    free(d->on);
+    free(d->touched);
     if (d->lock) enif_mutex_destroy(d->lock);
 }
 
@@ -408,16 +462,92 @@ int tc_plan_load(ErlNifEnv *env)
     return DSL_TYPE == NULL;
 }
 
+static inline int qless(const Queued *a, const Queued *b)
+{
+    return a->k1 < b->k1 || (a->k1 == b->k1 && a->k2 < b->k2);
+}
+
+static inline void q_put(Dsl *d, size_t i, Queued x)
+{
+    d->q[i] = x;
+    d->pos[x.u] = (int32_t)i + 1;
+}
+
+static void q_up(Dsl *d, size_t i, Queued x)
+{
+    while (i > 0) {
+        size_t p = (i - 1) / 4;
+        if (!qless(&x, &d->q[p])) break;
+        q_put(d, i, d->q[p]);
+        i = p;
+    }
+    q_put(d, i, x);
+}
+
+static void q_down(Dsl *d, size_t i, Queued x)
+{
+    size_t n = d->qn;
+    for (;;) {
+        size_t c = 4 * i + 1;
+        if (c >= n) break;
+        size_t best = c, end = c + 4 < n ? c + 4 : n;
+        for (size_t j = c + 1; j < end; j++)
+            if (qless(&d->q[j], &d->q[best])) best = j;
+        if (!qless(&d->q[best], &x)) break;
+        q_put(d, i, d->q[best]);
+        i = best;
+    }
+    q_put(d, i, x);
+}
+
+/* queues u with this key, or moves it to this key if it is queued */
+static int q_set(Dsl *d, int32_t u, int64_t k1, int64_t k2)
+{
+    Queued x = {k1, k2, u};
+    int32_t p = d->pos[u];
+    if (p) {
+        size_t i = (size_t)p - 1;
+        if (qless(&x, &d->q[i]))
+            q_up(d, i, x);
+        else
+            q_down(d, i, x);
+        return 1;
+    }
+    if (d->qn == d->qcap) {
+        size_t cap = d->qcap ? 2 * d->qcap : 1024;
+        Queued *q = realloc(d->q, cap * sizeof(Queued));
+        if (!q) return 0;
+        d->q = q;
+        d->qcap = cap;
+    }
+    q_up(d, d->qn++, x);
+    return 1;
+}
+
+static void q_remove(Dsl *d, int32_t u)
+{
+    int32_t p = d->pos[u];
+    if (!p) return;
+    d->pos[u] = 0;
+    size_t i = (size_t)p - 1;
+    Queued last = d->q[--d->qn];
+    if (i == d->qn) return;
+    if (qless(&last, &d->q[i]))
+        q_up(d, i, last);
+    else
+        q_down(d, i, last);
+}
+
+/* UpdateVertex: queued with its key if inconsistent, out of the queue if
+ * not; 0 when the queue could not grow */
 static int update_vertex(Dsl *d, int32_t u)
 {
     int64_t g = G(d, u), rhs = RHS(d, u);
     if (g != rhs) {
-        int64_t k2 = g < rhs ? g : rhs;
-        int64_t k1 = k2 + octile(d->start % d->w, d->start / d->w, u % d->w, u / d->w) + d->km;
-        d->key[u] = k1 + 1;
-        return heap_push(&d->heap, k1, k2, u);
+        int64_t k = g < rhs ? g : rhs;
+        return q_set(d, u, k + octile(d->sc, d->sr, u % d->w, u / d->w) + d->km, k);
     }
-    d->key[u] = 0;
+    q_remove(d, u);
     return 1;
 }
 
@@ -448,13 +578,17 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->w = w;
     d->h = h;
     d->cells = malloc(n);
-    d->g = calloc(n, sizeof(int64_t));
-    d->rhs = calloc(n, sizeof(int64_t));
-    d->key = calloc(n, sizeof(int64_t));
+    d->v = calloc(n, sizeof(Vertex));
+    d->pos = calloc(n, sizeof(int32_t));
+    d->seen = calloc(n / 64 + 1, sizeof(uint64_t));
+    d->on = calloc(n / 64 + 1, sizeof(uint64_t));
+    d->touched = malloc(TOUCHED * sizeof(int32_t));
     d->lock = enif_mutex_create("tc_plan_dsl");
     d->start = s;
+    d->sc = s % w;
+    d->sr = s / w;
     d->goal = g;
-    if (!d->cells || !d->g || !d->rhs || !d->key || !d->lock) {
+    if (!d->cells || !d->v || !d->pos || !d->seen || !d->on || !d->touched || !d->lock) {
         enif_release_resource(d);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
@@ -474,43 +608,59 @@ static int set_cell(Dsl *d, int32_t i, int blocked)
 {
     uint8_t v = blocked ? 1 : 0;
     if (d->cells[i] == v) return 0;
+    touch(d, i);
     d->cells[i] = v;
     return 1;
 }
 
 /* After cells changed (their new values already in d->cells, so every
  * rhs below sees the new grid): the rhs of each changed cell and of its
- * 8 neighbours (the vertices whose outgoing edges changed) is looked at
- * again, and queued if that made it inconsistent. Only blocking changes
- * next to a vertex whose rhs is infinite (unexplored) leave it alone: its
- * rhs cannot fall. A vertex next to several changed cells is looked at
- * once per change (cheap: changes come in small patches). Returns the
- * number of vertices looked at, or -1 out of memory. */
+ * 8 neighbours (the vertices whose outgoing edges changed) is computed
+ * again, once per vertex however many changed cells it touches, and the
+ * vertex queued if that made it inconsistent. A vertex whose rhs is
+ * infinite (unexplored) next to cells that were only blocked is left
+ * alone: its rhs cannot fall. Returns the number of vertices looked at,
+ * or -1 out of memory. */
 static long repair_rhs(Dsl *d, const int32_t *changed, size_t m)
 {
     long looked = 0;
-    for (size_t k = 0; k < m; k++) {
+    int w = d->w, h = d->h, ok = 1;
+    uint64_t *seen = d->seen;
+    for (size_t k = 0; k < m && ok; k++) {
         int32_t i = changed[k];
         int freed = !d->cells[i];
-        int c = i % d->w, r = i / d->w;
-        for (int dr = -1; dr <= 1; dr++)
-            for (int dc = -1; dc <= 1; dc++) {
-                int cc = c + dc, rr = r + dr;
-                if (cc < 0 || rr < 0 || cc >= d->w || rr >= d->h) continue;
-                int32_t u = rr * d->w + cc;
-                if (u == d->goal) continue;
+        int c = i % w, r = i / w;
+        for (int rr = r - 1; rr <= r + 1; rr++) {
+            if (rr < 0 || rr >= h) continue;
+            for (int cc = c - 1; cc <= c + 1; cc++) {
+                if (cc < 0 || cc >= w) continue;
+                int32_t u = rr * w + cc;
+                uint64_t bit = 1ULL << (u & 63);
+                if (u == d->goal || (seen[u >> 6] & bit)) continue;
                 int64_t old = RHS(d, u);
                 if (!freed && old >= INF) continue;
+                seen[u >> 6] |= bit;
                 looked++;
                 int64_t v = best_rhs(d, u);
                 if (v != old) {
                     SET_RHS(d, u, v);
-                    if (!update_vertex(d, u)) return -1;
+                    ok = ok && update_vertex(d, u);
                 }
             }
+        }
     }
-    d->work += looked;
-    return looked;
+    /* clear the bits set above: the words of the changed cells' rows */
+    for (size_t k = 0; k < m; k++) {
+        int32_t i = changed[k];
+        int c = i % w, r = i / w;
+        for (int rr = r - 1; rr <= r + 1; rr++) {
+            if (rr < 0 || rr >= h) continue;
+            int32_t a = rr * w + (c > 0 ? c - 1 : 0), z = rr * w + (c + 1 < w ? c + 1 : c);
+            seen[a >> 6] = 0;
+            seen[z >> 6] = 0;
+        }
+    }
+    return ok ? looked : -1;
 }
 
 /* dsl_update(dsl, changes): changes is a list of {{col, row}, blocked?}
@@ -663,76 +813,64 @@ ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         !get_cell(env, argv[1], d->w, d->h, &s))
         return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
-    d->km += octile(d->start % d->w, d->start / d->w, s % d->w, s / d->w);
+    d->km += octile(d->sc, d->sr, s % d->w, s / d->w);
     d->start = s;
+    d->sc = s % d->w;
+    d->sr = s / d->w;
     enif_mutex_unlock(d->lock);
     return A_OK;
 }
 
-/* rebuilds the heap from its live entries once stale ones pile up */
-static void compact(Dsl *d)
+
+/* dsl_forget_path(dsl): the next plan walks its path from the start to
+ * the goal whole (for tests: a walk that joins the last path must give
+ * the same path) */
+ERL_NIF_TERM tc_nif_dsl_forget_path(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    size_t j = 0;
-    for (size_t k = 0; k < d->heap.n; k++) {
-        Entry e = d->heap.e[k];
-        int64_t g = G(d, e.u), rhs = RHS(d, e.u);
-        if (d->key[e.u] == e.k1 + 1 && (g < rhs ? g : rhs) == e.k2) d->heap.e[j++] = e;
-    }
-    Heap h = {d->heap.e, 0, d->heap.cap};
-    for (size_t k = 0; k < j; k++) {
-        /* re-heapify in place: entries 0..k-1 form a heap */
-        Entry x = h.e[k];
-        size_t i = h.n++;
-        while (i > 0) {
-            size_t p = (i - 1) / 2;
-            if (!less(&x, &h.e[p])) break;
-            h.e[i] = h.e[p];
-            i = p;
-        }
-        h.e[i] = x;
-    }
-    d->heap = h;
+    (void)argc;
+    Dsl *d;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    d->valid = 0;
+    enif_mutex_unlock(d->lock);
+    return A_OK;
 }
 
 /* ComputeShortestPath, processing at most `budget` vertices (0: no
  * limit); returns the vertices processed, -1 out of memory, and sets
- * *done when the start is consistent (or nothing is left to do) */
+ * *done when the start is consistent (or nothing is left to do). A
+ * vertex whose key was a lower bound (queued before the robot moved) is
+ * moved to its key and looked at again, as in the paper. */
 static long compute(Dsl *d, long budget, int *done)
 {
     int w = d->w;
-    int sc = d->start % w, sr = d->start / w;
     long processed = 0;
     int32_t to[8];
     int64_t cost[8];
     *done = 1;
-    while (d->heap.n > 0) {
+    while (d->qn > 0) {
         if (budget && processed >= budget) {
             *done = 0;
             break;
         }
-        Entry e = d->heap.e[0];
-        int64_t gu = G(d, e.u), ru = RHS(d, e.u);
-        if (d->key[e.u] != e.k1 + 1 || (gu < ru ? gu : ru) != e.k2) {
-            heap_pop(&d->heap); /* stale */
-            continue;
-        }
+        Queued e = d->q[0];
+        int32_t u = e.u;
         int64_t gs = G(d, d->start), rs = RHS(d, d->start);
         int64_t ms = gs < rs ? gs : rs;
         if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < ms) || rs > gs)) break;
-        heap_pop(&d->heap);
-        int32_t u = e.u;
-        int64_t n1 = e.k2 + octile(sc, sr, u % w, u / w) + d->km;
-        if (e.k1 < n1) {
-            d->key[u] = n1 + 1;
-            if (!heap_push(&d->heap, n1, e.k2, u)) return -1;
+        int64_t gu = G(d, u), ru = RHS(d, u);
+        int64_t k1 = e.k2 + octile(d->sc, d->sr, u % w, u / w) + d->km;
+        if (e.k1 < k1) {
+            e.k1 = k1;
+            q_down(d, 0, e);
             continue;
         }
         processed++;
         int m = edges(d->cells, w, d->h, u, to, cost);
         if (gu > ru) {
             /* overconsistent: settle it, offer the new g to its predecessors */
-            SET_G(d, u, ru);
-            d->key[u] = 0;
+            dsl_set_g(d, u, ru);
+            q_remove(d, u);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
                 if (s == d->goal) continue;
@@ -744,7 +882,7 @@ static long compute(Dsl *d, long budget, int *done)
             }
         } else {
             /* underconsistent: forget its g; predecessors that relied on it look again */
-            SET_G(d, u, INF);
+            dsl_set_g(d, u, INF);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
                 if (s == d->goal) continue;
@@ -757,6 +895,107 @@ static long compute(Dsl *d, long budget, int *done)
         }
     }
     return processed;
+}
+
+/* sets (on) or clears the bits of cells */
+static void mark(uint64_t *map, const int32_t *cells, size_t n, int on)
+{
+    for (size_t k = 0; k < n; k++) {
+        int32_t i = cells[k];
+        if (on)
+            map[i >> 6] |= 1ULL << (i & 63);
+        else
+            map[i >> 6] &= ~(1ULL << (i & 63));
+    }
+}
+
+/* whether a cell of the last path lies within one cell of u */
+static int near_path(Dsl *d, int32_t u)
+{
+    int w = d->w, c = u % w, r = u / w;
+    for (int rr = r > 0 ? r - 1 : 0; rr <= r + 1 && rr < d->h; rr++)
+        for (int cc = c > 0 ? c - 1 : 0; cc <= c + 1 && cc < w; cc++)
+            if (BIT(d->on, rr * w + cc)) return 1;
+    return 0;
+}
+
+static void forget_path(Dsl *d)
+{
+    mark(d->on, d->path, d->plen, 0);
+    d->plen = 0;
+    d->valid = 0;
+    d->tn = 0;
+}
+
+/* The path from the start: from each cell to the successor minimising
+ * c + g, until the goal. While the last path is valid (no vertex near it
+ * touched since), the walk stops at the first of its cells it meets and
+ * the rest is copied. Returns 1 with the path in d->path, 0 if the walk
+ * does not reach the goal, -1 out of memory. */
+static int walk(Dsl *d)
+{
+    for (size_t k = 0; k < d->tn && d->valid; k++)
+        if (near_path(d, d->touched[k])) d->valid = 0;
+    d->tn = 0;
+    size_t n = (size_t)d->w * d->h, len = 0, cap = d->scap;
+    int32_t *next_path = d->spare, to[8];
+    int64_t cost[8];
+    int32_t u = d->start;
+    size_t from = d->plen; /* where the last path is joined */
+    for (;;) {
+        if (d->valid && BIT(d->on, u)) {
+            for (from = 0; d->path[from] != u; from++)
+                ;
+            break;
+        }
+        if (len == cap) {
+            cap = cap ? 2 * cap : 1024;
+            int32_t *p = realloc(next_path, cap * sizeof(int32_t));
+            if (!p) return -1;
+            d->spare = next_path = p;
+            d->scap = cap;
+        }
+        next_path[len++] = u;
+        if (u == d->goal || len > n) break;
+        int m = edges(d->cells, d->w, d->h, u, to, cost);
+        int64_t best = INF;
+        int32_t next = -1;
+        for (int k = 0; k < m; k++) {
+            int64_t gv = G(d, to[k]);
+            if (gv < INF && cost[k] + gv < best) best = cost[k] + gv, next = to[k];
+        }
+        if (next < 0) break;
+        u = next;
+    }
+    size_t rest = d->plen - from;
+    if (len + rest > cap) {
+        cap = len + rest;
+        int32_t *p = realloc(next_path, cap * sizeof(int32_t));
+        if (!p) return -1;
+        d->spare = next_path = p;
+        d->scap = cap;
+    }
+    memcpy(next_path + len, d->path + from, rest * sizeof(int32_t));
+    /* the cells of the last path left out lose their bit, the walked
+     * ones get one (the walk met no cell of the last path before it
+     * joined it) */
+    mark(d->on, d->path, from, 0);
+    size_t walked = len;
+    len += rest;
+    d->spare = d->path;
+    d->scap = d->pcap;
+    d->path = next_path;
+    d->pcap = cap;
+    d->plen = len;
+    if (next_path[len - 1] != d->goal) {
+        mark(d->on, next_path + walked, rest, 0);
+        d->plen = 0;
+        d->valid = 0;
+        return 0;
+    }
+    mark(d->on, next_path, walked, 1);
+    d->valid = 1;
+    return 1;
 }
 
 /* dsl_plan(dsl) -> {:ok, path, expanded} | {:error, :no_path, expanded}.
@@ -785,7 +1024,6 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
     Dsl *d;
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
-    long n = (long)d->w * d->h;
     if (d->cells[d->start] || d->cells[d->goal]) {
         enif_mutex_unlock(d->lock);
         return enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, 0));
@@ -797,62 +1035,25 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     if (!done) {
-        d->work += processed;
         enif_mutex_unlock(d->lock);
         ERL_NIF_TERM args[2] = {argv[0], enif_make_long(env, before + processed)};
         return enif_schedule_nif(env, "dsl_plan", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_plan_dirty, 2,
                                  args);
     }
-    d->work += processed;
     processed += before;
-    /* compacting a big heap is long work: on a dirty scheduler only */
-    if ((size_t)d->work > (size_t)(n / 4 > 4096 ? n / 4 : 4096) && d->heap.n > 1024 &&
-        (budget == 0 || d->heap.n < 65536)) {
-        compact(d);
-        d->work = 0;
-    }
     ERL_NIF_TERM result;
     if (RHS(d, d->start) >= INF) {
+        forget_path(d);
         result = enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
     } else {
-        /* from the start, always to the successor minimising c + g */
-        size_t cap = 1024, len = 0;
-        int32_t *path = malloc(cap * sizeof(int32_t));
-        int32_t u = d->start, to[8];
-        int64_t cost[8];
-        int ok = path != NULL;
-        while (ok) {
-            if (len == cap) {
-                int32_t *p = realloc(path, 2 * cap * sizeof(int32_t));
-                if (!p) {
-                    ok = 0;
-                    break;
-                }
-                path = p;
-                cap *= 2;
-            }
-            path[len++] = u;
-            if (u == d->goal || (long)len > n) break;
-            int m = edges(d->cells, d->w, d->h, u, to, cost);
-            int64_t best = INF;
-            int32_t next = -1;
-            for (int k = 0; k < m; k++) {
-                int64_t gv = G(d, to[k]);
-                if (gv < INF && cost[k] + gv < best) best = cost[k] + gv, next = to[k];
-            }
-            if (next < 0) break;
-            u = next;
-        }
-        if (!ok) {
-            free(path);
+        int ok = walk(d);
+        if (ok < 0) {
             enif_mutex_unlock(d->lock);
             return enif_raise_exception(env, enif_make_atom(env, "enomem"));
         }
-        result = path[len - 1] == d->goal
-                     ? enif_make_tuple3(env, A_OK, path_term(env, path, len, d->w),
-                                        enif_make_long(env, processed))
-                     : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
-        free(path);
+        result = ok ? enif_make_tuple3(env, A_OK, path_term(env, d->path, d->plen, d->w),
+                                       enif_make_long(env, processed))
+                    : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
     }
     enif_mutex_unlock(d->lock);
     return result;

@@ -25,8 +25,8 @@ defmodule ThinkingCap.Navigation.DStarLite do
 
   ## The state is single-use
 
-  The search lives in C (`c_src/tc_plan.c`: g- and rhs-values, queue keys
-  and a binary heap with lazy deletion, in a NIF resource shared by a
+  The search lives in C (`c_src/tc_plan.c`: g- and rhs-values and an
+  indexed heap of the inconsistent vertices, in a NIF resource shared by a
   state and the states derived from it), so only the state returned by
   the last call is valid: passing an older one raises `ArgumentError`.
   An update that only blocks cells next to vertices the search never

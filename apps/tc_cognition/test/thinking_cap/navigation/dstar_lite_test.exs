@@ -2,6 +2,7 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Navigation.{AStar, DStarLite, Grid, MovingAI}
+  alias ThinkingCap.Navigation.Core.GridNif
 
   @movingai Path.expand("../../../../../test/data/movingai", __DIR__)
 
@@ -94,6 +95,76 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
       end)
     end
   end
+
+  test "a path joined to the last one is the path a whole walk gives (200 seeds)" do
+    # two searches take the same changes and moves; one walks its path
+    # whole every time, the other joins the last path where it can
+    for seed <- 1..200 do
+      :rand.seed(:exsss, {seed, 3, 7})
+      w = 10 + :rand.uniform(30)
+      h = 10 + :rand.uniform(30)
+      density = 0.02 + 0.15 * :rand.uniform()
+
+      cells =
+        for _ <- 1..(w * h), into: <<>>, do: <<if(:rand.uniform() < density, do: 1, else: 0)>>
+
+      grid = Grid.new(w, h, cells: cells)
+      random_cell = fn -> {:rand.uniform(w) - 1, :rand.uniform(h) - 1} end
+      {start, goal} = {random_cell.(), random_cell.()}
+      joined = DStarLite.new(grid, start, goal)
+      whole = DStarLite.new(grid, start, goal)
+
+      Enum.reduce(1..15, {joined, whole}, fn step, {joined, whole} ->
+        :ok = GridNif.dsl_forget_path(elem(whole.store, 0))
+        {path, joined} = check_against_astar(joined, "seed #{seed}, step #{step}")
+        {:ok, whole_path, whole} = DStarLite.plan(whole) |> then(&fill_error/1)
+        assert path == whole_path, "seed #{seed}, step #{step}: joined and whole walks differ"
+
+        # a few cells change (often none), near the path when there is one
+        changes =
+          for _ <- 1..Enum.random([0, 0, 1, 3]) do
+            cell =
+              case path do
+                [_, _ | _] ->
+                  {c, r} = Enum.random(path)
+                  {c + :rand.uniform(5) - 3, r + :rand.uniform(5) - 3}
+
+                _ ->
+                  random_cell.()
+              end
+
+            {cell, :rand.uniform() < 0.6}
+          end
+
+        {joined, whole} =
+          {DStarLite.update_cells(joined, changes), DStarLite.update_cells(whole, changes)}
+
+        # the robot goes on along the path, steps beside it, or is carried off
+        to =
+          case {:rand.uniform(4), path} do
+            {1, _} ->
+              random_cell.()
+
+            {2, [_ | _]} ->
+              {c, r} = Enum.at(path, min(2, length(path) - 1))
+
+              {min(max(c + :rand.uniform(3) - 2, 0), w - 1),
+               min(max(r + :rand.uniform(3) - 2, 0), h - 1)}
+
+            {_, [_ | _]} ->
+              Enum.at(path, min(:rand.uniform(3), length(path) - 1))
+
+            _ ->
+              random_cell.()
+          end
+
+        {DStarLite.move_start(joined, to), DStarLite.move_start(whole, to)}
+      end)
+    end
+  end
+
+  defp fill_error({:error, :no_path, state}), do: {:ok, nil, state}
+  defp fill_error(ok), do: ok
 
   test "a change near the robot is repaired with a few vertices" do
     # a winding corridor: walls across rows 10, 20, ..., 50, with a gap

@@ -79,4 +79,5 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def dsl_sync(_dsl, _cells, _max), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_move_start(_dsl, _cell), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_forget_path(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end
