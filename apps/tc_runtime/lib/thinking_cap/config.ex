@@ -47,6 +47,22 @@ defmodule ThinkingCap.Config do
     end
   end
 
+  @doc """
+  An ADF given as a path (read and checked) or already read:
+  `{:ok, adf}`, or `{:error, message}` with every error, or saying that
+  the file is no ADF.
+  """
+  @spec adf(ADF.t() | Path.t()) :: {:ok, ADF.t()} | {:error, String.t()}
+  def adf(%ADF{} = adf), do: {:ok, adf}
+
+  def adf(path) when is_binary(path) do
+    case read(path) do
+      {:ok, %ADF{} = adf} -> {:ok, adf}
+      {:ok, _other} -> {:error, "#{path} is not an ADF"}
+      {:error, errors} -> {:error, format_errors(errors)}
+    end
+  end
+
   @doc "Like `read/1`, but raises `ArgumentError` with every error."
   @spec read!(Path.t()) :: description()
   def read!(path) do

@@ -43,7 +43,7 @@ defmodule ThinkingCap.Testing.Replay do
   """
   @spec record(Path.t() | ADF.t(), keyword()) :: {:ok, [Path.t()]} | {:error, String.t()}
   def record(adf, opts) do
-    with {:ok, adf} <- adf(adf),
+    with {:ok, adf} <- Config.adf(adf),
          {:ok, seconds, dir} <- record_options(opts) do
       robot = Keyword.get(opts, :robot, adf.robot)
 
@@ -69,16 +69,6 @@ defmodule ThinkingCap.Testing.Replay do
       after
         stop(adf)
       end
-    end
-  end
-
-  defp adf(%ADF{} = adf), do: {:ok, adf}
-
-  defp adf(path) when is_binary(path) do
-    case Config.read(path) do
-      {:ok, %ADF{} = adf} -> {:ok, adf}
-      {:ok, _other} -> {:error, "#{path} is not an ADF"}
-      {:error, errors} -> {:error, Config.format_errors(errors)}
     end
   end
 

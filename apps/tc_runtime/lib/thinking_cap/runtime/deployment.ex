@@ -113,7 +113,7 @@ defmodule ThinkingCap.Runtime.Deployment do
 
   @impl true
   def init(opts) do
-    with {:ok, adf} <- load(Keyword.fetch!(opts, :adf)),
+    with {:ok, adf} <- Config.adf(Keyword.fetch!(opts, :adf)),
          {:ok, logical} <- whoami(adf),
          :ok <- check_modules(adf) do
       :ok = :net_kernel.monitor_nodes(true)
@@ -460,16 +460,6 @@ defmodule ThinkingCap.Runtime.Deployment do
   end
 
   ## Set-up
-
-  defp load(%ADF{} = adf), do: {:ok, adf}
-
-  defp load(path) when is_binary(path) do
-    case Config.read(path) do
-      {:ok, %ADF{} = adf} -> {:ok, adf}
-      {:ok, _other} -> {:error, "#{path} is not an ADF"}
-      {:error, errors} -> {:error, Config.format_errors(errors)}
-    end
-  end
 
   defp whoami(%ADF{nodes: nodes}) when map_size(nodes) == 0, do: {:ok, :local}
 

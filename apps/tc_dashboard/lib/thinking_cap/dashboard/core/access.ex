@@ -33,4 +33,14 @@ defmodule ThinkingCap.Dashboard.Core.Access do
 
     for host <- Enum.uniq(hosts), do: "http://#{host}:#{config.port}"
   end
+
+  @doc "A request's query string as a map of strings (empty when it cannot be read)."
+  @spec query(tuple()) :: %{String.t() => String.t()}
+  def query(arg) do
+    arg
+    |> :yaws_api.parse_query()
+    |> Map.new(fn {k, v} -> {to_string(k), if(v == :undefined, do: "", else: to_string(v))} end)
+  rescue
+    _ -> %{}
+  end
 end

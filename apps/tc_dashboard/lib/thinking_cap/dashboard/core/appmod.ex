@@ -18,7 +18,7 @@ defmodule ThinkingCap.Dashboard.Core.Appmod do
     config = ThinkingCap.Dashboard.config()
     headers = arg(arg, :headers)
     origin = header(headers, "origin")
-    query = query(arg)
+    query = Access.query(arg)
     control = Access.valid_token?(query["token"], config.token)
 
     cond do
@@ -61,13 +61,5 @@ defmodule ThinkingCap.Dashboard.Core.Appmod do
       :undefined -> nil
       value -> to_string(value)
     end
-  end
-
-  defp query(arg) do
-    arg
-    |> :yaws_api.parse_query()
-    |> Map.new(fn {k, v} -> {to_string(k), if(v == :undefined, do: "", else: to_string(v))} end)
-  rescue
-    _ -> %{}
   end
 end

@@ -57,7 +57,7 @@ defmodule ThinkingCap.Dashboard.Core.Download do
   end
 
   defp token(arg, config) do
-    if Access.valid_token?(query(arg)["token"], config.token) or config.public_view,
+    if Access.valid_token?(Access.query(arg)["token"], config.token) or config.public_view,
       do: :ok,
       else:
         {:refuse, 401,
@@ -153,12 +153,4 @@ defmodule ThinkingCap.Dashboard.Core.Download do
 
   defp refuse(status, message),
     do: [{:status, status}, {:content, ~c"text/plain", String.to_charlist(message <> "\n")}]
-
-  defp query(arg) do
-    arg
-    |> :yaws_api.parse_query()
-    |> Map.new(fn {k, v} -> {to_string(k), if(v == :undefined, do: "", else: to_string(v))} end)
-  rescue
-    _ -> %{}
-  end
 end
