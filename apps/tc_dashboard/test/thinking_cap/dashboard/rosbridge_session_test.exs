@@ -280,7 +280,7 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
 
       # a new subscriber of /map gets the learned map at once, not the world's
       s2 = open(world: Path.join(@examples, "office.wdf"))
-      {frames, _} = send_msg(s2, %{op: "subscribe", topic: "/map"})
+      {frames, _} = map_request(s2, %{op: "subscribe", topic: "/map"})
       assert Enum.any?(published(frames, "/map"), &(&1["data"] == [0, 100, -1, 0, 0, 50]))
       Blackboard.takep({:map, robot, :_})
     end
@@ -289,7 +289,7 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
       s = open(world: Path.join(@examples, "office.wdf"))
 
       {frames, _s} =
-        send_msg(s, %{op: "subscribe", topic: "/map", type: "nav_msgs/msg/OccupancyGrid"})
+        map_request(s, %{op: "subscribe", topic: "/map", type: "nav_msgs/msg/OccupancyGrid"})
 
       assert [grid] = published(frames, "/map")
       assert grid["info"]["width"] * grid["info"]["height"] == length(grid["data"])
@@ -302,6 +302,8 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
       # past the current second's sends, whoever made them
       Process.sleep(1_000 - rem(System.monotonic_time(:millisecond), 1_000))
 
+      started = System.monotonic_time(:millisecond)
+
       {sent, refused} =
         Enum.reduce(1..30, {0, 0}, fn i, {sent, refused} ->
           message = %{op: "subscribe", id: "m#{i}", topic: "/map"}
@@ -313,7 +315,11 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
           end
         end)
 
-      assert sent >= 1 and sent <= 10
+      # at most 10 a second: a loaded machine may spread the burst over
+      # more than one
+      seconds = div(System.monotonic_time(:millisecond) - started, 1_000) + 1
+      assert sent >= 1 and sent <= 10 * seconds
+      assert refused >= 1
       assert sent + refused == 30
       # the next test starts with this node's budget back
       Process.sleep(1_000 - rem(System.monotonic_time(:millisecond), 1_000))
@@ -544,4 +550,20 @@ defmodule ThinkingCap.Dashboard.RosbridgeSessionTest do
 
   defp mine?(%{"transforms" => transforms}, name),
     do: Enum.any?(transforms, &String.starts_with?(&1["child_frame_id"], name <> "/"))
+
+  # A map request; refused by the node's map budget (spent by another
+  # test this second), asked again in the next second, up to 3 times.
+  defp map_request(s, message, tries \\ 3) do
+    {frames, s} = send_msg(s, message)
+
+    refused =
+      Enum.any?(frames, fn f -> is_binary(f["msg"]) and f["msg"] =~ "too many map requests" end)
+
+    if refused and tries > 1 do
+      Process.sleep(1_000 - rem(System.monotonic_time(:millisecond), 1_000))
+      map_request(s, message, tries - 1)
+    else
+      {frames, s}
+    end
+  end
 end
