@@ -37,8 +37,9 @@ defmodule ThinkingCap.Testing.Replay do
   node for `seconds`, in real time, into `dir`; returns the recording's
   files. Its modules start after the recorder, so they are traced from
   their `init/2`; they are stopped at the end, the recording closed, and
-  the robot's tuples taken off the blackboard. Its dashboard and black
-  box are not started. Options: `seconds:` and `dir:` (required),
+  the robot taken out of the simulation (`ThinkingCap.Sim.Robot` leaves
+  it there when it stops) and its tuples off the blackboard. Its
+  dashboard and black box are not started. Options: `seconds:` and `dir:` (required),
   `robot:` (run the ADF's robot under this name).
   """
   @spec record(Path.t() | ADF.t(), keyword()) :: {:ok, [Path.t()]} | {:error, String.t()}
@@ -83,8 +84,30 @@ defmodule ThinkingCap.Testing.Replay do
   defp stop(adf) do
     for m <- adf.modules, do: Runtime.stop({adf.robot, m.name})
     BlackBox.stop(adf.robot)
+    leave_simulations(adf.robot)
     drain({:_, adf.robot, :_})
     for %{activity: :periodic, name: name} <- adf.modules, do: drain(Tuples.timing(name))
+  end
+
+  # A simulated robot's body stays in its world when its driver stops (a
+  # driver started again takes it over), sensing and publishing: the
+  # recorded robot is taken out of every simulation running here. The
+  # simulator is not a dependency of this app: it is found at run time.
+  defp leave_simulations(robot) do
+    worlds = Module.concat([ThinkingCap, Sim, Worlds])
+    sim = Module.concat([ThinkingCap, Sim])
+
+    if Code.ensure_loaded?(worlds) do
+      for {_wdf, pid} <- apply(worlds, :all, []) do
+        try do
+          apply(sim, :remove_robot, [pid, robot])
+        catch
+          :exit, _gone -> :ok
+        end
+      end
+    end
+
+    :ok
   end
 
   defp drain(template) do

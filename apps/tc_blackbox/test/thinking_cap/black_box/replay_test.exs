@@ -21,6 +21,14 @@ defmodule ThinkingCap.BlackBox.ReplayTest do
     robot = :"replay#{System.unique_integer([:positive])}"
     on_exit(fn -> File.rm_rf!(dir) end)
     {:ok, files} = Replay.record(@adf, seconds: 4, dir: dir, robot: robot)
+
+    # nothing of the robot left running: not in the simulation, its
+    # tuples off the blackboard
+    for {_wdf, sim} <- ThinkingCap.Sim.Worlds.all(),
+        do: refute(Map.has_key?(ThinkingCap.Sim.robots(sim), robot))
+
+    Process.sleep(100)
+    assert Blackboard.rd_all({:_, robot, :_}) == []
     %{files: files, robot: robot}
   end
 
