@@ -78,12 +78,12 @@ defmodule ThinkingCap.Navigation.KeepClear do
   # up the distance field, a cell at a time
   defp climb(%{grid: grid} = field, point, prefer, max_shift) do
     steps = max(0, floor(max_shift / grid.resolution))
-    climb(field, point, point, clearance(field, point), prefer, steps)
+    climb(field, point, clearance(field, point), prefer, steps)
   end
 
-  defp climb(_field, _start, point, d, prefer, steps) when d >= prefer or steps == 0, do: point
+  defp climb(_field, point, d, prefer, steps) when d >= prefer or steps == 0, do: point
 
-  defp climb(%{grid: grid} = field, start, {x, y} = point, d, prefer, steps) do
+  defp climb(%{grid: grid} = field, {x, y} = point, d, prefer, steps) do
     {col, row} = Grid.cell_of(grid, point)
     gx = at(field, col + 1, row) - at(field, col - 1, row)
     gy = at(field, col, row + 1) - at(field, col, row - 1)
@@ -95,7 +95,7 @@ defmodule ThinkingCap.Navigation.KeepClear do
       step = grid.resolution
       next = {x + step * gx / norm, y + step * gy / norm}
       nd = clearance(field, next)
-      if nd > d, do: climb(field, start, next, nd, prefer, steps - 1), else: point
+      if nd > d, do: climb(field, next, nd, prefer, steps - 1), else: point
     end
   end
 
