@@ -60,6 +60,16 @@ defmodule ThinkingCap.Runtime.Scheduling do
   at `SCHED_FIFO` 1): without the boost the activities' releases reached
   `handle_cycle/2` up to 91 and 811 ms late; with it, see the README.
 
+  ## What no priority helps
+
+  A scheduler thread that collects a process's garbage is not preempted
+  by the BEAM, and a periodic module queued on that scheduler waits for it.
+  Measured in the fault suite's tuple flood: a writer that kept its
+  100,000 results in a list had a heap whose collection took 3 to 7 ms,
+  and the 3 ms deadline was missed (the fallback applied). Processes on a
+  robot's node should not grow heaps of many megabytes; keep big data in
+  ETS or binaries.
+
   The `:tc_runtime, :periodic_priority` setting is the boost's scheduler
   priority (20; the poller one above); `nil` turns it off. There is no
   boost unless the schedulers run at real-time priority.
