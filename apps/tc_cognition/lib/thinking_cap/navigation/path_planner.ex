@@ -22,12 +22,13 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   repairs the path from there. A new frame (the map grew), a new goal,
   or more than `max_changes` changed cells start a new search.
 
-  **Keeping clear.** With `clearance` (m), the planner also keeps the
-  distance field of the obstacles (before they are grown), and
-  `keep_clear/2` moves a path's points away from them up to that distance
-  where there is room (`ThinkingCap.Navigation.KeepClear`): a path down
-  the middle of a corridor and through the middle of a door, not along
-  the wall at the robot's radius.
+  **Keeping clear.** The planner also keeps the distance field of the
+  obstacles (before they are grown): `clearance/2` and `in_sight?/3` read
+  it. With `clearance` (m), `keep_clear/2` moves a path's points away
+  from the obstacles up to that distance where there is room
+  (`ThinkingCap.Navigation.KeepClear`): a path down the middle of a
+  corridor and through the middle of a door, not along the wall at the
+  robot's radius.
 
   Every `plan/3` records what it did in `last`: `%{kind: :initial |
   :repair, us: microseconds, expanded: vertices, changed: cells}` (`us`
@@ -104,9 +105,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   def set_map(%__MODULE__{} = planner, %OccupancyGrid{} = map) do
     {grid, blocked} = grids(planner, map)
 
-    field =
-      if planner.clearance,
-        do: %{grid: grid, distances: GridNif.edt(blocked, grid.width, grid.height)}
+    field = %{grid: grid, distances: GridNif.edt(blocked, grid.width, grid.height)}
 
     %{
       planner
@@ -150,7 +149,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   @doc """
   How far (m) a point is from the nearest obstacle of the map (before it
-  is grown); `0.0` without a `clearance` or a map.
+  is grown); `0.0` without a map.
   """
   @spec clearance(t(), point()) :: float()
   def clearance(%__MODULE__{field: nil}, _point), do: 0.0
@@ -158,7 +157,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   @doc """
   Whether the straight line between two points crosses no obstacle of
-  the map (before it is grown); `true` without a `clearance` or a map.
+  the map (before it is grown); `true` without a map.
   """
   @spec in_sight?(t(), point(), point()) :: boolean()
   def in_sight?(%__MODULE__{field: nil}, _a, _b), do: true

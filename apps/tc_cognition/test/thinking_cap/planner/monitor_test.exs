@@ -113,6 +113,42 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
+  test "exploring: a frontier in a nook is seen from a stand-in with room, not driven into", %{
+    tmp_dir: dir
+  } do
+    # 6 x 4 m: a known room (x < 4) and, east of it, a nook 0.6 m wide and
+    # 0.5 m deep whose far end is unknown: the one frontier, at x = 4.5.
+    # The robot (0.2 m and its 0.08 m margin) fits in the nook only just.
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x > 0.1 and x < 4.0 and y > 0.1 and y < 3.9 -> 0
+        x >= 4.0 and x < 4.5 and abs(y - 2.0) < 0.3 -> 0
+        x >= 4.5 and x < 5.5 and abs(y - 2.0) < 0.3 -> -1
+        true -> 100
+      end
+    end
+
+    {plan, _actions, state} = on_sensed_map(dir, :explore, {120, 80}, cell, {1.0, 2.0, 0.0})
+
+    assert plan.state == :moving
+    {fx, _fy} = state.target
+    assert fx > 4.3 and fx < 4.6
+
+    # the path ends short of the nook, within a metre of the frontier, at
+    # a point with room round the robot (its radius, margin and 0.1 m)
+    # that sees the frontier down the nook's axis
+    {sx, sy} = List.last(plan.path)
+    assert state.stand_in == {sx, sy}
+    assert sx < 4.0 and fx - sx <= 1.05
+    assert abs(sy - 2.0) < 0.15
+    room = 0.2 + 0.08 + 0.1
+    for corner <- [{4.0, 1.7}, {4.0, 2.3}], do: assert(dist({sx, sy}, corner) >= room - 0.03)
+    refute Enum.any?(plan.path, fn {x, _y} -> x > 4.0 end)
+  end
+
+  @tag :tmp_dir
   test "a doorway narrower than the margin allows is passed with the robot's own radius", %{
     tmp_dir: dir
   } do
