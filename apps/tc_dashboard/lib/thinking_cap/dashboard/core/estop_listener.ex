@@ -19,11 +19,11 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   require Logger
 
   alias ThinkingCap.Dashboard.Control
+  alias ThinkingCap.Dashboard.Core.Acceptor
 
   @max_open 16
   @read_timeout 1_000
   @max_headers 32
-  @accept_wait 200
 
   @doc "Starts the listener on `estop_port` (0: a free port) of `host`."
   @spec start_link(%{host: String.t(), estop_port: :inet.port_number()}) :: GenServer.on_start()
@@ -40,22 +40,9 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
 
   @impl true
   def init(%{host: host, estop_port: port}) do
-    options = [
-      :binary,
-      packet: :http_bin,
-      active: false,
-      reuseaddr: true,
-      backlog: 128,
-      ip: ThinkingCap.Dashboard.Core.Yaws.ip(host)
-    ]
-
-    case :gen_tcp.listen(port, options) do
-      {:ok, listen} ->
-        {:ok, port} = :inet.port(listen)
-        {:ok, %{listen: listen, port: port, open: %{}, spare: spare()}, 0}
-
-      {:error, reason} ->
-        {:stop, "E-stop port #{port}: #{:inet.format_error(reason)}"}
+    case Acceptor.listen(port, host, [], "E-stop port") do
+      {:ok, listen, port} -> {:ok, %{listen: listen, port: port, open: %{}, spare: spare()}, 0}
+      {:error, message} -> {:stop, message}
     end
   end
 
@@ -67,21 +54,11 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   @impl true
   def handle_info(:timeout, state) do
     state =
-      case :gen_tcp.accept(state.listen, @accept_wait) do
-        {:ok, socket} ->
-          serve(socket, state)
-
-        {:error, :timeout} ->
-          state
-
-        {:error, reason} when reason in [:emfile, :enfile] ->
-          # no descriptor left: the spare one serves this connection
-          accept_on_spare(state)
-
-        {:error, reason} ->
-          Logger.warning("dashboard: E-stop port accept failed: #{inspect(reason)}")
-          Process.sleep(50)
-          state
+      case Acceptor.accept(state.listen, "E-stop port") do
+        {:ok, socket} -> serve(socket, state)
+        :none -> state
+        # no descriptor left: the spare one serves this connection
+        :no_descriptor -> accept_on_spare(state)
       end
 
     {:noreply, state, 0}
@@ -108,7 +85,7 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     File.close(state.spare)
 
     # served here, not in a process of its own: descriptors are short
-    with {:ok, socket} <- :gen_tcp.accept(state.listen, @accept_wait), do: handle(socket)
+    with {:ok, socket} <- Acceptor.accept(state.listen, "E-stop port"), do: handle(socket)
     %{state | spare: spare()}
   end
 

@@ -9,9 +9,8 @@ defmodule ThinkingCap.Dashboard.Foxglove.Listener do
   use GenServer
   require Logger
 
+  alias ThinkingCap.Dashboard.Core.Acceptor
   alias ThinkingCap.Dashboard.Foxglove.{Connection, Handshake}
-
-  @accept_wait 200
 
   @doc "Starts the listener on `config.foxglove_port` (0: a free port) of `config.host`."
   @spec start_link(map()) :: GenServer.on_start()
@@ -37,24 +36,11 @@ defmodule ThinkingCap.Dashboard.Foxglove.Listener do
 
   @impl true
   def init(config) do
-    options = [
-      :binary,
-      packet: :http_bin,
-      packet_size: 16_384,
-      active: false,
-      reuseaddr: true,
-      backlog: 128,
-      nodelay: true,
-      ip: ThinkingCap.Dashboard.Core.Yaws.ip(config.host)
-    ]
+    extra = [packet_size: 16_384, nodelay: true]
 
-    case :gen_tcp.listen(config.foxglove_port, options) do
-      {:ok, listen} ->
-        {:ok, port} = :inet.port(listen)
-        {:ok, %{listen: listen, port: port, config: config, open: %{}}, 0}
-
-      {:error, reason} ->
-        {:stop, "Foxglove port #{config.foxglove_port}: #{:inet.format_error(reason)}"}
+    case Acceptor.listen(config.foxglove_port, config.host, extra, "Foxglove port") do
+      {:ok, listen, port} -> {:ok, %{listen: listen, port: port, config: config, open: %{}}, 0}
+      {:error, message} -> {:stop, message}
     end
   end
 
@@ -67,15 +53,15 @@ defmodule ThinkingCap.Dashboard.Foxglove.Listener do
   @impl true
   def handle_info(:timeout, state) do
     state =
-      case :gen_tcp.accept(state.listen, @accept_wait) do
+      case Acceptor.accept(state.listen, "Foxglove port") do
         {:ok, socket} ->
           serve(socket, state)
 
-        {:error, :timeout} ->
+        :none ->
           state
 
-        {:error, reason} ->
-          Logger.warning("dashboard: Foxglove port accept failed: #{inspect(reason)}")
+        :no_descriptor ->
+          Logger.warning("dashboard: Foxglove port: no file descriptor left to accept with")
           Process.sleep(50)
           state
       end
