@@ -111,21 +111,57 @@ defmodule ThinkingCap.Planner.Monitor do
   require Tuples
   import ThinkingCap.Geometry, only: [angle_diff: 2, segment_distance: 3, to_frame: 2]
 
-  @defaults [
-    tolerance: 0.35,
-    stuck_after: 12.0,
-    max_replans: 3,
-    retry_after: 10.0,
-    replan_every: 1.0,
-    resolution: nil,
-    margin: 0.08,
-    clearance: nil,
-    reach: 20.0,
-    compare: false,
-    map_timeout: 10.0,
-    save_to: nil,
-    explore_rounds: 2
+  @waypoint {:or, [:place, :point]}
+  @task {:or,
+         [
+           {:one_of, [:idle, :explore]},
+           {:tuple, [{:one_of, [:go_to]}, @waypoint]},
+           {:tuple, [{:one_of, [:visit, :patrol]}, {:list, @waypoint}]}
+         ]}
+  @params [
+    task:
+      {@task,
+       default: :idle,
+       read_only: true,
+       doc: "the first task (later ones: a {:task, robot, %{task: t}} tuple)"},
+    tolerance: {:pos_number, default: 0.35, doc: "m from a waypoint that reaches it"},
+    stuck_after: {:pos_number, default: 12.0, doc: "s without progress before a new plan"},
+    max_replans: {:non_neg_integer, default: 3, doc: "new plans before a waypoint is given up"},
+    retry_after:
+      {:non_neg_number, default: 10.0, doc: "s before an unreachable goal is tried again"},
+    replan_every: {:pos_number, default: 1.0, doc: "s between plans while moving"},
+    resolution:
+      {:pos_number,
+       default: nil, read_only: true, doc: "planning cell, m (the map's; at least 0.05)"},
+    margin:
+      {:non_neg_number, default: 0.08, read_only: true, doc: "m kept beyond the robot's radius"},
+    clearance:
+      {:non_neg_number,
+       default: nil, read_only: true, doc: "m from the walls the path moves up to (nil: off)"},
+    radius: {:pos_number, default: nil, read_only: true, doc: "robot radius, m (the RDF's)"},
+    reach: {:non_neg_number, default: 20.0, doc: "m into unknown space a goal is planned to"},
+    compare: {:boolean, default: false, read_only: true, doc: "time A* beside each plan"},
+    map_timeout: {:pos_number, default: 10.0, doc: "s an exploration waits for a map"},
+    save_to: {:string, default: nil, doc: "where an exploration's map is saved"},
+    explore_rounds: {:pos_integer, default: 2, doc: "rounds over the frontiers given up"}
   ]
+  @defaults ThinkingCap.Config.Schema.defaults(@params)
+
+  @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
+  @impl true
+  @spec params() :: keyword()
+  def params, do: @params
+
+  @doc """
+  A live change of a param read as the task runs (`tolerance`,
+  `stuck_after`, `max_replans`, `retry_after`, `replan_every`, `reach`,
+  `map_timeout`, `save_to`, `explore_rounds`): the next cycle uses it.
+  Those that made the planner (`margin`, `clearance`, `radius`,
+  `resolution`, `compare`) and the first `task` are read-only.
+  """
+  @impl true
+  def handle_param(key, value, state),
+    do: {[], %{state | params: Keyword.put(state.params, key, value)}}
 
   @impl true
   def init(params, context) do
@@ -993,13 +1029,19 @@ defmodule ThinkingCap.Planner.Monitor do
 
   ## Context
 
-  defp robot_radius(%{rdf: rdf}, params) when is_binary(rdf) do
-    case Description.load(rdf) do
-      {:ok, d} -> d.footprint.radius
-      {:error, message} -> raise ArgumentError, message
-    end
-    |> then(&Keyword.get(params, :radius, &1))
-  end
+  defp robot_radius(context, params) do
+    cond do
+      is_number(params[:radius]) ->
+        params[:radius]
 
-  defp robot_radius(_context, params), do: Keyword.get(params, :radius, 0.2)
+      is_binary(context[:rdf]) ->
+        case Description.load(context.rdf) do
+          {:ok, d} -> d.footprint.radius
+          {:error, message} -> raise ArgumentError, message
+        end
+
+      true ->
+        0.2
+    end
+  end
 end

@@ -11,14 +11,17 @@ defmodule ThinkingCap.Navigation.DeclaredParamsTest do
   @moduletag :tmp_dir
   @examples Path.expand("../../../../../priv/examples", __DIR__)
 
-  # the example set copied, with the localizer's params line replaced
-  defp adf_with(dir, params_line) do
+  @localizer "params: [initial: :dock, initial_sigma: {0.1, 0.05}]"
+  @planner "params: [task: {:patrol, [:lab_bench, :desk_a, :hall_east, :dock]}]"
+
+  # the example set copied, with a module's params line (the localizer's
+  # unless told) replaced
+  defp adf_with(dir, params_line, old \\ @localizer) do
     for f <- ~w(office_sim.adf office_robot.rdf office.wdf),
         do: File.cp!(Path.join(@examples, f), Path.join(dir, f))
 
     path = Path.join(dir, "office_sim.adf")
     source = File.read!(path)
-    old = "params: [initial: :dock, initial_sigma: {0.1, 0.05}]"
     assert source =~ old
     File.write!(path, String.replace(source, old, params_line))
     line = source |> String.split("\n") |> Enum.find_index(&(&1 =~ old)) |> Kernel.+(1)
@@ -53,6 +56,28 @@ defmodule ThinkingCap.Navigation.DeclaredParamsTest do
     assert error.line == line
     assert error.message =~ ":dok is not a waypoint, room, corridor or door of the WDF"
     assert error.message =~ "did you mean :dock?"
+  end
+
+  test "the planner's task and params are checked too", %{tmp_dir: dir} do
+    {path, line} =
+      adf_with(dir, "params: [task: {:patrol, [:lab_bench, :desk_c]}, tolerence: 0.3]", @planner)
+
+    assert {:error, errors} = Config.read(path)
+    assert Enum.all?(errors, &(&1.line == line))
+    messages = Enum.map_join(errors, "\n", & &1.message)
+    assert messages =~ "unknown key :tolerence"
+    assert messages =~ "did you mean :tolerance?"
+    assert messages =~ ":desk_c is not a waypoint, room, corridor or door of the WDF"
+  end
+
+  test "a task that is none of the planner's is refused", %{tmp_dir: dir} do
+    {path, line} = adf_with(dir, "params: [task: {:goto, :dock}, max_replans: -1]", @planner)
+    assert {:error, errors} = Config.read(path)
+    assert Enum.all?(errors, &(&1.line == line))
+    messages = Enum.map_join(errors, "\n", & &1.message)
+    assert messages =~ "task"
+    assert messages =~ "{:goto, :dock}"
+    assert messages =~ "max_replans"
   end
 
   test "a module's schema is there to print" do

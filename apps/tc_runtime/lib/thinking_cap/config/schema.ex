@@ -314,9 +314,25 @@ defmodule ThinkingCap.Config.Schema do
         {v, %{errors: []}} -> {v, st}
         _ -> nil
       end
-    end) ||
-      {value, expected(st, path, Enum.map_join(types, " or ", &type_name/1), value)}
+    end) || either_failed(types, value, path, st)
   end
+
+  # None took the value. A tagged tuple whose tag and size one of them
+  # takes (`{:patrol, [...]}` for `{:tuple, [{:one_of, [:patrol]}, _]}`)
+  # is said in that one's words: what is wrong inside it.
+  defp either_failed(types, value, path, st) do
+    case Enum.filter(types, &tagged_as?(&1, value, path, st)) do
+      [type] -> check(type, value, path, st)
+      _ -> {value, expected(st, path, Enum.map_join(types, " or ", &type_name/1), value)}
+    end
+  end
+
+  defp tagged_as?({:tuple, [tag | _] = types}, value, path, st)
+       when is_tuple(value) and tuple_size(value) == length(types) do
+    match?({_, %{errors: []}}, check(tag, elem(value, 0), path, %{st | errors: []}))
+  end
+
+  defp tagged_as?(_type, _value, _path, _st), do: false
 
   # a nested keyword default is expanded with its own fields' defaults
   defp default({:keyword, _} = type, default, path, st), do: check(type, default, path, st)
