@@ -49,6 +49,7 @@ export class BlackBoxPanel {
     this.liveBtn.addEventListener('click', () => this.closeTimeline());
     this.slider = el('input.timeline-slider', { type: 'range', min: 0, max: 0, step: 1, value: 0, disabled: true, 'aria-label': 'Instant shown' });
     this.slider.addEventListener('input', () => this._want(this._sliderAt()));
+    this.marks = el('div.timeline-marks', { 'aria-label': 'Incidents' });
     this.when = el('div.timeline-when.mono', null, '');
     this.badge = document.getElementById('replay-badge');
 
@@ -59,6 +60,7 @@ export class BlackBoxPanel {
       el('p.muted.timeline-help', null, 'A snapshot of the last minute: move the slider to see the map, the laser, the plan and the pose at that instant.'),
       el('div.timeline-buttons', null, this.openBtn, this.liveBtn),
       this.slider,
+      this.marks,
       this.when);
 
     store.on('select', () => {
@@ -142,7 +144,9 @@ export class BlackBoxPanel {
       const summary = await this.conn.request({ op: 'timeline', robot }, { timeout: 30000 });
       if (robot !== this.store.selected) return;
       const replay = new Replay(this.store, robot);
-      this.timeline = { robot, from: summary.from, to: summary.to, streams: summary.streams || {}, replay };
+      const incidents = summary.incidents || [];
+      this.timeline = { robot, from: summary.from, to: summary.to, streams: summary.streams || {}, incidents, replay };
+      this._renderMarks();
       this.frames = 0;
       this.slider.max = String(Math.max(0, summary.to - summary.from));
       this.slider.value = this.slider.max;
@@ -172,8 +176,32 @@ export class BlackBoxPanel {
     this.liveBtn.hidden = true;
     this.openBtn.textContent = 'Open the last minute';
     this.when.textContent = '';
+    setChildren(this.marks);
     if (this.badge) this.badge.hidden = true;
     this.map.setSource(null);
+  }
+
+  // a mark under the slider for each incident of the span (what made the
+  // black box dump); a click shows its instant
+  _renderMarks() {
+    const t = this.timeline;
+    const span = Math.max(1, t.to - t.from);
+    const marks = t.incidents
+      .filter((i) => i.at >= t.from && i.at <= t.to + 1)
+      .map((i) => {
+        const mark = el('button.timeline-mark', {
+          type: 'button',
+          title: `${i.reason} at ${fmtTime(i.at, false)}`,
+          'data-reason': i.reason,
+        });
+        mark.style.left = `${((100 * (i.at - t.from)) / span).toFixed(2)}%`;
+        mark.addEventListener('click', () => {
+          this.slider.value = String(i.at - t.from);
+          this._want(i.at);
+        });
+        return mark;
+      });
+    setChildren(this.marks, ...marks);
   }
 
   _sliderAt() {
@@ -234,6 +262,7 @@ export class BlackBoxPanel {
       map: t.replay.mapId,
       frames: this.frames,
       streams: { ...t.streams },
+      incidents: t.incidents.map((i) => ({ ...i })),
       keys: [...t.replay.items.keys()],
     };
   }

@@ -50,6 +50,9 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   and the ADF's `black_box:` keys but `enabled` (`ThinkingCap.Config.ADF`).
   """
   use GenServer
+
+  # the incidents kept for the timeline
+  @max_incidents 100
   require Logger
 
   alias ThinkingCap.BlackBox.Core.{DumpFile, Options, Ring, Triggers}
@@ -118,7 +121,9 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   What `snapshot/3` answers: the tuples held (those of the tags asked
   for), oldest first, each with its receipt time, and the span they
   cover, `from` (the oldest tuple held, of any tag) to `to` (the
-  moment of the snapshot); times in ns since the epoch. `dropped`
+  moment of the snapshot); times in ns since the epoch. `incidents`
+  are the triggers of the span (and the dump requests), oldest first,
+  at most #{@max_incidents}: when and why. `dropped`
   counts the tuples dropped for size or count since the start.
   """
   @type snapshot :: %{
@@ -126,6 +131,7 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
           from: integer(),
           to: integer(),
           entries: [{integer(), tuple()}],
+          incidents: [%{at: integer(), reason: String.t()}],
           dropped: non_neg_integer()
         }
 
@@ -159,6 +165,7 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
        compression: if(config.compression == :none, do: "", else: "#{config.compression}"),
        ring: Ring.new(config.max_bytes, config.max_messages),
        triggers: Triggers.new(config.robot, config.activities, config.misses),
+       incidents: [],
        pending: nil,
        writing: %{},
        dumps: 0
@@ -219,6 +226,7 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
       from: Ring.oldest(state.ring) || now,
       to: now,
       entries: Ring.select(state.ring, tags),
+      incidents: for({t, reason} <- Enum.reverse(state.incidents), do: %{at: t, reason: reason}),
       dropped: state.ring.dropped
     }
 
@@ -241,8 +249,14 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
 
   ## Dumps
 
-  # a trigger at `t`: a new dump, or the one waiting goes on
-  defp trigger(%{pending: nil} = state, reason, t, from) do
+  # a trigger at `t`: remembered as an incident (the timeline marks it),
+  # and a new dump, or the one waiting goes on
+  defp trigger(state, reason, t, from) do
+    incidents = Enum.take([{t, reason} | state.incidents], @max_incidents)
+    pend(%{state | incidents: incidents}, reason, t, from)
+  end
+
+  defp pend(%{pending: nil} = state, reason, t, from) do
     Logger.info("black box of #{inspect(state.robot)}: #{reason}; dumping")
 
     pending = %{
@@ -256,7 +270,7 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
     schedule(%{state | pending: pending})
   end
 
-  defp trigger(%{pending: p} = state, reason, t, from) do
+  defp pend(%{pending: p} = state, reason, t, from) do
     to = min(max(p.to, t + state.after_ns), p.at + state.keep_ns)
     reasons = if reason in p.reasons, do: p.reasons, else: p.reasons ++ [reason]
 
@@ -311,7 +325,8 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   defp age(state, now) do
     keep_from = now - state.keep_ns
     keep_from = if state.pending, do: min(keep_from, state.pending.from), else: keep_from
-    %{state | ring: Ring.forget_before(state.ring, keep_from)}
+    incidents = Enum.take_while(state.incidents, fn {t, _} -> t >= now - state.keep_ns end)
+    %{state | ring: Ring.forget_before(state.ring, keep_from), incidents: incidents}
   end
 
   @doc false

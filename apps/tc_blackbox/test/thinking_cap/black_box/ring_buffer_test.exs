@@ -178,6 +178,28 @@ defmodule ThinkingCap.BlackBox.RingBufferTest do
     assert BlackBox.snapshot(:nobody_keeps_this) == {:error, :not_keeping}
   end
 
+  test "a snapshot lists the incidents of its span, oldest first, when and why",
+       %{tmp_dir: dir} do
+    robot = robot()
+    keep(robot, dir, seconds: 1)
+    publish(robot, 1..3)
+    {estop, opts} = Tuples.keyed(Tuples.estop_engaged(robot, :test))
+    Blackboard.out(estop, opts)
+    assert await_dump(robot).reason == "estop"
+    {:ok, path} = BlackBox.dump(robot, :operator)
+    assert File.exists?(path)
+
+    assert {:ok, snap} = BlackBox.snapshot(robot)
+    assert [%{reason: "estop", at: t1}, %{reason: "operator", at: t2}] = snap.incidents
+    assert t1 <= t2 and t1 >= snap.from and t2 <= snap.to
+
+    # an incident older than what the buffer keeps is let go with it (a
+    # tuple published here reaches the buffer before this test's call)
+    Process.sleep(1_100)
+    publish(robot, 4..5)
+    assert {:ok, %{incidents: []}} = BlackBox.snapshot(robot)
+  end
+
   test "triggers that come while a dump waits join it", %{tmp_dir: dir} do
     robot = robot()
     pid = keep(robot, dir, after: 2)

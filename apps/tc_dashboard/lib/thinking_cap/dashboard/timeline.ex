@@ -45,14 +45,17 @@ defmodule ThinkingCap.Dashboard.Timeline do
 
   @typedoc """
   What `open/2` answers: the span (`from`, `to`, ms since the epoch), the
-  tuples held per stream (`"tag/robot"` => count), those the black box
-  dropped for its bounds since it started.
+  tuples held per stream (`"tag/robot"` => count), the incidents in the
+  span (what made the black box dump: `at`, ms since the epoch, and
+  `reason`, oldest first), those the black box dropped for its bounds
+  since it started.
   """
   @type summary :: %{
           robot: atom(),
           from: integer(),
           to: integer(),
           streams: %{String.t() => non_neg_integer()},
+          incidents: [%{at: integer(), reason: String.t()}],
           dropped: non_neg_integer()
         }
 
@@ -132,8 +135,17 @@ defmodule ThinkingCap.Dashboard.Timeline do
     seeds = seeds(robot, tags)
 
     case BlackBox.snapshot(robot, tags: tags) do
-      {:ok, snapshot} -> {:ok, %{scrub: Scrub.new(snapshot, seeds)}, @idle_ms}
-      {:error, :not_keeping} -> :ignore
+      {:ok, snapshot} ->
+        # an incident's ms rounded up: the frame at it holds the tuples
+        # that came with it, in the same millisecond
+        incidents =
+          for %{at: t, reason: reason} <- Map.get(snapshot, :incidents, []),
+              do: %{at: div(t + 999_999, 1_000_000), reason: reason}
+
+        {:ok, %{scrub: Scrub.new(snapshot, seeds), incidents: incidents}, @idle_ms}
+
+      {:error, :not_keeping} ->
+        :ignore
     end
   catch
     # the black box stopped during the call
@@ -147,6 +159,7 @@ defmodule ThinkingCap.Dashboard.Timeline do
       from: div(scrub.from, 1_000_000),
       to: div(scrub.to, 1_000_000),
       streams: Map.new(Scrub.counts(scrub), fn {tag, n} -> {key(tag, scrub.robot), n} end),
+      incidents: state.incidents,
       dropped: scrub.dropped
     }
 

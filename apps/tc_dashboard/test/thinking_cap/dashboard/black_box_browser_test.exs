@@ -66,7 +66,7 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
 
   # a drive down the hall, 0.6 m a step from x 4 to 10, a scan at each
   # step; the plan and the learned map come half-way
-  defp drive(robot) do
+  defp drive(robot, bump_at \\ nil) do
     for i <- 0..10 do
       x = 4.0 + 0.6 * i
 
@@ -84,6 +84,11 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
           stamp: i * 1.0
         })
       )
+
+      # a bumper pressed: an incident, the black box dumps
+      if i == bump_at do
+        Blackboard.out(Tuples.reading(:bumper, robot, %{pressed: true, stamp: i * 1.0}))
+      end
 
       if i == 5 do
         Blackboard.out(Tuples.map(robot, box_map()), key: {:map, robot})
@@ -168,6 +173,45 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     wait!(b, "!tc.replaying && !tc.timeline.open")
     assert_drawn_at(b, ctx.name, 11.5, 1.8)
     assert eval!(b, "document.getElementById('replay-badge').hidden") == true
+    assert page_errors(b) == []
+  end
+
+  test "an incident is marked under the slider; a click on it shows its instant", ctx do
+    b = ctx.browser
+    drive(ctx.robot, 3)
+    name = js(ctx.name)
+
+    open!(b, "#{ctx.info.url}&robot=#{ctx.name}")
+    wait!(b, "tc.connected && tc.selected === #{name} && tc.drawn[#{name}]")
+    :ok = Browser.click(b, ~s(.tabs button[data-tab="blackbox"]))
+    :ok = Browser.click(b, "#tab-blackbox button.timeline-open")
+    wait!(b, "tc.timeline.open && tc.timeline.frames > 0")
+
+    timeline = eval!(b, "tc.timeline")
+    assert [%{"reason" => "bumper", "at" => at}] = timeline["incidents"]
+    assert at > timeline["from"] and at < timeline["to"]
+    mark = ~s(#tab-blackbox .timeline-mark[data-reason="bumper"])
+    assert eval!(b, "document.querySelectorAll('#tab-blackbox .timeline-mark').length") == 1
+    assert eval!(b, "document.querySelector(#{js(mark)}).title") =~ "bumper"
+
+    # the mark sits under the slider where the incident is in the span
+    [left, width] =
+      eval!(
+        b,
+        "(m => [m.offsetLeft + m.offsetWidth / 2, m.parentElement.clientWidth])" <>
+          "(document.querySelector(#{js(mark)}))"
+      )
+
+    share = (at - timeline["from"]) / (timeline["to"] - timeline["from"])
+    assert abs(left / width - share) < 0.03
+
+    # a click shows the instant of the bump: the robot where it was then
+    :ok = Browser.click(b, mark)
+    wait!(b, "tc.timeline.at === #{at}")
+    {x, _, _} = pose_at(ctx.robot, at)
+    assert_drawn_at(b, ctx.name, x, 1.8)
+    # the bump came with the fourth pose (x = 5.8)
+    assert_in_delta x, 5.8, 0.01
     assert page_errors(b) == []
   end
 
