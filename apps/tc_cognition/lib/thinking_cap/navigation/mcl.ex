@@ -100,10 +100,19 @@ defmodule ThinkingCap.Navigation.MCL do
     * `initial` - the start pose `{x, y, θ}`, `{x, y}` or a waypoint's name
       (default `{0, 0, 0}`), `initial_sigma` - `{σ_xy, σ_θ}` (default
       `{0.2, 0.1}`);
-    * `particles` (default 500), `beams` (default 40), `seed` (default 1);
+    * `particles` (default 500), `beams` (default 40 on a given map; in
+      simultaneous localization and mapping, every beam), `seed` (default 1);
     * `sigma_hit`, `z_hit`, `z_rand` - the sensor model (defaults 0.1,
-      0.9, 0.1); `alphas` - the motion model (default from the RDF's
-      `odometry_error`: generous multiples of its slips);
+      0.9, 0.1; in simultaneous localization and mapping `sigma_hit` is
+      0.05); `alphas` - the motion model (default from the RDF's
+      `odometry_error`: generous multiples of its slips). A map being
+      built is drawn at this module's own estimates: a scan weighed
+      loosely fits, a few degrees off, the walls the scans before drew,
+      and the heading follows the odometry's drift (a wheel 0.2 % larger
+      than the other: 12 mrad a metre). Every beam, sharply weighed, holds
+      it to the walls: on a generated building the heading drifted 2
+      mrad a metre instead of 10, and the mean error over 900 s fell from
+      0.46 m to 0.3;
     * `update_distance` (0.05 m), `update_angle` (0.05 rad),
       `publish_period` (0.1 s), `map_every` (2 s);
     * `calibrate` - in simultaneous localization and mapping, calibrate
@@ -149,9 +158,12 @@ defmodule ThinkingCap.Navigation.MCL do
     initial_sigma:
       {@pair, default: {0.2, 0.1}, read_only: true, doc: "{σ_xy m, σ_θ rad} of the start pose"},
     particles: {{:int_range, 10, 100_000}, default: 500, read_only: true, doc: "particles"},
-    beams: {{:int_range, 1, 4096}, default: 40, doc: "beams of a scan weighed"},
+    beams:
+      {{:int_range, 1, 4096},
+       default: nil, doc: "beams of a scan weighed (40; in SLAM every beam)"},
     seed: {:integer, default: 1, read_only: true, doc: "random seed"},
-    sigma_hit: {:pos_number, default: 0.1, read_only: true, doc: "sensor model σ, m"},
+    sigma_hit:
+      {:pos_number, default: nil, read_only: true, doc: "sensor model σ, m (0.1; in SLAM 0.05)"},
     z_hit: {:probability, default: 0.9, read_only: true, doc: "sensor model: share of hits"},
     z_rand: {:probability, default: 0.1, read_only: true, doc: "sensor model: share of noise"},
     alphas:
@@ -217,6 +229,8 @@ defmodule ThinkingCap.Navigation.MCL do
     range_max = lasers |> Map.values() |> Enum.map(&elem(&1.range, 1)) |> Enum.max()
     odometry = Description.sensor_name(rdf, :odometry, :odom)
     initial = initial_pose(params[:initial], wdf)
+    map = wdf_map(wdf)
+    params = slam_defaults(params, map == nil)
 
     filter =
       ParticleFilter.new(initial, params[:initial_sigma],
@@ -230,7 +244,7 @@ defmodule ThinkingCap.Navigation.MCL do
       )
 
     filter =
-      if map = wdf_map(wdf),
+      if map,
         do: ParticleFilter.set_map(filter, map, params[:seed], strict: true),
         else: filter
 
@@ -281,6 +295,16 @@ defmodule ThinkingCap.Navigation.MCL do
           do: {:subscribe, template}
 
     {subscriptions, resume(state, Map.get(context, :handoff))}
+  end
+
+  # beams and sigma_hit not given: every beam, weighed sharply, where the
+  # map is being built (see the moduledoc), else 40 and 0.1
+  defp slam_defaults(params, slam) do
+    {beams, sigma} = if slam, do: {4096, 0.05}, else: {40, 0.1}
+
+    params
+    |> Keyword.update(:beams, beams, &(&1 || beams))
+    |> Keyword.update(:sigma_hit, sigma, &(&1 || sigma))
   end
 
   @doc """

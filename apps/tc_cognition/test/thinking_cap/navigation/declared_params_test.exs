@@ -82,8 +82,10 @@ defmodule ThinkingCap.Navigation.DeclaredParamsTest do
 
   test "a module's schema is there to print" do
     fields = ADF.declared_params(ThinkingCap.Navigation.MCL)
+    assert {:int_range, 10, 100_000} = elem(fields[:particles], 0)
+    assert elem(fields[:particles], 1)[:default] == 500
     assert {:pos_number, opts} = fields[:sigma_hit]
-    assert opts[:default] == 0.1
+    assert opts[:read_only] == true
     assert ADF.declared_params(String) == nil
   end
 end

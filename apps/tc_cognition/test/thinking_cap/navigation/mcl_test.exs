@@ -250,6 +250,22 @@ defmodule ThinkingCap.Navigation.MCLTest do
     assert pose.status == :tracking
   end
 
+  test "a map being built is weighed with every beam, sharply; a given map with 40", %{
+    tmp_dir: dir
+  } do
+    empty = T.wdf!(dir, [])
+    {_, slam} = MCL.init([], %{name: :localization, robot: :r, rdf: @rdf, wdf: empty})
+    assert slam.params[:beams] == 4096 and elem(slam.filter.model, 0) == 0.05
+
+    {_, given} = MCL.init([], %{name: :localization, robot: :r, rdf: @rdf, wdf: @office})
+    assert given.params[:beams] == 40 and elem(given.filter.model, 0) == 0.1
+
+    # what the ADF says stands
+    opts = [beams: 60, sigma_hit: 0.2]
+    {_, own} = MCL.init(opts, %{name: :localization, robot: :r, rdf: @rdf, wdf: empty})
+    assert own.params[:beams] == 60 and elem(own.filter.model, 0) == 0.2
+  end
+
   test "with no map it dead-reckons, and takes up a map builder's map when one comes", %{
     tmp_dir: dir
   } do
