@@ -19,8 +19,14 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   blocked state differs. The next `plan/3` to the same goal repairs the
   last search: D* Lite finds those cells itself, in C, by comparing the
   new cost map with its own copy (`DStarLite.update_grid/3`), and
-  repairs the path from there. A new frame (the map grew), a new goal,
-  or more than `max_changes` changed cells start a new search.
+  repairs the path from there. A new frame (the map grew) or a new goal
+  starts a new search; so, to the same goal, do more than `max_changes`
+  changed cells and a start that jumped more than `max_jump` metres (a
+  localizer that found the robot elsewhere): D* Lite's search grows from
+  the goal, and where the robot now is it has not been, so its repair
+  there costs more than a new search (measured on a relocalization in
+  `mix tc.bench nav_unknown`: 283,439 vertices repaired where A* from
+  scratch expanded 79,629).
 
   **Keeping clear.** The planner also keeps the distance field of the
   obstacles (before they are grown): `clearance/2` and `in_sight?/3` read
@@ -31,7 +37,8 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   robot's radius.
 
   Every `plan/3` records what it did in `last`: `%{kind: :initial |
-  :repair, us: microseconds, expanded: vertices, changed: cells}` (`us`
+  :repair | :restart, us: microseconds, expanded: vertices, changed:
+  cells}` (`:restart` a new search to the goal of the last one; `us`
   covers the robot's move, finding and repairing the changed cells, and
   the search); with `compare: true` also `astar_us`, the time A* takes
   from scratch on the same grid (for benchmarks: it costs that much
@@ -46,6 +53,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
             threshold: 50,
             resolution: 0.05,
             max_changes: 20_000,
+            max_jump: 1.5,
             compare: false,
             clearance: nil,
             grid: nil,
@@ -62,6 +70,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           threshold: 0..100,
           resolution: float(),
           max_changes: pos_integer(),
+          max_jump: float(),
           compare: boolean(),
           clearance: float() | nil,
           grid: Grid.t() | nil,
@@ -82,13 +91,21 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   @doc """
   A planner without a map. Options: `radius`, `threshold`, `resolution`,
-  `max_changes`, `compare`, `clearance`.
+  `max_changes`, `max_jump` (m, default 1.5), `compare`, `clearance`.
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
     struct!(
       __MODULE__,
-      Keyword.take(opts, [:radius, :threshold, :resolution, :max_changes, :compare, :clearance])
+      Keyword.take(opts, [
+        :radius,
+        :threshold,
+        :resolution,
+        :max_changes,
+        :max_jump,
+        :compare,
+        :clearance
+      ])
     )
   end
 
@@ -306,20 +323,30 @@ defmodule ThinkingCap.Navigation.PathPlanner do
          target
        )
        when pending != :reset do
-    search = DStarLite.move_start(search, start)
-
-    if pending == :none do
-      {:repair, search, 0}
+    if jumped?(planner, search.start, start) do
+      restart(planner, start, target)
     else
-      case DStarLite.update_grid(search, planner.grid, planner.max_changes) do
-        {:ok, search, changed} -> {:repair, search, changed}
-        {:too_many, _changed, _search} -> prepare(%{planner | search: nil}, start, target)
+      search = DStarLite.move_start(search, start)
+
+      if pending == :none do
+        {:repair, search, 0}
+      else
+        case DStarLite.update_grid(search, planner.grid, planner.max_changes) do
+          {:ok, search, changed} -> {:repair, search, changed}
+          {:too_many, _changed, _search} -> restart(planner, start, target)
+        end
       end
     end
   end
 
   defp prepare(planner, start, target),
     do: {:initial, DStarLite.new(planner.grid, start, target), 0}
+
+  defp restart(planner, start, target),
+    do: {:restart, DStarLite.new(planner.grid, start, target), 0}
+
+  defp jumped?(planner, {c0, r0}, {c1, r1}),
+    do: max(abs(c1 - c0), abs(r1 - r0)) * planner.grid.resolution > planner.max_jump
 
   defp astar_us(grid, start, target) do
     {us, _} = :timer.tc(fn -> AStar.plan(grid, start, target) end)

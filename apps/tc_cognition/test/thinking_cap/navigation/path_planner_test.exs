@@ -137,12 +137,34 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     {:ok, _path, few} = PathPlanner.plan(few, {1.0, 3.0}, {9.0, 3.0})
     few = PathPlanner.set_map(few, room(2, [{4.5, 2.0, 5.5, 4.5}]))
     assert {:ok, ^path, few} = PathPlanner.plan(few, {1.5, 3.0}, {9.0, 3.0})
-    assert few.last.kind == :initial
+    assert few.last.kind == :restart
 
     # the box gone again: repaired back
     clear = PathPlanner.set_map(boxed, room(3))
     assert {:ok, _path, clear} = PathPlanner.plan(clear, {1.5, 3.0}, {9.0, 3.0})
     assert clear.last.kind == :repair and clear.last.changed == differ
+  end
+
+  test "a start that jumped (a robot found elsewhere) is searched anew, not repaired" do
+    planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+
+    # a step on: repaired
+    {:ok, _path, stepped} = PathPlanner.plan(planner, {1.5, 3.0}, {9.0, 3.0})
+    assert stepped.last.kind == :repair
+
+    # 2 m further in one go (more than max_jump, 1.5 m): a new search, the
+    # path as a search from scratch finds it
+    assert {:ok, path, jumped} = PathPlanner.plan(stepped, {3.5, 1.0}, {9.0, 3.0})
+    assert jumped.last.kind == :restart
+    fresh = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+    assert {:ok, ^path, _} = PathPlanner.plan(fresh, {3.5, 1.0}, {9.0, 3.0})
+
+    # allowed a longer jump, the same move is repaired
+    far = PathPlanner.new(radius: 0.3, max_jump: 3.0) |> PathPlanner.set_map(room(1))
+    {:ok, _path, far} = PathPlanner.plan(far, {1.5, 3.0}, {9.0, 3.0})
+    assert {:ok, _path, far} = PathPlanner.plan(far, {3.5, 1.0}, {9.0, 3.0})
+    assert far.last.kind == :repair
   end
 
   defp count_differences(a, b),
