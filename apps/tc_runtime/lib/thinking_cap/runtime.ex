@@ -81,7 +81,7 @@ defmodule ThinkingCap.Runtime do
   @spec start(ADF.t() | Path.t()) :: {:ok, [module_info()]} | {:error, [{atom(), term()}]}
   def start(%ADF{} = adf) do
     # a recorder starts first: it records the modules from their init on
-    :ok = ThinkingCap.Runtime.Starting.notify(adf.robot, announcement(adf))
+    :ok = prepare(adf, true)
     results = for spec <- adf.modules, do: {spec.name, start_module(adf, spec)}
 
     case for({name, {:error, reason}} <- results, do: {name, reason}) do
@@ -452,6 +452,34 @@ defmodule ThinkingCap.Runtime do
   def timing, do: ThinkingCap.Cycle.timing()
 
   defp info(pid), do: GenServer.call(pid, :info)
+
+  @doc false
+  # Before a node starts the first of `adf`'s modules: the services that
+  # must be ready (the recorder) are told and waited for, on the node that
+  # announces the ADF (its dashboard's); on the others, with recording
+  # on, until the robot's recorder is attached, wherever it runs (at most
+  # 5 s): their modules are traced from their init too.
+  @spec prepare(ADF.t(), boolean()) :: :ok
+  def prepare(%ADF{} = adf, announcing?) do
+    cond do
+      announcing? ->
+        ThinkingCap.Runtime.Starting.notify(adf.robot, announcement(adf))
+
+      adf.record[:enabled] == true ->
+        await_sink(adf.robot, System.monotonic_time(:millisecond) + 5_000)
+
+      true ->
+        :ok
+    end
+  end
+
+  defp await_sink(robot, deadline) do
+    cond do
+      ThinkingCap.Runtime.Trace.sinks(robot) != [] -> :ok
+      System.monotonic_time(:millisecond) >= deadline -> :ok
+      true -> Process.sleep(20) && await_sink(robot, deadline)
+    end
+  end
 
   @doc false
   # What was started, for the services that follow an ADF (the dashboard

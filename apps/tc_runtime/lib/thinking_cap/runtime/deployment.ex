@@ -129,6 +129,7 @@ defmodule ThinkingCap.Runtime.Deployment do
         by_node: Map.new(adf.nodes, fn {logical, node} -> {node, logical} end),
         settled: map_size(adf.nodes) == 0,
         announced: false,
+        prepared: false,
         reported: nil,
         # the latest handoff of each module, from the node running it
         handoffs: %{}
@@ -187,6 +188,7 @@ defmodule ThinkingCap.Runtime.Deployment do
 
     state =
       if settled do
+        state = prepare(state)
         for spec <- state.adf.modules, do: place(state, spec, up)
         announce(state)
       else
@@ -194,6 +196,15 @@ defmodule ThinkingCap.Runtime.Deployment do
       end
 
     report(state, up)
+  end
+
+  # Once, before this node starts a module: the recorder ready, so that
+  # the modules are traced from their init (Runtime.prepare/2).
+  defp prepare(%{prepared: true} = state), do: state
+
+  defp prepare(state) do
+    :ok = Runtime.prepare(state.adf, dashboard_node(state.adf) == node())
+    %{state | prepared: true}
   end
 
   # The ADF is announced (the dashboard follows it) by its dashboard's node.

@@ -173,4 +173,39 @@ defmodule ThinkingCap.Runtime.TraceTest do
     assert Runtime.whereis({robot, name}) == pid
     Process.unlink(listener)
   end
+
+  test "a deployment waits for them too before this node starts a module", %{tmp_dir: dir} do
+    name = :"dep_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+
+    test = self()
+
+    listener =
+      spawn_link(fn ->
+        :ok = Starting.listen()
+        send(test, :listening)
+
+        receive do
+          {:tc_adf_starting, _ref, _from, ^robot, _announced} = starting ->
+            Process.sleep(200)
+            send(test, {:heard, Runtime.whereis({robot, name})})
+            Starting.ready(starting)
+        end
+      end)
+
+    assert_receive :listening
+    {:ok, deployment} = Runtime.deploy(adf)
+
+    on_exit(fn ->
+      Supervisor.terminate_child(ThinkingCap.Runtime.Supervisor, ThinkingCap.Runtime.Deployment)
+      Supervisor.delete_child(ThinkingCap.Runtime.Supervisor, ThinkingCap.Runtime.Deployment)
+    end)
+
+    assert is_pid(deployment)
+    assert_receive {:heard, nil}, 5_000
+    ThinkingCap.Testing.Cluster.wait_until(fn -> Runtime.whereis({robot, name}) != nil end)
+    Process.unlink(listener)
+  end
 end
