@@ -152,10 +152,47 @@ static void put64(uint8_t *p, uint64_t v) { for (int i = 0; i < 8; i++) p[i] = v
 static uint16_t get16(const uint8_t *p) { return (uint16_t)(p[0] << 8 | p[1]); }
 static uint64_t get64(const uint8_t *p) { uint64_t v = 0; for (int i = 0; i < 8; i++) v = v << 8 | p[i]; return v; }
 
-/* One frame, written whole under out_lock. */
+/* Frames a thread sends while it holds `lock` wait in its outbox and go
+ * out when it lets the lock go (unlock_and_send): a write to the BEAM's
+ * pipe may block while the BEAM is busy, and under the lock it held the
+ * other thread back (the timing thread's next release). */
+#define OUTBOX_BYTES 65536
+static __thread uint8_t outbox[OUTBOX_BYTES];
+static __thread uint32_t outbox_len;
+static __thread int deferring;
+
+static void flush_outbox(void) {
+    if (outbox_len == 0) return;
+    pthread_mutex_lock(&out_lock);
+    tc_write_all(STDOUT_FILENO, outbox, outbox_len);
+    pthread_mutex_unlock(&out_lock);
+    outbox_len = 0;
+}
+
+/* `lock`, with what is sent meanwhile held in the outbox. */
+static void lock_deferring(void) {
+    pthread_mutex_lock(&lock);
+    deferring = 1;
+}
+
+static void unlock_and_send(void) {
+    deferring = 0;
+    pthread_mutex_unlock(&lock);
+    flush_outbox();
+}
+
+/* One frame, written whole under out_lock (after the outbox's, in order). */
 static void send_frame(const uint8_t *payload, uint32_t len) {
     uint8_t buf[MAX_FRAME + 4];
     if (len > MAX_FRAME) return;
+    if (deferring) {
+        /* a full outbox goes out now, under the lock: rare, and in order */
+        if (outbox_len + len + 4 > OUTBOX_BYTES) flush_outbox();
+        tc_put32(outbox + outbox_len, len);
+        memcpy(outbox + outbox_len + 4, payload, len);
+        outbox_len += len + 4;
+        return;
+    }
     tc_put32(buf, len);
     memcpy(buf + 4, payload, len);
     pthread_mutex_lock(&out_lock);
@@ -393,7 +430,7 @@ static void *timing_loop(void *arg) {
         /* woken early (an activity was added or removed): plan again */
         if (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) continue;
 
-        pthread_mutex_lock(&lock);
+        lock_deferring();
         uint64_t now = now_ns();
         /* deadlines first: a missed result gets its fallback in its own cycle */
         for (int i = 0; i < MAX_ACTIVITIES; i++) {
@@ -432,7 +469,7 @@ static void *timing_loop(void *arg) {
             send_frame(buf, 23);
         }
         update_boost();
-        pthread_mutex_unlock(&lock);
+        unlock_and_send();
     }
     return NULL;
 }
@@ -480,10 +517,10 @@ static void attach_wire(const uint8_t *p, uint32_t len) {
         send_wire_status(id, 0, text);
         return;
     }
-    pthread_mutex_lock(&lock);
+    lock_deferring();
     activity *a = find(id);
     if (!a) {
-        pthread_mutex_unlock(&lock);
+        unlock_and_send();
         close(fd);
         snprintf(text, sizeof text, "%s: no activity %u to attach it to", path, id);
         send_wire_status(id, 0, text);
@@ -503,13 +540,13 @@ static void attach_wire(const uint8_t *p, uint32_t len) {
     w->short_writes = w->dropped = 0;
     snprintf(text, sizeof text, "attached %s", path);
     send_wire_status(id, 1, text);
-    pthread_mutex_unlock(&lock);
+    unlock_and_send();
 }
 
 static void handle_frame(const uint8_t *p, uint32_t len) {
     if (len < 1) { send_error("empty frame"); return; }
     if (p[0] == 'W') { attach_wire(p, len); return; }
-    pthread_mutex_lock(&lock);
+    lock_deferring();
     switch (p[0]) {
     case 'A': {
         if (len < 20 || len - 20 > MAX_COMMAND) { send_error("bad add frame"); break; }
@@ -579,7 +616,7 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
     }
     /* a result in, an activity removed or added again: the boost follows */
     update_boost();
-    pthread_mutex_unlock(&lock);
+    unlock_and_send();
 }
 
 int main(void) {
