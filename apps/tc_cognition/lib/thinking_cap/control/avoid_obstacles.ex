@@ -23,7 +23,11 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   "turn left or right" would defuzzify (centroid) to their average,
   straight into the obstacle; and once the robot turns left the obstacle
   moves to its right, so the choice holds (no dithering in a symmetric
-  case).
+  case). **A turn under way holds** while the way ahead is not free: with
+  the last command turning at least `keep_turn` (0.5 rad/s), that side is
+  kept. Walls all round (the end of a dead-end alley) do not move to one
+  side as the robot turns; choosing afresh each cycle, an exploring robot
+  turned left and right in a 0.7 m alley for 340 s, never round.
 
   Context: an obstacle is near in the direction of travel, the largest
   over the LPS's obstacle points ahead (x > 0) of
@@ -34,13 +38,13 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   Params: `stop: 0.15`, `slow: 0.45`, `near: 0.5` (m of clearance; tuned on
   `mix tc.bench nav`: wider margins keep a robot out of the gaps its
   planned path goes through),
-  `margin: 0.05` (m), `tie: 0.05` (m).
+  `margin: 0.05` (m), `tie: 0.05` (m), `keep_turn: 0.5` (rad/s).
   """
   use ThinkingCap.Control.Behaviour
 
   alias ThinkingCap.Control.{Fuzzy, Geometry}
 
-  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.05, tie: 0.05
+  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.05, tie: 0.05, keep_turn: 0.5
 
   @type t :: %__MODULE__{}
 
@@ -82,13 +86,30 @@ defmodule ThinkingCap.Control.AvoidObstacles do
     Behaviour.control(rules(side), crisp, variables(p, lps.range), inputs)
   end
 
-  @doc "The side to turn to when something is in the way (see the moduledoc for ties)."
+  @doc """
+  The side to turn to when something is in the way (see the moduledoc for
+  ties and for a turn under way).
+  """
   @spec freer_side(Behaviour.inputs(), t()) :: :left | :right
-  def freer_side(%{lps: lps, radius: r}, p) do
-    left = Geometry.clearance(lps, 0.0, 1.22, r)
-    right = Geometry.clearance(lps, -1.22, 0.0, r)
-    if right > left + p.tie, do: :right, else: :left
+  def freer_side(%{lps: lps, radius: r} = inputs, p) do
+    case turning(inputs, p) do
+      nil ->
+        left = Geometry.clearance(lps, 0.0, 1.22, r)
+        right = Geometry.clearance(lps, -1.22, 0.0, r)
+        if right > left + p.tie, do: :right, else: :left
+
+      side ->
+        side
+    end
   end
+
+  # the side of a turn under way while the way ahead is not free
+  defp turning(%{last: {_v, w}, lps: lps, radius: r}, p) when abs(w) >= p.keep_turn do
+    if Geometry.ahead(lps, r, p.margin) < p.slow,
+      do: if(w > 0, do: :left, else: :right)
+  end
+
+  defp turning(_inputs, _p), do: nil
 
   @doc "The rule base, turning to `side` when something is in the way."
   @spec rules(:left | :right) :: Fuzzy.rule_base()

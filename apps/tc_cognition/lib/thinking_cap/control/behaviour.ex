@@ -61,7 +61,9 @@ defmodule ThinkingCap.Control.Behaviour do
     * `limits` - `max_speed` (m/s) and `max_turn_rate` (rad/s);
     * `radius` - the robot's radius (m);
     * `weights` (optional) - plan-given weights of behaviours by name,
-      in [0, 1] (`ThinkingCap.Control.Blend`).
+      in [0, 1] (`ThinkingCap.Control.Blend`);
+    * `last` (optional) - the command `{v, w}` the blend gave last cycle
+      (what the robot is doing: a turn under way, say).
   """
   @type inputs :: %{
           required(:lps) => LPS.t(),
@@ -71,7 +73,8 @@ defmodule ThinkingCap.Control.Behaviour do
           required(:door) => door() | nil,
           required(:limits) => %{max_speed: float(), max_turn_rate: float()},
           required(:radius) => float(),
-          optional(:weights) => %{atom() => float()}
+          optional(:weights) => %{atom() => float()},
+          optional(:last) => {float(), float()}
         }
 
   @typedoc "Fuzzy sets over `:v` and `:w`; a missing one has no opinion."

@@ -156,7 +156,8 @@ defmodule ThinkingCap.Control.Blender do
       stop_states: Keyword.get(params, :stop_states, @stop_states),
       lps: nil,
       pose: nil,
-      plan: nil
+      plan: nil,
+      last: {0.0, 0.0}
     }
 
     subscribe = [
@@ -251,10 +252,13 @@ defmodule ThinkingCap.Control.Blender do
           {@stop, Map.new(Blend.names(state.blend), &{&1, 0.0})}
 
         inputs ->
+          inputs = Map.put(inputs, :last, state.last)
           %{command: {v, w}, activations: activations} = Blend.run(state.blend, inputs)
           {v, w} = Steering.feasible({v, w}, state.curvature, state.lps, radius: state.radius)
           {{:velocity, v, w}, activations}
       end
+
+    state = %{state | last: last(command)}
 
     robot = state.robot
 
@@ -265,6 +269,9 @@ defmodule ThinkingCap.Control.Blender do
 
     {actions, state}
   end
+
+  defp last({:velocity, v, w}), do: {v * 1.0, w * 1.0}
+  defp last(_stop), do: {0.0, 0.0}
 
   @doc """
   The behaviours' inputs from the latest LPS, pose and plan, or `nil` when

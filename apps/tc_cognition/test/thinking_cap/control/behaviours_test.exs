@@ -8,6 +8,7 @@ defmodule ThinkingCap.Control.BehavioursTest do
     FollowPath,
     FollowWall,
     Fuzzy,
+    Geometry,
     GoToPoint
   }
 
@@ -135,6 +136,47 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert AvoidObstacles.freer_side(scene, AvoidObstacles.init()) == :right
       assert {_, _, w} = run(AvoidObstacles, [], scene)
       assert w < -0.3 * @wmax
+    end
+
+    test "at the end of a dead-end alley a turn under way holds until the way is free" do
+      # an alley 0.7 m wide (walls at y = ±0.35 in the world), its end at
+      # x = 0.4; the robot at the origin turns in place, heading th
+      walls = line({-2.0, 0.35}, {0.4, 0.35}) ++ line({-2.0, -0.35}, {0.4, -0.35})
+      walls = walls ++ line({0.4, -0.35}, {0.4, 0.35})
+
+      seen = fn th ->
+        for {x, y} <- walls,
+            do: {x * :math.cos(th) + y * :math.sin(th), -x * :math.sin(th) + y * :math.cos(th)}
+      end
+
+      avoid = AvoidObstacles.init()
+
+      # turning right, blocked: it keeps turning right, heading by heading,
+      # until it faces back down the alley (the way ahead free)
+      sides =
+        for step <- 0..12 do
+          th = -step * @pi / 12
+          scene = inputs(seen.(th), last: {0.0, -1.5})
+          free? = Geometry.ahead(scene.lps, 0.2, avoid.margin) >= avoid.slow
+          {free?, AvoidObstacles.freer_side(scene, avoid)}
+        end
+
+      {blocked, _free} = Enum.split_while(sides, fn {free?, _} -> not free? end)
+      assert length(blocked) >= 6
+      assert Enum.all?(blocked, fn {_, side} -> side == :right end)
+
+      # chosen afresh (no turn under way) the same headings do not agree
+      # on a side: turning in place, the robot would go back and forth
+      afresh =
+        for step <- 0..(length(blocked) - 1),
+            do: AvoidObstacles.freer_side(inputs(seen.(-step * @pi / 12)), avoid)
+
+      assert Enum.uniq(afresh) |> length() == 2
+
+      # a slow turn, or a free way ahead, is chosen afresh
+      assert AvoidObstacles.freer_side(inputs(seen.(0.0), last: {0.0, -0.2}), avoid) == :left
+      open = inputs(line({1.5, -0.3}, {1.5, 0.3}), last: {0.2, -1.5})
+      assert AvoidObstacles.freer_side(open, avoid) == :left
     end
 
     test "obstacles behind or well to the side are no concern" do

@@ -33,9 +33,19 @@ defmodule ThinkingCap.Control.BlenderTest do
     end)
   end
 
-  # the drive command and the activations written by one cycle
+  # the drive command and the activations written by one cycle (which
+  # remembers the command it gave, and nothing else)
   defp cycle(state) do
-    {actions, ^state} = Blender.handle_cycle(@release, state)
+    {actions, after_cycle} = Blender.handle_cycle(@release, state)
+    assert Map.delete(after_cycle, :last) == Map.delete(state, :last)
+
+    case actions do
+      [{:out, {{:drive, :r1, %{command: {:velocity, v, w}}}, _}} | _] ->
+        assert after_cycle.last == {v * 1.0, w * 1.0}
+
+      _ ->
+        assert after_cycle.last == {0.0, 0.0}
+    end
 
     assert [
              out: {{:drive, :r1, %{command: command}}, [key: {:drive, :r1}]},
