@@ -306,7 +306,7 @@ defmodule ThinkingCap.Bench.Record do
   end
 
   defp snapshot(sim, recorders, rec_dir) do
-    status = Sim.status(sim)
+    status = GenServer.call(sim, :status, 120_000)
     infos = for pid <- recorders, pid, do: GenServer.call(pid, :info, 120_000)
 
     bytes =
@@ -317,7 +317,7 @@ defmodule ThinkingCap.Bench.Record do
     %{
       sim_time: status.time,
       lagged: Map.get(status, :lagged, 0),
-      timing: Cycle.timing(),
+      timing: GenServer.call(Cycle, :timing, 120_000),
       vm_cpu_ms: vm_cpu_ms(),
       tuples: Enum.sum(Enum.map(infos, &(&1.messages - &1.callbacks))),
       messages: Enum.sum(Enum.map(infos, & &1.messages)),
