@@ -88,7 +88,7 @@
 
 #include "tc_port.h"
 
-#define MAX_ACTIVITIES 64
+#define MAX_ACTIVITIES 256 /* a node hosting a simulated fleet: 2 per robot */
 #define MAX_COMMAND 4096
 #define MAX_WIRE 4096
 #define MAX_PATH 1024

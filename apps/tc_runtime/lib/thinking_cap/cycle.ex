@@ -105,6 +105,8 @@ defmodule ThinkingCap.Cycle do
 
   # the worker's limit on a wire's bytes
   @max_wire Wires.max_bytes()
+  # the timing worker's table (MAX_ACTIVITIES in c_src/tc_timing.c)
+  @max_activities 256
 
   @doc "Starts the cycle and its timing worker (registered as `#{inspect(__MODULE__)}`)."
   @spec start_link(keyword()) :: GenServer.on_start()
@@ -118,8 +120,10 @@ defmodule ThinkingCap.Cycle do
 
   Adding a name again takes the activity over (a restarted module) unless
   another live process owns it: that is refused with the owner's pid.
+  A node holds at most #{@max_activities} activities; more are refused.
   """
-  @spec add(name(), keyword()) :: :ok | {:error, {:name_taken, pid()} | :stopping}
+  @spec add(name(), keyword()) ::
+          :ok | {:error, {:name_taken, pid()} | {:too_many_activities, pos_integer()} | :stopping}
   def add(name, opts) do
     # checked here, in the caller: bad options raise there, never in the
     # server that holds every activity's releases
@@ -291,7 +295,13 @@ defmodule ThinkingCap.Cycle do
         {:reply, {:error, {:name_taken, other}}, state}
 
       _none_or_same ->
-        {:reply, :ok, Activities.add(state, name, owner, period, deadline, priority, fallback)}
+        if map_size(state.activities) >= @max_activities and
+             Activities.id_of(state, name) == :error,
+           # the worker's table is full: it would refuse the activity
+           do: {:reply, {:error, {:too_many_activities, @max_activities}}, state},
+           else:
+             {:reply, :ok,
+              Activities.add(state, name, owner, period, deadline, priority, fallback)}
     end
   end
 

@@ -78,6 +78,10 @@ defmodule ThinkingCap.Sim do
       `ThinkingCap.Sim.World` (required);
     * `:mode` - `:realtime` (default) or `:fast`;
     * `:step` - seconds per step (default 0.01);
+    * `:speed` - in `:realtime` mode, simulated seconds per wall second
+      (default 1.0): a step is released every `step / speed` seconds, so
+      a machine that cannot keep a large fleet in real time can run it
+      slower (the ADF's periods must then be scaled by the same factor);
     * `:seed` - integer (default 1);
     * `:running` - start stepping at once (default `true`; `:fast` mode
       with `running: false` waits for `run_for/2` or `step/2`);
@@ -209,7 +213,7 @@ defmodule ThinkingCap.Sim do
   def world(sim), do: GenServer.call(sim, :world)
 
   @doc """
-  The clock (`time`, `steps`, `step`, `mode`, `running`, `lagged`
+  The clock (`time`, `steps`, `step`, `speed`, `mode`, `running`, `lagged`
   releases in real-time mode), `robots`, `walkers`, `shards`, `rays` cast (primary
   rays: cone rays and beams, bounces not counted) and `blocked`
   robot-steps (moves refused because of a contact).

@@ -520,12 +520,24 @@ defmodule ThinkingCap.SimTest do
       assert %{mode: :realtime} = Sim.status(sim)
     end
 
+    test "real-time mode at a speed releases a step every step / speed seconds",
+         %{tmp_dir: dir} do
+      sim = sim(T.world!(dir, walls: T.box(10, 10)), mode: :realtime, running: true, speed: 0.25)
+      assert %{speed: 0.25, step: 0.01} = Sim.status(sim)
+      Process.sleep(400)
+      # at most 400 ms / 40 ms = 10 steps (and one released at the start)
+      assert Sim.time(sim) > 0
+      assert Sim.time(sim) <= 0.11 + 1.0e-9
+    end
+
     test "bad options are refused with the reason" do
       Process.flag(:trap_exit, true)
       assert {:error, message} = Sim.start_link(world: "/nonexistent.wdf")
       assert message =~ "/nonexistent.wdf"
       assert {:error, message} = Sim.start_link(world: "/x.wdf", mode: :slow)
       assert message =~ "mode"
+      assert {:error, message} = Sim.start_link(world: "/x.wdf", speed: 0)
+      assert message =~ "speed"
     end
   end
 end

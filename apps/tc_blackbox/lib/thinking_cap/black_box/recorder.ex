@@ -33,7 +33,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   ## Channels
 
     * `/ID/TAG`, JSON on a Foxglove schema (`ThinkingCap.BlackBox.Foxglove`),
-      for Foxglove and the MCAP tools;
+      for Foxglove and the MCAP tools; the large tuples that come many a
+      second (the LPS, MCL's particles, the topology, the map's
+      segments) at most once a second each, their whole terms (below)
+      every time;
     * `/etf/ID/TAG`, the tuple whole, in Erlang's external term format
       (`:erlang.term_to_binary/1`; message encoding `etf`, no schema): the
       exact terms the modules received, atoms, tuples and floats as they
@@ -65,7 +68,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
   and two record headers; per traced callback, a small term. The file
-  gets one write per chunk. The subscription drops tuples when the
+  gets one write per chunk. The process starts with heaps sized for an
+  open chunk, so that it is not collected every few tuples. The subscription drops tuples when the
   recorder falls `max_queue` (1000) behind; `info/1` counts them.
   """
   use GenServer
@@ -73,6 +77,12 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   # a module's traced callbacks written in one message
   @batch 64
+
+  # The open chunk (up to `chunk_bytes` of records, most of them
+  # binaries off the heap) lives in the process: heaps sized for it
+  # spare the recorder a garbage collection every few tuples (words:
+  # 256 KB of heap, 2 MB of binaries)
+  @spawn_opt [min_heap_size: 32_768, min_bin_vheap_size: 262_144]
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
   alias ThinkingCap.Blackboard
@@ -129,7 +139,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
     case validate(opts) do
       {:ok, config} ->
-        GenServer.start_link(__MODULE__, config, if(name, do: [name: name], else: []))
+        opts = [spawn_opt: @spawn_opt] ++ if(name, do: [name: name], else: [])
+        GenServer.start_link(__MODULE__, config, opts)
 
       {:error, message} ->
         raise ArgumentError, message

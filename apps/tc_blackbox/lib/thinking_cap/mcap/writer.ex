@@ -39,12 +39,13 @@ defmodule ThinkingCap.MCAP.Writer do
     next_schema: 1,
     next_channel: 0,
     # the open chunk: its records (reversed), their size, its time span,
-    # and per channel the [{log_time, offset}] of its messages (reversed)
+    # and its messages' [{channel, log_time, offset}] (reversed; grouped
+    # by channel when the chunk closes)
     chunk: [],
     chunk_size: 0,
     chunk_start: nil,
     chunk_end: nil,
-    chunk_index: %{},
+    chunk_messages: [],
     # for the summary
     chunk_indexes: [],
     stats: %Statistics{}
@@ -136,25 +137,18 @@ defmodule ThinkingCap.MCAP.Writer do
   @spec add_message(t(), non_neg_integer(), MCAP.time(), MCAP.time(), iodata(), non_neg_integer()) ::
           {:ok, t()} | {:error, term()}
   def add_message(%__MODULE__{} = w, channel_id, log_time, publish_time, data, sequence \\ 0) do
-    {record, size} =
-      Encode.message(
-        channel_id,
-        sequence,
-        log_time,
-        publish_time,
-        data,
-        IO.iodata_length(data)
-      )
+    data_size = if is_binary(data), do: byte_size(data), else: IO.iodata_length(data)
 
-    entries = Map.get(w.chunk_index, channel_id, [])
+    {record, size} = Encode.message(channel_id, sequence, log_time, publish_time, data, data_size)
 
+    # the hot path: one update of the struct
     w = %{
       w
       | chunk: [record | w.chunk],
         chunk_size: w.chunk_size + size,
-        chunk_index: Map.put(w.chunk_index, channel_id, [{log_time, w.chunk_size} | entries]),
-        chunk_start: min(w.chunk_start || log_time, log_time),
-        chunk_end: max(w.chunk_end || log_time, log_time)
+        chunk_messages: [{channel_id, log_time, w.chunk_size} | w.chunk_messages],
+        chunk_start: if(w.chunk_start, do: min(w.chunk_start, log_time), else: log_time),
+        chunk_end: if(w.chunk_end, do: max(w.chunk_end, log_time), else: log_time)
     }
 
     if w.chunk_size >= w.chunk_bytes, do: close_chunk(w), else: {:ok, w}
@@ -170,8 +164,8 @@ defmodule ThinkingCap.MCAP.Writer do
 
   @doc "Messages added so far."
   @spec message_count(t()) :: non_neg_integer()
-  def message_count(%__MODULE__{stats: stats, chunk_index: index}),
-    do: stats.message_count + Enum.reduce(index, 0, fn {_, l}, n -> n + length(l) end)
+  def message_count(%__MODULE__{stats: stats, chunk_messages: messages}),
+    do: stats.message_count + length(messages)
 
   @doc """
   Closes the open chunk, if it holds anything: compresses it and writes it
@@ -181,6 +175,7 @@ defmodule ThinkingCap.MCAP.Writer do
   def close_chunk(%__MODULE__{chunk_size: 0} = w), do: {:ok, w}
 
   def close_chunk(%__MODULE__{} = w) do
+    by_channel = group_by_channel(w.chunk_messages)
     records = Enum.reverse(w.chunk)
     crc = :erlang.crc32(records)
     compressed = Compression.compress(w.compression, records)
@@ -197,7 +192,7 @@ defmodule ThinkingCap.MCAP.Writer do
         byte_size(compressed)
       )
 
-    {indexes, offsets, index_length} = message_indexes(w.chunk_index, w.offset + chunk_length)
+    {indexes, offsets, index_length} = message_indexes(by_channel, w.offset + chunk_length)
 
     chunk_index = %ChunkIndex{
       message_start_time: start_time,
@@ -211,7 +206,7 @@ defmodule ThinkingCap.MCAP.Writer do
       uncompressed_size: w.chunk_size
     }
 
-    stats = count(w.stats, w.chunk_index, w.chunk_start, w.chunk_end)
+    stats = count(w.stats, by_channel, w.chunk_start, w.chunk_end)
 
     w = %{
       w
@@ -219,12 +214,22 @@ defmodule ThinkingCap.MCAP.Writer do
         chunk_size: 0,
         chunk_start: nil,
         chunk_end: nil,
-        chunk_index: %{},
+        chunk_messages: [],
         chunk_indexes: [chunk_index | w.chunk_indexes],
         stats: %{stats | chunk_count: stats.chunk_count + 1}
     }
 
     write(w, [chunk | indexes])
+  end
+
+  # the messages' [{log_time, offset}] by channel, in the order added
+  defp group_by_channel(messages) do
+    Enum.reduce(messages, %{}, fn {channel, time, offset}, acc ->
+      case acc do
+        %{^channel => entries} -> %{acc | channel => [{time, offset} | entries]}
+        _ -> Map.put(acc, channel, [{time, offset}])
+      end
+    end)
   end
 
   # one Message Index per channel, its entries in log time order, from

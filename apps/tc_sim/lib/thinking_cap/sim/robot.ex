@@ -18,6 +18,8 @@ defmodule ThinkingCap.Sim.Robot do
     * `seed:` - the world's seed when this robot starts it (default 1);
     * `step:` - the world's step in seconds when this robot starts it
       (default 0.01);
+    * `speed:` - the world's simulated seconds per wall second when this
+      robot starts it (default 1.0; see `ThinkingCap.Sim.start_link/1`);
     * `command_timeout:` - see `ThinkingCap.Robot`.
 
   If the driver restarts, it takes its robot over where it stands.
@@ -34,7 +36,8 @@ defmodule ThinkingCap.Sim.Robot do
          {:ok, sim} <-
            Sim.Worlds.ensure(wdf,
              seed: Keyword.get(params, :seed, 1),
-             step: Keyword.get(params, :step, 0.01)
+             step: Keyword.get(params, :step, 0.01),
+             speed: Keyword.get(params, :speed, 1.0)
            ),
          :ok <- join(sim, context.robot, description, Keyword.get(params, :at), wdf) do
       ref = Process.monitor(sim)

@@ -5,7 +5,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # messages (BlackBox.Foxglove: JSON, with JSON schemas, for Foxglove and
   # the MCAP tools) and whole, in Erlang's external term format
   # (`:erlang.term_to_binary/1`, message encoding "etf", no schema), on
-  # `/etf/ID/TAG`, for a replay. A module's trace
+  # `/etf/ID/TAG`, for a replay. The Foxglove messages of large tuples
+  # that come many a second (the LPS: 9 KB of JSON, 180 µs, ten a second)
+  # are thinned to one a second per topic; their terms are all kept. A module's trace
   # (ThinkingCap.Runtime.Trace) goes on `/trace/ROBOT/NAME`, callbacks
   # `[{n, us, callback}]` a message ("etf" too), its sequence the
   # first's `n`, `us` each one's time after the message's. A
@@ -14,14 +16,31 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   alias ThinkingCap.BlackBox.Foxglove
   alias ThinkingCap.MCAP.Writer
 
-  defstruct robot: nil, terms: true, channels: %{}, schemas: %{}, sequence: %{}
+  defstruct robot: nil,
+            terms: true,
+            channels: %{},
+            schemas: %{},
+            sequence: %{},
+            # {tag, id} => the channel of its whole terms
+            exact: %{},
+            # {tag, id} => log time of its last Foxglove message (big tuples)
+            json_at: %{}
 
   @type t :: %__MODULE__{}
 
   @etf "etf"
 
+  # Foxglove's JSON of these tuples (large, and many a second) is written
+  # at most once a `@json_period_ns` per topic; their whole terms every time
+  @big [:lps, :particles, :topology, :segments]
+  @json_period_ns 1_000_000_000
+
   @doc false
   def encoding, do: @etf
+
+  @doc false
+  # the tags whose Foxglove messages are thinned, and the period
+  def thinned, do: {@big, @json_period_ns / 1.0e9}
 
   # `terms: false`: Foxglove's messages only (a recording not to replay)
   @spec new(atom(), keyword()) :: t()
@@ -34,25 +53,60 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
   def write_tuple(w, chans, tuple, time) do
     publish = Foxglove.stamp_ns(tuple) || time
+    {messages, chans} = foxglove(chans, tuple, time)
 
-    messages =
-      if chans.terms,
-        do:
-          Foxglove.messages(tuple, time) ++
-            [{exact_topic(tuple), nil, :erlang.term_to_binary(tuple)}],
-        else: Foxglove.messages(tuple, time)
-
-    Enum.reduce_while(messages, {:ok, w, chans, 0}, fn
-      {topic, schema, data}, {:ok, w, chans, n} ->
-        {channel, w, chans} = channel(w, chans, topic, schema, %{})
-        {sequence, chans} = next(chans, channel)
-
-        case Writer.add_message(w, channel, time, publish, data, sequence) do
-          {:ok, w} -> {:cont, {:ok, w, chans, n + 1}}
-          {:error, reason} -> {:halt, {:error, reason, chans}}
-        end
-    end)
+    with {:ok, w, chans, n} <- write_all(messages, w, chans, time, publish, 0) do
+      if chans.terms, do: write_term(w, chans, tuple, time, publish, n), else: {:ok, w, chans, n}
+    end
   end
+
+  defp foxglove(chans, {tag, id, _} = tuple, time) when tag in @big do
+    key = {tag, id}
+
+    case chans.json_at do
+      %{^key => at} when time - at < @json_period_ns -> {[], chans}
+      at -> {Foxglove.messages(tuple, time), %{chans | json_at: Map.put(at, key, time)}}
+    end
+  end
+
+  defp foxglove(chans, tuple, time), do: {Foxglove.messages(tuple, time), chans}
+
+  defp write_all([], w, chans, _time, _publish, n), do: {:ok, w, chans, n}
+
+  defp write_all([{topic, schema, data} | rest], w, chans, time, publish, n) do
+    {channel, w, chans} = channel(w, chans, topic, schema, %{})
+    {sequence, chans} = next(chans, channel)
+
+    case Writer.add_message(w, channel, time, publish, data, sequence) do
+      {:ok, w} -> write_all(rest, w, chans, time, publish, n + 1)
+      {:error, reason} -> {:error, reason, chans}
+    end
+  end
+
+  # the whole term on `/etf/ID/TAG`, its channel found by `{tag, id}`
+  defp write_term(w, chans, tuple, time, publish, n) do
+    key = exact_key(tuple)
+
+    {channel, w, chans} =
+      case chans.exact do
+        %{^key => channel} ->
+          {channel, w, chans}
+
+        _ ->
+          {channel, w, chans} = channel(w, chans, exact_topic(tuple), nil, %{})
+          {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
+      end
+
+    {sequence, chans} = next(chans, channel)
+
+    case Writer.add_message(w, channel, time, publish, :erlang.term_to_binary(tuple), sequence) do
+      {:ok, w} -> {:ok, w, chans, n + 1}
+      {:error, reason} -> {:error, reason, chans}
+    end
+  end
+
+  defp exact_key({tag, id, _payload}), do: {tag, id}
+  defp exact_key(other), do: {:tuple, tuple_size(other)}
 
   # Writes traced callbacks of module `name`, `[{n, us, callback}]` (its
   # `n`th since init, received `us` after `time`), in one message whose
@@ -85,9 +139,11 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @spec trace_topic(atom(), atom()) :: String.t()
   def trace_topic(robot, name), do: "/trace" <> Foxglove.topic(robot, name)
 
-  defp next(chans, channel) do
-    sequence = Map.get(chans.sequence, channel, 0) + 1
-    {sequence, %{chans | sequence: Map.put(chans.sequence, channel, sequence)}}
+  defp next(%{sequence: sequences} = chans, channel) do
+    case sequences do
+      %{^channel => n} -> {n + 1, %{chans | sequence: %{sequences | channel => n + 1}}}
+      _ -> {1, %{chans | sequence: Map.put(sequences, channel, 1)}}
+    end
   end
 
   # a topic's channel: JSON on its Foxglove schema, or a whole term (no schema)

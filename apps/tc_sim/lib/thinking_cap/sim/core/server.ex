@@ -27,6 +27,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   def init(opts) do
     with {:ok, mode} <- one_of(opts, :mode, [:realtime, :fast], :realtime),
          {:ok, dt} <- positive(opts, :step, 0.01),
+         {:ok, speed} <- positive(opts, :speed, 1.0),
          {:ok, seed} <- integer(opts, :seed, 1),
          {:ok, world} <- world(Keyword.fetch(opts, :world)) do
       counters = :counters.new(2, [:write_concurrency])
@@ -55,6 +56,7 @@ defmodule ThinkingCap.Sim.Core.Server do
         initial_doors: world.doors,
         mode: mode,
         dt: dt,
+        speed: speed,
         seed: seed,
         step: 0,
         running: Keyword.get(opts, :running, true),
@@ -135,8 +137,8 @@ defmodule ThinkingCap.Sim.Core.Server do
 
     :ok =
       ThinkingCap.Cycle.add(name,
-        period: state.dt,
-        deadline: state.dt,
+        period: state.dt / state.speed,
+        deadline: state.dt / state.speed,
         priority: 60,
         fallback: :none,
         owner: self()
@@ -524,6 +526,7 @@ defmodule ThinkingCap.Sim.Core.Server do
        time: state.step * state.dt,
        steps: state.step,
        step: state.dt,
+       speed: state.speed,
        mode: state.mode,
        running: state.running,
        robots: map_size(state.robots),

@@ -1,0 +1,491 @@
+Code.require_file("support/nav_run.exs", __DIR__)
+
+defmodule ThinkingCap.Bench.Record do
+  @moduledoc """
+  `mix tc.bench record [--robots N] [--seconds S] [--step T] [--speed X]
+  [--keep]`: N simulated
+  robots (default 100), each with its own modules, all recorded by the
+  black box's recorder, against the same run without recording; then one
+  robot's recording replayed. `--keep` leaves the recordings (their
+  directory is printed).
+
+  ## The fleet
+
+  nav2's warehouse map (30 m × 50 m) with reflective beacons spread over
+  its free space (one per 25 m²), one real-time simulation
+  (`ThinkingCap.Sim`, step T, default 0.02 s) shared by every robot, at
+  X simulated seconds per wall second (default 1.0).
+  Each robot is an ADF of its own (the office robot's RDF: 8 sonars and
+  a 181-beam laser at 10 Hz, beacons at 5 Hz, odometry at 50 Hz), with
+  the modules a robot runs:
+
+    * `base_I`: the simulated base (`ThinkingCap.Sim.Robot`), periodic,
+      period T / X, deadline 3 ms;
+    * `perception_I`: `ThinkingCap.Perception.Fuser`, the Local
+      Perceptual Space;
+    * `localization_I`: `ThinkingCap.Navigation.Localizer`, the EKF on
+      the beacons: the pose estimate;
+    * `control_I`: `ThinkingCap.Control.Blender` (avoid, go to, follow a
+      wall), the control cycle: periodic 0.1 s / X, deadline 50 ms.
+
+  Each robot is given a goal across the warehouse (a plan tuple, as a
+  fleet manager would) and a new one when it gets there. No black box
+  (ring buffer), no dashboard.
+
+  ## The runs
+
+  The same fleet (same starts, goals and seeds) for S simulated seconds
+  (default 60), twice: without recording, then with every robot
+  recorded (`record: [enabled: true]` in its ADF: zstd, chunks every
+  second, the modules traced for replay). Then robot 1's recording is
+  replayed (`ThinkingCap.BlackBox.Replay.compare/3`, every traced module).
+
+  ## The figures
+
+  Per simulated second (at X = 1, per wall second): what the fleet
+  needs when it runs in real time. 100 robots with their modules need
+  about 2.6 cores in real time, more than the 2 of the machine the
+  README's figures come from: they run at X = 0.25 there, every robot
+  doing a quarter of a second's work each wall second; a recorder's
+  work per simulated second does not depend on X, so the figures say
+  what recording a real-time fleet costs.
+
+    * `msgs_per_s`: MCAP messages the recorders wrote per second (all
+      robots): Foxglove's JSON, the tuples whole (ETF) and the trace
+      batches (the tuples recorded are printed too);
+    * `mb_per_min`: MB (10^6 B) the recorders wrote per minute, all
+      robots (the files' sizes at the end of the window minus at its
+      start); a robot's share is this over N, and the days a 64 GB card
+      holds are printed;
+    * `cpu_pct`: the recorder processes' CPU time per simulated second,
+      in per cent of one core. Measured per process: the recorders are traced
+      for scheduling (`:erlang.trace/3`, `running`) with the node's
+      `cpu_timestamp` flag, so that each schedule-in and schedule-out is
+      stamped with the scheduler thread's own CPU time
+      (`CLOCK_THREAD_CPUTIME_ID`); a recorder's CPU is the sum of its
+      out-minus-in. It covers all a recorder does (its JSON, ETF,
+      compression, file writes, its garbage collection) and nothing of
+      other processes; the cost the recording adds elsewhere (the
+      blackboard's delivery to its subscription, the modules' hosts
+      hashing what they are delivered for the trace) is in `vm_cpu_pct`:
+      the whole VM's CPU time (`/proc/self/stat`) per simulated second
+      with recording minus without, less steady on a shared machine;
+    * `misses_added`: the deadline misses (fallbacks applied by the timing
+      worker) of every robot's control cycle (`control_I`) during the
+      recorded run, minus those during the run without; the bases'
+      misses are printed too;
+    * `replay_equal_pct`: the share of robot 1's module outputs that
+      replayed equal.
+
+  If the machine cannot keep up even so, the simulation lags (`lagged`
+  steps are printed): its time then runs slower still, and S simulated
+  seconds take longer.
+  """
+
+  alias ThinkingCap.{BlackBox, Blackboard, Config, Cycle, Runtime, Sim, Tuples}
+  alias ThinkingCap.BlackBox.Replay
+  alias ThinkingCap.Bench.{NavRun, ProcStat}
+  require Tuples
+
+  @root Path.expand("..", __DIR__)
+  @rdf Path.join(@root, "priv/examples/office_robot.rdf")
+  @map Path.join(@root, "priv/maps/warehouse.yaml")
+
+  def run(args) do
+    {opts, _, _} =
+      OptionParser.parse(args,
+        strict: [robots: :integer, seconds: :float, step: :float, speed: :float, keep: :boolean]
+      )
+
+    n = opts[:robots] || 100
+    seconds = opts[:seconds] || 60.0
+    step = opts[:step] || 0.02
+    speed = opts[:speed] || 1.0
+    dir = Path.join(System.tmp_dir!(), "tc_record_bench_#{System.unique_integer([:positive])}")
+    File.mkdir_p!(dir)
+
+    try do
+      wdf = NavRun.write_wdf(dir, "warehouse_beacons", @map)
+      {:ok, world} = Sim.World.load(wdf)
+      {starts, goals} = places(world, n)
+
+      IO.puts(
+        "record: #{n} robots in #{world.name} (#{length(world.wdf.beacons)} beacons), " <>
+          "#{seconds} simulated s each run, sim step #{step} s, " <>
+          "#{System.schedulers_online()} schedulers; load #{load()}"
+      )
+
+      fleet = %{n: n, wdf: wdf, starts: starts, goals: goals, step: step, speed: speed, dir: dir}
+      plain = phase(fleet, seconds, false)
+      report("without recording", plain)
+      rec = phase(fleet, seconds, true)
+      report("recorded", rec)
+
+      {replay_pct, replay_text} = replay(rec.files[robot(1)])
+      IO.puts("  replay of #{robot(1)}: #{replay_text}")
+
+      # per simulated second: what the fleet needs at real time
+      sim_s = rec.sim_seconds
+      msgs_per_s = rec.messages / sim_s
+      mb_per_min = rec.bytes / 1.0e6 / (sim_s / 60)
+      cpu_pct = 100 * rec.recorder_cpu_us / (sim_s * 1.0e6)
+
+      vm_pct =
+        100 * (rec.vm_cpu_ms / rec.sim_seconds - plain.vm_cpu_ms / plain.sim_seconds) / 1000
+
+      week_gb = mb_per_min / n * 60 * 24 * 7 / 1000
+
+      IO.puts(
+        "  per robot: #{fmt(msgs_per_s / n, 1)} messages/s, #{fmt(mb_per_min / n, 2)} MB/min, " <>
+          "a week in #{fmt(week_gb, 1)} GB (64 GB card: #{fmt(64 / week_gb * 7, 1)} days); " <>
+          "recorders #{fmt(rec.recorder_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple; " <>
+          "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
+      )
+
+      IO.puts(
+        "record: robots=#{n} msgs_per_s=#{round(msgs_per_s)} mb_per_min=#{fmt(mb_per_min, 1)} " <>
+          "cpu_pct=#{fmt(cpu_pct, 1)} misses_added=#{max(rec.control_misses - plain.control_misses, 0)} " <>
+          "replay_equal_pct=#{fmt(replay_pct, 1)}"
+      )
+    after
+      if opts[:keep], do: IO.puts("  kept #{dir}"), else: File.rm_rf!(dir)
+    end
+  end
+
+  defp report(label, r) do
+    IO.puts(
+      "  #{label}: #{fmt(r.wall, 1)} s wall for #{fmt(r.sim_seconds, 1)} simulated s " <>
+        "(sim lagged #{r.lagged} steps), control misses #{r.control_misses} of #{r.control_cycles} cycles, " <>
+        "base misses #{r.base_misses} of #{r.base_cycles}, VM CPU #{fmt(r.vm_cpu_ms / r.wall / 10, 1)} % of a core" <>
+        if(r.record?,
+          do:
+            "; #{r.tuples} tuples, #{r.messages} messages, #{fmt(r.bytes / 1.0e6, 1)} MB, " <>
+              "recorders #{fmt(r.recorder_cpu_us / 1.0e6, 2)} s CPU",
+          else: ""
+        )
+    )
+  end
+
+  defp robot(i), do: :"rb#{i}"
+
+  # one run of the fleet for `seconds` of simulated time
+  defp phase(fleet, seconds, record?) do
+    rec_dir = Path.join(fleet.dir, if(record?, do: "rec", else: "plain"))
+    File.mkdir_p!(rec_dir)
+
+    adfs =
+      for i <- 1..fleet.n do
+        path = Path.join(rec_dir, "#{robot(i)}.adf")
+        File.write!(path, adf(fleet, i, record?, rec_dir))
+        {:ok, adf} = Config.adf(path)
+        adf
+      end
+
+    try do
+      for {adf, i} <- Enum.with_index(adfs, 1) do
+        case Runtime.start(adf) do
+          {:ok, _} -> :ok
+          {:error, failed} -> Mix.raise("#{robot(i)} did not start: #{inspect(failed)}")
+        end
+      end
+
+      {:ok, sim} = Sim.Worlds.lookup(fleet.wdf)
+      goals = for i <- 1..fleet.n, do: give_goal(i, Enum.at(fleet.goals, i - 1))
+      # settle: every robot sensing and planning
+      Process.sleep(2_000)
+      recorders = if record?, do: Enum.map(1..fleet.n, &BlackBox.recorder(robot(&1))), else: []
+      tracer = if record?, do: start_tracer(recorders)
+      before = snapshot(sim, recorders, rec_dir)
+      wall0 = System.monotonic_time(:microsecond)
+      goals = drive(fleet, sim, before.sim_time + seconds, goals)
+      wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
+      after_ = snapshot(sim, recorders, rec_dir)
+      cpu_us = if tracer, do: stop_tracer(tracer), else: 0
+      _ = goals
+
+      %{
+        record?: record?,
+        wall: wall,
+        sim_seconds: after_.sim_time - before.sim_time,
+        lagged: after_.lagged - before.lagged,
+        control_misses: misses(after_.timing, before.timing, "control_", :fallbacks),
+        control_cycles: misses(after_.timing, before.timing, "control_", :cycles),
+        base_misses: misses(after_.timing, before.timing, "base_", :fallbacks),
+        base_cycles: misses(after_.timing, before.timing, "base_", :cycles),
+        vm_cpu_ms: after_.vm_cpu_ms - before.vm_cpu_ms,
+        tuples: after_.tuples - before.tuples,
+        messages: after_.messages - before.messages,
+        dropped: after_.dropped,
+        bytes: after_.bytes - before.bytes,
+        recorder_cpu_us: cpu_us,
+        files:
+          if(record?,
+            do: Map.new(1..fleet.n, &{robot(&1), recording_files(rec_dir, robot(&1))}),
+            else: %{}
+          )
+      }
+    after
+      stop_fleet(adfs, fleet)
+    end
+  end
+
+  defp recording_files(dir, robot),
+    do: Path.wildcard(Path.join(dir, "#{robot}_*.mcap")) |> Enum.sort()
+
+  defp adf(fleet, i, record?, rec_dir) do
+    {x, y, th} = Enum.at(fleet.starts, i - 1)
+    r = robot(i)
+
+    """
+    [
+      robot: #{inspect(r)},
+      rdf: #{inspect(@rdf)},
+      wdf: #{inspect(fleet.wdf)},
+      dashboard: [enabled: false],
+      black_box: [enabled: false],
+      record: [enabled: #{record?}, dir: #{inspect(rec_dir)}],
+      modules: [
+        base_#{i}: [module: ThinkingCap.Sim.Robot, activity: :periodic,
+                    period: #{fleet.step / fleet.speed}, deadline: 0.003, priority: 90, fallback: :stop,
+                    params: [at: #{inspect({x, y, th})}, seed: 1, step: #{fleet.step},
+                             speed: #{fleet.speed}, command_timeout: #{0.5 / fleet.speed}]],
+        perception_#{i}: [module: ThinkingCap.Perception.Fuser, activity: :event, layer: :reactive],
+        localization_#{i}: [module: ThinkingCap.Navigation.Localizer, activity: :event,
+                            params: [initial: #{inspect({x, y, th})}, initial_sigma: {0.1, 0.05}]],
+        control_#{i}: [module: ThinkingCap.Control.Blender, activity: :periodic,
+                       period: #{0.1 / fleet.speed},
+                       deadline: 0.05, priority: 80,
+                       params: [behaviours: [:avoid, :go_to, :follow_wall]]]
+      ]
+    ]
+    """
+  end
+
+  defp give_goal(i, {x, y}) do
+    {plan, opts} =
+      Tuples.keyed(Tuples.plan(robot(i), %{goal: {x, y}, state: :going, task: {:go_to, {x, y}}}))
+
+    Blackboard.out(plan, opts)
+    {x, y}
+  end
+
+  # runs until the simulation's clock reaches `until`, giving a robot at
+  # its goal the next (its start and goal swapped)
+  defp drive(fleet, sim, until, goals) do
+    if Sim.time(sim) >= until do
+      goals
+    else
+      Process.sleep(500)
+
+      goals =
+        for {goal, i} <- Enum.with_index(goals, 1) do
+          case Blackboard.rdp(Tuples.pose(robot(i))) do
+            {:ok, Tuples.pose(_, %{pose: {x, y, _}})} ->
+              {gx, gy} = goal
+
+              if :math.sqrt((x - gx) ** 2 + (y - gy) ** 2) < 0.6 do
+                {sx, sy, _} = Enum.at(fleet.starts, i - 1)
+
+                next =
+                  if goal == Enum.at(fleet.goals, i - 1),
+                    do: {sx, sy},
+                    else: Enum.at(fleet.goals, i - 1)
+
+                give_goal(i, next)
+              else
+                goal
+              end
+
+            _ ->
+              goal
+          end
+        end
+
+      drive(fleet, sim, until, goals)
+    end
+  end
+
+  defp snapshot(sim, recorders, rec_dir) do
+    status = GenServer.call(sim, :status, 120_000)
+    infos = for pid <- recorders, pid, do: GenServer.call(pid, :info, 120_000)
+
+    bytes =
+      Path.wildcard(Path.join(rec_dir, "*.mcap"))
+      |> Enum.map(&File.stat!(&1).size)
+      |> Enum.sum()
+
+    %{
+      sim_time: status.time,
+      lagged: Map.get(status, :lagged, 0),
+      timing: GenServer.call(Cycle, :timing, 120_000),
+      vm_cpu_ms: vm_cpu_ms(),
+      tuples: Enum.sum(Enum.map(infos, &(&1.messages - &1.callbacks))),
+      messages: Enum.sum(Enum.map(infos, & &1.messages)),
+      dropped: Enum.sum(Enum.map(infos, & &1.dropped)),
+      bytes: bytes
+    }
+  end
+
+  defp misses(after_, before, prefix, key) do
+    for {name, s} <- after_, String.starts_with?(Atom.to_string(name), prefix), reduce: 0 do
+      acc -> acc + s[key] - (get_in(before, [name, key]) || 0)
+    end
+  end
+
+  # the VM's user and system CPU time, ms
+  defp vm_cpu_ms do
+    {:ok, stat} = File.read("/proc/self/stat")
+    [_, rest] = String.split(stat, ") ", parts: 2)
+    fields = String.split(rest)
+    ticks = String.to_integer(Enum.at(fields, 11)) + String.to_integer(Enum.at(fields, 12))
+    div(ticks * 1000, ProcStat.clock_ticks())
+  end
+
+  ## CPU time of the recorders, per process
+
+  defp start_tracer(pids) do
+    parent = self()
+
+    tracer =
+      spawn_link(fn ->
+        receive do
+          :go -> :ok
+        end
+
+        send(parent, :tracing)
+        tracer_loop(%{}, 0)
+      end)
+
+    Process.flag(:priority, :normal)
+    :erlang.trace(:all, true, [:cpu_timestamp])
+    for pid <- pids, pid, do: :erlang.trace(pid, true, [:running, :timestamp, {:tracer, tracer}])
+    send(tracer, :go)
+
+    receive do
+      :tracing -> tracer
+    end
+  end
+
+  defp tracer_loop(ins, total) do
+    receive do
+      {:trace_ts, pid, kind, _mfa, ts} when kind in [:in, :in_exiting] ->
+        tracer_loop(Map.put(ins, pid, ts), total)
+
+      {:trace_ts, pid, kind, _mfa, ts} when kind in [:out, :out_exiting, :out_exited] ->
+        case Map.pop(ins, pid) do
+          {nil, ins} -> tracer_loop(ins, total)
+          {t_in, ins} -> tracer_loop(ins, total + :timer.now_diff(ts, t_in))
+        end
+
+      {:stop, from} ->
+        send(from, {:cpu_us, total})
+    end
+  end
+
+  defp stop_tracer(tracer) do
+    for {pid, _} <-
+          Registry.select(ThinkingCap.BlackBox.Registry, [
+            {{:"$1", :"$2", :_}, [], [{{:"$2", :"$1"}}]}
+          ]),
+        do: :erlang.trace(pid, false, [:running, :timestamp])
+
+    :erlang.trace(:all, false, [:cpu_timestamp])
+    # the trace messages sent so far are in the tracer's queue
+    send(tracer, {:stop, self()})
+
+    receive do
+      {:cpu_us, us} -> us
+    after
+      60_000 -> Mix.raise("the CPU tracer did not answer")
+    end
+  end
+
+  ## Setup and teardown
+
+  # start poses (free, 1.2 m apart) and goals (free, at least 10 m away)
+  defp places(world, n) do
+    grid = world.wdf.grid
+    rng = :rand.seed_s(:exsss, {17, n, 3})
+
+    {starts, rng} =
+      Enum.reduce(1..n, {[], rng}, fn _, {acc, rng} ->
+        {p, rng} =
+          free_place(world, grid, rng, fn {x, y} ->
+            Enum.all?(acc, fn {ax, ay, _} -> (ax - x) ** 2 + (ay - y) ** 2 > 1.44 end)
+          end)
+
+        {th, rng} = :rand.uniform_s(rng)
+        {x, y} = p
+        {[{x, y, (th - 0.5) * 2 * :math.pi()} | acc], rng}
+      end)
+
+    starts = Enum.reverse(starts)
+
+    {goals, _} =
+      Enum.map_reduce(starts, rng, fn {sx, sy, _}, rng ->
+        free_place(world, grid, rng, fn {x, y} -> (sx - x) ** 2 + (sy - y) ** 2 > 100 end)
+      end)
+
+    {starts, goals}
+  end
+
+  defp free_place(world, grid, rng, ok?) do
+    {u, rng} = :rand.uniform_s(rng)
+    {v, rng} = :rand.uniform_s(rng)
+    {col, row} = {floor(u * grid.width), floor(v * grid.height)}
+    {ox, oy, _} = grid.origin
+    x = ox + (col + 0.5) * grid.resolution
+    y = oy + (row + 0.5) * grid.resolution
+
+    if ThinkingCap.Config.RosMap.cell(grid, col, row) == 0 and
+         Sim.World.free?(world, {x, y}, 0.2 + 0.4) and ok?.({x, y}),
+       do: {{x, y}, rng},
+       else: free_place(world, grid, rng, ok?)
+  end
+
+  defp stop_fleet(adfs, fleet) do
+    for adf <- adfs, m <- adf.modules, do: Runtime.stop({adf.robot, m.name})
+    for adf <- adfs, do: BlackBox.stop(adf.robot)
+
+    case Sim.Worlds.lookup(fleet.wdf) do
+      {:ok, sim} -> DynamicSupervisor.terminate_child(ThinkingCap.Sim.Supervisor, sim)
+      :error -> :ok
+    end
+
+    for adf <- adfs do
+      drain({:_, adf.robot, :_})
+      for m <- adf.modules, m.activity == :periodic, do: drain(Tuples.timing(m.name))
+    end
+  end
+
+  defp drain(template) do
+    if Blackboard.takep(template) != :none, do: drain(template)
+  end
+
+  ## Replay
+
+  defp replay([]), do: {0.0, "no recording"}
+
+  defp replay(files) do
+    {:ok, rec} = Replay.open(files)
+    names = for m <- Replay.modules(rec), do: m.name
+    {:ok, reports} = Replay.compare(rec, names)
+
+    text =
+      Enum.map_join(Enum.sort(reports), "; ", fn {name, r} ->
+        "#{name} #{r.equal}/#{r.outputs}" <>
+          if(r.stopped, do: " (stopped: #{r.stopped})", else: "")
+      end)
+
+    {Replay.equal_pct(reports), text}
+  end
+
+  defp load do
+    case File.read("/proc/loadavg") do
+      {:ok, s} -> s |> String.split() |> Enum.take(3) |> Enum.join(" ")
+      _ -> "?"
+    end
+  end
+
+  defp fmt(x, d), do: :erlang.float_to_binary(x * 1.0, decimals: d)
+end
