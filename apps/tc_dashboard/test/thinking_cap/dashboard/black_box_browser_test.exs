@@ -107,12 +107,8 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     b = ctx.browser
     drive(ctx.robot)
     name = js(ctx.name)
-
-    open!(b, "#{ctx.info.url}&robot=#{ctx.name}")
-    wait!(b, "tc.connected && tc.selected === #{name} && tc.drawn[#{name}]")
-    :ok = Browser.click(b, ~s(.tabs button[data-tab="blackbox"]))
-    :ok = Browser.click(b, "#tab-blackbox button.timeline-open")
-    wait!(b, "tc.timeline.open && tc.timeline.frames > 0 && tc.replaying")
+    open_timeline!(b, ctx)
+    wait!(b, "tc.replaying")
 
     timeline = eval!(b, "tc.timeline")
     assert timeline["streams"]["pose/#{ctx.name}"] == 11
@@ -179,13 +175,7 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
   test "an incident is marked under the slider; a click on it shows its instant", ctx do
     b = ctx.browser
     drive(ctx.robot, 3)
-    name = js(ctx.name)
-
-    open!(b, "#{ctx.info.url}&robot=#{ctx.name}")
-    wait!(b, "tc.connected && tc.selected === #{name} && tc.drawn[#{name}]")
-    :ok = Browser.click(b, ~s(.tabs button[data-tab="blackbox"]))
-    :ok = Browser.click(b, "#tab-blackbox button.timeline-open")
-    wait!(b, "tc.timeline.open && tc.timeline.frames > 0")
+    open_timeline!(b, ctx)
 
     timeline = eval!(b, "tc.timeline")
     assert [%{"reason" => "bumper", "at" => at}] = timeline["incidents"]
@@ -278,6 +268,17 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
   end
 
   # when the black box received the `i`th pose (ms since the epoch)
+  # the page on the robot, its Black box tab, the timeline opened and its
+  # first frame in
+  defp open_timeline!(b, ctx) do
+    name = js(ctx.name)
+    open!(b, "#{ctx.info.url}&robot=#{ctx.name}")
+    wait!(b, "tc.connected && tc.selected === #{name} && tc.drawn[#{name}]")
+    :ok = Browser.click(b, ~s(.tabs button[data-tab="blackbox"]))
+    :ok = Browser.click(b, "#tab-blackbox button.timeline-open")
+    wait!(b, "tc.timeline.open && tc.timeline.frames > 0")
+  end
+
   defp pose_time(robot, i) do
     {:ok, snapshot} = BlackBox.snapshot(robot, tags: [:pose])
     {t, _} = Enum.at(snapshot.entries, i)

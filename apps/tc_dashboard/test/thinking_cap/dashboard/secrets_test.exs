@@ -19,12 +19,7 @@ defmodule ThinkingCap.Dashboard.SecretsTest do
   defp files_holding(dir, secret) do
     Path.wildcard(Path.join(dir, "**/*"), match_dot: true)
     |> Enum.filter(&File.regular?/1)
-    |> Enum.filter(fn path ->
-      case File.read(path) do
-        {:ok, content} -> String.contains?(content, secret)
-        _ -> false
-      end
-    end)
+    |> holding(secret)
   end
 
   # the regular files under `dir` written since `marker` was (find(1):
@@ -37,6 +32,7 @@ defmodule ThinkingCap.Dashboard.SecretsTest do
     out |> String.split("\n", trim: true) |> Enum.reject(&(&1 == marker))
   end
 
+  # those of `paths` whose content holds `secret`
   defp holding(paths, secret) do
     Enum.filter(paths, fn path ->
       case File.read(path) do
