@@ -121,13 +121,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   def validate(other), do: Options.validate(other, :recorder, [], "recorder options")
 
   @doc "The recorder's child spec; options as `start_link/1`."
-  def child_spec(opts),
-    do: %{
-      id: {__MODULE__, opts[:robot]},
-      start: {__MODULE__, :start_link, [opts]},
-      restart: :transient,
-      shutdown: 5_000
-    }
+  def child_spec(opts), do: Options.child_spec(__MODULE__, opts)
 
   @doc """
   Starts a recorder (options in the moduledoc, and `name:`, a

@@ -87,13 +87,7 @@ defmodule ThinkingCap.BlackBox.RingBuffer do
   def validate(other), do: Options.validate(other, :black_box, [], "black-box options")
 
   @doc "The child spec; options as `start_link/1`."
-  def child_spec(opts),
-    do: %{
-      id: {__MODULE__, opts[:robot]},
-      start: {__MODULE__, :start_link, [opts]},
-      restart: :transient,
-      shutdown: 5_000
-    }
+  def child_spec(opts), do: Options.child_spec(__MODULE__, opts)
 
   @doc "Starts a ring buffer (options above, and `name:`). Raises `ArgumentError` for bad options."
   @spec start_link(keyword()) :: GenServer.on_start()

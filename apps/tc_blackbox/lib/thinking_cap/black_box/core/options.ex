@@ -22,4 +22,15 @@ defmodule ThinkingCap.BlackBox.Core.Options do
 
   def validate(other, _name, _fields, label),
     do: {:error, "#{label}: expected a keyword list, got #{inspect(other)}"}
+
+  # A robot's process under a supervisor: one per robot, started again
+  # only after a crash, given 5 s to close its files.
+  @spec child_spec(module(), keyword()) :: Supervisor.child_spec()
+  def child_spec(module, opts),
+    do: %{
+      id: {module, opts[:robot]},
+      start: {module, :start_link, [opts]},
+      restart: :transient,
+      shutdown: 5_000
+    }
 end

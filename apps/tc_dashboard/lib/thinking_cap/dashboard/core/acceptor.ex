@@ -38,6 +38,15 @@ defmodule ThinkingCap.Dashboard.Core.Acceptor do
     end
   end
 
+  @doc "The port the listener registered as `name` listens on; nil when it is not running."
+  @spec port(atom()) :: :inet.port_number() | nil
+  def port(name) do
+    case Process.whereis(name) do
+      nil -> nil
+      _pid -> GenServer.call(name, :port)
+    end
+  end
+
   @doc """
   Accepts a connection, waiting at most #{@accept_wait} ms: the socket,
   `:none` (nobody came, or an error that was logged and waited out), or

@@ -31,12 +31,7 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
 
   @doc "The port it listens on; nil when it is not running."
   @spec port() :: :inet.port_number() | nil
-  def port do
-    case Process.whereis(__MODULE__) do
-      nil -> nil
-      _pid -> GenServer.call(__MODULE__, :port)
-    end
-  end
+  def port, do: Acceptor.port(__MODULE__)
 
   @impl true
   def init(%{host: host, estop_port: port}) do
