@@ -149,6 +149,44 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
+  test "exploring: a frontier just behind the robot is turned to before it counts as unseen",
+       %{tmp_dir: dir} do
+    # 4 x 4 m known and free but for an alcove west of the robot (at
+    # {2, 2}, heading east), walled along y = 1.7 and 2.3 and unknown
+    # inside: its frontier, 0.25 m behind the robot, is within reach
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 3.9 or y > 3.9 -> 100
+        x < 1.75 and abs(y - 2.0) < 0.3 -> -1
+        x < 1.75 and abs(y - 2.0) < 0.4 -> 100
+        true -> 0
+      end
+    end
+
+    {plan, _actions, state} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, 0.0})
+    {fx, fy} = state.target
+    assert fx < 2.0 and abs(fy - 2.0) < 0.3
+    assert dist({2.0, 2.0}, state.target) <= 0.35
+
+    # not given up: the robot turns to it, driving to the frontier itself
+    assert plan.state == :moving
+    {plan, _, state} = cycle(state, 1.5)
+    assert plan.state == :moving
+    assert state.looking and state.given_up == [] and state.target == {fx, fy}
+    assert List.last(plan.path) == {fx, fy}
+    {plan, _, state} = cycle(state, 2.0)
+    assert plan.state == :moving and state.given_up == []
+
+    # facing it, the alcove still unknown: now it counts as unseen, given
+    # up (the only frontier: tried again in a second round, anew)
+    assert state.rounds == 1
+    {_plan, _, state} = cycle(pose(state, {2.0, 2.0, :math.pi()}), 3.0)
+    assert state.rounds == 2 and not state.looking
+  end
+
+  @tag :tmp_dir
   test "a doorway narrower than the margin allows is passed with the robot's own radius", %{
     tmp_dir: dir
   } do
