@@ -143,13 +143,9 @@ defmodule ThinkingCap.Runtime.TraceTest do
     refute_receive {:tc_trace, ^robot, _, _, _}, 300
   end
 
-  test "the runtime waits for its listeners before it starts an ADF's modules",
-       %{tmp_dir: dir} do
-    name = :"late_#{System.unique_integer([:positive])}"
-
-    {adf, robot} =
-      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
-
+  # a listener that holds robot's start 200 ms, then says whether module
+  # `name` ran by then: {:heard, announced, pid or nil}
+  defp slow_listener(robot, name) do
     test = self()
 
     listener =
@@ -167,6 +163,17 @@ defmodule ThinkingCap.Runtime.TraceTest do
       end)
 
     assert_receive :listening
+    listener
+  end
+
+  test "the runtime waits for its listeners before it starts an ADF's modules",
+       %{tmp_dir: dir} do
+    name = :"late_#{System.unique_integer([:positive])}"
+
+    {adf, robot} =
+      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+
+    listener = slow_listener(robot, name)
     {:ok, [%{pid: pid}]} = Runtime.start(adf)
     assert_received {:heard, announced, nil}
     assert announced.modules == [name]
@@ -180,22 +187,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
     {adf, robot} =
       adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
 
-    test = self()
-
-    listener =
-      spawn_link(fn ->
-        :ok = Starting.listen()
-        send(test, :listening)
-
-        receive do
-          {:tc_adf_starting, _ref, _from, ^robot, _announced} = starting ->
-            Process.sleep(200)
-            send(test, {:heard, Runtime.whereis({robot, name})})
-            Starting.ready(starting)
-        end
-      end)
-
-    assert_receive :listening
+    listener = slow_listener(robot, name)
     {:ok, deployment} = Runtime.deploy(adf)
 
     on_exit(fn ->
@@ -204,7 +196,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
     end)
 
     assert is_pid(deployment)
-    assert_receive {:heard, nil}, 5_000
+    assert_receive {:heard, _announced, nil}, 5_000
     ThinkingCap.Testing.Cluster.wait_until(fn -> Runtime.whereis({robot, name}) != nil end)
     Process.unlink(listener)
   end
