@@ -195,7 +195,7 @@ defmodule ThinkingCap.Planner.Monitor do
       queue: [],
       target: nil,
       stand_in: nil,
-      looking: false,
+      looking: nil,
       plan: nil,
       status: :idle,
       reason: nil,
@@ -459,7 +459,7 @@ defmodule ThinkingCap.Planner.Monitor do
         {[], %{state | status: :done, reason: "explored: no frontier left"}}
 
       %{point: point} ->
-        {[], plan(%{state | target: point, replans: 0, looking: false})}
+        {[], plan(%{state | target: point, replans: 0, looking: nil})}
     end
   end
 
@@ -501,13 +501,15 @@ defmodule ThinkingCap.Planner.Monitor do
     cond do
       # within reach of a frontier not yet seen, not facing it (one just
       # beside or behind the robot, where the laser does not look): the
-      # robot turns to it, driving to the frontier itself, before it
-      # counts as unseen. Judged at once, the office's first frontier,
-      # 0.26 m from where the robot started, was given up, and the
-      # exploration ended there after 10 s.
+      # robot turns to it, driving to the frontier itself, for at most
+      # @look_for seconds, before it counts as unseen. Judged at once,
+      # the office's first frontier, 0.26 m from where the robot
+      # started, was given up, and the exploration ended there after 10 s.
       reached?(state, distance) and state.task == :explore and not explored?(state) and
-          not facing?(state) ->
-        if state.looking, do: {[], state}, else: {[], plan(%{state | looking: true})}
+        not facing?(state) and still_looking?(state) ->
+        if state.looking,
+          do: {[], state},
+          else: {[], plan(%{state | looking: state.time})}
 
       reached?(state, distance) ->
         # a frontier its stand-in does not see (round a corner) is left
@@ -706,7 +708,7 @@ defmodule ThinkingCap.Planner.Monitor do
   # radius), else the one with the most. The frontier stays the target
   # (planned to, seen or given up). A robot looking at a frontier
   # (`looking`, below) drives to the frontier itself.
-  defp stand_in(%{task: :explore, looking: false}, goal, [_ | _] = cells, planner) do
+  defp stand_in(%{task: :explore, looking: nil}, goal, [_ | _] = cells, planner) do
     last = List.last(cells)
     room = planner.radius + 0.1
 
@@ -838,11 +840,20 @@ defmodule ThinkingCap.Planner.Monitor do
   # at a waypoint with a heading, a robot whose RDF has docking: must stop
   # within its docking tolerances
   # whether the robot faces the target (within 0.5 rad): the laser sees
-  # ahead, and what lies close beside the robot only when it faces it
-  defp facing?(%{pose: {x, y, th}, target: {tx, ty}}),
-    do: abs(angle_diff(:math.atan2(ty - y, tx - x), th)) < 0.5
+  # ahead, and what lies close beside the robot only when it faces it. A
+  # target under the robot (within 0.15 m) has no direction to face.
+  defp facing?(%{pose: {x, y, th}, target: {tx, ty}}) do
+    (tx - x) ** 2 + (ty - y) ** 2 < 0.15 ** 2 or
+      abs(angle_diff(:math.atan2(ty - y, tx - x), th)) < 0.5
+  end
 
   defp facing?(_state), do: true
+
+  # a look at a frontier lasts at most @look_for seconds (time to turn
+  # round and close in)
+  @look_for 8.0
+  defp still_looking?(%{looking: nil}), do: true
+  defp still_looking?(%{looking: since, time: now}), do: now - since < @look_for
 
   defp reached?(state, distance) do
     case {state.docking, target_heading(state, state.target)} do

@@ -174,7 +174,7 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert plan.state == :moving
     {plan, _, state} = cycle(state, 1.5)
     assert plan.state == :moving
-    assert state.looking and state.given_up == [] and state.target == {fx, fy}
+    assert is_number(state.looking) and state.given_up == [] and state.target == {fx, fy}
     assert List.last(plan.path) == {fx, fy}
     {plan, _, state} = cycle(state, 2.0)
     assert plan.state == :moving and state.given_up == []
@@ -183,7 +183,17 @@ defmodule ThinkingCap.Planner.MonitorTest do
     # up (the only frontier: tried again in a second round, anew)
     assert state.rounds == 1
     {_plan, _, state} = cycle(pose(state, {2.0, 2.0, :math.pi()}), 3.0)
-    assert state.rounds == 2 and not state.looking
+    assert state.rounds == 2 and state.looking == nil
+
+    # a robot that cannot turn to it (held, say) stops looking after 8 s:
+    # then the frontier counts as unseen too
+    {_plan, _, held} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, 0.0})
+    {_plan, _, held} = cycle(held, 1.5)
+    assert is_number(held.looking)
+    {_plan, _, held} = cycle(held, 5.0)
+    assert held.rounds == 1
+    {_plan, _, held} = cycle(held, 10.0)
+    assert held.rounds == 2
   end
 
   @tag :tmp_dir
