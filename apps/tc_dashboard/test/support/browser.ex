@@ -146,6 +146,52 @@ defmodule ThinkingCap.Dashboard.Test.Browser do
   def console(browser, opts \\ []),
     do: command(browser, Map.merge(%{cmd: "console"}, Map.new(opts)))
 
+  ## For tests: the same, failing the test on an error
+
+  @doc "Opens `url` (`open/3`); fails the test unless the page loaded (200)."
+  @spec open!(browser(), String.t()) :: map()
+  def open!(browser, url) do
+    case open(browser, url) do
+      {:ok, %{"status" => 200} = page} -> page
+      other -> ExUnit.Assertions.flunk("opening #{url}: #{inspect(other)}")
+    end
+  end
+
+  @doc "The value of `expr` in the page (`eval/3`); fails the test on an error."
+  @spec eval!(browser(), String.t()) :: term()
+  def eval!(browser, expr) do
+    case eval(browser, expr) do
+      {:ok, value} -> value
+      {:error, message} -> ExUnit.Assertions.flunk("#{expr}: #{message}")
+    end
+  end
+
+  @doc """
+  Waits until `expr` is truthy (`wait/3`, `timeout:` default 5 s) and
+  answers its value; fails the test with the page's console otherwise.
+  """
+  @spec wait!(browser(), String.t(), keyword()) :: term()
+  def wait!(browser, expr, opts \\ []) do
+    case wait(browser, expr, opts) do
+      {:ok, value} ->
+        value
+
+      {:error, message} ->
+        {:ok, log} = console(browser)
+
+        ExUnit.Assertions.flunk(
+          "waiting for #{expr}: #{message}\nthe page's console: #{inspect(log)}"
+        )
+    end
+  end
+
+  @doc "The page's errors so far (console lines of errors and uncaught exceptions)."
+  @spec page_errors(browser()) :: [String.t()]
+  def page_errors(browser) do
+    {:ok, log} = console(browser)
+    Enum.filter(log, &String.starts_with?(&1, ["pageerror", "error"]))
+  end
+
   defp ok({:ok, _}), do: :ok
   defp ok(error), do: error
 

@@ -8,6 +8,7 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
 
   alias ThinkingCap.{BlackBox, Blackboard, Dashboard}
   alias ThinkingCap.Dashboard.Test.Browser
+  import Browser, only: [open!: 2, eval!: 2, page_errors: 1]
   alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Tuples
   require Tuples
@@ -341,31 +342,9 @@ defmodule ThinkingCap.Dashboard.BlackBoxBrowserTest do
     """)
   end
 
-  defp open!(b, url), do: assert({:ok, %{"status" => 200}} = Browser.open(b, url))
-
-  defp eval!(b, expr) do
-    case Browser.eval(b, expr) do
-      {:ok, value} -> value
-      {:error, message} -> flunk("#{expr}: #{message}")
-    end
-  end
-
   # generous: the machine may be busy; these are not timing measurements
-  defp wait!(b, expr, opts \\ []) do
-    case Browser.wait(b, expr, Keyword.put_new(opts, :timeout, 15_000)) do
-      {:ok, value} ->
-        value
-
-      {:error, message} ->
-        {:ok, log} = Browser.console(b)
-        flunk("waiting for #{expr}: #{message}\nthe page's console: #{inspect(log)}")
-    end
-  end
-
-  defp page_errors(b) do
-    {:ok, log} = Browser.console(b)
-    Enum.filter(log, &String.starts_with?(&1, ["pageerror", "error"]))
-  end
+  defp wait!(b, expr, opts \\ []),
+    do: Browser.wait!(b, expr, Keyword.put_new(opts, :timeout, 15_000))
 
   defp js(value), do: :jiffy.encode(value)
 end

@@ -8,6 +8,7 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
 
   alias ThinkingCap.{Blackboard, Dashboard, Runtime, Sim}
   alias ThinkingCap.Dashboard.Test.Browser
+  import Browser, only: [open!: 2, eval!: 2, wait!: 2, wait!: 3, page_errors: 1]
 
   @moduletag :browser
   @moduletag :tmp_dir
@@ -528,37 +529,10 @@ defmodule ThinkingCap.Dashboard.BrowserTest do
 
   defp url(ctx), do: ctx.info.url <> "&robot=#{ctx.name}"
 
-  defp open!(b, url) do
-    assert {:ok, %{"status" => 200}} = Browser.open(b, url)
-  end
-
-  defp eval!(b, expr) do
-    case Browser.eval(b, expr) do
-      {:ok, value} -> value
-      {:error, message} -> flunk("#{expr}: #{message}")
-    end
-  end
-
-  defp wait!(b, expr, opts \\ []) do
-    case Browser.wait(b, expr, Keyword.put_new(opts, :timeout, 5_000)) do
-      {:ok, value} ->
-        value
-
-      {:error, message} ->
-        {:ok, log} = Browser.console(b)
-        flunk("waiting for #{expr}: #{message}\nthe page's console: #{inspect(log)}")
-    end
-  end
-
   defp ok({:ok, _}), do: :ok
   defp ok(other), do: other
 
   defp js(string), do: :jiffy.encode(string)
-
-  defp page_errors(b) do
-    {:ok, log} = Browser.console(b)
-    Enum.filter(log, &String.starts_with?(&1, ["pageerror", "error"]))
-  end
 
   # a ROS map_server map, 6 m x 4 m at 10 cm, its origin at (-1, -1): free
   # floor inside a wall, and an occupied 1 m block whose centre is at

@@ -7,6 +7,7 @@ defmodule ThinkingCap.Dashboard.ParamsBrowserTest do
 
   alias ThinkingCap.{Blackboard, Dashboard, Runtime, Sim}
   alias ThinkingCap.Dashboard.Test.Browser
+  import Browser, only: [eval!: 2, wait!: 2]
 
   @moduletag :browser
   @moduletag :tmp_dir
@@ -129,24 +130,6 @@ defmodule ThinkingCap.Dashboard.ParamsBrowserTest do
       return true;
     })()
     """)
-  end
-
-  defp eval!(b, expr) do
-    case Browser.eval(b, expr) do
-      {:ok, value} -> value
-      {:error, message} -> flunk("#{expr}: #{message}")
-    end
-  end
-
-  defp wait!(b, expr) do
-    case Browser.wait(b, expr, timeout: 5_000) do
-      {:ok, value} ->
-        value
-
-      {:error, message} ->
-        {:ok, log} = Browser.console(b)
-        flunk("waiting for #{expr}: #{message}\nthe page's console: #{inspect(log)}")
-    end
   end
 
   defp js(string), do: :jiffy.encode(string)
