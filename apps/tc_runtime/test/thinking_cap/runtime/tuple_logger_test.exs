@@ -43,7 +43,14 @@ defmodule ThinkingCap.Runtime.TupleLoggerTest do
     {robot, _name} = start_logger(dir, path: log, max_bytes: 1024, max_line: 100)
 
     for i <- 1..60, do: Blackboard.out({:big, robot, %{i: i, text: String.duplicate("x", 500)}})
-    Cluster.wait_until(fn -> File.exists?(log <> ".1") and File.read!(log) =~ "i: 60" end)
+    # the file may be between its rename to .1 and its new start when looked at
+    Cluster.wait_until(fn ->
+      File.exists?(log <> ".1") and
+        case File.read(log) do
+          {:ok, text} -> text =~ "i: 60"
+          {:error, _} -> false
+        end
+    end)
 
     for file <- [log, log <> ".1"] do
       for line <- String.split(File.read!(file), "\n", trim: true) do
