@@ -67,10 +67,15 @@ defmodule ThinkingCap.BlackBox.Recorder do
   ## Cost
 
   Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
-  and two record headers; per traced callback, a small term. The file
+  and two record headers; per traced callback, a small term. A tuple or
+  a callback is only noted when it comes (its log time taken then) and
+  written with the others at the chunk's end (or 512 at a time): woken
+  for nearly every tuple, the recorder would encode a few at a time, its
+  code and data cold each time, for half as much CPU again. The file
   gets one write per chunk. The process starts with heaps sized for an
-  open chunk, so that it is not collected every few tuples. The subscription drops tuples when the
-  recorder falls `max_queue` (1000) behind; `info/1` counts them.
+  open chunk and the tuples noted, so that it is not collected every
+  few tuples. The subscription drops tuples when the recorder falls
+  `max_queue` (1000) behind; `info/1` counts them.
   """
   use GenServer
   require Logger
@@ -78,11 +83,16 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # a module's traced callbacks written in one message
   @batch 64
 
+  # tuples and callbacks noted before they are written (at the chunk's
+  # tick, or when so many)
+  @pending_max 512
+
   # The open chunk (up to `chunk_bytes` of records, most of them
-  # binaries off the heap) lives in the process: heaps sized for it
-  # spare the recorder a garbage collection every few tuples (words:
-  # 256 KB of heap, 2 MB of binaries)
-  @spawn_opt [min_heap_size: 32_768, min_bin_vheap_size: 262_144]
+  # binaries off the heap) and the tuples noted live in the process:
+  # heaps sized for them spare the recorder a garbage collection every
+  # few tuples (words: 1 MB of heap, 2 MB of binaries; 32,768 words of
+  # heap cost a third more CPU)
+  @spawn_opt [min_heap_size: 131_072, min_bin_vheap_size: 262_144]
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
   alias ThinkingCap.Blackboard
@@ -177,6 +187,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
       epoch: System.os_time(:nanosecond) - System.monotonic_time(:nanosecond),
       replay: config.replay,
       batches: %{},
+      # noted, not yet written: [{:tuple, time, tuple} | {:callback, time, name, n, event}], newest first
+      pending: [],
+      pending_n: 0,
       chans: Channels.new(config.robot, terms: config.replay),
       files: [],
       messages: 0,
@@ -198,45 +211,23 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp compression(:none), do: ""
   defp compression(algorithm), do: Atom.to_string(algorithm)
 
+  # A tuple or a traced callback is only noted on receipt (its log time
+  # taken then) and written with the others noted at the chunk's tick,
+  # or when `@pending_max` are: the recorder is woken for nearly every
+  # message, and encoding a few at each wake-up, its code and data cold
+  # again, cost about half as much CPU again as in a batch. A chunk is
+  # only written at its end, so a VM killed loses no more than before.
   @impl true
-  def handle_info({:blackboard, _ref, tuple}, %{writer: nil} = state) when is_tuple(tuple),
-    do: {:noreply, state}
-
-  def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple) do
-    case Channels.write_tuple(state.writer, state.chans, tuple, now(state)) do
-      {:ok, w, chans, n} ->
-        state = %{state | writer: w, chans: chans, messages: state.messages + n}
-        {:noreply, maybe_rotate_by_size(state)}
-
-      {:error, reason, chans} ->
-        {:noreply, failed(%{state | chans: chans}, reason)}
-    end
-  end
+  def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple),
+    do: {:noreply, note(state, {:tuple, now(state), tuple})}
 
   # a module's callback (ThinkingCap.Runtime.Trace)
-  def handle_info({:tc_trace, _robot, _name, _n, _event}, %{writer: nil} = state),
-    do: {:noreply, state}
-
-  # kept a moment, and written `@batch` at a time (or at the chunk's
-  # end): one message per callback would cost more in record headers
-  # and indexes than the callbacks themselves
-  def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state) do
-    now = now(state)
-    {time, events, count} = Map.get(state.batches, name, {now, [], 0})
-    # each with its own receipt time, in µs after the message's log time
-    batches =
-      Map.put(
-        state.batches,
-        name,
-        {time, [{n, div(now - time, 1000), event} | events], count + 1}
-      )
-
-    state = %{state | batches: batches, callbacks: state.callbacks + 1}
-    state = if count + 1 >= @batch, do: write_batch(state, name), else: state
-    {:noreply, maybe_rotate_by_size(state)}
-  end
+  def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state),
+    do: {:noreply, note(state, {:callback, now(state), name, n, event})}
 
   def handle_info(:tick, state) do
+    state = drain(state)
+
     state =
       cond do
         state.writer == nil -> retry(state)
@@ -251,6 +242,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   @impl true
   def handle_call(:info, _from, state) do
+    state = drain(state)
     dropped = Enum.reduce(state.refs, 0, &((Blackboard.dropped(&1) || 0) + &2))
 
     info = %{
@@ -268,18 +260,65 @@ defmodule ThinkingCap.BlackBox.Recorder do
   end
 
   def handle_call(:flush, _from, state) do
-    state = close_chunk(state)
+    state = state |> drain() |> close_chunk()
     {:reply, if(state.error, do: {:error, state.error}, else: :ok), state}
   end
 
   def handle_call(:rotate, _from, state) do
+    state = drain(state)
     closed = state.path
     state = rotate_file(state)
     {:reply, if(state.error, do: {:error, state.error}, else: {:ok, closed}), state}
   end
 
   @impl true
-  def terminate(_reason, state), do: end_file(state)
+  def terminate(_reason, state), do: state |> drain() |> end_file()
+
+  ## Noted messages
+
+  defp note(state, item) do
+    state = %{state | pending: [item | state.pending], pending_n: state.pending_n + 1}
+    if state.pending_n >= @pending_max, do: drain(state), else: state
+  end
+
+  defp drain(%{pending: []} = state), do: state
+
+  defp drain(state) do
+    items = Enum.reverse(state.pending)
+    state = %{state | pending: [], pending_n: 0}
+    state = Enum.reduce(items, state, &write_item/2)
+    maybe_rotate_by_size(state)
+  end
+
+  # no file (a write failed): dropped until one is begun again
+  defp write_item(_item, %{writer: nil} = state), do: state
+
+  defp write_item({:tuple, now, tuple}, state) do
+    case Channels.write_tuple(state.writer, state.chans, tuple, now) do
+      {:ok, w, chans, n} ->
+        maybe_rotate_by_size(%{state | writer: w, chans: chans, messages: state.messages + n})
+
+      {:error, reason, chans} ->
+        failed(%{state | chans: chans}, reason)
+    end
+  end
+
+  # kept a moment, and written `@batch` at a time (or at the chunk's
+  # end): one message per callback would cost more in record headers
+  # and indexes than the callbacks themselves
+  defp write_item({:callback, now, name, n, event}, state) do
+    {time, events, count} = Map.get(state.batches, name, {now, [], 0})
+    # each with its own receipt time, in µs after the message's log time
+    batches =
+      Map.put(
+        state.batches,
+        name,
+        {time, [{n, div(now - time, 1000), event} | events], count + 1}
+      )
+
+    state = %{state | batches: batches, callbacks: state.callbacks + 1}
+    if count + 1 >= @batch, do: maybe_rotate_by_size(write_batch(state, name)), else: state
+  end
 
   ## Files
 
