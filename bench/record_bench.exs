@@ -37,7 +37,9 @@ defmodule ThinkingCap.Bench.Record do
   The same fleet (same starts, goals and seeds) for S simulated seconds
   (default 60), twice: without recording, then with every robot
   recorded (`record: [enabled: true]` in its ADF: zstd, chunks every
-  second, the modules traced for replay). Then robot 1's recording is
+  simulated second (`chunk_seconds` 1 / X: a chunk holds what it would
+  on a robot in real time, so that the bytes and the CPU per tuple do
+  not depend on X), the modules traced for replay). Then robot 1's recording is
   replayed (`ThinkingCap.BlackBox.Replay.compare/3`, every traced module).
 
   ## The figures
@@ -138,7 +140,9 @@ defmodule ThinkingCap.Bench.Record do
       IO.puts(
         "  per robot: #{fmt(msgs_per_s / n, 1)} messages/s, #{fmt(mb_per_min / n, 2)} MB/min, " <>
           "a week in #{fmt(week_gb, 1)} GB (64 GB card: #{fmt(64 / week_gb * 7, 1)} days); " <>
-          "recorders #{fmt(rec.recorder_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple; " <>
+          "recorders #{fmt(rec.recorder_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple " <>
+          "(scheduled #{fmt(rec.recorder_runs / max(rec.tuples, 1), 2)} times a tuple, " <>
+          "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
@@ -200,7 +204,7 @@ defmodule ThinkingCap.Bench.Record do
       goals = drive(fleet, sim, before.sim_time + seconds, goals)
       wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
       after_ = snapshot(sim, recorders, rec_dir)
-      cpu_us = if tracer, do: stop_tracer(tracer), else: 0
+      {cpu_us, runs} = if tracer, do: stop_tracer(tracer), else: {0, 0}
       _ = goals
 
       %{
@@ -218,6 +222,7 @@ defmodule ThinkingCap.Bench.Record do
         dropped: after_.dropped,
         bytes: after_.bytes - before.bytes,
         recorder_cpu_us: cpu_us,
+        recorder_runs: runs,
         files:
           if(record?,
             do: Map.new(1..fleet.n, &{robot(&1), recording_files(rec_dir, robot(&1))}),
@@ -243,7 +248,8 @@ defmodule ThinkingCap.Bench.Record do
       wdf: #{inspect(fleet.wdf)},
       dashboard: [enabled: false],
       black_box: [enabled: false],
-      record: [enabled: #{record?}, dir: #{inspect(rec_dir)}],
+      record: [enabled: #{record?}, dir: #{inspect(rec_dir)},
+               chunk_seconds: #{1.0 / fleet.speed}, file_seconds: #{600.0 / fleet.speed}],
       modules: [
         base_#{i}: [module: ThinkingCap.Sim.Robot, activity: :periodic,
                     period: #{fleet.step / fleet.speed}, deadline: 0.003, priority: 90, fallback: :stop,
@@ -353,7 +359,7 @@ defmodule ThinkingCap.Bench.Record do
         end
 
         send(parent, :tracing)
-        tracer_loop(%{}, 0)
+        tracer_loop(%{}, 0, 0)
       end)
 
     Process.flag(:priority, :normal)
@@ -366,19 +372,20 @@ defmodule ThinkingCap.Bench.Record do
     end
   end
 
-  defp tracer_loop(ins, total) do
+  # the recorders' CPU time (µs) and how many times they were scheduled
+  defp tracer_loop(ins, total, runs) do
     receive do
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:in, :in_exiting] ->
-        tracer_loop(Map.put(ins, pid, ts), total)
+        tracer_loop(Map.put(ins, pid, ts), total, runs)
 
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:out, :out_exiting, :out_exited] ->
         case Map.pop(ins, pid) do
-          {nil, ins} -> tracer_loop(ins, total)
-          {t_in, ins} -> tracer_loop(ins, total + :timer.now_diff(ts, t_in))
+          {nil, ins} -> tracer_loop(ins, total, runs)
+          {t_in, ins} -> tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1)
         end
 
       {:stop, from} ->
-        send(from, {:cpu_us, total})
+        send(from, {:cpu_us, total, runs})
     end
   end
 
@@ -394,7 +401,7 @@ defmodule ThinkingCap.Bench.Record do
     send(tracer, {:stop, self()})
 
     receive do
-      {:cpu_us, us} -> us
+      {:cpu_us, us, runs} -> {us, runs}
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
     end
