@@ -34,6 +34,12 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
     assert Foxglove.stamp_ns(Tuples.reading(:laser, :r1, scan)) == 12_250_000_000
   end
 
+  test "a scan's ranges are written to the millimetre" do
+    scan = %{ranges: [1.23456789, 0.0004, 7, 2.9995001], angle_min: -1.0, angle_max: 1.0}
+    assert {_, "foxglove.LaserScan", json} = one(Tuples.reading(:laser, :r1, scan))
+    assert json["ranges"] == [1.235, 0.0, 7.0, 3.0]
+  end
+
   test "the map is a foxglove.Grid of signed bytes, base64" do
     grid = %{
       OccupancyGrid.new(3, 2, resolution: 0.5, origin: {-1.0, 2.0})
