@@ -71,7 +71,13 @@ defmodule ThinkingCap.Bench.Record do
       blackboard's delivery to its subscription, the modules' hosts
       hashing what they are delivered for the trace) is in `vm_cpu_pct`:
       the whole VM's CPU time (`/proc/self/stat`) per simulated second
-      with recording minus without, less steady on a shared machine;
+      with recording minus without, less steady on a shared machine.
+      The tracing costs the recorders a little at each schedule (the
+      thread's CPU clock is read in a system call, 7.8 µs on the machine
+      of the README's figures, and a trace message sent): the bench
+      measures one traced schedule of a process that does nothing (it
+      answers pings) and prints the recorders' CPU less that much a
+      schedule beside the figure;
     * `misses_added`: the deadline misses (fallbacks applied by the timing
       worker) of every robot's control cycle (`control_I`) during the
       recorded run, minus those during the run without; the bases'
@@ -125,6 +131,7 @@ defmodule ThinkingCap.Bench.Record do
 
       {replay_pct, replay_text} = replay(rec.files[robot(1)])
       IO.puts("  replay of #{robot(1)}: #{replay_text}")
+      idle_us = traced_idle_schedule_us()
 
       # per simulated second: what the fleet needs at real time
       sim_s = rec.sim_seconds
@@ -144,6 +151,15 @@ defmodule ThinkingCap.Bench.Record do
           "(scheduled #{fmt(rec.recorder_runs / max(rec.tuples, 1), 2)} times a tuple, " <>
           "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
+      )
+
+      # what the measurement itself costs the recorders (see the moduledoc)
+      net_us = max(rec.recorder_cpu_us - rec.recorder_runs * idle_us, 0)
+
+      IO.puts(
+        "  a traced schedule of an idle process: #{fmt(idle_us, 1)} µs; the recorders less " <>
+          "that a time: #{fmt(net_us / max(rec.tuples, 1), 1)} µs per tuple, " <>
+          "cpu_pct #{fmt(100 * net_us / (sim_s * 1.0e6), 1)}"
       )
 
       IO.puts(
@@ -404,6 +420,46 @@ defmodule ThinkingCap.Bench.Record do
       {:cpu_us, us, runs} -> {us, runs}
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
+    end
+  end
+
+  # The CPU one schedule of a process that does nothing costs, traced as
+  # the recorders are: the cpu_timestamp clock's reads and the trace
+  # messages, and the switch itself. A process answering 2,000 pings
+  # one at a time, the least of three rounds.
+  defp traced_idle_schedule_us do
+    Enum.min(for _ <- 1..3, do: idle_round(2_000))
+  end
+
+  defp idle_round(n) do
+    echo = spawn(fn -> echo_loop() end)
+    tracer = start_tracer([echo])
+
+    for _ <- 1..n do
+      send(echo, {:ping, self()})
+
+      receive do
+        :pong -> :ok
+      end
+    end
+
+    :erlang.trace(echo, false, [:running, :timestamp])
+    :erlang.trace(:all, false, [:cpu_timestamp])
+    send(tracer, {:stop, self()})
+    Process.exit(echo, :kill)
+
+    receive do
+      {:cpu_us, us, runs} -> us / max(runs, 1)
+    after
+      60_000 -> Mix.raise("the CPU tracer did not answer")
+    end
+  end
+
+  defp echo_loop do
+    receive do
+      {:ping, from} ->
+        send(from, :pong)
+        echo_loop()
     end
   end
 
