@@ -69,9 +69,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
   Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
   and two record headers; per traced callback, a small term. A tuple or
   a callback is only noted when it comes (its log time taken then) and
-  written with the others at the chunk's end (or 512 at a time): woken
-  for nearly every tuple, the recorder would encode a few at a time, its
-  code and data cold each time, for half as much CPU again. The file
+  written with the others, 32 at a time (or at the chunk's end): woken
+  for nearly every tuple, the recorder would encode one or two at a
+  time, its code and data cold each time. The file
   gets one write per chunk. The process starts with heaps sized for an
   open chunk and the tuples noted, so that it is not collected every
   few tuples. The subscription drops tuples when the recorder falls
@@ -83,9 +83,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # a module's traced callbacks written in one message
   @batch 64
 
-  # tuples and callbacks noted before they are written (at the chunk's
-  # tick, or when so many)
-  @pending_max 512
+  # tuples and callbacks noted before they are written (when so many, or
+  # at the chunk's tick): 512 at a time held the robots' modules up (the
+  # bench's control cycles missed a fifth of their deadlines), 32 do not
+  @pending_max 32
 
   # The open chunk (up to `chunk_bytes` of records, most of them
   # binaries off the heap) and the tuples noted live in the process:
@@ -212,11 +213,11 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp compression(algorithm), do: Atom.to_string(algorithm)
 
   # A tuple or a traced callback is only noted on receipt (its log time
-  # taken then) and written with the others noted at the chunk's tick,
-  # or when `@pending_max` are: the recorder is woken for nearly every
-  # message, and encoding a few at each wake-up, its code and data cold
-  # again, cost about half as much CPU again as in a batch. A chunk is
-  # only written at its end, so a VM killed loses no more than before.
+  # taken then) and written with the others noted when `@pending_max`
+  # are, or at the chunk's tick: the recorder is woken for nearly every
+  # message, and encoding one or two at each wake-up, its code and data
+  # cold again, cost more CPU than in a batch. A chunk is only written at
+  # its end, so a VM killed loses no more than before.
   @impl true
   def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple),
     do: {:noreply, note(state, {:tuple, now(state), tuple})}
