@@ -151,6 +151,16 @@ defmodule ThinkingCap.Navigation.DStarLite do
     %{state | start: start}
   end
 
+  @doc """
+  The CPU time (ns) that the calls on this search (`new/3` and every call
+  on the states derived from it) have taken, on whichever threads they
+  ran. Unlike the wall clock, it leaves out the time the operating system
+  gave to other threads meanwhile, so on a busy machine it still says
+  what the search cost. Reading it does not change the state.
+  """
+  @spec cpu_time(t()) :: non_neg_integer()
+  def cpu_time(%__MODULE__{store: {dsl, _}}), do: GridNif.dsl_cpu_ns(dsl)
+
   defp next_version(%__MODULE__{store: {_dsl, a}, version: v} = state) do
     case :atomics.compare_exchange(a, 1, v, v + 1) do
       :ok ->

@@ -57,6 +57,8 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert planner.last.kind == :repair
     assert planner.last.changed > 0
     assert is_integer(planner.last.astar_us)
+    assert is_integer(planner.last.cpu_us) and planner.last.cpu_us >= 0
+    assert is_integer(planner.last.astar_cpu_us) and planner.last.astar_cpu_us >= 0
 
     # a box that appears away from the path costs the repair next to
     # nothing, where a search from scratch would search the whole way again
