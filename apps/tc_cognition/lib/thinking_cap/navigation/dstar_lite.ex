@@ -141,7 +141,10 @@ defmodule ThinkingCap.Navigation.DStarLite do
   The robot is now at `start` (a cell inside the grid, usually the next
   cells of the last path): the key modifier grows by the heuristic
   distance between the old and the new start, which keeps every queued key
-  a lower bound of its new value.
+  a lower bound of its new value. A queued vertex whose key was such a
+  bound is queued again with its key computed anew when it comes first
+  (the optimized D* Lite), so the search is as good after a jump of any
+  length: the distances to the goal found so far are kept.
   """
   @spec move_start(t(), Grid.cell()) :: t()
   def move_start(%__MODULE__{} = state, start) do
