@@ -887,6 +887,7 @@ static ErlNifFunc funcs[] = {
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"shrink", 4, nif_shrink, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"astar_cpu", 5, tc_nif_astar_cpu, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"costs", 5, tc_nif_costs, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_new", 8, tc_nif_field_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"field_score", 4, tc_nif_field_score, 0},
@@ -911,6 +912,7 @@ static ErlNifFunc funcs[] = {
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
     {"dsl_forget_path", 1, tc_nif_dsl_forget_path, 0},
+    {"dsl_cpu_ns", 1, tc_nif_dsl_cpu_ns, 0},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #define INF (1LL << 58)
 /* vertices a plan processes on the calling scheduler before it goes on
@@ -30,6 +31,15 @@
 #define PLAN_BUDGET 4000
 #define SMALL_UPDATE 2000
 #define STRAIGHT (1LL << 36)
+
+/* the CPU time (ns) the calling thread has used: what a search costs,
+ * without the time the OS gave to other threads meanwhile */
+static inline int64_t cpu_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
+}
 
 static int64_t DIAGONAL;
 static ErlNifResourceType *DSL_TYPE;
@@ -303,6 +313,17 @@ ERL_NIF_TERM tc_nif_astar(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return result;
 }
 
+/* astar_cpu(cells, w, h, start, goal) -> {cpu_ns, result}: astar's result
+ * and the CPU time the search took on its thread */
+ERL_NIF_TERM tc_nif_astar_cpu(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    int64_t t0 = cpu_now();
+    ERL_NIF_TERM result = tc_nif_astar(env, argc, argv);
+    ERL_NIF_TERM exception;
+    if (enif_has_pending_exception(env, &exception)) return result;
+    return enif_make_tuple2(env, enif_make_int64(env, cpu_now() - t0), result);
+}
+
 /* ---- costs to many cells ---- */
 
 /* costs(cells, w, h, start, targets) -> [cost_units | :none], one per
@@ -408,6 +429,8 @@ typedef struct {
     size_t tn;
     int valid;
     int64_t km;
+    /* the CPU time (ns) the calls on this search have taken */
+    int64_t cpu_ns;
     int32_t start, goal;
     int sc, sr; /* the start's column and row */
 } Dsl;
@@ -571,6 +594,7 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     ErlNifBinary b;
     int w, h;
     int32_t s, g;
+    int64_t t0 = cpu_now();
     if (!get_problem(env, argv, &b, &w, &h, &s, &g)) return enif_make_badarg(env);
     size_t n = (size_t)w * h;
     Dsl *d = enif_alloc_resource(DSL_TYPE, sizeof(Dsl));
@@ -598,6 +622,7 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         enif_release_resource(d);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
+    d->cpu_ns = cpu_now() - t0;
     ERL_NIF_TERM t = enif_make_resource(env, d);
     enif_release_resource(d);
     return t;
@@ -673,6 +698,7 @@ static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     (void)argc;
     Dsl *d;
     unsigned len;
+    int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
         !enif_get_list_length(env, argv[1], &len))
         return enif_make_badarg(env);
@@ -721,6 +747,7 @@ static ERL_NIF_TERM dsl_update_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         memcpy(p, d->cells, n);
         result = enif_make_tuple2(env, enif_make_long(env, (long)m), cells);
     }
+    d->cpu_ns += cpu_now() - t0;
     enif_mutex_unlock(d->lock);
     free(index);
     free(value);
@@ -752,6 +779,7 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     Dsl *d;
     ErlNifBinary b;
     long max;
+    int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
         !enif_inspect_binary(env, argv[1], &b) || !enif_get_long(env, argv[2], &max) || max < 0)
         return enif_make_badarg(env);
@@ -780,6 +808,7 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         }
     }
     if (m > (size_t)max) {
+        d->cpu_ns += cpu_now() - t0;
         enif_mutex_unlock(d->lock);
         free(changed);
         return enif_make_tuple2(env, enif_make_atom(env, "too_many"), enif_make_long(env, (long)m));
@@ -787,6 +816,7 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     /* the cells first, so every rhs repaired sees the new grid */
     for (size_t k = 0; k < m; k++) set_cell(d, changed[k], b.data[changed[k]]);
     long looked = repair_rhs(d, changed, m);
+    d->cpu_ns += cpu_now() - t0;
     enif_mutex_unlock(d->lock);
     free(changed);
     if (looked < 0) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
@@ -809,6 +839,7 @@ ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     (void)argc;
     Dsl *d;
     int32_t s;
+    int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
         !get_cell(env, argv[1], d->w, d->h, &s))
         return enif_make_badarg(env);
@@ -817,6 +848,7 @@ ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     d->start = s;
     d->sc = s % d->w;
     d->sr = s / d->w;
+    d->cpu_ns += cpu_now() - t0;
     enif_mutex_unlock(d->lock);
     return A_OK;
 }
@@ -834,6 +866,19 @@ ERL_NIF_TERM tc_nif_dsl_forget_path(ErlNifEnv *env, int argc, const ERL_NIF_TERM
     d->valid = 0;
     enif_mutex_unlock(d->lock);
     return A_OK;
+}
+
+/* dsl_cpu_ns(dsl): the CPU time (ns) the calls on this search have
+ * taken, on whichever threads they ran */
+ERL_NIF_TERM tc_nif_dsl_cpu_ns(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    int64_t ns = d->cpu_ns;
+    enif_mutex_unlock(d->lock);
+    return enif_make_int64(env, ns);
 }
 
 /* ComputeShortestPath, processing at most `budget` vertices (0: no
@@ -1022,6 +1067,7 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
                                  long before)
 {
     Dsl *d;
+    int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
     if (d->cells[d->start] || d->cells[d->goal]) {
@@ -1035,6 +1081,7 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     if (!done) {
+        d->cpu_ns += cpu_now() - t0;
         enif_mutex_unlock(d->lock);
         ERL_NIF_TERM args[2] = {argv[0], enif_make_long(env, before + processed)};
         return enif_schedule_nif(env, "dsl_plan", ERL_NIF_DIRTY_JOB_CPU_BOUND, dsl_plan_dirty, 2,
@@ -1055,6 +1102,7 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
                                        enif_make_long(env, processed))
                     : enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, processed));
     }
+    d->cpu_ns += cpu_now() - t0;
     enif_mutex_unlock(d->lock);
     return result;
 }

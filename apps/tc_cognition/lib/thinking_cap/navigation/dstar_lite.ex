@@ -141,7 +141,10 @@ defmodule ThinkingCap.Navigation.DStarLite do
   The robot is now at `start` (a cell inside the grid, usually the next
   cells of the last path): the key modifier grows by the heuristic
   distance between the old and the new start, which keeps every queued key
-  a lower bound of its new value.
+  a lower bound of its new value. A queued vertex whose key was such a
+  bound is queued again with its key computed anew when it comes first
+  (the optimized D* Lite), so the search is as good after a jump of any
+  length: the distances to the goal found so far are kept.
   """
   @spec move_start(t(), Grid.cell()) :: t()
   def move_start(%__MODULE__{} = state, start) do
@@ -150,6 +153,16 @@ defmodule ThinkingCap.Navigation.DStarLite do
     :ok = GridNif.dsl_move_start(elem(state.store, 0), start)
     %{state | start: start}
   end
+
+  @doc """
+  The CPU time (ns) that the calls on this search (`new/3` and every call
+  on the states derived from it) have taken, on whichever threads they
+  ran. Unlike the wall clock, it leaves out the time the operating system
+  gave to other threads meanwhile, so on a busy machine it still says
+  what the search cost. Reading it does not change the state.
+  """
+  @spec cpu_time(t()) :: non_neg_integer()
+  def cpu_time(%__MODULE__{store: {dsl, _}}), do: GridNif.dsl_cpu_ns(dsl)
 
   defp next_version(%__MODULE__{store: {_dsl, a}, version: v} = state) do
     case :atomics.compare_exchange(a, 1, v, v + 1) do

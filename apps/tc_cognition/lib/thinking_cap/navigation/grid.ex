@@ -51,16 +51,20 @@ defmodule ThinkingCap.Navigation.Grid do
 
   @doc "Sets cells blocked (`true`) or passable (`false`)."
   @spec put(t(), [cell()], boolean()) :: t()
-  def put(%__MODULE__{width: w} = grid, cells, blocked?) do
-    value = if blocked?, do: 1, else: 0
-    bytes = :binary.bin_to_list(grid.cells) |> List.to_tuple()
+  def put(%__MODULE__{width: w, cells: bytes} = grid, cells, blocked?) do
+    value = if blocked?, do: <<1>>, else: <<0>>
 
-    bytes =
-      Enum.reduce(cells, bytes, fn {col, row}, acc ->
-        if inside?(grid, {col, row}), do: put_elem(acc, row * w + col, value), else: acc
+    # the grid's bytes between the cells set, and the value at each: one
+    # copy of the grid, however many cells
+    {parts, from} =
+      for({col, row} = cell <- cells, inside?(grid, cell), uniq: true, do: row * w + col)
+      |> Enum.sort()
+      |> Enum.reduce({[], 0}, fn i, {parts, from} ->
+        {[value, binary_part(bytes, from, i - from) | parts], i + 1}
       end)
 
-    %{grid | cells: bytes |> Tuple.to_list() |> :binary.list_to_bin()}
+    rest = binary_part(bytes, from, byte_size(bytes) - from)
+    %{grid | cells: IO.iodata_to_binary(Enum.reverse([rest | parts]))}
   end
 
   @doc "Whether `cell` is inside the grid."

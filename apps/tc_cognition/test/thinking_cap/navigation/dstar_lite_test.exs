@@ -212,6 +212,38 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
     assert List.last(path) == {4, 1}
   end
 
+  test "cpu_time counts the CPU time of every call on the search, and only grows" do
+    # walls across every tenth row, a gap alternately at either end: the
+    # search winds through the whole grid
+    walls =
+      for row <- 10..290//10,
+          col <- 0..299,
+          if(rem(row, 20) == 0, do: col < 297, else: col > 2),
+          do: {col, row}
+
+    grid = Grid.new(300, 300) |> Grid.put(walls, true)
+    state = DStarLite.new(grid, {0, 0}, {299, 299})
+    at_new = DStarLite.cpu_time(state)
+    assert is_integer(at_new) and at_new >= 0
+    # reading it changes nothing: the state is still the latest
+    assert DStarLite.cpu_time(state) == at_new
+
+    {:ok, _path, state} = DStarLite.plan(state)
+    at_plan = DStarLite.cpu_time(state)
+    # tens of thousands of vertices are not processed in no time
+    assert state.expanded > 10_000
+    assert at_plan > at_new
+
+    state = DStarLite.move_start(state, {1, 1})
+    state = DStarLite.update_cells(state, [{{5, 5}, true}])
+    {:ok, _path, state} = DStarLite.plan(state)
+    assert DStarLite.cpu_time(state) >= at_plan
+
+    # a new search starts its own count
+    fresh = DStarLite.new(grid, {0, 0}, {299, 299})
+    assert DStarLite.cpu_time(fresh) < at_plan
+  end
+
   test "start at the goal" do
     assert {:ok, [{1, 1}], _} = DStarLite.new(Grid.new(3, 3), {1, 1}, {1, 1}) |> DStarLite.plan()
   end

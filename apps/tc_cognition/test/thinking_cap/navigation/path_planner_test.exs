@@ -57,6 +57,8 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert planner.last.kind == :repair
     assert planner.last.changed > 0
     assert is_integer(planner.last.astar_us)
+    assert is_integer(planner.last.cpu_us) and planner.last.cpu_us >= 0
+    assert is_integer(planner.last.astar_cpu_us) and planner.last.astar_cpu_us >= 0
 
     # a box that appears away from the path costs the repair next to
     # nothing, where a search from scratch would search the whole way again
@@ -145,7 +147,7 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert clear.last.kind == :repair and clear.last.changed == differ
   end
 
-  test "a start that jumped (a robot found elsewhere) is searched anew, not repaired" do
+  test "a start that jumped (a robot found elsewhere) is repaired, as a search from scratch finds" do
     planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
     {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
 
@@ -153,14 +155,18 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     {:ok, _path, stepped} = PathPlanner.plan(planner, {1.5, 3.0}, {9.0, 3.0})
     assert stepped.last.kind == :repair
 
-    # 2 m further in one go (more than max_jump, 1.5 m): a new search, the
-    # path as a search from scratch finds it
+    # 2 m further in one go (more than max_jump, 1.5 m): repaired, recorded
+    # as a jump, with the cost of the path a search from scratch finds
     assert {:ok, path, jumped} = PathPlanner.plan(stepped, {3.5, 1.0}, {9.0, 3.0})
-    assert jumped.last.kind == :restart
+    assert jumped.last.kind == :jump
     fresh = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
-    assert {:ok, ^path, _} = PathPlanner.plan(fresh, {3.5, 1.0}, {9.0, 3.0})
+    assert {:ok, fresh_path, fresh} = PathPlanner.plan(fresh, {3.5, 1.0}, {9.0, 3.0})
+    assert hd(path) == hd(fresh_path) and List.last(path) == List.last(fresh_path)
+    assert_in_delta length_of(path), length_of(fresh_path), 1.0e-9
+    # the distances to the goal it knew are not searched again
+    assert jumped.last.expanded < fresh.last.expanded
 
-    # allowed a longer jump, the same move is repaired
+    # allowed a longer jump, the same move is an ordinary repair
     far = PathPlanner.new(radius: 0.3, max_jump: 3.0) |> PathPlanner.set_map(room(1))
     {:ok, _path, far} = PathPlanner.plan(far, {1.5, 3.0}, {9.0, 3.0})
     assert {:ok, _path, far} = PathPlanner.plan(far, {3.5, 1.0}, {9.0, 3.0})

@@ -73,6 +73,7 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
 
   def slam_optimize(_nodes, _edges, _iterations), do: :erlang.nif_error(:nif_not_loaded)
   def astar(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
+  def astar_cpu(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def costs(_cells, _w, _h, _start, _targets), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_new(_cells, _w, _h, _start, _goal), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_update(_dsl, _changes), do: :erlang.nif_error(:nif_not_loaded)
@@ -80,4 +81,5 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def dsl_move_start(_dsl, _cell), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_forget_path(_dsl), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_cpu_ns(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end
