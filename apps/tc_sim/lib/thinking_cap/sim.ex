@@ -87,7 +87,9 @@ defmodule ThinkingCap.Sim do
       with `running: false` waits for `run_for/2` or `step/2`);
     * `:publish` - publish readings on the blackboard (default `false`);
     * `:shards` - processes stepping robots at the start (default: the
-      schedulers online); another starts when each holds 32 robots;
+      schedulers online); as many again start when each holds
+      `:per_shard` robots (default 16). The split changes nothing in the
+      results, only how evenly the work spreads over the cores;
     * `:walkers` - people walking in the world: `[{id, opts}]` as
       `add_walker/3`;
     * `:name` - a name to register.
