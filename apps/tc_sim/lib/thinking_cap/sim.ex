@@ -90,6 +90,11 @@ defmodule ThinkingCap.Sim do
       schedulers online); as many again start when each holds
       `:per_shard` robots (default 16). The split changes nothing in the
       results, only how evenly the work spreads over the cores;
+    * `:regroup_every` - steps between two regroupings of the robots by
+      place (default 50): robots near each other move to the same shard,
+      whose rays then stay in one part of the map (faster in large
+      worlds). A robot moved hands its whole state over, controller's
+      included;
     * `:walkers` - people walking in the world: `[{id, opts}]` as
       `add_walker/3`;
     * `:name` - a name to register.
@@ -216,9 +221,10 @@ defmodule ThinkingCap.Sim do
 
   @doc """
   The clock (`time`, `steps`, `step`, `speed`, `mode`, `running`, `lagged`
-  releases in real-time mode), `robots`, `walkers`, `shards`, `rays` cast (primary
-  rays: cone rays and beams, bounces not counted) and `blocked`
-  robot-steps (moves refused because of a contact).
+  releases in real-time mode), `robots`, `walkers`, `shards`, `handovers`
+  (robots moved from one shard to another, see `:regroup_every`), `rays`
+  cast (primary rays: cone rays and beams, bounces not counted) and
+  `blocked` robot-steps (moves refused because of a contact).
   """
   @spec status(sim()) :: map()
   def status(sim), do: GenServer.call(sim, :status)

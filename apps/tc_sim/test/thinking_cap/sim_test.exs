@@ -391,8 +391,9 @@ defmodule ThinkingCap.SimTest do
 
       {one, status_1} = run.(shards: 1, per_shard: 1000)
       assert status_1.shards == 1
-      {many, status_many} = run.(shards: 3, per_shard: 4)
+      {many, status_many} = run.(shards: 3, per_shard: 4, regroup_every: 7)
       assert status_many.shards == 24
+      assert status_many.handovers > 0
       {default, status_default} = run.([])
       assert status_default.shards > 1
 

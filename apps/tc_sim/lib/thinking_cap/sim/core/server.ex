@@ -11,7 +11,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.{Raycast, World}
-  alias ThinkingCap.Sim.Core.{Contacts, Shard}
+  alias ThinkingCap.Sim.Core.{Contacts, Regions, Shard}
 
   # robots per shard before more shards start: a shard rebuilds its
   # robots' state every step, and a large process heap makes each garbage
@@ -19,6 +19,8 @@ defmodule ThinkingCap.Sim.Core.Server do
   # small shards also spread a fleet evenly over the schedulers (100
   # robots in 32 + 32 + 32 + 4 kept one core waiting a quarter of a step)
   @per_shard 16
+  # steps between two regroupings of the robots by place (Regions)
+  @regroup_every 50
 
   def start_link(opts) do
     case Keyword.fetch(opts, :name) do
@@ -35,6 +37,7 @@ defmodule ThinkingCap.Sim.Core.Server do
          {:ok, seed} <- integer(opts, :seed, 1),
          {:ok, n_shards} <- count(opts, :shards, System.schedulers_online()),
          {:ok, per_shard} <- count(opts, :per_shard, @per_shard),
+         {:ok, regroup_every} <- count(opts, :regroup_every, @regroup_every),
          {:ok, world} <- world(Keyword.fetch(opts, :world)) do
       counters = :counters.new(2, [:write_concurrency])
 
@@ -58,6 +61,7 @@ defmodule ThinkingCap.Sim.Core.Server do
         # shards start this many at a time, each taking per_shard robots
         grow_by: n_shards,
         per_shard: per_shard,
+        regroup_every: regroup_every,
         # robots per shard
         load: Map.new(shards, &{&1, 0}),
         world: world,
@@ -76,6 +80,7 @@ defmodule ThinkingCap.Sim.Core.Server do
         next_index: 0,
         counters: counters,
         lagged: 0,
+        handovers: 0,
         activity: nil,
         target: nil,
         started_at: System.monotonic_time(),
@@ -184,7 +189,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
 
-  def handle_info({:stepped, _ref, _poses}, state), do: {:noreply, state}
+  def handle_info({:stepped, _ref, _shard, _records}, state), do: {:noreply, state}
   def handle_info({:moved, _ref, _moves}, state), do: {:noreply, state}
 
   def handle_info(message, state) do
@@ -205,6 +210,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   # its robots' sensors and runs their controllers in parallel; then the
   # bodies move in the ray caster.
   defp do_step(state) do
+    state = regroup(state)
     ref = make_ref()
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
@@ -216,6 +222,45 @@ defmodule ThinkingCap.Sim.Core.Server do
     state = %{state | step: state.step + 1, records: records, walkers: walkers}
     set_bodies(state)
     state
+  end
+
+  # Every regroup_every steps, robots near each other go to the same shard
+  # (Regions): a shard then casts over one part of the map at a time.
+  defp regroup(%{step: step, regroup_every: every} = state) when rem(step, every) != 0, do: state
+  defp regroup(state) when tuple_size(state.shards) < 2, do: state
+
+  defp regroup(state) do
+    by_index = Map.new(state.robots, fn {id, {index, _shard}} -> {index, id} end)
+    current = Map.new(state.robots, fn {id, {_index, shard}} -> {id, shard} end)
+
+    robots =
+      for {_shard, bin} <- state.records,
+          <<i::float-native-64, x::float-native-64, y::float-native-64,
+            _::float-native-64 <- bin>>,
+          do: {Map.fetch!(by_index, trunc(i)), trunc(i), x, y}
+
+    robots
+    |> Regions.plan(Tuple.to_list(state.shards), current)
+    |> Enum.reduce(state, &hand_over/2)
+  end
+
+  defp hand_over({from, to, ids}, state) do
+    {bodies, from_records} = GenServer.call(from, {:take, ids}, 30_000)
+    {:ok, to_records} = GenServer.call(to, {:put, bodies}, 30_000)
+    n = length(ids)
+
+    robots =
+      Enum.reduce(ids, state.robots, fn id, acc ->
+        Map.update!(acc, id, fn {index, _} -> {index, to} end)
+      end)
+
+    %{
+      state
+      | robots: robots,
+        records: state.records |> Map.put(from, from_records) |> Map.put(to, to_records),
+        load: state.load |> Map.update!(from, &(&1 - n)) |> Map.update!(to, &(&1 + n)),
+        handovers: state.handovers + n
+    }
   end
 
   ## Walkers
@@ -554,6 +599,7 @@ defmodule ThinkingCap.Sim.Core.Server do
        walkers: map_size(state.walkers),
        shards: tuple_size(state.shards),
        lagged: state.lagged,
+       handovers: state.handovers,
        rays: :counters.get(state.counters, 1),
        blocked: :counters.get(state.counters, 2)
      }, state}

@@ -44,6 +44,18 @@ defmodule ThinkingCap.Sim.Core.Shard do
     {:reply, {:ok, records(state.bodies)}, state}
   end
 
+  # a handover of robots to another shard (Regions): their whole state
+  def handle_call({:take, ids}, _from, state) do
+    {taken, bodies} = Map.split(state.bodies, ids)
+    taken = Enum.map(ids, &Map.fetch!(taken, &1))
+    {:reply, {taken, records(bodies)}, %{state | bodies: bodies}}
+  end
+
+  def handle_call({:put, bodies}, _from, state) do
+    bodies = Enum.reduce(bodies, state.bodies, &Map.put(&2, &1.id, &1))
+    {:reply, {:ok, records(bodies)}, %{state | bodies: bodies}}
+  end
+
   def handle_call({:teleport, id, {x, y, _} = pose}, _from, state) do
     case state.bodies do
       %{^id => body} ->
