@@ -11,7 +11,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.{Raycast, World}
-  alias ThinkingCap.Sim.Core.{Contacts, Regions, Shard}
+  alias ThinkingCap.Sim.Core.{Contacts, Regions, Shard, Walkers}
 
   # robots per shard before more shards start: a shard rebuilds its
   # robots' state every step, and a large process heap makes each garbage
@@ -218,7 +218,7 @@ defmodule ThinkingCap.Sim.Core.Server do
     taken_back = ref |> collect_moves(length(shards), []) |> Contacts.taken_back()
     Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
     records = collect(ref, length(shards), state.records)
-    walkers = walk(state.walkers, records, state.dt)
+    walkers = Walkers.step(state.walkers, Map.values(records), state.dt)
     state = %{state | step: state.step + 1, records: records, walkers: walkers}
     set_bodies(state)
     state
@@ -322,55 +322,6 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   defp route(_world, other),
     do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
-
-  # walkers step one after the other (in order of id), each seeing the
-  # robots where they now stand and the walkers before it where they moved
-  defp walk(walkers, _records, _dt) when map_size(walkers) == 0, do: walkers
-
-  defp walk(walkers, records, dt) do
-    robots =
-      for bin <- Map.values(records),
-          <<_::float-native-64, x::float-native-64, y::float-native-64,
-            r::float-native-64 <- bin>>,
-          do: {x, y, r}
-
-    walkers
-    |> Enum.sort()
-    |> Enum.reduce(walkers, fn {id, w}, walkers ->
-      others = for {other, %{at: {x, y}, radius: r}} <- walkers, other != id, do: {x, y, r}
-      Map.put(walkers, id, step_walker(w, others ++ robots, dt))
-    end)
-  end
-
-  defp step_walker(w, bodies, dt) do
-    {x, y} = w.at
-    {tx, ty} = elem(w.route, w.leg)
-    d = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
-    step = w.speed * dt
-
-    if d <= step do
-      next_leg(%{w | at: {tx, ty}})
-    else
-      next = {x + (tx - x) * step / d, y + (ty - y) * step / d}
-      if clear?(next, w, bodies), do: %{w | at: next}, else: w
-    end
-  end
-
-  defp next_leg(%{leg: leg, dir: dir, route: route} = w) do
-    n = tuple_size(route)
-
-    cond do
-      w.loop -> %{w | leg: rem(leg + 1, n)}
-      leg + dir >= 0 and leg + dir < n -> %{w | leg: leg + dir}
-      true -> %{w | leg: leg - dir, dir: -dir}
-    end
-  end
-
-  defp clear?({x, y}, w, bodies) do
-    Enum.all?(bodies, fn {bx, by, r} ->
-      (bx - x) ** 2 + (by - y) ** 2 > (r + w.radius + 0.05) ** 2
-    end)
-  end
 
   defp collect_moves(_ref, 0, moves), do: moves
 
