@@ -36,6 +36,8 @@
 #define CODE_OBST 255u
 #define CODE_MAX_SKIP 254.0
 #define SKIP_MIN 1u
+/* a tile's skip from which a ray jumps without reading the cell */
+#define COARSE_SKIP_MIN 2u
 /* rays (counting the bounce budget) above which a call goes to a dirty
  * CPU scheduler */
 #define DIRTY_RAY_BUDGET 4000
@@ -86,6 +88,13 @@ typedef struct {
     int has_grid, gw, gh, gtw; /* gtw: tiles per row */
     double res, inv_res, gox, goy, gc, gs;
     uint8_t *code; /* in 8x8-cell tiles of 64 bytes, see cell_index */
+    /* per tile, the least skip of its cells (an obstacle counts 0): a ray
+     * anywhere in the tile may jump that far. 64 times smaller than the
+     * cells, so it stays in the caches when the map does not: a ray
+     * crossing open space reads it and not the cells (at 1,000 robots in a
+     * 150 m x 100 m map, most of a scan's time was spent waiting for
+     * cells to come from memory) */
+    uint8_t *coarse;
     /* bodies */
     BodyIndex bodies;
 } World;
@@ -271,11 +280,13 @@ static void world_free(World *w)
     if (w->sstart) enif_free(w->sstart);
     if (w->sitems) enif_free(w->sitems);
     if (w->code) enif_free(w->code);
+    if (w->coarse) enif_free(w->coarse);
     body_index_free(&w->bodies);
     w->seg = NULL;
     w->seg_on = NULL;
     w->sstart = w->sitems = NULL;
     w->code = NULL;
+    w->coarse = NULL;
 }
 
 static void world_dtor(ErlNifEnv *env, void *obj)
@@ -341,7 +352,8 @@ static int build_grid(World *w, const signed char *data)
     w->gtw = (W + 7) / 8;
     const size_t tiled = (size_t)w->gtw * ((H + 7) / 8) * 64;
     w->code = enif_alloc(tiled);
-    if (!d2 || !f || !d || !z || !v || !w->code) {
+    w->coarse = enif_alloc(tiled / 64);
+    if (!d2 || !f || !d || !z || !v || !w->code || !w->coarse) {
         if (d2) enif_free(d2);
         if (f) enif_free(f);
         if (d) enif_free(d);
@@ -376,6 +388,15 @@ static int build_grid(World *w, const signed char *data)
             }
             w->code[cell_index(w->gtw, x, y)] = c;
         }
+    for (size_t tile = 0; tile < tiled / 64; tile++) {
+        unsigned least = CODE_OBST;
+        for (int k = 0; k < 64; k++) {
+            unsigned c = w->code[tile * 64 + k];
+            if (c == CODE_OBST) c = 0;
+            if (c < least) least = c;
+        }
+        w->coarse[tile] = (uint8_t)least;
+    }
     enif_free(d2);
     enif_free(f);
     enif_free(d);
@@ -507,7 +528,7 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
     const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
     const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
     const double tdx = fabs(ivx), tdy = fabs(ivy);
-    const uint8_t *g = w->code;
+    const uint8_t *g = w->code, *coarse = w->coarse;
     const int tw = w->gtw;
     /* inside the grid up to rounding: truncation is floor, then clamp */
     int cx = clampi((int)(ux + t0 * vx), 0, W - 1);
@@ -516,6 +537,16 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
     int dda = 0;
 
     for (;;) {
+        unsigned k = coarse[(cy >> 3) * tw + (cx >> 3)];
+        if (k >= COARSE_SKIP_MIN) {
+            t += (double)k;
+            if (t >= t1) return 0;
+            cx = clampi((int)(ux + t * vx), 0, W - 1);
+            cy = clampi((int)(uy + t * vy), 0, H - 1);
+            dda = 0;
+            face = 0;
+            continue;
+        }
         unsigned c = g[cell_index(tw, cx, cy)];
         if (c >= SKIP_MIN) {
             if (c == CODE_OBST) break;
