@@ -30,7 +30,10 @@ defmodule ThinkingCap.Sim do
   Then each sensor due at this step reads (its `rate` from the RDF), seeing
   the world and the other robots (as discs of their footprint radius, where
   they stood at the start of the step). Robots are stepped in parallel, in
-  one shard per scheduler.
+  shards of 16 robots spread over the schedulers (see `:shards`), regrouped
+  by place now and then so that a shard's rays stay in one part of the
+  map; moves that ran two robots into each other are taken back (both
+  stay where they were, bumpers pressed), so robots never overlap.
 
   Readings are `{sensor, payload}` pairs (payloads below) and go:
 
@@ -62,8 +65,10 @@ defmodule ThinkingCap.Sim do
 
   With in-process controllers (or none), a run in `:fast` mode is
   determined by the `seed`: every random draw (noise, faults, slip,
-  controllers) comes from a per-robot state seeded from it, whatever the
-  number of shards.
+  controllers) comes from a per-robot state seeded from it, and every
+  robot of a step sees the world as it was at the step's start, whatever
+  the number of shards, how robots are split over them and the number of
+  schedulers.
   """
 
   alias ThinkingCap.Sim.Core.Server

@@ -25,7 +25,9 @@ defmodule ThinkingCap.Sim.Raycast do
       by its yaw. An exact Euclidean distance transform computed by `new/1`
       lets rays jump across free space; near obstacles they step cell by
       cell, and the hit is the exact entry point of the first obstacle cell
-      along the ray.
+      along the ray. The jumps are kept per cell and, 64 times smaller, per
+      8 × 8 tile (the least of its cells'), so that a ray crossing open
+      space reads the small map, which stays in the caches of a large map.
     * Bodies are circles; a body's list index is its id, and a caller
       excludes its own body (`exclude`, −1 for none). `set_bodies/2`
       indexes them by centre in a uniform grid of buckets (about one body
