@@ -1407,7 +1407,7 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     ErlNifBinary gb;
     int arity, exclude;
     const ERL_NIF_TERM *pose;
-    double X, Y, TH, budget;
+    double X, Y, TH;
     ErlNifUInt64 seed;
     unsigned nr;
     (void)argc;
@@ -1416,8 +1416,13 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
         !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
         return enif_make_badarg(env);
-    int ng = groups_header(&gb, &nr, &budget);
-    if (ng < 0) return enif_make_badarg(env);
+    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
+     * only the counts are read again here */
+    uint32_t ng32, nr32;
+    memcpy(&ng32, gb.data + 4, 4);
+    memcpy(&nr32, gb.data + 8, 4);
+    int ng = (int)ng32;
+    nr = nr32;
 
     const double ct = cos(TH), st = sin(TH);
     const unsigned char *rays = gb.data + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
@@ -1592,18 +1597,22 @@ static ERL_NIF_TERM scan_list_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     return scan_core(env, argc, argv, 1);
 }
 
-static int scan_is_long(ErlNifEnv *env, ERL_NIF_TERM groups)
+/* -1: malformed groups; 1: a call long enough for a dirty scheduler; 0:
+ * short. Every scan is checked here once, before scan_core. */
+static int scan_check(ErlNifEnv *env, ERL_NIF_TERM groups)
 {
     ErlNifBinary gb;
     unsigned nr;
     double budget;
-    return enif_inspect_binary(env, groups, &gb) && groups_header(&gb, &nr, &budget) >= 0 &&
-           budget > DIRTY_RAY_BUDGET;
+    if (!enif_inspect_binary(env, groups, &gb) || groups_header(&gb, &nr, &budget) < 0) return -1;
+    return budget > DIRTY_RAY_BUDGET;
 }
 
 static ERL_NIF_TERM nif_scan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    if (scan_is_long(env, argv[2]))
+    int k = scan_check(env, argv[2]);
+    if (k < 0) return enif_make_badarg(env);
+    if (k)
         return enif_schedule_nif(env, "scan_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND, scan_impl, argc,
                                  argv);
     return scan_impl(env, argc, argv);
@@ -1611,7 +1620,9 @@ static ERL_NIF_TERM nif_scan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
 
 static ERL_NIF_TERM nif_scan_list(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    if (scan_is_long(env, argv[2]))
+    int k = scan_check(env, argv[2]);
+    if (k < 0) return enif_make_badarg(env);
+    if (k)
         return enif_schedule_nif(env, "scan_list_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND,
                                  scan_list_impl, argc, argv);
     return scan_list_impl(env, argc, argv);
