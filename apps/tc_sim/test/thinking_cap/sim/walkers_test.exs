@@ -2,7 +2,6 @@ defmodule ThinkingCap.Sim.Core.WalkersTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Sim.Core.Walkers
-  alias ThinkingCap.Sim.Raycast
 
   # the rule stated plainly: in order of id, each walker checks every
   # robot and every other walker as they stand so far
@@ -76,15 +75,11 @@ defmodule ThinkingCap.Sim.Core.WalkersTest do
         {{i, x, y, 0.2 + rem(i, 3) * 0.1}, rng}
       end)
 
-    records = [
-      IO.iodata_to_binary(for {i, x, y, r} <- robots, do: Raycast.body_record(i, x, y, r))
-    ]
-
     discs = for {_, x, y, r} <- robots, do: {x, y, r}
 
     {fast, slow, waits} =
       Enum.reduce(1..60, {Map.new(walkers), Map.new(walkers), 0}, fn _, {fast, slow, waits} ->
-        fast2 = Walkers.step(fast, records, 0.1)
+        fast2 = Walkers.step(fast, discs, 0.1)
         slow2 = brute_step(slow, discs, 0.1)
         assert fast2 == slow2
         {fast2, slow2, waits + Enum.count(fast2, fn {id, w} -> w.at == fast[id].at end)}

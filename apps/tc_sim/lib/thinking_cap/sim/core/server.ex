@@ -207,7 +207,8 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   # One step: every shard moves its robots in parallel; the moves that ran
   # two robots into each other are taken back (Contacts); every shard reads
-  # its robots' sensors and runs their controllers in parallel; then the
+  # its robots' sensors and runs their controllers in parallel, while the
+  # walkers step here among the robots where they now stand; then the
   # bodies move in the ray caster.
   defp do_step(state) do
     state = regroup(state)
@@ -215,10 +216,11 @@ defmodule ThinkingCap.Sim.Core.Server do
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
     Enum.each(shards, &GenServer.cast(&1, {:move, ref}))
-    taken_back = ref |> collect_moves(length(shards), []) |> Contacts.taken_back()
+    moves = collect_moves(ref, length(shards), [])
+    taken_back = Contacts.taken_back(moves)
     Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
+    walkers = Walkers.step(state.walkers, standing(moves, taken_back, state.walkers), state.dt)
     records = collect(ref, length(shards), state.records)
-    walkers = Walkers.step(state.walkers, Map.values(records), state.dt)
     state = %{state | step: state.step + 1, records: records, walkers: walkers}
     set_bodies(state)
     state
@@ -322,6 +324,17 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   defp route(_world, other),
     do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
+
+  # where the robots stand after this step's moves: {x, y, radius}
+  defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: []
+
+  defp standing(moves, taken_back, _walkers) do
+    for bin <- moves,
+        <<i::float-native-64, x0::float-native-64, y0::float-native-64, x1::float-native-64,
+          y1::float-native-64, r::float-native-64 <- bin>> do
+      if MapSet.member?(taken_back, trunc(i)), do: {x0, y0, r}, else: {x1, y1, r}
+    end
+  end
 
   defp collect_moves(_ref, 0, moves), do: moves
 

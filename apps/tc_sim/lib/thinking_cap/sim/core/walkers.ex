@@ -13,17 +13,13 @@ defmodule ThinkingCap.Sim.Core.Walkers do
 
   @doc """
   Steps every walker (`%{id => walker}`) by `dt` seconds among the robots,
-  given as `Raycast.body_record/4` binaries.
+  given as `{x, y, radius}`.
   """
-  @spec step(%{term() => map()}, [binary()], float()) :: %{term() => map()}
+  @spec step(%{term() => map()}, [{float(), float(), float()}], float()) :: %{term() => map()}
   def step(walkers, _robots, _dt) when map_size(walkers) == 0, do: walkers
 
   def step(walkers, robots, dt) do
-    robots =
-      for bin <- robots,
-          <<i::float-native-64, x::float-native-64, y::float-native-64,
-            r::float-native-64 <- bin>>,
-          do: {{:robot, trunc(i)}, x, y, r}
+    robots = for {x, y, r} <- robots, do: {:robot, x, y, r}
 
     rmax = fn list -> Enum.reduce(list, 0.0, &max(elem(&1, 3), &2)) end
     wmax = walkers |> Map.values() |> Enum.reduce(0.0, &max(&1.radius, &2))
