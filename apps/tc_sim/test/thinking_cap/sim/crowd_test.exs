@@ -43,6 +43,18 @@ defmodule ThinkingCap.Sim.CrowdTest do
     GenServer.stop(sim)
   end
 
+  test "a WDF's crowd section walks in the simulation", %{tmp_dir: dir} do
+    world = T.world!(dir, walls: T.box(20, 10), crowd: [count: 12, seed: 4, reach: 5.0])
+    # (before the simulation: its walkers become bodies of the world)
+    walkers = Crowd.walkers(world, count: 12, seed: 4, reach: 5.0)
+    {:ok, sim} = Sim.start_link(world: world, mode: :fast, running: false)
+    starts = Map.new(walkers, fn {id, opts} -> {id, hd(opts[:route])} end)
+    assert Sim.walkers(sim) == starts
+    :ok = Sim.run_for(sim, 1.0)
+    assert Enum.count(Sim.walkers(sim), fn {id, at} -> at != starts[id] end) > 6
+    GenServer.stop(sim)
+  end
+
   test "bad options and a world without room are named", %{tmp_dir: dir} do
     world = T.world!(dir, walls: T.box(20, 10))
 

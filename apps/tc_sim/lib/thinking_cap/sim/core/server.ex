@@ -87,8 +87,10 @@ defmodule ThinkingCap.Sim.Core.Server do
         walkers: %{}
       }
 
+      walkers = Keyword.get(opts, :walkers, []) ++ crowd(world)
+
       state =
-        Enum.reduce(Keyword.get(opts, :walkers, []), state, fn {id, wopts}, state ->
+        Enum.reduce(walkers, state, fn {id, wopts}, state ->
           case add_walker(state, id, wopts) do
             {:ok, state} -> state
             {:error, message} -> raise ArgumentError, message
@@ -100,6 +102,12 @@ defmodule ThinkingCap.Sim.Core.Server do
       {:error, message} -> {:stop, message}
     end
   end
+
+  # the walkers of the WDF's crowd section
+  defp crowd(%World{wdf: %{crowd: %{} = crowd}} = world),
+    do: ThinkingCap.Sim.Crowd.walkers(world, Map.to_list(crowd))
+
+  defp crowd(_world), do: []
 
   defp world({:ok, %World{} = world}), do: {:ok, world}
   defp world({:ok, %ThinkingCap.Config.WDF{} = wdf}), do: World.from_wdf(wdf)
