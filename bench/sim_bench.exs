@@ -1,6 +1,6 @@
 defmodule ThinkingCap.Bench.Sim do
   @moduledoc """
-  `mix tc.bench sim [--seconds S] [--robots N] [--scale-seconds T]`: the
+  `mix tc.bench sim [--seconds S] [--robots N] [--scale-seconds T] [--walkers W]`: the
   simulator on the workload of Stage's `cave.world` benchmark, then at fleet
   scale.
 
@@ -13,9 +13,12 @@ defmodule ThinkingCap.Bench.Sim do
   robots.
 
   Fleet scale (`sim_scale` line): 10 × N robots in the warehouse map tiled
-  5 × 2 (150 m × 100 m: the same robot density), for T simulated seconds
+  5 × 2 (150 m × 100 m: the same robot density), among W walkers (default
+  2 × N: 200 people among 1,000 robots; `ThinkingCap.Sim.Crowd`, seeded,
+  routes of three points up to 10 m apart), for T simulated seconds
   (default 60). `ray_ratio` is its rays per wall second over those of the
-  N-robot run: 1.0 when the cost per ray does not depend on the fleet.
+  N-robot run (no walkers): 1.0 when the cost per ray does not depend on
+  the fleet.
 
   Real-time factor: simulated seconds per wall second. Rays: the rays of
   every sample (sonar cone rays and laser beams, without counting bounces)
@@ -32,7 +35,7 @@ defmodule ThinkingCap.Bench.Sim do
   def run(args) do
     {opts, _, _} =
       OptionParser.parse(args,
-        strict: [seconds: :float, robots: :integer, scale_seconds: :float]
+        strict: [seconds: :float, robots: :integer, scale_seconds: :float, walkers: :integer]
       )
 
     seconds = opts[:seconds] || 600.0
@@ -71,16 +74,19 @@ defmodule ThinkingCap.Bench.Sim do
     {:ok, big} =
       Sim.World.from_wdf(%{world.wdf | name: "warehouse 5x2", grid: tile(world.wdf.grid, 5, 2)})
 
-    r = measure(big, description, 10 * n, scale_seconds)
+    n_walkers = opts[:walkers] || 2 * n
+    walkers = Sim.Crowd.walkers(big, count: n_walkers, seed: 42)
+    r = measure(big, description, 10 * n, scale_seconds, walkers)
 
     IO.puts(
-      "  #{10 * n} robots, warehouse tiled 5 x 2, #{scale_seconds} simulated s: " <>
+      "  #{10 * n} robots and #{n_walkers} walkers, warehouse tiled 5 x 2, " <>
+        "#{scale_seconds} simulated s: " <>
         "#{fmt(r.wall)} s wall, rtf #{fmt(r.rtf)}, #{fmt(r.rays_per_s / 1.0e6)} M rays/s, " <>
         "#{r.bumps} blocked robot-steps"
     )
 
     IO.puts(
-      "sim_scale: robots=#{10 * n} rtf=#{fmt(r.rtf)} " <>
+      "sim_scale: robots=#{10 * n} walkers=#{n_walkers} rtf=#{fmt(r.rtf)} " <>
         "ray_ratio=#{fmt(r.rays_per_s / main.rays_per_s)} rays_per_s=#{round(r.rays_per_s)}"
     )
   end
@@ -99,8 +105,17 @@ defmodule ThinkingCap.Bench.Sim do
     %{grid | width: w * nx, height: grid.height * ny, data: :binary.copy(band, ny)}
   end
 
-  defp measure(world, description, robots, seconds) do
-    {:ok, sim} = Sim.start_link(world: world, mode: :fast, running: false, step: 0.1, seed: 42)
+  defp measure(world, description, robots, seconds, walkers \\ []) do
+    {:ok, sim} =
+      Sim.start_link(
+        world: world,
+        mode: :fast,
+        running: false,
+        step: 0.1,
+        seed: 42,
+        walkers: walkers
+      )
+
     rng = :rand.seed_s(:exsss, {42, robots, 1})
     place(sim, world, description, robots, rng)
     t0 = System.monotonic_time()

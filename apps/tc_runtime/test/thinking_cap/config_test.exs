@@ -70,6 +70,29 @@ defmodule ThinkingCap.ConfigTest do
       assert {:ok, %WDF{walls: [], doors: []}} =
                Config.read(write(dir, "empty.wdf", ~s([name: "empty"])))
     end
+
+    test "a crowd section: its defaults, and bad values at their keys", %{tmp_dir: dir} do
+      path = write(dir, "crowd.wdf", ~s([name: "c", crowd: [count: 20, seed: 3]]))
+
+      assert {:ok, %WDF{crowd: crowd}} = Config.read(path)
+
+      assert crowd == %{
+               count: 20,
+               seed: 3,
+               points: 3,
+               reach: 10.0,
+               speed: {0.6, 1.2},
+               radius: 0.25
+             }
+
+      assert {:ok, %WDF{crowd: nil}} = Config.read(write(dir, "none.wdf", ~s([name: "n"])))
+
+      bad = write(dir, "bad.wdf", ~s([name: "c", crowd: [count: -1, points: 1, speed: {1, 0}]]))
+      errors = Enum.join(errors(bad), "\n")
+      assert errors =~ "crowd.count"
+      assert errors =~ "crowd.points"
+      assert errors =~ "crowd.speed"
+    end
   end
 
   describe "never evaluated" do

@@ -30,7 +30,10 @@ defmodule ThinkingCap.Sim do
   Then each sensor due at this step reads (its `rate` from the RDF), seeing
   the world and the other robots (as discs of their footprint radius, where
   they stood at the start of the step). Robots are stepped in parallel, in
-  one shard per scheduler.
+  shards of 16 robots spread over the schedulers (see `:shards`), regrouped
+  by place now and then so that a shard's rays stay in one part of the
+  map; moves that ran two robots into each other are taken back (both
+  stay where they were, bumpers pressed), so robots never overlap.
 
   Readings are `{sensor, payload}` pairs (payloads below) and go:
 
@@ -62,8 +65,10 @@ defmodule ThinkingCap.Sim do
 
   With in-process controllers (or none), a run in `:fast` mode is
   determined by the `seed`: every random draw (noise, faults, slip,
-  controllers) comes from a per-robot state seeded from it, whatever the
-  number of shards.
+  controllers) comes from a per-robot state seeded from it, and every
+  robot of a step sees the world as it was at the step's start, whatever
+  the number of shards, how robots are split over them and the number of
+  schedulers.
   """
 
   alias ThinkingCap.Sim.Core.Server
@@ -87,7 +92,14 @@ defmodule ThinkingCap.Sim do
       with `running: false` waits for `run_for/2` or `step/2`);
     * `:publish` - publish readings on the blackboard (default `false`);
     * `:shards` - processes stepping robots at the start (default: the
-      schedulers online); another starts when each holds 32 robots;
+      schedulers online); as many again start when each holds
+      `:per_shard` robots (default 16). The split changes nothing in the
+      results, only how evenly the work spreads over the cores;
+    * `:regroup_every` - steps between two regroupings of the robots by
+      place (default 50): robots near each other move to the same shard,
+      whose rays then stay in one part of the map (faster in large
+      worlds). A robot moved hands its whole state over, controller's
+      included;
     * `:walkers` - people walking in the world: `[{id, opts}]` as
       `add_walker/3`;
     * `:name` - a name to register.
@@ -214,9 +226,10 @@ defmodule ThinkingCap.Sim do
 
   @doc """
   The clock (`time`, `steps`, `step`, `speed`, `mode`, `running`, `lagged`
-  releases in real-time mode), `robots`, `walkers`, `shards`, `rays` cast (primary
-  rays: cone rays and beams, bounces not counted) and `blocked`
-  robot-steps (moves refused because of a contact).
+  releases in real-time mode), `robots`, `walkers`, `shards`, `handovers`
+  (robots moved from one shard to another, see `:regroup_every`), `rays`
+  cast (primary rays: cone rays and beams, bounces not counted) and
+  `blocked` robot-steps (moves refused because of a contact).
   """
   @spec status(sim()) :: map()
   def status(sim), do: GenServer.call(sim, :status)

@@ -354,35 +354,71 @@ defmodule ThinkingCap.SimTest do
   end
 
   describe "shards" do
-    test "a shard starts for every 32 robots; the run does not depend on them", %{tmp_dir: dir} do
+    test "shards start as robots come; the run does not depend on how robots are split", %{
+      tmp_dir: dir
+    } do
       world = T.world!(dir, walls: T.box(30, 30))
-      robot = T.robot!(dir, sensors: [@laser])
+      robot = T.robot!(dir, sensors: [@laser, [name: :bumper, type: :bumper, rate: 10]])
 
-      run = fn shards ->
-        sim = sim(world, step: 0.1, shards: shards)
+      # 70 wandering robots, 10 pairs driving into each other and a walker; the trajectories (true poses and odometry after every
+      # step), rays and blocked robot-steps, for one split and another
+      run = fn opts ->
+        sim = sim(world, [step: 0.1, walkers: [p: [route: [{2, 15}, {28, 15}]]]] ++ opts)
 
         for k <- 0..69 do
           at = {1 + rem(k, 10) * 2.8, 1 + div(k, 10) * 2.8 + 0.5, k * 0.7}
           :ok = Sim.add_robot(sim, :"s#{k}", description: robot, at: at, controller: Sim.Wander)
         end
 
-        :ok = Sim.run_for(sim, 3.0)
-        result = {Sim.robots(sim), Sim.status(sim)}
+        # and pairs driving head-on into each other
+        for k <- 0..9, {id, x, th} <- [{:a, 2.0, 0.0}, {:b, 2.6, :math.pi()}] do
+          robot_id = :"#{id}#{k}"
+          :ok = Sim.add_robot(sim, robot_id, description: robot, at: {x + 2.5 * k, 28, th})
+          Sim.command(sim, robot_id, {:velocity, 0.5, 0.0})
+        end
+
+        trajectory =
+          for _ <- 1..30 do
+            :ok = Sim.step(sim)
+            odom = for k <- [0, 33, 69], do: Sim.odometry(sim, :"s#{k}")
+            {Sim.robots(sim), odom, Sim.walkers(sim)}
+          end
+
+        status = Sim.status(sim)
         GenServer.stop(sim)
-        result
+        {trajectory, status}
       end
 
-      {poses, status} = run.(1)
-      assert status.shards == 3
-      {poses_8, status_8} = run.(8)
-      assert status_8.shards == 8
-      assert poses == poses_8
+      {one, status_1} = run.(shards: 1, per_shard: 1000)
+      assert status_1.shards == 1
+      {many, status_many} = run.(shards: 3, per_shard: 4, regroup_every: 7)
+      assert status_many.shards == 24
+      assert status_many.handovers > 0
+      {default, status_default} = run.([])
+      assert status_default.shards > 1
+
+      assert one == many
+      assert one == default
+      assert status_1.rays == status_many.rays and status_1.rays > 0
+      assert status_1.blocked == status_many.blocked and status_1.blocked > 0
+
       # they moved
+      {poses, _, _} = List.last(one)
+
       assert Enum.count(poses, fn {_, {x, _, _}} ->
                abs(x - 1 - round((x - 1) / 2.8) * 2.8) > 0.01
              end) > 10
+    end
 
-      assert status.rays == status_8.rays and status.rays > 0
+    test "shard options are checked", %{tmp_dir: dir} do
+      world = T.world!(dir, walls: T.box(5, 5))
+      Process.flag(:trap_exit, true)
+
+      assert {:error, "ThinkingCap.Sim: per_shard: 0 is not a positive integer"} =
+               Sim.start_link(world: world, per_shard: 0)
+
+      assert {:error, "ThinkingCap.Sim: shards: :x is not a positive integer"} =
+               Sim.start_link(world: world, shards: :x)
     end
   end
 

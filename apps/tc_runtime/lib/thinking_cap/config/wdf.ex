@@ -30,6 +30,15 @@ defmodule ThinkingCap.Config.WDF do
     at: {:point_or_pose, required: true, doc: "{x, y} or {x, y, theta}"}
   ]
 
+  @crowd_fields [
+    count: {:non_neg_integer, required: true, doc: "how many walkers"},
+    seed: {:integer, default: 1, doc: "their routes and speeds are drawn from it"},
+    points: {{:int_range, 2, 100}, default: 3, doc: "points of a route"},
+    reach: {:pos_number, default: 10.0, doc: "the longest leg of a route, m"},
+    speed: {:range, default: {0.6, 1.2}, doc: "walking speeds, m/s, each walker's drawn between"},
+    radius: {:pos_number, default: 0.25, doc: "a walker's radius, m"}
+  ]
+
   @map_fields [
     yaml: {:string, required: true, doc: "a ROS map_server YAML file, relative to this file"}
   ]
@@ -49,7 +58,10 @@ defmodule ThinkingCap.Config.WDF do
       {{:list, {:keyword, @beacon_fields}},
        default: [], doc: "reflective beacons for laser localization"},
     areas: {{:list, {:keyword, @area_fields}}, default: [], doc: "named areas (below)"},
-    waypoints: {{:list, {:keyword, @waypoint_fields}}, default: [], doc: "named places (below)"}
+    waypoints: {{:list, {:keyword, @waypoint_fields}}, default: [], doc: "named places (below)"},
+    crowd:
+      {{:keyword, @crowd_fields},
+       doc: "people walking back and forth in free space, drawn from a seed (below)"}
   ]
 
   @moduledoc """
@@ -77,6 +89,14 @@ defmodule ThinkingCap.Config.WDF do
   ## Map keys
 
   #{ThinkingCap.Config.Schema.describe(@map_fields)}
+
+  ## Crowd keys
+
+  The simulator (`ThinkingCap.Sim.Crowd`) draws the walkers' routes (in
+  known-free space, every leg clear of walls) and speeds from the seed:
+  the same file walks the same crowd.
+
+  #{ThinkingCap.Config.Schema.describe(@crowd_fields)}
   """
 
   alias ThinkingCap.Config.{RosMap, Schema}
@@ -85,6 +105,7 @@ defmodule ThinkingCap.Config.WDF do
     :file,
     :name,
     :grid,
+    :crowd,
     walls: [],
     obstacles: [],
     rooms: [],
@@ -99,6 +120,7 @@ defmodule ThinkingCap.Config.WDF do
           file: Path.t(),
           name: String.t(),
           grid: RosMap.t() | nil,
+          crowd: map() | nil,
           walls: [{{float(), float()}, {float(), float()}}],
           obstacles: [map()],
           rooms: [map()],
@@ -135,7 +157,9 @@ defmodule ThinkingCap.Config.WDF do
         {:ok,
          struct!(
            __MODULE__,
-           value |> Map.take([:name | [:walls | @named]]) |> Map.merge(%{file: file, grid: grid})
+           value
+           |> Map.take([:name, :walls, :crowd | @named])
+           |> Map.merge(%{file: file, grid: grid})
          )}
 
       errors ->

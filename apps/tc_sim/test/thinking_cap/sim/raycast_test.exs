@@ -321,6 +321,73 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert_raise ArgumentError, fn -> Raycast.set_bodies(w, [{0, :a, 1}]) end
       assert_raise ArgumentError, fn -> Raycast.set_bodies(w, :nope) end
     end
+
+    test "set_bodies_packed: records in any order, ids no record names parked far away" do
+      w = world!([])
+      bodies = [{3, 0, 0.5}, {0, 5, 1}, {-4, 0, 0.3}, {0, -2, 0.2}]
+
+      rays =
+        for k <- 0..35, x0 <- [0.0, 1.0, -1.5] do
+          {x0, 0.25, k * :math.pi() / 18, 10}
+        end
+
+      :ok = Raycast.set_bodies(w, bodies ++ [{1.0e9, 1.0e9, 0.0}])
+      expected = Raycast.cast_rays(w, rays, exclude: 2)
+      clear = Raycast.clearance(w, 1.0, 1.0, -1, 10)
+
+      records =
+        bodies
+        |> Enum.with_index(fn {x, y, r}, i -> Raycast.body_record(i, x, y, r) end)
+        |> Enum.reverse()
+        |> IO.iodata_to_binary()
+
+      :ok = Raycast.set_bodies(w, [])
+      :ok = Raycast.set_bodies_packed(w, 5, records)
+      assert Raycast.cast_rays(w, rays, exclude: 2) == expected
+      assert Raycast.clearance(w, 1.0, 1.0, -1, 10) == clear
+      assert Enum.any?(expected, &(&1.hit == :body))
+
+      # a later record of the same id wins
+      :ok =
+        Raycast.set_bodies_packed(
+          w,
+          1,
+          Raycast.body_record(0, 3, 0, 0.5) <> Raycast.body_record(0, 6, 0, 0.5)
+        )
+
+      assert_in_delta cast1(w, {0, 0, 0, 10}).range, 5.5, @eps
+    end
+
+    test "set_bodies_packed refuses bad records" do
+      w = world!([])
+
+      assert_raise ArgumentError, fn ->
+        Raycast.set_bodies_packed(w, 1, Raycast.body_record(1, 0, 0, 1))
+      end
+
+      assert_raise ArgumentError, fn ->
+        Raycast.set_bodies_packed(w, 1, Raycast.body_record(0, 0, 0, -1))
+      end
+
+      assert_raise ArgumentError, fn -> Raycast.set_bodies_packed(w, 1, <<1, 2, 3>>) end
+      assert_raise ArgumentError, fn -> Raycast.set_bodies_packed(w, -1, <<>>) end
+      nan = <<0, 0, 0, 0, 0, 0, 248, 127>>
+      bad = <<0.0::float-native-64, nan::binary, 0.0::float-native-64, 1.0::float-native-64>>
+      assert_raise ArgumentError, fn -> Raycast.set_bodies_packed(w, 1, bad) end
+    end
+
+    test "contacts refuses bad moves" do
+      assert Raycast.contacts(<<>>) == []
+      assert_raise ArgumentError, fn -> Raycast.contacts(<<1, 2, 3>>) end
+
+      assert_raise ArgumentError, fn ->
+        Raycast.contacts(Raycast.move_record(0, 0, 0, 1, 1, -0.2))
+      end
+
+      # an id that is not a whole number
+      rest = Raycast.move_record(0, 0, 0, 1, 1, 0.2) |> binary_part(8, 40)
+      assert_raise ArgumentError, fn -> Raycast.contacts(<<1.5::float-native-64>> <> rest) end
+    end
   end
 
   describe "reflections" do

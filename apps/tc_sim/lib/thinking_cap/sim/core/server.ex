@@ -3,18 +3,24 @@ defmodule ThinkingCap.Sim.Core.Server do
   # The simulation's clock and world: steps the shards (in parallel),
   # collects where every robot now stands and hands that to the ray caster
   # as the bodies the others see; answers the public API of ThinkingCap.Sim.
+  # Robots' bodies travel as packed records (Raycast.body_record/4), one
+  # binary per shard, so that the per-step work here does not decode a
+  # term per robot.
   use GenServer
   require Logger
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.{Raycast, World}
-  alias ThinkingCap.Sim.Core.{Contacts, Shard}
+  alias ThinkingCap.Sim.Core.{Contacts, Regions, Shard, Walkers}
 
-  @far {1.0e9, 1.0e9, 0.0}
-  # robots per shard before another shard starts: a shard rebuilds its
+  # robots per shard before more shards start: a shard rebuilds its
   # robots' state every step, and a large process heap makes each garbage
-  # collection copy more (10 x 500 robots steps ~3x slower than 20 x 50)
-  @per_shard 32
+  # collection copy more (10 x 500 robots steps ~3x slower than 20 x 50);
+  # small shards also spread a fleet evenly over the schedulers (100
+  # robots in 32 + 32 + 32 + 4 kept one core waiting a quarter of a step)
+  @per_shard 16
+  # steps between two regroupings of the robots by place (Regions)
+  @regroup_every 50
 
   def start_link(opts) do
     case Keyword.fetch(opts, :name) do
@@ -29,9 +35,11 @@ defmodule ThinkingCap.Sim.Core.Server do
          {:ok, dt} <- positive(opts, :step, 0.01),
          {:ok, speed} <- positive(opts, :speed, 1.0),
          {:ok, seed} <- integer(opts, :seed, 1),
+         {:ok, n_shards} <- count(opts, :shards, System.schedulers_online()),
+         {:ok, per_shard} <- count(opts, :per_shard, @per_shard),
+         {:ok, regroup_every} <- count(opts, :regroup_every, @regroup_every),
          {:ok, world} <- world(Keyword.fetch(opts, :world)) do
       counters = :counters.new(2, [:write_concurrency])
-      n_shards = Keyword.get(opts, :shards, System.schedulers_online())
 
       shard_opts = [
         server: self(),
@@ -50,6 +58,10 @@ defmodule ThinkingCap.Sim.Core.Server do
 
       state = %{
         shard_opts: shard_opts,
+        # shards start this many at a time, each taking per_shard robots
+        grow_by: n_shards,
+        per_shard: per_shard,
+        regroup_every: regroup_every,
         # robots per shard
         load: Map.new(shards, &{&1, 0}),
         world: world,
@@ -62,19 +74,23 @@ defmodule ThinkingCap.Sim.Core.Server do
         running: Keyword.get(opts, :running, true),
         shards: List.to_tuple(shards),
         robots: %{},
-        bodies: %{},
+        # shard => its robots' body records
+        records: %{},
         free_indexes: [],
         next_index: 0,
         counters: counters,
         lagged: 0,
+        handovers: 0,
         activity: nil,
         target: nil,
         started_at: System.monotonic_time(),
         walkers: %{}
       }
 
+      walkers = Keyword.get(opts, :walkers, []) ++ crowd(world)
+
       state =
-        Enum.reduce(Keyword.get(opts, :walkers, []), state, fn {id, wopts}, state ->
+        Enum.reduce(walkers, state, fn {id, wopts}, state ->
           case add_walker(state, id, wopts) do
             {:ok, state} -> state
             {:error, message} -> raise ArgumentError, message
@@ -86,6 +102,12 @@ defmodule ThinkingCap.Sim.Core.Server do
       {:error, message} -> {:stop, message}
     end
   end
+
+  # the walkers of the WDF's crowd section
+  defp crowd(%World{wdf: %{crowd: %{} = crowd}} = world),
+    do: ThinkingCap.Sim.Crowd.walkers(world, Map.to_list(crowd))
+
+  defp crowd(_world), do: []
 
   defp world({:ok, %World{} = world}), do: {:ok, world}
   defp world({:ok, %ThinkingCap.Config.WDF{} = wdf}), do: World.from_wdf(wdf)
@@ -115,6 +137,13 @@ defmodule ThinkingCap.Sim.Core.Server do
     case Keyword.get(opts, key, default) do
       v when is_integer(v) -> {:ok, v}
       v -> {:error, "ThinkingCap.Sim: #{key}: #{inspect(v)} is not an integer"}
+    end
+  end
+
+  defp count(opts, key, default) do
+    case Keyword.get(opts, key, default) do
+      v when is_integer(v) and v > 0 -> {:ok, v}
+      v -> {:error, "ThinkingCap.Sim: #{key}: #{inspect(v)} is not a positive integer"}
     end
   end
 
@@ -168,7 +197,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
 
-  def handle_info({:stepped, _ref, _poses}, state), do: {:noreply, state}
+  def handle_info({:stepped, _ref, _shard, _records}, state), do: {:noreply, state}
   def handle_info({:moved, _ref, _moves}, state), do: {:noreply, state}
 
   def handle_info(message, state) do
@@ -186,19 +215,62 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   # One step: every shard moves its robots in parallel; the moves that ran
   # two robots into each other are taken back (Contacts); every shard reads
-  # its robots' sensors and runs their controllers in parallel; then the
+  # its robots' sensors and runs their controllers in parallel, while the
+  # walkers step here among the robots where they now stand; then the
   # bodies move in the ray caster.
   defp do_step(state) do
+    state = regroup(state)
     ref = make_ref()
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
     Enum.each(shards, &GenServer.cast(&1, {:move, ref}))
-    taken_back = ref |> collect_moves(length(shards), []) |> Contacts.taken_back()
+    moves = collect_moves(ref, length(shards), [])
+    taken_back = Contacts.taken_back(moves)
     Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
-    bodies = collect(ref, length(shards), state.bodies)
-    {walkers, bodies} = walk(state.walkers, bodies, state.dt)
-    set_bodies(state.world, bodies, state.next_index)
-    %{state | step: state.step + 1, bodies: bodies, walkers: walkers}
+    walkers = Walkers.step(state.walkers, standing(moves, taken_back, state.walkers), state.dt)
+    records = collect(ref, length(shards), state.records)
+    state = %{state | step: state.step + 1, records: records, walkers: walkers}
+    set_bodies(state)
+    state
+  end
+
+  # Every regroup_every steps, robots near each other go to the same shard
+  # (Regions): a shard then casts over one part of the map at a time.
+  defp regroup(%{step: step, regroup_every: every} = state) when rem(step, every) != 0, do: state
+  defp regroup(state) when tuple_size(state.shards) < 2, do: state
+
+  defp regroup(state) do
+    by_index = Map.new(state.robots, fn {id, {index, _shard}} -> {index, id} end)
+    current = Map.new(state.robots, fn {id, {_index, shard}} -> {id, shard} end)
+
+    robots =
+      for {_shard, bin} <- state.records,
+          <<i::float-native-64, x::float-native-64, y::float-native-64,
+            _::float-native-64 <- bin>>,
+          do: {Map.fetch!(by_index, trunc(i)), trunc(i), x, y}
+
+    robots
+    |> Regions.plan(Tuple.to_list(state.shards), current)
+    |> Enum.reduce(state, &hand_over/2)
+  end
+
+  defp hand_over({from, to, ids}, state) do
+    {bodies, from_records} = GenServer.call(from, {:take, ids}, 30_000)
+    {:ok, to_records} = GenServer.call(to, {:put, bodies}, 30_000)
+    n = length(ids)
+
+    robots =
+      Enum.reduce(ids, state.robots, fn id, acc ->
+        Map.update!(acc, id, fn {index, _} -> {index, to} end)
+      end)
+
+    %{
+      state
+      | robots: robots,
+        records: state.records |> Map.put(from, from_records) |> Map.put(to, to_records),
+        load: state.load |> Map.update!(from, &(&1 - n)) |> Map.update!(to, &(&1 + n)),
+        handovers: state.handovers + n
+    }
   end
 
   ## Walkers
@@ -230,9 +302,9 @@ defmodule ThinkingCap.Sim.Core.Server do
         radius: radius
       }
 
-      bodies = Map.put(state.bodies, index, {x, y, radius})
-      set_bodies(state.world, bodies, state.next_index)
-      {:ok, %{state | walkers: Map.put(state.walkers, id, walker), bodies: bodies}}
+      state = %{state | walkers: Map.put(state.walkers, id, walker)}
+      set_bodies(state)
+      {:ok, state}
     end
   end
 
@@ -261,74 +333,42 @@ defmodule ThinkingCap.Sim.Core.Server do
   defp route(_world, other),
     do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
 
-  defp walk(walkers, bodies, _dt) when map_size(walkers) == 0, do: {walkers, bodies}
+  # where the robots stand after this step's moves: {x, y, radius}
+  defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: []
 
-  defp walk(walkers, bodies, dt) do
-    walkers
-    |> Enum.sort()
-    |> Enum.reduce({walkers, bodies}, fn {id, w}, {walkers, bodies} ->
-      w = step_walker(w, bodies, dt)
-      {x, y} = w.at
-      {Map.put(walkers, id, w), Map.put(bodies, w.index, {x, y, w.radius})}
-    end)
-  end
-
-  defp step_walker(w, bodies, dt) do
-    {x, y} = w.at
-    {tx, ty} = elem(w.route, w.leg)
-    d = :math.sqrt((tx - x) ** 2 + (ty - y) ** 2)
-    step = w.speed * dt
-
-    if d <= step do
-      next_leg(%{w | at: {tx, ty}})
-    else
-      next = {x + (tx - x) * step / d, y + (ty - y) * step / d}
-      if clear?(next, w, bodies), do: %{w | at: next}, else: w
+  defp standing(moves, taken_back, _walkers) do
+    for bin <- moves,
+        <<i::float-native-64, x0::float-native-64, y0::float-native-64, x1::float-native-64,
+          y1::float-native-64, r::float-native-64 <- bin>> do
+      if MapSet.member?(taken_back, trunc(i)), do: {x0, y0, r}, else: {x1, y1, r}
     end
-  end
-
-  defp next_leg(%{leg: leg, dir: dir, route: route} = w) do
-    n = tuple_size(route)
-
-    cond do
-      w.loop -> %{w | leg: rem(leg + 1, n)}
-      leg + dir >= 0 and leg + dir < n -> %{w | leg: leg + dir}
-      true -> %{w | leg: leg - dir, dir: -dir}
-    end
-  end
-
-  defp clear?({x, y}, w, bodies) do
-    Enum.all?(bodies, fn
-      {i, _} when i == w.index -> true
-      {_, {bx, by, r}} -> (bx - x) ** 2 + (by - y) ** 2 > (r + w.radius + 0.05) ** 2
-    end)
   end
 
   defp collect_moves(_ref, 0, moves), do: moves
 
   defp collect_moves(ref, n, moves) do
     receive do
-      {:moved, ^ref, more} -> collect_moves(ref, n - 1, more ++ moves)
+      {:moved, ^ref, more} -> collect_moves(ref, n - 1, [more | moves])
     end
   end
 
-  defp collect(_ref, 0, bodies), do: bodies
+  defp collect(_ref, 0, records), do: records
 
-  defp collect(ref, n, bodies) do
+  defp collect(ref, n, records) do
     receive do
-      {:stepped, ^ref, poses} ->
-        bodies =
-          Enum.reduce(poses, bodies, fn {index, {x, y, _}, r}, acc ->
-            Map.put(acc, index, {x, y, r})
-          end)
-
-        collect(ref, n - 1, bodies)
+      {:stepped, ^ref, shard, bin} -> collect(ref, n - 1, Map.put(records, shard, bin))
     end
   end
 
-  defp set_bodies(world, bodies, n) do
-    list = for i <- 0..(n - 1)//1, do: Map.get(bodies, i, @far)
-    :ok = Raycast.set_bodies(world.raycast, list)
+  # every robot (its shard's records) and walker to the ray caster; the
+  # indexes no body holds are parked far away
+  defp set_bodies(state) do
+    walkers =
+      for {_id, %{at: {x, y}} = w} <- state.walkers,
+          do: Raycast.body_record(w.index, x, y, w.radius)
+
+    data = IO.iodata_to_binary([Map.values(state.records) | walkers])
+    :ok = Raycast.set_bodies_packed(state.world.raycast, state.next_index, data)
   end
 
   defp run_steps(state, 0), do: state
@@ -357,18 +397,17 @@ defmodule ThinkingCap.Sim.Core.Server do
       {shard, state} = pick_shard(state)
       # the shard starts the robot's controller (a lock-step module stack may
       # build its maps first): within add_robot/3's own 30 s
-      :ok = GenServer.call(shard, {:add, spec}, 28_000)
-      {x, y, _} = pose
-      bodies = Map.put(state.bodies, index, {x, y, description.footprint.radius * 1.0})
-      set_bodies(state.world, bodies, state.next_index)
+      {:ok, records} = GenServer.call(shard, {:add, spec}, 28_000)
 
-      {:reply, :ok,
-       %{
-         state
-         | robots: Map.put(state.robots, id, {index, shard}),
-           bodies: bodies,
-           load: Map.update!(state.load, shard, &(&1 + 1))
-       }}
+      state = %{
+        state
+        | robots: Map.put(state.robots, id, {index, shard}),
+          records: Map.put(state.records, shard, records),
+          load: Map.update!(state.load, shard, &(&1 + 1))
+      }
+
+      set_bodies(state)
+      {:reply, :ok, state}
     else
       {:error, message} -> {:reply, {:error, message}, state}
     end
@@ -377,18 +416,18 @@ defmodule ThinkingCap.Sim.Core.Server do
   def handle_call({:remove_robot, id}, _from, state) do
     case state.robots do
       %{^id => {index, shard}} ->
-        :ok = GenServer.call(shard, {:remove, id})
-        bodies = Map.delete(state.bodies, index)
-        set_bodies(state.world, bodies, state.next_index)
+        {:ok, records} = GenServer.call(shard, {:remove, id})
 
-        {:reply, :ok,
-         %{
-           state
-           | robots: Map.delete(state.robots, id),
-             bodies: bodies,
-             free_indexes: [index | state.free_indexes],
-             load: Map.update!(state.load, shard, &(&1 - 1))
-         }}
+        state = %{
+          state
+          | robots: Map.delete(state.robots, id),
+            records: Map.put(state.records, shard, records),
+            free_indexes: [index | state.free_indexes],
+            load: Map.update!(state.load, shard, &(&1 - 1))
+        }
+
+        set_bodies(state)
+        {:reply, :ok, state}
 
       _ ->
         {:reply, {:error, :no_robot}, state}
@@ -408,11 +447,9 @@ defmodule ThinkingCap.Sim.Core.Server do
         {:reply, {:error, :no_walker}, state}
 
       {w, walkers} ->
-        bodies = Map.delete(state.bodies, w.index)
-        set_bodies(state.world, bodies, state.next_index)
-
-        {:reply, :ok,
-         %{state | walkers: walkers, bodies: bodies, free_indexes: [w.index | state.free_indexes]}}
+        state = %{state | walkers: walkers, free_indexes: [w.index | state.free_indexes]}
+        set_bodies(state)
+        {:reply, :ok, state}
     end
   end
 
@@ -420,15 +457,14 @@ defmodule ThinkingCap.Sim.Core.Server do
     do: {:reply, Map.new(state.walkers, fn {id, w} -> {id, w.at} end), state}
 
   def handle_call({:teleport, id, at}, _from, state) do
-    with {:ok, {index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
-         {:ok, {x, y, _} = pose} <- World.resolve_pose(state.world, at),
-         {_, _, radius} = Map.fetch!(state.bodies, index),
-         true <- World.free?(state.world, {x, y}, radius, index) || {:error, occupied(pose)},
-         :ok <- GenServer.call(shard, {:teleport, id, pose}) do
-      bodies = Map.put(state.bodies, index, {x, y, radius})
-      set_bodies(state.world, bodies, state.next_index)
-      {:reply, :ok, %{state | bodies: bodies}}
+    with {:ok, {_index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
+         {:ok, pose} <- World.resolve_pose(state.world, at),
+         {:ok, records} <- GenServer.call(shard, {:teleport, id, pose}) do
+      state = %{state | records: Map.put(state.records, shard, records)}
+      set_bodies(state)
+      {:reply, :ok, state}
     else
+      {:error, {:occupied, pose}} -> {:reply, {:error, occupied(pose)}, state}
       {:error, reason} -> {:reply, {:error, reason}, state}
     end
   end
@@ -471,22 +507,24 @@ defmodule ThinkingCap.Sim.Core.Server do
         w
       end)
 
-    bodies =
-      for shard <- Tuple.to_list(state.shards),
-          {index, {x, y, _}, r} <- GenServer.call(shard, {:reset, world}, 30_000),
-          into: %{},
-          do: {index, {x, y, r}}
+    records =
+      Map.new(Tuple.to_list(state.shards), fn shard ->
+        {shard, GenServer.call(shard, {:reset, world}, 30_000)}
+      end)
 
     walkers = Map.new(state.walkers, fn {id, w} -> {id, %{w | at: w.start, leg: 1, dir: 1}} end)
 
-    bodies =
-      Enum.reduce(walkers, bodies, fn {_id, %{at: {x, y}} = w}, acc ->
-        Map.put(acc, w.index, {x, y, w.radius})
-      end)
+    state = %{
+      state
+      | world: world,
+        step: 0,
+        records: records,
+        lagged: 0,
+        walkers: walkers
+    }
 
-    set_bodies(world, bodies, state.next_index)
-
-    {:reply, :ok, %{state | world: world, step: 0, bodies: bodies, lagged: 0, walkers: walkers}}
+    set_bodies(state)
+    {:reply, :ok, state}
   end
 
   def handle_call(:time, _from, state), do: {:reply, state.step * state.dt, state}
@@ -533,6 +571,7 @@ defmodule ThinkingCap.Sim.Core.Server do
        walkers: map_size(state.walkers),
        shards: tuple_size(state.shards),
        lagged: state.lagged,
+       handovers: state.handovers,
        rays: :counters.get(state.counters, 1),
        blocked: :counters.get(state.counters, 2)
      }, state}
@@ -598,19 +637,27 @@ defmodule ThinkingCap.Sim.Core.Server do
       else: {:error, "start pose #{inspect(pose)} is not free for a robot of this footprint"}
   end
 
-  # the least loaded shard (the first of them in start order), or a new one
-  # when every shard holds @per_shard robots; the world of a new shard is
-  # the current one (doors as they are now)
+  # the least loaded shard (the first of them in start order), or, when
+  # every shard holds per_shard robots, the first of grow_by new ones (as
+  # many as the shards at the start: a multiple of the schedulers by
+  # default); a new shard's world is the current one (doors as they are)
   defp pick_shard(state) do
     shards = Tuple.to_list(state.shards)
     shard = Enum.min_by(shards, &state.load[&1])
 
-    if state.load[shard] < @per_shard do
+    if state.load[shard] < state.per_shard do
       {shard, state}
     else
-      {:ok, pid} = Shard.start_link(Keyword.put(state.shard_opts, :world, state.world))
+      opts = Keyword.put(state.shard_opts, :world, state.world)
 
-      {pid, %{state | shards: List.to_tuple(shards ++ [pid]), load: Map.put(state.load, pid, 0)}}
+      new =
+        for _ <- 1..state.grow_by do
+          {:ok, pid} = Shard.start_link(opts)
+          pid
+        end
+
+      load = Enum.reduce(new, state.load, &Map.put(&2, &1, 0))
+      {hd(new), %{state | shards: List.to_tuple(shards ++ new), load: load}}
     end
   end
 

@@ -8,6 +8,7 @@ defmodule ThinkingCap.Sim.Core.Shard do
   use GenServer
 
   alias ThinkingCap.Blackboard
+  alias ThinkingCap.Sim.{Raycast, World}
   alias ThinkingCap.Sim.Core.Body
   alias ThinkingCap.Tuples
   require Tuples
@@ -31,18 +32,42 @@ defmodule ThinkingCap.Sim.Core.Shard do
   end
 
   @impl true
+  # add, remove and teleport answer with the shard's body records
   def handle_call({:add, spec}, _from, state) do
     body = Body.new(spec, state.dt)
-    {:reply, :ok, put_in(state.bodies[spec.id], body)}
+    state = put_in(state.bodies[spec.id], body)
+    {:reply, {:ok, records(state.bodies)}, state}
   end
 
-  def handle_call({:remove, id}, _from, state),
-    do: {:reply, :ok, %{state | bodies: Map.delete(state.bodies, id)}}
+  def handle_call({:remove, id}, _from, state) do
+    state = %{state | bodies: Map.delete(state.bodies, id)}
+    {:reply, {:ok, records(state.bodies)}, state}
+  end
 
-  def handle_call({:teleport, id, pose}, _from, state) do
+  # a handover of robots to another shard (Regions): their whole state
+  def handle_call({:take, ids}, _from, state) do
+    {taken, bodies} = Map.split(state.bodies, ids)
+    taken = Enum.map(ids, &Map.fetch!(taken, &1))
+    {:reply, {taken, records(bodies)}, %{state | bodies: bodies}}
+  end
+
+  def handle_call({:put, bodies}, _from, state) do
+    bodies = Enum.reduce(bodies, state.bodies, &Map.put(&2, &1.id, &1))
+    {:reply, {:ok, records(bodies)}, %{state | bodies: bodies}}
+  end
+
+  def handle_call({:teleport, id, {x, y, _} = pose}, _from, state) do
     case state.bodies do
-      %{^id => body} -> {:reply, :ok, put_in(state.bodies[id], %{body | pose: pose})}
-      _ -> {:reply, {:error, :no_robot}, state}
+      %{^id => body} ->
+        if World.free?(state.world, {x, y}, body.radius, body.index) do
+          state = put_in(state.bodies[id], %{body | pose: pose})
+          {:reply, {:ok, records(state.bodies)}, state}
+        else
+          {:reply, {:error, {:occupied, pose}}, state}
+        end
+
+      _ ->
+        {:reply, {:error, :no_robot}, state}
     end
   end
 
@@ -77,7 +102,7 @@ defmodule ThinkingCap.Sim.Core.Shard do
 
   def handle_call({:reset, world}, _from, state) do
     bodies = Map.new(state.bodies, fn {id, b} -> {id, Body.new(b.spec, state.dt)} end)
-    {:reply, poses(bodies), %{state | bodies: bodies, world: world}}
+    {:reply, records(bodies), %{state | bodies: bodies, world: world}}
   end
 
   @impl true
@@ -99,9 +124,10 @@ defmodule ThinkingCap.Sim.Core.Shard do
       Map.new(state.bodies, fn {id, body} -> {id, Body.move(body, state.world, state.dt)} end)
 
     moves =
-      for {id, b} <- moved do
-        {x, y, _} = state.bodies[id].pose
-        {b.index, {x, y}, b.pose, b.radius}
+      for {id, b} <- moved, into: <<>> do
+        {x0, y0, _} = state.bodies[id].pose
+        {x1, y1, _} = b.pose
+        Raycast.move_record(b.index, x0, y0, x1, y1, b.radius)
       end
 
     send(state.server, {:moved, ref, moves})
@@ -123,11 +149,15 @@ defmodule ThinkingCap.Sim.Core.Shard do
     blocked = Enum.count(bodies, fn {_id, b} -> b.bumped end)
     if rays > 0, do: :counters.add(state.counters, 1, rays)
     if blocked > 0, do: :counters.add(state.counters, 2, blocked)
-    send(state.server, {:stepped, ref, poses(bodies)})
+    send(state.server, {:stepped, ref, self(), records(bodies)})
     {:noreply, %{state | bodies: bodies, before: %{}}}
   end
 
-  defp poses(bodies), do: for({_id, b} <- bodies, do: {b.index, b.pose, b.radius})
+  defp records(bodies) do
+    for {_id, %{pose: {x, y, _}} = b} <- bodies,
+        into: <<>>,
+        do: Raycast.body_record(b.index, x, y, b.radius)
+  end
 
   defp sense_body(body, step, time, state) do
     {readings, body} = Body.sense(body, state.world, step, time, state.seed)
