@@ -843,6 +843,26 @@ static int get_world(ErlNifEnv *env, ERL_NIF_TERM t, World **w)
     return enif_get_resource(env, t, WORLD_RT, (void **)w);
 }
 
+/* Indexes the n bodies b (taking them) and makes them the world's, in
+ * place of the bodies it had. */
+static ERL_NIF_TERM install_bodies(ErlNifEnv *env, World *w, Body *b, int n)
+{
+    BodyIndex x;
+    memset(&x, 0, sizeof(x));
+    x.n = n;
+    x.b = b;
+    if (!body_index_build(&x)) {
+        body_index_free(&x);
+        return enif_make_badarg(env);
+    }
+    enif_rwlock_rwlock(w->lock);
+    BodyIndex old = w->bodies;
+    w->bodies = x;
+    enif_rwlock_rwunlock(w->lock);
+    body_index_free(&old);
+    return A_OK;
+}
+
 /* new(segments :: binary of 4 native doubles each,
  *     grid :: nil | {w, h, res, ox, oy, yaw, data}) */
 static ERL_NIF_TERM nif_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -955,8 +975,6 @@ static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     (void)argc;
     if (!get_world(env, argv[0], &w) || !enif_get_list_length(env, argv[1], &len))
         return enif_make_badarg(env);
-    BodyIndex x;
-    memset(&x, 0, sizeof(x));
     Body *b = enif_alloc((size_t)(len ? len : 1) * sizeof(Body));
     if (!b) return enif_make_badarg(env);
     ERL_NIF_TERM list = argv[1], head;
@@ -972,18 +990,7 @@ static ERL_NIF_TERM nif_set_bodies(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
         }
         b[i].id = (int)i;
     }
-    x.n = (int)len;
-    x.b = b;
-    if (!body_index_build(&x)) {
-        body_index_free(&x);
-        return enif_make_badarg(env);
-    }
-    enif_rwlock_rwlock(w->lock);
-    BodyIndex old = w->bodies;
-    w->bodies = x;
-    enif_rwlock_rwunlock(w->lock);
-    body_index_free(&old);
-    return A_OK;
+    return install_bodies(env, w, b, (int)len);
 }
 
 /* set_bodies_packed(world, n, records): bodies 0..n-1, each record four
@@ -1000,8 +1007,6 @@ static ERL_NIF_TERM nif_set_bodies_packed(ErlNifEnv *env, int argc, const ERL_NI
     if (!get_world(env, argv[0], &w) || !enif_get_int(env, argv[1], &n) || n < 0 ||
         n > 10000000 || !enif_inspect_binary(env, argv[2], &rb) || rb.size % 32 != 0)
         return enif_make_badarg(env);
-    BodyIndex x;
-    memset(&x, 0, sizeof(x));
     Body *b = enif_alloc((size_t)(n ? n : 1) * sizeof(Body));
     if (!b) return enif_make_badarg(env);
     for (int i = 0; i < n; i++) {
@@ -1023,18 +1028,7 @@ static ERL_NIF_TERM nif_set_bodies_packed(ErlNifEnv *env, int argc, const ERL_NI
         t->y = by;
         t->r = br;
     }
-    x.n = n;
-    x.b = b;
-    if (!body_index_build(&x)) {
-        body_index_free(&x);
-        return enif_make_badarg(env);
-    }
-    enif_rwlock_rwlock(w->lock);
-    BodyIndex old = w->bodies;
-    w->bodies = x;
-    enif_rwlock_rwunlock(w->lock);
-    body_index_free(&old);
-    return A_OK;
+    return install_bodies(env, w, b, n);
 }
 
 /* ---- contacts ---- */
