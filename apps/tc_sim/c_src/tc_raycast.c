@@ -537,20 +537,15 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
     int dda = 0;
 
     for (;;) {
-        unsigned k = coarse[(cy >> 3) * tw + (cx >> 3)];
-        if (k >= COARSE_SKIP_MIN) {
-            t += (double)k;
-            if (t >= t1) return 0;
-            cx = clampi((int)(ux + t * vx), 0, W - 1);
-            cy = clampi((int)(uy + t * vy), 0, H - 1);
-            dda = 0;
-            face = 0;
-            continue;
-        }
-        unsigned c = g[cell_index(tw, cx, cy)];
-        if (c >= SKIP_MIN) {
+        /* cells known empty round here: the tile's skip, else the cell's */
+        unsigned skip = coarse[(cy >> 3) * tw + (cx >> 3)];
+        if (skip < COARSE_SKIP_MIN) {
+            unsigned c = g[cell_index(tw, cx, cy)];
             if (c == CODE_OBST) break;
-            t += (double)c;
+            skip = c >= SKIP_MIN ? c : 0;
+        }
+        if (skip) {
+            t += (double)skip;
             if (t >= t1) return 0;
             cx = clampi((int)(ux + t * vx), 0, W - 1);
             cy = clampi((int)(uy + t * vy), 0, H - 1);
