@@ -227,13 +227,17 @@ defmodule ThinkingCap.Planner.Monitor do
 
   @doc """
   What a replay cannot reproduce (`c:ThinkingCap.Module.replay/0`): the
-  planning's duration, measured on the machine it ran on
-  (`planning.us`, and `planning.astar_us` with `compare: true`).
+  planning's duration, measured on the machine it ran on, on the wall
+  clock and in CPU time (`planning.us` and `planning.cpu_us`, and
+  `planning.astar_us` and `planning.astar_cpu_us` with `compare: true`).
   """
   @impl true
   @spec replay() :: keyword()
   def replay,
-    do: [measurements: [{:plan, [:planning, :us]}, {:plan, [:planning, :astar_us]}]]
+    do: [
+      measurements:
+        for(key <- [:us, :cpu_us, :astar_us, :astar_cpu_us], do: {:plan, [:planning, key]})
+    ]
 
   @doc """
   What a standby needs to carry on (`c:ThinkingCap.Module.handoff/1`): the
