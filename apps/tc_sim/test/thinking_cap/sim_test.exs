@@ -410,6 +410,18 @@ defmodule ThinkingCap.SimTest do
              end) > 10
     end
 
+    test "walkers that cannot start are refused with the reason", %{tmp_dir: dir} do
+      world = T.world!(dir, walls: T.box(5, 5))
+      Process.flag(:trap_exit, true)
+      route = [route: [{1, 1}, {4, 1}]]
+
+      assert {:error, "ThinkingCap.Sim: walker :p exists already"} =
+               Sim.start_link(world: world, walkers: [p: route, p: route])
+
+      assert {:error, "ThinkingCap.Sim: walker :q: {0.0, 2.0} is not free"} =
+               Sim.start_link(world: world, walkers: [q: [route: [{0, 2}, {1, 1}]]])
+    end
+
     test "shard options are checked", %{tmp_dir: dir} do
       world = T.world!(dir, walls: T.box(5, 5))
       Process.flag(:trap_exit, true)

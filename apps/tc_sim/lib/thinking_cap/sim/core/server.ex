@@ -87,20 +87,26 @@ defmodule ThinkingCap.Sim.Core.Server do
         walkers: %{}
       }
 
-      walkers = Keyword.get(opts, :walkers, []) ++ crowd(world)
-
-      state =
-        Enum.reduce(walkers, state, fn {id, wopts}, state ->
-          case add_walker(state, id, wopts) do
-            {:ok, state} -> state
-            {:error, message} -> raise ArgumentError, message
-          end
-        end)
-
-      {:ok, schedule(state)}
+      case start_walkers(state, Keyword.get(opts, :walkers, []), world) do
+        {:ok, state} -> {:ok, schedule(state)}
+        {:error, message} -> {:stop, "ThinkingCap.Sim: " <> message}
+      end
     else
       {:error, message} -> {:stop, message}
     end
+  end
+
+  # the walkers given and those of the WDF's crowd section, or the first
+  # error (a crowd with no room, a walker not free or given twice)
+  defp start_walkers(state, given, world) do
+    Enum.reduce_while(given ++ crowd(world), {:ok, state}, fn {id, wopts}, {:ok, state} ->
+      case add_walker(state, id, wopts) do
+        {:ok, state} -> {:cont, {:ok, state}}
+        {:error, message} -> {:halt, {:error, message}}
+      end
+    end)
+  rescue
+    e in ArgumentError -> {:error, Exception.message(e)}
   end
 
   # the walkers of the WDF's crowd section
