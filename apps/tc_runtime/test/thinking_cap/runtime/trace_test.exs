@@ -23,6 +23,13 @@ defmodule ThinkingCap.Runtime.TraceTest do
     {adf, robot}
   end
 
+  # an ADF of one event-driven module, named after `prefix`
+  defp event_module(dir, prefix, module \\ ThinkingCap.Test.Modules.Traced) do
+    name = :"#{prefix}_#{System.unique_integer([:positive])}"
+    {adf, robot} = adf(dir, [{name, "[module: #{inspect(module)}, activity: :event]"}])
+    {adf, robot, name}
+  end
+
   defp drain(template) do
     if Blackboard.takep(template) != :none, do: drain(template)
   end
@@ -104,10 +111,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
 
   test "the callbacks count on without gaps while traced, and rerun to the same outputs",
        %{tmp_dir: dir} do
-    name = :"rerun_#{System.unique_integer([:positive])}"
-
-    {adf, robot} =
-      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+    {adf, robot, name} = event_module(dir, "rerun")
 
     :ok = Trace.attach(robot)
     {:ok, _} = Runtime.start(adf)
@@ -130,10 +134,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
   end
 
   test "a module that says trace: false is not traced", %{tmp_dir: dir} do
-    name = :"untraced_#{System.unique_integer([:positive])}"
-
-    {adf, robot} =
-      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Untraced, activity: :event]"}])
+    {adf, robot, _name} = event_module(dir, "untraced", ThinkingCap.Test.Modules.Untraced)
 
     refute Trace.traced?(ThinkingCap.Test.Modules.Untraced)
     assert Trace.traced?(ThinkingCap.Test.Modules.Traced)
@@ -168,10 +169,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
 
   test "the runtime waits for its listeners before it starts an ADF's modules",
        %{tmp_dir: dir} do
-    name = :"late_#{System.unique_integer([:positive])}"
-
-    {adf, robot} =
-      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+    {adf, robot, name} = event_module(dir, "late")
 
     listener = slow_listener(robot, name)
     {:ok, [%{pid: pid}]} = Runtime.start(adf)
@@ -182,10 +180,7 @@ defmodule ThinkingCap.Runtime.TraceTest do
   end
 
   test "a deployment waits for them too before this node starts a module", %{tmp_dir: dir} do
-    name = :"dep_#{System.unique_integer([:positive])}"
-
-    {adf, robot} =
-      adf(dir, [{name, "[module: ThinkingCap.Test.Modules.Traced, activity: :event]"}])
+    {adf, robot, name} = event_module(dir, "dep")
 
     listener = slow_listener(robot, name)
     {:ok, deployment} = Runtime.deploy(adf)
