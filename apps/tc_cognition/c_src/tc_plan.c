@@ -811,17 +811,32 @@ ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
 /* grids are compared in blocks: memcmp skips equal ones at memory speed */
 #define BLOCK 256
 
+/* appends j to the changed cells; 0 out of memory */
+static int push_changed(int32_t **changed, size_t *m, size_t *cap, int32_t j)
+{
+    if (*m == *cap) {
+        int32_t *more = realloc(*changed, 2 * *cap * sizeof(int32_t));
+        if (!more) return 0;
+        *changed = more;
+        *cap *= 2;
+    }
+    (*changed)[(*m)++] = j;
+    return 1;
+}
+
 /* dsl_sync(dsl, cells, max) -> {:ok, changed} | {:too_many, changed}:
  * the search's grid made `cells` (same size), the changed cells repaired
  * as dsl_update does; more than max changed cells leave the search as it
  * was (a new search is then cheaper), `changed` counting up to max + 1.
  * One pass over the grids lists the differing cells, then they are set
- * and repaired. */
+ * and repaired. dsl_sync(dsl, cells, max, hint): the same, where only
+ * the cells listed in hint (native 32-bit indices, repeats allowed; the
+ * cost map's builder lists them as it writes the grid) may differ, so
+ * no pass over the grid is needed. */
 static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    (void)argc;
     Dsl *d;
-    ErlNifBinary b;
+    ErlNifBinary b, hint;
     long max;
     int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
@@ -829,27 +844,42 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         return enif_make_badarg(env);
     size_t n = (size_t)d->w * d->h;
     if (b.size != n) return enif_make_badarg(env);
+    int hinted = argc == 4;
+    if (hinted && (!enif_inspect_binary(env, argv[3], &hint) || hint.size % sizeof(int32_t)))
+        return enif_make_badarg(env);
+    const int32_t *hints = hinted ? (const int32_t *)hint.data : NULL;
+    size_t nh = hinted ? hint.size / sizeof(int32_t) : 0;
+    for (size_t k = 0; k < nh; k++)
+        if (hints[k] < 0 || (size_t)hints[k] >= n) return enif_make_badarg(env);
     size_t cap = 256, m = 0;
     int32_t *changed = malloc(cap * sizeof(int32_t));
     if (!changed) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     enif_mutex_lock(d->lock);
-    for (size_t i = 0; i < n && m <= (size_t)max; i += BLOCK) {
-        size_t len = n - i < BLOCK ? n - i : BLOCK;
-        if (!memcmp(d->cells + i, b.data + i, len)) continue;
-        for (size_t j = i; j < i + len && m <= (size_t)max; j++) {
-            if (d->cells[j] == (b.data[j] ? 1 : 0)) continue;
-            if (m == cap) {
-                int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
-                if (!more) {
-                    enif_mutex_unlock(d->lock);
-                    free(changed);
-                    return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-                }
-                changed = more;
-                cap *= 2;
-            }
-            changed[m++] = (int32_t)j;
+    int ok = 1;
+    if (hinted) {
+        /* a cell listed twice is taken once: its bit in seen */
+        uint64_t *seen = d->seen;
+        for (size_t k = 0; k < nh && m <= (size_t)max && ok; k++) {
+            int32_t j = hints[k];
+            uint64_t bit = 1ULL << (j & 63);
+            if (d->cells[j] == (b.data[j] ? 1 : 0) || (seen[j >> 6] & bit)) continue;
+            seen[j >> 6] |= bit;
+            ok = push_changed(&changed, &m, &cap, j);
         }
+        for (size_t k = 0; k < m; k++) seen[changed[k] >> 6] = 0;
+    } else {
+        for (size_t i = 0; i < n && m <= (size_t)max && ok; i += BLOCK) {
+            size_t len = n - i < BLOCK ? n - i : BLOCK;
+            if (!memcmp(d->cells + i, b.data + i, len)) continue;
+            for (size_t j = i; j < i + len && m <= (size_t)max && ok; j++)
+                if (d->cells[j] != (b.data[j] ? 1 : 0))
+                    ok = push_changed(&changed, &m, &cap, (int32_t)j);
+        }
+    }
+    if (!ok) {
+        enif_mutex_unlock(d->lock);
+        free(changed);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     if (m > (size_t)max) {
         d->cpu_ns += cpu_now() - t0;

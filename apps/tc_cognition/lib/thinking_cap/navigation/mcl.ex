@@ -705,7 +705,12 @@ defmodule ThinkingCap.Navigation.MCL do
 
       local_ll - here > margin and alike != [] ->
         # the tracked pose is wrong, and the scan fits places near and
-        # away alike (a symmetric room): the moves to come tell them apart
+        # away alike (a symmetric room, or boxes the map lacks): the
+        # moves to come tell them apart. A robot is seldom carried away,
+        # so the near places are preferred by the margin a place away
+        # must win by: the estimate stays near, and a few particles wait
+        # at the places away in case it was
+        near = Enum.map(near, fn {ll, x, y, th} -> {ll + margin, x, y, th} end)
         lost(state, Enum.sort_by(near ++ alike, &(-elem(&1, 0))), gain(far, local, used), best)
 
       true ->
