@@ -208,8 +208,9 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # weighings a fresh cloud of particles gets before it may be judged lost
   @settling 10
-  # m within which a place found counts as the tracked one
+  # m and rad within which a place found counts as the tracked one
   @near 1.0
+  @near_turn 0.5
   # m the robot moves after a poor scan no other place explained before
   # another search
   @quiet 0.5
@@ -732,7 +733,13 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
-  defp near?({_, x, y, _}, {bx, by, _}), do: (x - bx) ** 2 + (y - by) ** 2 <= @near * @near
+  # near the tracked pose: a small correction of it, in place and heading
+  # (the same place turned round is another hypothesis: in a symmetric
+  # map, the twin place a half turn away fits as well)
+  defp near?({_, x, y, th}, {bx, by, bth}),
+    do:
+      (x - bx) ** 2 + (y - by) ** 2 <= @near * @near and
+        abs(normalize_angle(th - bth)) <= @near_turn
 
   defp gain([], _local, _used), do: "-"
   defp gain([c | _], local, used), do: gain(elem(c, 0), local, used)
