@@ -17,6 +17,15 @@ defmodule ThinkingCap.Navigation.DStarLite do
   processed again; when the robot moves (`move_start/2`), the key modifier
   `km` keeps the queued priorities valid without reordering the queue.
 
+  Ties between vertices of equal priority are broken as A* breaks them,
+  towards the robot: the paper breaks them towards the goal, which in
+  open space (where the octile distance is exact) processes every cell
+  of every shortest path before the robot's, and after a jump of the
+  robot a whole parallelogram of them. Vertices whose distance grew are
+  still processed first among equals, which keeps every plan optimal.
+  A plan walks the path again only up to where the last one is
+  unchanged.
+
       state = DStarLite.new(grid, start, goal)
       {:ok, path, state} = DStarLite.plan(state)
       state = DStarLite.move_start(state, Enum.at(path, 3))
