@@ -496,23 +496,65 @@ static ERL_NIF_TERM nif_edt(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 }
 
 /* inflate(cells, w, h, radius_cells) -> cells within radius (centre to
- * centre) of a non-zero cell set to 1, the others 0 */
+ * centre) of a non-zero cell set to 1, the others 0.
+ * inflate(cells, w, h, radius_cells, old, max) -> {inflated, changed}:
+ * also the cells where the result differs from `old` (a grid of the same
+ * size), as native 32-bit indices, found while the result is written;
+ * `too_many` instead when more than max differ. */
 static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    (void)argc;
-    ErlNifBinary b;
+    ErlNifBinary b, old;
     int w, h;
     double radius;
+    long max = 0;
     if (!get_grid(env, argv, &b, &w, &h) || !tc_number(env, argv[3], &radius) || radius < 0)
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    int diff = argc == 6;
+    if (diff && (!enif_inspect_binary(env, argv[4], &old) || old.size != n ||
+                 !enif_get_long(env, argv[5], &max) || max < 0))
         return enif_make_badarg(env);
     double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     double r2 = radius * radius + 1e-9;
     ERL_NIF_TERM out;
-    unsigned char *p = enif_make_new_binary(env, (size_t)w * h, &out);
-    for (size_t i = 0; i < (size_t)w * h; i++) p[i] = g[i] <= r2 ? 1 : 0;
+    unsigned char *p = enif_make_new_binary(env, n, &out);
+    if (!diff) {
+        for (size_t i = 0; i < n; i++) p[i] = g[i] <= r2 ? 1 : 0;
+        free(g);
+        return out;
+    }
+    size_t m = 0, cap = 256;
+    int32_t *changed = malloc(cap * sizeof(int32_t));
+    if (!changed) {
+        free(g);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (size_t i = 0; i < n; i++) {
+        p[i] = g[i] <= r2 ? 1 : 0;
+        if (p[i] == (old.data[i] ? 1 : 0) || m > (size_t)max) continue;
+        if (m == cap) {
+            int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
+            if (!more) {
+                free(g);
+                free(changed);
+                return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+            }
+            changed = more;
+            cap *= 2;
+        }
+        changed[m++] = (int32_t)i;
+    }
     free(g);
-    return out;
+    ERL_NIF_TERM list;
+    if (m > (size_t)max) {
+        list = enif_make_atom(env, "too_many");
+    } else {
+        unsigned char *q = enif_make_new_binary(env, m * sizeof(int32_t), &list);
+        memcpy(q, changed, m * sizeof(int32_t));
+    }
+    free(changed);
+    return enif_make_tuple2(env, out, list);
 }
 
 /* diff(a, b, max) -> {count, [index]} the indices where a and b differ
@@ -878,6 +920,7 @@ static ErlNifFunc funcs[] = {
     {"fmap_import", 2, nif_fmap_import, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"edt", 3, nif_edt, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"inflate", 6, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"overlay", 3, nif_overlay, ERL_NIF_DIRTY_JOB_CPU_BOUND},
@@ -909,6 +952,7 @@ static ErlNifFunc funcs[] = {
     {"dsl_new", 5, tc_nif_dsl_new, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"dsl_update", 2, tc_nif_dsl_update, 0},
     {"dsl_sync", 3, tc_nif_dsl_sync, 0},
+    {"dsl_sync", 4, tc_nif_dsl_sync, 0},
     {"dsl_move_start", 2, tc_nif_dsl_move_start, 0},
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
     {"dsl_forget_path", 1, tc_nif_dsl_forget_path, 0},

@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #define INF (1LL << 58)
@@ -395,8 +396,17 @@ typedef struct {
     int64_t g, rhs;
 } Vertex;
 
-/* A queued vertex and its key: [min(g, rhs) + h + km, min(g, rhs)],
- * compared in that order. */
+/* A queued vertex and its key: k1 = min(g, rhs) + h + km, then k2, the
+ * order among equal k1: the underconsistent vertices (g < rhs) first, by
+ * g from small to large, as in the paper, then the overconsistent ones
+ * by rhs from large to small, the deepest (nearest the start) first, as
+ * A* breaks ties. The paper breaks every tie by the smaller min(g, rhs):
+ * in open space, where the octile distance is exact, that expands every
+ * vertex of every shortest path before the start, a parallelogram
+ * between the start and the goal. The search may stop while
+ * overconsistent vertices tie with the start: a path through one costs
+ * at least its k1 - km, the start's cost. It may not stop while an
+ * underconsistent one does: the start's cost may rest on its g. */
 typedef struct {
     int64_t k1, k2;
     int32_t u;
@@ -457,14 +467,34 @@ static inline void dsl_set_g(Dsl *d, int32_t u, int64_t x)
     d->v[u].g = INF - x;
 }
 
+/* Zeroed memory for a per-vertex array, in huge pages where the kernel
+ * gives them: a big grid's arrays in 4 KB pages cost a page fault on
+ * each page a search first reaches and a TLB miss on most reads of a
+ * walk, whose rows lie pages apart. */
+static void *big_zeroed(size_t size)
+{
+    void *p = mmap(NULL, size, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) return NULL;
+#ifdef MADV_HUGEPAGE
+    madvise(p, size, MADV_HUGEPAGE);
+#endif
+    return p;
+}
+
+static void big_free(void *p, size_t size)
+{
+    if (p) munmap(p, size);
+}
+
 static void dsl_free(ErlNifEnv *env, void *obj)
 {
     (void)env;
     Dsl *d = obj;
+    size_t n = (size_t)d->w * d->h;
     free(d->cells);
-    free(d->v);
+    big_free(d->v, n * sizeof(Vertex));
     free(d->q);
-    free(d->pos);
+    big_free(d->pos, n * sizeof(int32_t));
     free(d->seen);
     free(d->path);
     free(d->spare);
@@ -483,6 +513,20 @@ int tc_plan_load(ErlNifEnv *env)
     A_NO_PATH = enif_make_atom(env, "no_path");
     A_NONE = enif_make_atom(env, "none");
     return DSL_TYPE == NULL;
+}
+
+#define UNDER (1LL << 60)
+
+/* k2 of a vertex inconsistent with these g and rhs */
+static inline int64_t order(int64_t g, int64_t rhs)
+{
+    return g < rhs ? g - UNDER : -rhs;
+}
+
+/* min(g, rhs) back from k2 */
+static inline int64_t k2_min(int64_t k2)
+{
+    return k2 < -(UNDER >> 1) ? k2 + UNDER : -k2;
 }
 
 static inline int qless(const Queued *a, const Queued *b)
@@ -568,7 +612,7 @@ static int update_vertex(Dsl *d, int32_t u)
     int64_t g = G(d, u), rhs = RHS(d, u);
     if (g != rhs) {
         int64_t k = g < rhs ? g : rhs;
-        return q_set(d, u, k + octile(d->sc, d->sr, u % d->w, u / d->w) + d->km, k);
+        return q_set(d, u, k + octile(d->sc, d->sr, u % d->w, u / d->w) + d->km, order(g, rhs));
     }
     q_remove(d, u);
     return 1;
@@ -602,8 +646,8 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->w = w;
     d->h = h;
     d->cells = malloc(n);
-    d->v = calloc(n, sizeof(Vertex));
-    d->pos = calloc(n, sizeof(int32_t));
+    d->v = big_zeroed(n * sizeof(Vertex));
+    d->pos = big_zeroed(n * sizeof(int32_t));
     d->seen = calloc(n / 64 + 1, sizeof(uint64_t));
     d->on = calloc(n / 64 + 1, sizeof(uint64_t));
     d->touched = malloc(TOUCHED * sizeof(int32_t));
@@ -767,17 +811,32 @@ ERL_NIF_TERM tc_nif_dsl_update(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
 /* grids are compared in blocks: memcmp skips equal ones at memory speed */
 #define BLOCK 256
 
+/* appends j to the changed cells; 0 out of memory */
+static int push_changed(int32_t **changed, size_t *m, size_t *cap, int32_t j)
+{
+    if (*m == *cap) {
+        int32_t *more = realloc(*changed, 2 * *cap * sizeof(int32_t));
+        if (!more) return 0;
+        *changed = more;
+        *cap *= 2;
+    }
+    (*changed)[(*m)++] = j;
+    return 1;
+}
+
 /* dsl_sync(dsl, cells, max) -> {:ok, changed} | {:too_many, changed}:
  * the search's grid made `cells` (same size), the changed cells repaired
  * as dsl_update does; more than max changed cells leave the search as it
  * was (a new search is then cheaper), `changed` counting up to max + 1.
  * One pass over the grids lists the differing cells, then they are set
- * and repaired. */
+ * and repaired. dsl_sync(dsl, cells, max, hint): the same, where only
+ * the cells listed in hint (native 32-bit indices, repeats allowed; the
+ * cost map's builder lists them as it writes the grid) may differ, so
+ * no pass over the grid is needed. */
 static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    (void)argc;
     Dsl *d;
-    ErlNifBinary b;
+    ErlNifBinary b, hint;
     long max;
     int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d) ||
@@ -785,27 +844,42 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         return enif_make_badarg(env);
     size_t n = (size_t)d->w * d->h;
     if (b.size != n) return enif_make_badarg(env);
+    int hinted = argc == 4;
+    if (hinted && (!enif_inspect_binary(env, argv[3], &hint) || hint.size % sizeof(int32_t)))
+        return enif_make_badarg(env);
+    const int32_t *hints = hinted ? (const int32_t *)hint.data : NULL;
+    size_t nh = hinted ? hint.size / sizeof(int32_t) : 0;
+    for (size_t k = 0; k < nh; k++)
+        if (hints[k] < 0 || (size_t)hints[k] >= n) return enif_make_badarg(env);
     size_t cap = 256, m = 0;
     int32_t *changed = malloc(cap * sizeof(int32_t));
     if (!changed) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     enif_mutex_lock(d->lock);
-    for (size_t i = 0; i < n && m <= (size_t)max; i += BLOCK) {
-        size_t len = n - i < BLOCK ? n - i : BLOCK;
-        if (!memcmp(d->cells + i, b.data + i, len)) continue;
-        for (size_t j = i; j < i + len && m <= (size_t)max; j++) {
-            if (d->cells[j] == (b.data[j] ? 1 : 0)) continue;
-            if (m == cap) {
-                int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
-                if (!more) {
-                    enif_mutex_unlock(d->lock);
-                    free(changed);
-                    return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-                }
-                changed = more;
-                cap *= 2;
-            }
-            changed[m++] = (int32_t)j;
+    int ok = 1;
+    if (hinted) {
+        /* a cell listed twice is taken once: its bit in seen */
+        uint64_t *seen = d->seen;
+        for (size_t k = 0; k < nh && m <= (size_t)max && ok; k++) {
+            int32_t j = hints[k];
+            uint64_t bit = 1ULL << (j & 63);
+            if (d->cells[j] == (b.data[j] ? 1 : 0) || (seen[j >> 6] & bit)) continue;
+            seen[j >> 6] |= bit;
+            ok = push_changed(&changed, &m, &cap, j);
         }
+        for (size_t k = 0; k < m; k++) seen[changed[k] >> 6] = 0;
+    } else {
+        for (size_t i = 0; i < n && m <= (size_t)max && ok; i += BLOCK) {
+            size_t len = n - i < BLOCK ? n - i : BLOCK;
+            if (!memcmp(d->cells + i, b.data + i, len)) continue;
+            for (size_t j = i; j < i + len && m <= (size_t)max && ok; j++)
+                if (d->cells[j] != (b.data[j] ? 1 : 0))
+                    ok = push_changed(&changed, &m, &cap, (int32_t)j);
+        }
+    }
+    if (!ok) {
+        enif_mutex_unlock(d->lock);
+        free(changed);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     if (m > (size_t)max) {
         d->cpu_ns += cpu_now() - t0;
@@ -902,9 +976,10 @@ static long compute(Dsl *d, long budget, int *done)
         int32_t u = e.u;
         int64_t gs = G(d, d->start), rs = RHS(d, d->start);
         int64_t ms = gs < rs ? gs : rs;
-        if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < ms) || rs > gs)) break;
+        if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < -(UNDER >> 1)) || rs > gs))
+            break;
         int64_t gu = G(d, u), ru = RHS(d, u);
-        int64_t k1 = e.k2 + octile(d->sc, d->sr, u % w, u / w) + d->km;
+        int64_t k1 = k2_min(e.k2) + octile(d->sc, d->sr, u % w, u / w) + d->km;
         if (e.k1 < k1) {
             e.k1 = k1;
             q_down(d, 0, e);
@@ -954,14 +1029,32 @@ static void mark(uint64_t *map, const int32_t *cells, size_t n, int on)
     }
 }
 
-/* whether a cell of the last path lies within one cell of u */
-static int near_path(Dsl *d, int32_t u)
+/* whether u or a cell next to it has its bit set */
+static int near_bit(const Dsl *d, const uint64_t *map, int32_t u)
 {
     int w = d->w, c = u % w, r = u / w;
     for (int rr = r > 0 ? r - 1 : 0; rr <= r + 1 && rr < d->h; rr++)
         for (int cc = c > 0 ? c - 1 : 0; cc <= c + 1 && cc < w; cc++)
-            if (BIT(d->on, rr * w + cc)) return 1;
+            if (BIT(map, rr * w + cc)) return 1;
     return 0;
+}
+
+/* The index in the last path after which none of its cells lies within
+ * one cell of a vertex touched since it was walked: from there on, each
+ * cell's neighbours have the g-values and cells they had, so the walk
+ * from it is the rest of the last path. */
+static size_t unchanged_from(Dsl *d)
+{
+    uint64_t *seen = d->seen;
+    size_t keep = 0;
+    for (size_t k = 0; k < d->tn; k++) seen[d->touched[k] >> 6] |= 1ULL << (d->touched[k] & 63);
+    for (size_t i = d->plen; i-- > 0;)
+        if (near_bit(d, seen, d->path[i])) {
+            keep = i + 1;
+            break;
+        }
+    for (size_t k = 0; k < d->tn; k++) seen[d->touched[k] >> 6] = 0;
+    return keep;
 }
 
 static void forget_path(Dsl *d)
@@ -973,14 +1066,19 @@ static void forget_path(Dsl *d)
 }
 
 /* The path from the start: from each cell to the successor minimising
- * c + g, until the goal. While the last path is valid (no vertex near it
- * touched since), the walk stops at the first of its cells it meets and
- * the rest is copied. Returns 1 with the path in d->path, 0 if the walk
- * does not reach the goal, -1 out of memory. */
+ * c + g, until the goal. The walk stops at the first cell it meets of
+ * the last path's unchanged end (see unchanged_from; none if the touched
+ * vertices were too many to list) and the rest is copied: a change near
+ * the robot walks only the path up to it. Returns 1 with the path in
+ * d->path, 0 if the walk does not reach the goal, -1 out of memory. */
 static int walk(Dsl *d)
 {
-    for (size_t k = 0; k < d->tn && d->valid; k++)
-        if (near_path(d, d->touched[k])) d->valid = 0;
+    size_t keep = d->plen;
+    if (d->valid) {
+        keep = unchanged_from(d);
+        /* the cells before it can no longer be joined */
+        mark(d->on, d->path, keep, 0);
+    }
     d->tn = 0;
     size_t n = (size_t)d->w * d->h, len = 0, cap = d->scap;
     int32_t *next_path = d->spare, to[8];
@@ -989,7 +1087,7 @@ static int walk(Dsl *d)
     size_t from = d->plen; /* where the last path is joined */
     for (;;) {
         if (d->valid && BIT(d->on, u)) {
-            for (from = 0; d->path[from] != u; from++)
+            for (from = keep; d->path[from] != u; from++)
                 ;
             break;
         }

@@ -17,6 +17,15 @@ defmodule ThinkingCap.Navigation.DStarLite do
   processed again; when the robot moves (`move_start/2`), the key modifier
   `km` keeps the queued priorities valid without reordering the queue.
 
+  Ties between vertices of equal priority are broken as A* breaks them,
+  towards the robot: the paper breaks them towards the goal, which in
+  open space (where the octile distance is exact) processes every cell
+  of every shortest path before the robot's, and after a jump of the
+  robot a whole parallelogram of them. Vertices whose distance grew are
+  still processed first among equals, which keeps every plan optimal.
+  A plan walks the path again only up to where the last one is
+  unchanged.
+
       state = DStarLite.new(grid, start, goal)
       {:ok, path, state} = DStarLite.plan(state)
       state = DStarLite.move_start(state, Enum.at(path, 3))
@@ -114,23 +123,39 @@ defmodule ThinkingCap.Navigation.DStarLite do
   `{:too_many, changed, state}` when more than `max_changes` did: the
   search is then left on its old grid (a search from scratch is cheaper
   than such a repair), and `changed` counts up to `max_changes + 1`.
-  """
-  @spec update_grid(t(), Grid.t(), non_neg_integer() | :infinity) ::
-          {:ok, t(), non_neg_integer()} | {:too_many, pos_integer(), t()}
-  def update_grid(state, grid, max_changes \\ :infinity)
 
-  def update_grid(%__MODULE__{grid: %Grid{width: w, height: h}} = state, %Grid{} = grid, max)
+  `hint`, when given, lists (as native 32-bit cell indices, repeats
+  allowed) every cell that may differ: the search then looks at those
+  only, not at the whole grid. A cost map's builder can list them as it
+  writes the grid (`ThinkingCap.Navigation.PathPlanner` does).
+  """
+  @spec update_grid(t(), Grid.t(), non_neg_integer() | :infinity, binary() | nil) ::
+          {:ok, t(), non_neg_integer()} | {:too_many, pos_integer(), t()}
+  def update_grid(state, grid, max_changes \\ :infinity, hint \\ nil)
+
+  def update_grid(
+        %__MODULE__{grid: %Grid{width: w, height: h}} = state,
+        %Grid{} = grid,
+        max,
+        hint
+      )
       when grid.width == w and grid.height == h do
     state = next_version(state)
     max = if max == :infinity, do: w * h, else: max
+    store = elem(state.store, 0)
 
-    case GridNif.dsl_sync(elem(state.store, 0), grid.cells, max) do
+    result =
+      if hint,
+        do: GridNif.dsl_sync(store, grid.cells, max, hint),
+        else: GridNif.dsl_sync(store, grid.cells, max)
+
+    case result do
       {:ok, n} -> {:ok, %{state | grid: grid}, n}
       {:too_many, n} -> {:too_many, n, state}
     end
   end
 
-  def update_grid(%__MODULE__{grid: old}, %Grid{} = grid, _max),
+  def update_grid(%__MODULE__{grid: old}, %Grid{} = grid, _max, _hint),
     do:
       raise(
         ArgumentError,

@@ -208,8 +208,9 @@ defmodule ThinkingCap.Navigation.MCL do
 
   # weighings a fresh cloud of particles gets before it may be judged lost
   @settling 10
-  # m within which a place found counts as the tracked one
+  # m and rad within which a place found counts as the tracked one
   @near 1.0
+  @near_turn 0.5
   # m the robot moves after a poor scan no other place explained before
   # another search
   @quiet 0.5
@@ -705,7 +706,12 @@ defmodule ThinkingCap.Navigation.MCL do
 
       local_ll - here > margin and alike != [] ->
         # the tracked pose is wrong, and the scan fits places near and
-        # away alike (a symmetric room): the moves to come tell them apart
+        # away alike (a symmetric room, or boxes the map lacks): the
+        # moves to come tell them apart. A robot is seldom carried away,
+        # so the near places are preferred by the margin a place away
+        # must win by: the estimate stays near, and a few particles wait
+        # at the places away in case it was
+        near = Enum.map(near, fn {ll, x, y, th} -> {ll + margin, x, y, th} end)
         lost(state, Enum.sort_by(near ++ alike, &(-elem(&1, 0))), gain(far, local, used), best)
 
       true ->
@@ -727,7 +733,13 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
-  defp near?({_, x, y, _}, {bx, by, _}), do: (x - bx) ** 2 + (y - by) ** 2 <= @near * @near
+  # near the tracked pose: a small correction of it, in place and heading
+  # (the same place turned round is another hypothesis: in a symmetric
+  # map, the twin place a half turn away fits as well)
+  defp near?({_, x, y, th}, {bx, by, bth}),
+    do:
+      (x - bx) ** 2 + (y - by) ** 2 <= @near * @near and
+        abs(normalize_angle(th - bth)) <= @near_turn
 
   defp gain([], _local, _used), do: "-"
   defp gain([c | _], local, used), do: gain(elem(c, 0), local, used)

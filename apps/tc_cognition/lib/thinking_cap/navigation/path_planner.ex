@@ -80,7 +80,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           grid: Grid.t() | nil,
           field: KeepClear.field() | nil,
           version: term(),
-          pending: :none | :changed | :reset,
+          pending: :none | {:changed, [binary()] | :scan} | :reset,
           search: DStarLite.t() | nil,
           goal: Grid.cell() | nil,
           last: map() | nil
@@ -125,7 +125,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
       do: planner
 
   def set_map(%__MODULE__{} = planner, %OccupancyGrid{} = map) do
-    {grid, blocked} = grids(planner, map)
+    {grid, blocked, diff} = grids(planner, map)
 
     field = %{grid: grid, distances: GridNif.edt(blocked, grid.width, grid.height)}
 
@@ -134,7 +134,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
       | grid: grid,
         field: field,
         version: map.version,
-        pending: changes(planner, grid)
+        pending: changes(planner, grid, diff)
     }
   end
 
@@ -144,16 +144,26 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   """
   @spec cost_grid(t(), OccupancyGrid.t()) :: Grid.t()
   def cost_grid(%__MODULE__{} = planner, %OccupancyGrid{} = map),
-    do: elem(grids(planner, map), 0)
+    do: elem(grids(%{planner | grid: nil}, map), 0)
 
-  # the cost map, and the blocked cells before they are grown
+  # the cost map, the blocked cells before they are grown, and the cells
+  # where the cost map differs from the planner's last one (listed while
+  # it is written; nil without a last one of that size and frame)
   defp grids(planner, %OccupancyGrid{width: w, height: h} = map) do
     k = max(1, round(planner.resolution / map.resolution))
     blocked = GridNif.blocked(map.data, planner.threshold, 0)
     {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.downsample(blocked, w, h, k)
     res = map.resolution * k
-    cells = GridNif.inflate(coarse, cw, ch, planner.radius / res)
-    {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), coarse}
+    radius = planner.radius / res
+    old = planner.grid
+
+    {cells, diff} =
+      if old != nil and
+           {old.width, old.height, old.origin, old.resolution} == {cw, ch, map.origin, res},
+         do: GridNif.inflate(coarse, cw, ch, radius, old.cells, planner.max_changes),
+         else: {GridNif.inflate(coarse, cw, ch, radius), nil}
+
+    {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), coarse, diff}
   end
 
   @doc """
@@ -189,22 +199,16 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   # whether the search must start anew (:reset: a new frame), may have
   # cells to repair (:changed) or has nothing new (:none)
-  defp changes(%{grid: nil}, _grid), do: :reset
-  defp changes(%{pending: :reset}, _grid), do: :reset
-
-  defp changes(%{grid: old} = planner, grid) do
-    cond do
-      {old.width, old.height, old.origin, old.resolution} !=
-          {grid.width, grid.height, grid.origin, grid.resolution} ->
-        :reset
-
-      old.cells == grid.cells ->
-        planner.pending
-
-      true ->
-        :changed
-    end
-  end
+  # (:changed: the cells that may differ from the search's grid, or
+  # :scan, all of them)
+  defp changes(%{grid: nil}, _grid, _diff), do: :reset
+  defp changes(%{pending: :reset}, _grid, _diff), do: :reset
+  defp changes(planner, _grid, <<>>), do: planner.pending
+  defp changes(_planner, _grid, nil), do: :reset
+  defp changes(_planner, _grid, :too_many), do: {:changed, :scan}
+  defp changes(%{pending: {:changed, :scan}}, _grid, _diff), do: {:changed, :scan}
+  defp changes(%{pending: {:changed, hints}}, _grid, diff), do: {:changed, [diff | hints]}
+  defp changes(%{pending: :none}, _grid, diff), do: {:changed, [diff]}
 
   @doc """
   The path from `from` to `goal` (world points) on the current map:
@@ -337,7 +341,10 @@ defmodule ThinkingCap.Navigation.PathPlanner do
     if pending == :none do
       {kind, search, 0}
     else
-      case DStarLite.update_grid(search, planner.grid, planner.max_changes) do
+      {:changed, hints} = pending
+      hint = if hints == :scan, do: nil, else: IO.iodata_to_binary(hints)
+
+      case DStarLite.update_grid(search, planner.grid, planner.max_changes, hint) do
         {:ok, search, changed} -> {kind, search, changed}
         {:too_many, _changed, _search} -> restart(planner, start, target)
       end

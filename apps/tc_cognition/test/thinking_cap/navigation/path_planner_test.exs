@@ -86,6 +86,50 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert_in_delta length_of(path), cost * grid.resolution, 0.05
   end
 
+  test "maps that come between two plans, boxes appearing and going, are all repaired (20 seeds)" do
+    for seed <- 1..20 do
+      :rand.seed(:exsss, {seed, 3, 7})
+      planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
+      {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
+
+      box = fn ->
+        {x, y} = {2.0 + 6 * :rand.uniform(), 0.5 + 5 * :rand.uniform()}
+        {x, y, x + 0.2 + 0.6 * :rand.uniform(), y + 0.2 + 0.6 * :rand.uniform()}
+      end
+
+      # three plans, each after one to three maps; a box stays, goes or
+      # comes with each map
+      Enum.reduce(1..3, {planner, [], 2}, fn _, {planner, boxes, version} ->
+        {planner, boxes, version} =
+          Enum.reduce(1..:rand.uniform(3), {planner, boxes, version}, fn _, {p, bs, v} ->
+            bs = Enum.filter(bs, fn _ -> :rand.uniform() < 0.6 end) ++ [box.()]
+            {PathPlanner.set_map(p, room(v, bs)), bs, v + 1}
+          end)
+
+        case PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0}) do
+          {:ok, path, planner} ->
+            assert planner.last.kind in [:repair, :restart]
+            grid = planner.grid
+
+            {:ok, %{cost: cost}} =
+              AStar.plan(
+                grid,
+                hd(path) |> then(&Grid.cell_of(grid, &1)),
+                Grid.cell_of(grid, {9.0, 3.0})
+              )
+
+            assert_in_delta length_of(path), cost * grid.resolution, 1.0e-6, "seed #{seed}"
+            {planner, boxes, version}
+
+          {:error, reason, planner} ->
+            fresh = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(version - 1, boxes))
+            assert {:error, ^reason, _} = PathPlanner.plan(fresh, {1.0, 3.0}, {9.0, 3.0})
+            {planner, boxes, version}
+        end
+      end)
+    end
+  end
+
   test "the same map seen again changes nothing; a new goal starts afresh" do
     planner = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1))
     {:ok, _, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})
