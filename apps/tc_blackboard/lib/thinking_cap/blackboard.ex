@@ -123,6 +123,7 @@ defmodule ThinkingCap.Blackboard do
   """
 
   alias ThinkingCap.Blackboard.Core.{
+    Batches,
     EvalSupervisor,
     Server,
     Store,
@@ -353,6 +354,15 @@ defmodule ThinkingCap.Blackboard do
       0 -> :ok
     end
   end
+
+  @doc """
+  Has the tuples held for a batched subscription sent now: when it
+  returns, their lists are in the subscriber's mailbox (but for a tuple
+  whose writer is still in the middle of its write). Does nothing for an
+  unbatched or ended subscription.
+  """
+  @spec flush(reference()) :: :ok
+  def flush(ref) when is_reference(ref), do: Batches.flush_now(ref)
 
   @doc "How many tuples were dropped for a subscription (nil if it is gone)."
   @spec dropped(reference()) :: non_neg_integer() | nil

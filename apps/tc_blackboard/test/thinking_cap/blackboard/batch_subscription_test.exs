@@ -90,6 +90,21 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     :ok = Blackboard.unsubscribe(ref)
   end
 
+  test "flush/1 has what is held sent before it returns", %{id: id} do
+    {:ok, ref} = Blackboard.subscribe({:fl, id, :_}, batch: true, max_delay_ms: 60_000)
+    for n <- 1..5, do: Blackboard.out({:fl, id, n})
+    refute_receive {:blackboard_batch, ^ref, _}, 50
+    :ok = Blackboard.flush(ref)
+    assert_received {:blackboard_batch, ^ref, entries}
+    assert Enum.map(entries, &elem(&1, 0)) == for(n <- 1..5, do: {:fl, id, n})
+    assert held(ref) == 0
+    # nothing held: nothing sent
+    :ok = Blackboard.flush(ref)
+    refute_received {:blackboard_batch, ^ref, _}
+    :ok = Blackboard.unsubscribe(ref)
+    :ok = Blackboard.flush(ref)
+  end
+
   test "unbatched subscribers of the same tuples are served as before", %{id: id} do
     {:ok, batched} = Blackboard.subscribe({:e, id, :_}, batch: true, max_batch: 4)
     {:ok, plain} = Blackboard.subscribe({:e, id, :_})

@@ -87,6 +87,12 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
     ArgumentError -> :ok
   end
 
+  @doc false
+  # Sends what is held for `ref` now; when it returns, the lists are in
+  # the subscriber's mailbox (this process sent them before it answered).
+  @spec flush_now(reference()) :: :ok
+  def flush_now(ref), do: GenServer.call(__MODULE__, {:flush, ref}, :infinity)
+
   defp notify(message) do
     case Process.whereis(__MODULE__) do
       nil -> :ok
@@ -140,6 +146,22 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   def handle_info(:check, state), do: {:noreply, check(state)}
 
   def handle_info(_other, state), do: {:noreply, state}
+
+  @impl true
+  def handle_call({:flush, ref}, _from, state) do
+    state = disarm(state, ref)
+
+    state =
+      case :ets.lookup(Tables.batches(), ref) do
+        [{^ref, next, sent, pid, max_batch, delay, _max_queue}] ->
+          send_held(state, ref, {sent, next}, pid, max_batch, delay)
+
+        [] ->
+          state
+      end
+
+    {:reply, :ok, state}
+  end
 
   defp arm(state, ref, delay) do
     if Map.has_key?(state.timers, ref) do
