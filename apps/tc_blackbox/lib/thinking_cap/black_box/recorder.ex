@@ -226,11 +226,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # so a VM killed loses no more than before.
   @impl true
   def handle_info({:blackboard_batch, _ref, entries}, state) when is_list(entries) do
-    state =
-      Enum.reduce(entries, state, fn {tuple, at}, state ->
-        add(state, {:tuple, log_time(state, at), tuple})
-      end)
-
+    state = add_all(state, entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
     {:noreply, drained(state)}
   end
 
@@ -238,8 +234,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
   def handle_info({:tc_trace_batch, robot, name, events}, %{robot: robot} = state)
       when is_list(events) do
     state =
-      Enum.reduce(events, state, fn {n, at, event}, state ->
-        add(state, {:callback, log_time(state, at), name, n, event})
+      add_all(state, events, fn {n, at, event}, s ->
+        {:callback, log_time(s, at), name, n, event}
       end)
 
     {:noreply, drained(state)}
@@ -269,7 +265,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   @impl true
   def handle_call(:info, _from, state) do
-    state = drain(state)
+    state = state |> collect() |> drain()
     dropped = Enum.reduce(state.refs, 0, &((Blackboard.dropped(&1) || 0) + &2))
 
     info = %{
@@ -287,19 +283,50 @@ defmodule ThinkingCap.BlackBox.Recorder do
   end
 
   def handle_call(:flush, _from, state) do
-    state = state |> drain() |> close_chunk()
+    state = state |> collect() |> drain() |> close_chunk()
     {:reply, if(state.error, do: {:error, state.error}, else: :ok), state}
   end
 
   def handle_call(:rotate, _from, state) do
-    state = drain(state)
+    state = state |> collect() |> drain()
     closed = state.path
     state = rotate_file(state)
     {:reply, if(state.error, do: {:error, state.error}, else: {:ok, closed}), state}
   end
 
   @impl true
-  def terminate(_reason, state), do: state |> drain() |> end_file()
+  def terminate(_reason, state), do: state |> collect() |> drain() |> end_file()
+
+  # The tuples held for the recorder (Blackboard.flush/1) and the lists
+  # in its mailbox, noted: so that a flush, a rotation or a stop leaves
+  # nothing delivered unwritten.
+  defp collect(state) do
+    Enum.each(state.refs, &Blackboard.flush/1)
+    take_lists(state)
+  catch
+    # the blackboard is stopping: what is in the mailbox
+    :exit, _ -> take_lists(state)
+  end
+
+  defp take_lists(%{robot: robot} = state) do
+    receive do
+      {:blackboard_batch, _ref, entries} when is_list(entries) ->
+        state
+        |> add_all(entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
+        |> take_lists()
+
+      {:tc_trace_batch, ^robot, name, events} when is_list(events) ->
+        state
+        |> add_all(events, fn {n, at, event}, s ->
+          {:callback, log_time(s, at), name, n, event}
+        end)
+        |> take_lists()
+    after
+      0 -> state
+    end
+  end
+
+  defp add_all(state, items, item), do: Enum.reduce(items, state, &add(&2, item.(&1, &2)))
 
   ## Noted messages
 

@@ -198,6 +198,18 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     end
   end
 
+  test "a stop writes the tuples still held for the recorder", %{tmp_dir: dir} do
+    robot = robot()
+    r = Atom.to_string(robot)
+    {:ok, _pid} = BlackBox.record(robot, dir: dir)
+    # held for up to 100 ms before they are sent: stopped before that
+    for i <- 1..5, do: Blackboard.out(Tuples.drive(robot, %{command: {:velocity, i * 0.1, 0.0}}))
+    :ok = BlackBox.stop(robot)
+    assert [file] = Path.wildcard(Path.join(dir, "*.mcap"))
+    assert {:ok, mcap} = Reader.read(file)
+    assert Topics.counts(mcap, "etf") == %{"/etf/#{r}/drive" => 5}
+  end
+
   test "chunks are written every chunk_seconds: the open file reads up to its last chunk",
        %{tmp_dir: dir} do
     robot = robot()
