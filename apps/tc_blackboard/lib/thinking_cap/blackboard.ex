@@ -104,20 +104,19 @@ defmodule ThinkingCap.Blackboard do
 
   **Batched subscribers.** A subscriber that takes many tuples a second
   can ask for them in lists (`subscribe(t, batch: true)`): its tuples
-  are held on its node and sent as `{:blackboard_batch, ref, [{tuple,
-  at}]}` when `max_batch` are held or `max_delay_ms` after the first
-  (`at` is the node's `System.monotonic_time/0` when the tuple was
-  held, when it would have been sent). The order is the one above: the
-  tuples of one writer come in the order written, in one list or in
-  lists that follow each other; none is sent twice and none is left out,
-  but for a writer killed in the middle of its write (its tuple may be
-  lost, as an unbatched subscriber may miss it, and the lists wait up to
-  a second for it) and a list that the node's batch sender sent just
-  before it crashed (sent again when it restarts). Writers do not yield
-  to batched subscribers, whom they do not wake. `max_queue` bounds the
-  tuples held (beyond it they are dropped or the subscription ends, as
-  `on_overflow` says), and a list is held back while the subscriber's
-  mailbox holds `max_queue / max_batch` messages.
+  are held on its node, and it is sent `{:blackboard_held, ref}` when
+  `max_batch` are held or `max_delay_ms` after the first; it then takes
+  them, `take_held(ref)`, `[{tuple, at}]` oldest first (`at` is the
+  node's `System.monotonic_time/0` when the tuple was held, when it
+  would have been sent). The order is the one above: the tuples of one
+  writer come in the order written, in one list or in lists that follow
+  each other; none comes twice and none is left out, but for a writer
+  killed in the middle of its write (its tuple may be lost, as an
+  unbatched subscriber may miss it, and the lists wait up to a second
+  for it). One notice at a time is sent: until the subscriber takes,
+  the tuples wait. Writers do not yield to batched subscribers, whom
+  they do not wake. `max_queue` bounds the tuples held (beyond it they
+  are dropped or the subscription ends, as `on_overflow` says).
 
   Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
   """
@@ -310,16 +309,15 @@ defmodule ThinkingCap.Blackboard do
   Options: `:max_queue` (default #{@default_max_queue}) and `:on_overflow`
   (`:drop`, the default, or `:disconnect`); see the moduledoc.
 
-  With `batch: true` the tuples come in lists instead, `{:blackboard_batch,
-  ref, [{tuple, at}]}`, oldest first, each list sent when `:max_batch`
-  tuples (default #{@default_max_batch}) are held or `:max_delay_ms`
-  (default #{@default_max_delay_ms}) after the first of them; `at` is
-  `System.monotonic_time/0` when the tuple was held (see "Batched
-  subscribers" in the moduledoc):
+  With `batch: true` the tuples are held instead, and the subscriber is
+  sent `{:blackboard_held, ref}` when `:max_batch` tuples (default
+  #{@default_max_batch}) are held or `:max_delay_ms` (default
+  #{@default_max_delay_ms}) after the first of them; `take_held/1` gives
+  them (see "Batched subscribers" in the moduledoc):
 
       {:ok, ref} = Blackboard.subscribe({:scan, :r1, :_}, batch: true, max_delay_ms: 100)
       receive do
-        {:blackboard_batch, ^ref, scans} -> for {scan, _at} <- scans, do: scan
+        {:blackboard_held, ^ref} -> for {scan, _at} <- Blackboard.take_held(ref), do: scan
       end
 
   Cost to writers: a template that binds the first two elements (a stream,
@@ -349,20 +347,22 @@ defmodule ThinkingCap.Blackboard do
   defp flush_subscription(ref) do
     receive do
       {:blackboard, ^ref, _} -> flush_subscription(ref)
-      {:blackboard_batch, ^ref, _} -> flush_subscription(ref)
+      {:blackboard_held, ^ref} -> flush_subscription(ref)
     after
       0 -> :ok
     end
   end
 
   @doc """
-  Has the tuples held for a batched subscription sent now: when it
-  returns, their lists are in the subscriber's mailbox (but for a tuple
-  whose writer is still in the middle of its write). Does nothing for an
-  unbatched or ended subscription.
+  The tuples held for the caller's batched subscription `ref`, oldest
+  first, as `[{tuple, at}]` (`at`: `System.monotonic_time/0` when it was
+  held), and they are no longer held. Called on `{:blackboard_held,
+  ref}`, or at any time (a subscriber that stops takes what is left).
+  [] for nothing held, or a subscription that is not the caller's or not
+  batched.
   """
-  @spec flush(reference()) :: :ok
-  def flush(ref) when is_reference(ref), do: Batches.flush_now(ref)
+  @spec take_held(reference()) :: [{tuple(), integer()}]
+  def take_held(ref) when is_reference(ref), do: Batches.take(ref)
 
   @doc "How many tuples were dropped for a subscription (nil if it is gone)."
   @spec dropped(reference()) :: non_neg_integer() | nil

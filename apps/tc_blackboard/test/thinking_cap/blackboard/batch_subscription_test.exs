@@ -1,30 +1,32 @@
 defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
-  # Not async: one test kills the node's batch sender.
+  # Not async: one test kills the node's batch process.
   use ThinkingCap.BlackboardCase, async: false
 
   alias ThinkingCap.Blackboard.Core.{Batches, Tables}
 
-  # every list received for `ref` until `count` tuples came, in order
-  defp receive_tuples(ref, count, timeout \\ 2_000, acc \\ [])
-  defp receive_tuples(_ref, count, _timeout, acc) when count <= 0, do: Enum.reverse(acc)
+  # the lists taken for `ref`, one per notice, until `count` tuples came
+  defp receive_lists(ref, count, timeout, acc \\ [])
+  defp receive_lists(_ref, count, _timeout, acc) when count <= 0, do: Enum.reverse(acc)
 
-  defp receive_tuples(ref, count, timeout, acc) do
+  defp receive_lists(ref, count, timeout, acc) do
     receive do
-      {:blackboard_batch, ^ref, entries} ->
-        assert entries != []
+      {:blackboard_held, ^ref} ->
+        entries = Blackboard.take_held(ref)
         tuples = for {tuple, at} <- entries, is_integer(at), do: tuple
         assert length(tuples) == length(entries)
-        receive_tuples(ref, count - length(tuples), timeout, Enum.reverse(tuples, acc))
+        receive_lists(ref, count - length(tuples), timeout, [tuples | acc])
     after
       timeout -> flunk("#{count} tuples missing; got #{inspect(Enum.reverse(acc), limit: 10)}")
     end
   end
 
+  defp receive_tuples(ref, count, timeout \\ 2_000),
+    do: ref |> receive_lists(count, timeout) |> Enum.concat()
+
   defp held(ref), do: :ets.select_count(Tables.batched(), [{{{ref, :_}, :_, :_}, [], [true]}])
 
-  test "every tuple comes once, each writer's in order, in lists of at most max_batch",
-       %{id: id} do
-    # room for all: writers in a burst outrun the sender
+  test "every tuple comes once, each writer's in order", %{id: id} do
+    # room for all: writers in a burst outrun the subscriber
     {:ok, ref} = Blackboard.subscribe({:b, id, :_}, batch: true, max_batch: 16, max_queue: 4_000)
     writers = 4
     per = 500
@@ -37,72 +39,66 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     Enum.each(tasks, &Task.await/1)
     Blackboard.out({:other, id, 0})
 
-    lists = collect_lists(ref, writers * per)
-    assert Enum.all?(lists, &(length(&1) in 1..16))
-    got = Enum.concat(lists)
+    got = receive_tuples(ref, writers * per)
     assert length(got) == writers * per
 
     for w <- 1..writers do
       assert for({:b, ^id, {^w, n}} <- got, do: n) == Enum.to_list(1..per)
     end
 
-    refute_receive {:blackboard_batch, ^ref, _}, 50
+    refute_receive {:blackboard_held, ^ref}, 50
     refute_received {:blackboard, ^ref, _}
     assert Blackboard.dropped(ref) == 0
+    assert Blackboard.take_held(ref) == []
     :ok = Blackboard.unsubscribe(ref)
   end
 
-  defp collect_lists(ref, count, acc \\ [])
-  defp collect_lists(_ref, count, acc) when count <= 0, do: Enum.reverse(acc)
-
-  defp collect_lists(ref, count, acc) do
-    receive do
-      {:blackboard_batch, ^ref, entries} ->
-        collect_lists(ref, count - length(entries), [Enum.map(entries, &elem(&1, 0)) | acc])
-    after
-      2_000 -> flunk("#{count} tuples missing")
-    end
-  end
-
-  test "a list goes when max_batch tuples are held, the rest after max_delay_ms", %{id: id} do
+  test "a notice comes when max_batch tuples are held, else after max_delay_ms", %{id: id} do
     {:ok, ref} = Blackboard.subscribe({:c, id, :_}, batch: true, max_batch: 10, max_delay_ms: 300)
     for n <- 1..10, do: Blackboard.out({:c, id, n})
 
-    # the tenth sends the ten at once
-    assert_receive {:blackboard_batch, ^ref, first}, 200
-    assert Enum.map(first, &elem(&1, 0)) == for(n <- 1..10, do: {:c, id, n})
+    # the tenth: at once
+    assert_receive {:blackboard_held, ^ref}, 200
+    assert Enum.map(Blackboard.take_held(ref), &elem(&1, 0)) == for(n <- 1..10, do: {:c, id, n})
     # three more wait for the timer
     for n <- 11..13, do: Blackboard.out({:c, id, n})
-    refute_receive {:blackboard_batch, ^ref, _}, 100
-    assert_receive {:blackboard_batch, ^ref, rest}, 1_000
-    assert Enum.map(rest, &elem(&1, 0)) == for(n <- 11..13, do: {:c, id, n})
+    refute_receive {:blackboard_held, ^ref}, 100
+    assert_receive {:blackboard_held, ^ref}, 1_000
+    assert Enum.map(Blackboard.take_held(ref), &elem(&1, 0)) == for(n <- 11..13, do: {:c, id, n})
     assert held(ref) == 0
     :ok = Blackboard.unsubscribe(ref)
   end
 
-  test "a single tuple is sent after max_delay_ms, stamped when it was written", %{id: id} do
+  test "one notice at a time: what is held waits for the take", %{id: id} do
+    {:ok, ref} = Blackboard.subscribe({:o, id, :_}, batch: true, max_batch: 5, max_delay_ms: 20)
+    for n <- 1..23, do: Blackboard.out({:o, id, n})
+    assert_receive {:blackboard_held, ^ref}
+    refute_receive {:blackboard_held, ^ref}, 100
+    assert Enum.map(Blackboard.take_held(ref), &elem(&1, 0)) == for(n <- 1..23, do: {:o, id, n})
+    :ok = Blackboard.unsubscribe(ref)
+  end
+
+  test "a single tuple is told of after max_delay_ms, stamped when it was written",
+       %{id: id} do
     {:ok, ref} = Blackboard.subscribe({:d, id, :_}, batch: true, max_delay_ms: 30)
     before = System.monotonic_time()
     Blackboard.out({:d, id, 1})
     later = System.monotonic_time()
-    assert_receive {:blackboard_batch, ^ref, [{{:d, ^id, 1}, at}]}, 1_000
+    assert_receive {:blackboard_held, ^ref}, 1_000
+    assert [{{:d, ^id, 1}, at}] = Blackboard.take_held(ref)
     assert before <= at and at <= later
     :ok = Blackboard.unsubscribe(ref)
   end
 
-  test "flush/1 has what is held sent before it returns", %{id: id} do
+  test "take_held/1 takes what is held at any time, and only the subscriber's", %{id: id} do
     {:ok, ref} = Blackboard.subscribe({:fl, id, :_}, batch: true, max_delay_ms: 60_000)
     for n <- 1..5, do: Blackboard.out({:fl, id, n})
-    refute_receive {:blackboard_batch, ^ref, _}, 50
-    :ok = Blackboard.flush(ref)
-    assert_received {:blackboard_batch, ^ref, entries}
-    assert Enum.map(entries, &elem(&1, 0)) == for(n <- 1..5, do: {:fl, id, n})
+    assert Task.await(Task.async(fn -> Blackboard.take_held(ref) end)) == []
+    assert Enum.map(Blackboard.take_held(ref), &elem(&1, 0)) == for(n <- 1..5, do: {:fl, id, n})
     assert held(ref) == 0
-    # nothing held: nothing sent
-    :ok = Blackboard.flush(ref)
-    refute_received {:blackboard_batch, ^ref, _}
+    assert Blackboard.take_held(ref) == []
     :ok = Blackboard.unsubscribe(ref)
-    :ok = Blackboard.flush(ref)
+    assert Blackboard.take_held(ref) == []
   end
 
   test "unbatched subscribers of the same tuples are served as before", %{id: id} do
@@ -112,7 +108,7 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     for n <- 1..10, do: assert_receive({:blackboard, ^plain, {:e, ^id, ^n}})
     assert receive_tuples(batched, 10) == for(n <- 1..10, do: {:e, id, n})
     refute_received {:blackboard, ^batched, _}
-    refute_received {:blackboard_batch, ^plain, _}
+    refute_received {:blackboard_held, ^plain}
 
     assert [%{batch: %{max_batch: 4, max_delay_ms: 20}}] =
              for(s <- Blackboard.subscriptions(), s.ref == batched, do: s)
@@ -122,21 +118,18 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     :ok = Blackboard.unsubscribe(plain)
   end
 
-  test "unsubscribe forgets the held tuples and flushes the lists received", %{id: id} do
+  test "unsubscribe forgets the held tuples and flushes the notice received", %{id: id} do
     {:ok, ref} =
       Blackboard.subscribe({:f, id, :_}, batch: true, max_batch: 2, max_delay_ms: 60_000)
 
-    for n <- 1..2, do: Blackboard.out({:f, id, n})
-    # a list of two sent, then one held
-    assert_receive {:blackboard_batch, ^ref, [_, _]}
-    Blackboard.out({:f, id, 3})
-    wait_until(fn -> held(ref) == 1 end)
-    send(self(), {:blackboard_batch, ref, [{{:f, id, 0}, 0}]})
+    for n <- 1..3, do: Blackboard.out({:f, id, n})
+    assert_receive {:blackboard_held, ^ref}
+    send(self(), {:blackboard_held, ref})
     :ok = Blackboard.unsubscribe(ref)
-    refute_received {:blackboard_batch, ^ref, _}
+    refute_received {:blackboard_held, ^ref}
     assert held(ref) == 0
     Blackboard.out({:f, id, 4})
-    refute_receive {:blackboard_batch, ^ref, _}, 100
+    refute_receive {:blackboard_held, ^ref}, 100
     assert Blackboard.dropped(ref) == nil
   end
 
@@ -170,8 +163,8 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
 
   defp forward(parent, ref) do
     receive do
-      {:blackboard_batch, ^ref, entries} ->
-        send(parent, {:forwarded, ref, Enum.map(entries, &elem(&1, 0))})
+      {:blackboard_held, ^ref} ->
+        send(parent, {:forwarded, ref, Enum.map(Blackboard.take_held(ref), &elem(&1, 0))})
         forward(parent, ref)
     end
   end
@@ -187,7 +180,7 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     end
   end
 
-  test "tuples held when the batch sender dies are sent by its successor", %{id: id} do
+  test "tuples held when the batch process dies are told of by its successor", %{id: id} do
     {:ok, ref} =
       Blackboard.subscribe({:h, id, :_}, batch: true, max_batch: 1000, max_delay_ms: 200)
 
@@ -195,8 +188,9 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     old = Process.whereis(Batches)
     Process.exit(old, :kill)
     wait_until(fn -> (pid = Process.whereis(Batches)) != nil and pid != old end)
+    assert receive_tuples(ref, 20, 3_000) == for(n <- 1..20, do: {:h, id, n})
     for n <- 21..30, do: Blackboard.out({:h, id, n})
-    assert receive_tuples(ref, 30) == for(n <- 1..30, do: {:h, id, n})
+    assert receive_tuples(ref, 10) == for(n <- 21..30, do: {:h, id, n})
     :ok = Blackboard.unsubscribe(ref)
   end
 
@@ -207,54 +201,32 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     # a writer killed between taking its position and inserting its tuple
     :ets.update_counter(Tables.batches(), ref, {2, 1})
     Blackboard.out({:k, id, 3})
-    refute_receive {:blackboard_batch, ^ref, _}, 300
+    assert_receive {:blackboard_held, ^ref}, 1_000
+    assert Blackboard.take_held(ref) == []
     assert receive_tuples(ref, 1, 3_000) == [{:k, id, 3}]
     assert held(ref) == 0
     :ok = Blackboard.unsubscribe(ref)
   end
 
   describe "bounds" do
-    test ":drop holds at most max_queue tuples for a subscriber that does not read",
+    test ":drop holds at most max_queue tuples for a subscriber that does not take",
          %{id: id} do
-      parent = self()
+      {:ok, ref} =
+        Blackboard.subscribe({:m, id, :_},
+          batch: true,
+          max_batch: 10,
+          max_delay_ms: 5,
+          max_queue: 50
+        )
 
-      sleeper =
-        spawn(fn ->
-          {:ok, ref} =
-            Blackboard.subscribe({:m, id, :_},
-              batch: true,
-              max_batch: 10,
-              max_delay_ms: 5,
-              max_queue: 50
-            )
-
-          send(parent, {:ref, ref})
-          Process.sleep(:infinity)
-        end)
-
-      assert_receive {:ref, ref}
       for n <- 1..300, do: Blackboard.out({:m, id, n})
-      # lists queued until five are (50 / 10), then 50 held, the rest dropped
-      wait_until(fn ->
-        {:message_queue_len, queued} = Process.info(sleeper, :message_queue_len)
-        queued >= 5
-      end)
-
-      Process.sleep(100)
-      {:messages, lists} = Process.info(sleeper, :messages)
-      sent = for {:blackboard_batch, ^ref, entries} <- lists, {tuple, _} <- entries, do: tuple
-
-      held_tuples =
-        :ets.select_count(Tables.batched(), [
-          {{{ref, :_}, :"$1", :_}, [{:is_tuple, :"$1"}], [true]}
-        ])
-
-      assert held_tuples <= 50
-      assert Blackboard.dropped(ref) > 0
-      assert length(sent) + held_tuples + Blackboard.dropped(ref) == 300
-      # what was sent is the oldest, in order
-      assert sent == for(n <- 1..length(sent), do: {:m, id, n})
-      Process.exit(sleeper, :kill)
+      assert_receive {:blackboard_held, ^ref}
+      assert Blackboard.dropped(ref) == 250
+      assert Enum.map(Blackboard.take_held(ref), &elem(&1, 0)) == for(n <- 1..50, do: {:m, id, n})
+      # room again
+      Blackboard.out({:m, id, 301})
+      assert receive_tuples(ref, 1) == [{:m, id, 301}]
+      :ok = Blackboard.unsubscribe(ref)
     end
 
     test ":disconnect ends the subscription when max_queue tuples are held", %{id: id} do
@@ -271,6 +243,7 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
       assert_receive {:blackboard_overflow, ^ref}
       assert Blackboard.dropped(ref) == nil
       assert held(ref) == 0
+      assert Blackboard.take_held(ref) == []
     end
   end
 

@@ -60,10 +60,10 @@ defmodule ThinkingCap.BlackBox.Recorder do
   when the recorder started, advanced by the monotonic clock (so that a
   change of the system's time cannot put messages out of order); one
   clock for every channel. The tuples and the callbacks come in lists
-  (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`,
-  `ThinkingCap.Runtime.Trace.attach/2`'s), up to 64 at a time or 100 ms
-  after the first, each stamped when it was held for the recorder,
-  which is its log time. Its **publish time is
+  (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 64 at a
+  time or a tenth of `chunk_seconds` after the first;
+  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or 100 ms), each stamped
+  when it was held for the recorder, which is its log time. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
   time. Foxglove messages carry the stamp in their `timestamp` too.
@@ -86,9 +86,12 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # a module's traced callbacks written in one message
   @batch 64
 
-  # tuples come in lists (as the modules' callbacks do, Trace's batching):
-  # woken for each, the recorder spent more being woken than recording
-  @lists [batch: true, max_batch: 64, max_delay_ms: 100]
+  # Tuples come in lists (as the modules' callbacks do, Trace's
+  # batching), held a tenth of a chunk (100 ms for chunks of a second):
+  # nothing of a chunk is written before its end, and the cost of a list
+  # (its sending, the recorder's wake-up) is shared by more tuples
+  @list_max 64
+  @list_share 0.1
 
   # tuples and callbacks noted before they are written (when so many, or
   # at the chunk's tick): 512 at a time held the robots' modules up (the
@@ -207,7 +210,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
     with :ok <- File.mkdir_p(state.dir),
          {:ok, state} <- begin_file(state) do
-      refs = for t <- templates, do: elem(Blackboard.subscribe(t, @lists), 1)
+      lists = [batch: true, max_batch: @list_max, max_delay_ms: list_ms(config.chunk_seconds)]
+      refs = for t <- templates, do: elem(Blackboard.subscribe(t, lists), 1)
       if config.replay, do: :ok = Trace.attach(config.robot, batch: true)
       :timer.send_interval(round(config.chunk_seconds * 1000), :tick)
       {:ok, %{state | refs: refs}}
@@ -215,6 +219,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
       {:error, reason} -> {:stop, {:cannot_record, state.dir, reason}}
     end
   end
+
+  defp list_ms(chunk_seconds), do: max(round(chunk_seconds * 1000 * @list_share), 1)
 
   defp compression(:none), do: ""
   defp compression(algorithm), do: Atom.to_string(algorithm)
@@ -225,10 +231,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # costs more CPU than in a batch. A chunk is only written at its end,
   # so a VM killed loses no more than before.
   @impl true
-  def handle_info({:blackboard_batch, _ref, entries}, state) when is_list(entries) do
-    state = add_all(state, entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
-    {:noreply, drained(state)}
-  end
+  def handle_info({:blackboard_held, ref}, state) when is_reference(ref),
+    do: {:noreply, state |> take_held(ref) |> drained()}
 
   # a module's callbacks (ThinkingCap.Runtime.Trace), in a list
   def handle_info({:tc_trace_batch, robot, name, events}, %{robot: robot} = state)
@@ -297,23 +301,24 @@ defmodule ThinkingCap.BlackBox.Recorder do
   @impl true
   def terminate(_reason, state), do: state |> collect() |> drain() |> end_file()
 
-  # The tuples held for the recorder (Blackboard.flush/1) and the lists
-  # in its mailbox, noted: so that a flush, a rotation or a stop leaves
-  # nothing delivered unwritten.
+  # The tuples held for the recorder and the lists of callbacks in its
+  # mailbox, noted: so that a flush, a rotation or a stop leaves nothing
+  # delivered unwritten.
   defp collect(state) do
-    Enum.each(state.refs, &Blackboard.flush/1)
+    state = Enum.reduce(state.refs, state, &take_held(&2, &1))
     take_lists(state)
-  catch
-    # the blackboard is stopping: what is in the mailbox
-    :exit, _ -> take_lists(state)
+  end
+
+  defp take_held(state, ref) do
+    entries = Blackboard.take_held(ref)
+    add_all(state, entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
   end
 
   defp take_lists(%{robot: robot} = state) do
     receive do
-      {:blackboard_batch, _ref, entries} when is_list(entries) ->
-        state
-        |> add_all(entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
-        |> take_lists()
+      # a notice is taken (its flag cleared), so that the next one comes
+      {:blackboard_held, ref} when is_reference(ref) ->
+        state |> take_held(ref) |> take_lists()
 
       {:tc_trace_batch, ^robot, name, events} when is_list(events) ->
         state

@@ -164,10 +164,11 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
        %{tmp_dir: dir} do
     robot = robot()
     r = Atom.to_string(robot)
-    {:ok, pid} = BlackBox.record(robot, dir: dir)
+    {:ok, pid} = BlackBox.record(robot, dir: dir, chunk_seconds: 0.5)
 
-    # woken once a list: a batched subscription and a batched trace sink
-    assert [%{batch: %{max_batch: 64, max_delay_ms: 100}}] =
+    # woken once a list: a batched subscription (a tenth of a chunk) and
+    # a batched trace sink
+    assert [%{batch: %{max_batch: 64, max_delay_ms: 50}}] =
              for(s <- Blackboard.subscriptions(), s.pid == pid, do: s)
 
     assert ThinkingCap.Runtime.Trace.batch_sinks(robot) == [pid]
@@ -192,7 +193,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     assert length(logged) == 3
 
     # within a few ms (the epoch's clock against the system's), where the
-    # lists came 100 ms after their first tuple
+    # lists came 50 ms after their first tuple
     for {log_time, {before, later}} <- Enum.zip(logged, times) do
       assert log_time >= before - 5_000_000 and log_time <= later + 5_000_000
     end

@@ -1,36 +1,40 @@
 defmodule ThinkingCap.Blackboard.Core.Batches do
   @moduledoc false
   # Batched subscriptions (`subscribe(t, batch: true)`): their tuples are
-  # held in a table and sent in lists, `{:blackboard_batch, ref, [{tuple,
-  # at}]}`, by this process, one per node, when `max_batch` are held or
-  # `max_delay_ms` after the first, so that a subscriber that takes many
-  # tuples a second is woken once a list and not once a tuple.
+  # held in a table, and the subscriber is told `{:blackboard_held, ref}`
+  # when `max_batch` are held or `max_delay_ms` after the first; it then
+  # takes them all from the table itself (`take/1`), so that it is woken
+  # once a list and not once a tuple, and a tuple is copied once on its
+  # way (into the table, out of it), as a message is. This process, one
+  # per node, only keeps the timers and sends the notices.
   #
   # A writer (`hold/2`) takes the subscription's next position (one
   # update_counter on its row of `Tables.batches/0`, which reads the
-  # position sent last in the same step) and inserts the tuple there in
+  # position taken last in the same step) and inserts the tuple there in
   # `Tables.batched/0`, with the monotonic time. Positions are dense, and a
-  # writer inserts before it takes its next: so this process sends only
-  # the positions that follow the last one sent without a gap, in order,
+  # writer inserts before it takes its next: so `take/1` takes only the
+  # positions that follow the last one taken without a gap, in order,
   # and the tuples of one writer come in the order written, whichever
-  # tuples of other writers it races with (a select that a racing insert
-  # slips behind shows a gap, and the rest waits for the next list).
+  # tuples of other writers they race with (a select that a racing insert
+  # slips behind shows a gap, and the rest waits for the next notice).
+  # Only the subscriber takes, so takes never race each other.
   #
-  # The writer that holds the first tuple after the last list tells this
+  # The writer that holds the first tuple after the last take tells this
   # process (a timer of `max_delay_ms`), and the one that holds the
-  # `max_batch`th too (sent at once). With `max_queue` held, a writer
-  # marks its position dropped instead (the subscription's policy applies).
-  # A list is not sent while the subscriber's mailbox holds
-  # `max_queue / max_batch` messages: its tuples stay held, and count.
+  # `max_batch`th too (a notice at once). One notice at a time is
+  # outstanding (the row's flag, cleared by `take/1`). With `max_queue`
+  # held, a writer marks its position dropped instead (the subscription's
+  # policy applies).
   #
   # A writer killed between taking a position and inserting leaves a gap
   # that never fills (and may not have told this process): every
-  # `@gap_ms` it looks for subscriptions holding tuples with no timer
-  # armed, and a gap still there `@gap_ms` after it was first seen is
-  # passed over. The tables belong to `Tables`: a restart of this
-  # process loses nothing held, and arms a timer for every subscription
-  # holding tuples. A list sent just before this process died may be sent
-  # again (its tuples are forgotten once sent).
+  # `@gap_ms` it arms a timer for every subscription holding tuples, and
+  # `take/1` passes over a gap still there `@gap_ms` after it first saw
+  # it. The tables belong to `Tables`: a restart of this process loses
+  # nothing held.
+  #
+  # Row: {ref, next, taken, pid, max_batch, max_delay_ms, max_queue,
+  #       notified (0 | 1), gap (nil | {position, first seen, ms})}
 
   use GenServer
 
@@ -47,7 +51,11 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   # A batched subscription's row; before its subscription row is inserted.
   @spec open(reference(), pid(), {pos_integer(), pos_integer()}, pos_integer()) :: true
   def open(ref, pid, {max_batch, max_delay_ms}, max_queue),
-    do: :ets.insert(Tables.batches(), {ref, 0, 0, pid, max_batch, max_delay_ms, max_queue})
+    do:
+      :ets.insert(
+        Tables.batches(),
+        {ref, 0, 0, pid, max_batch, max_delay_ms, max_queue, 0, nil}
+      )
 
   @doc false
   # Forgets a batched subscription and the tuples held for it.
@@ -63,10 +71,10 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   # `max_queue` tuples are held already (it is not).
   @spec hold(reference(), tuple()) :: :ok | :full
   def hold(ref, tuple) do
-    [position, sent, max_batch, max_queue] =
+    [position, taken, max_batch, max_queue] =
       :ets.update_counter(Tables.batches(), ref, [{2, 1}, {3, 0}, {5, 0}, {7, 0}])
 
-    held = position - sent
+    held = position - taken
 
     if held > max_queue do
       :ets.insert(Tables.batched(), {{ref, position}, :dropped, 0})
@@ -88,10 +96,61 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   end
 
   @doc false
-  # Sends what is held for `ref` now; when it returns, the lists are in
-  # the subscriber's mailbox (this process sent them before it answered).
-  @spec flush_now(reference()) :: :ok
-  def flush_now(ref), do: GenServer.call(__MODULE__, {:flush, ref}, :infinity)
+  # In the subscriber: the tuples held for its subscription `ref` that
+  # follow the last taken without a gap, oldest first, `[{tuple, at}]`;
+  # [] when none (or `ref` is not a batched subscription of the caller).
+  @spec take(reference()) :: [{tuple(), integer()}]
+  def take(ref) do
+    case :ets.lookup(Tables.batches(), ref) do
+      [{^ref, next, taken, pid, _, _, _, _, gap}] when pid == self() ->
+        rows =
+          :ets.select(Tables.batched(), [
+            {{{ref, :"$1"}, :"$2", :"$3"}, [{:>, :"$1", taken}], [{{:"$1", :"$2", :"$3"}}]}
+          ])
+
+        {entries, last, gap} = take_run(rows, taken, next, gap, [])
+        :ets.update_element(Tables.batches(), ref, [{3, last}, {8, 0}, {9, gap}])
+
+        if last > taken do
+          :ets.select_delete(Tables.batched(), [
+            {{{ref, :"$1"}, :_, :_}, [{:"=<", :"$1", last}], [true]}
+          ])
+        end
+
+        # more taken meanwhile, or a gap: a timer for them
+        if :ets.lookup_element(Tables.batches(), ref, 2) > last, do: notify({:pending, ref})
+        entries
+
+      _other ->
+        []
+    end
+  rescue
+    # closed meanwhile
+    ArgumentError -> []
+  end
+
+  # the held tuples that follow `last` without a gap, oldest first, the
+  # last position taken, and the gap left (a position taken before `next`,
+  # or before a row, and not inserted), passed over @gap_ms after it was
+  # first seen
+  defp take_run([{position, tuple, at} | rest], last, next, gap, acc)
+       when position == last + 1 do
+    acc = if tuple == :dropped, do: acc, else: [{tuple, at} | acc]
+    take_run(rest, position, next, gap, acc)
+  end
+
+  defp take_run([], last, next, _gap, acc) when last >= next, do: {Enum.reverse(acc), last, nil}
+
+  defp take_run(rows, last, next, gap, acc) do
+    missing = last + 1
+    now = System.monotonic_time(:millisecond)
+
+    case gap do
+      {^missing, seen} when now - seen >= @gap_ms -> take_run(rows, missing, next, nil, acc)
+      {^missing, _seen} -> {Enum.reverse(acc), last, gap}
+      _ -> {Enum.reverse(acc), last, {missing, now}}
+    end
+  end
 
   defp notify(message) do
     case Process.whereis(__MODULE__) do
@@ -105,17 +164,17 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   defp forget(ref),
     do: :ets.select_delete(Tables.batched(), [{{{ref, :_}, :_, :_}, [], [true]}])
 
-  ## The process
+  ## The process: timers and notices
 
   @impl true
-  def init(:ok), do: {:ok, check(%{timers: %{}, gaps: %{}})}
+  def init(:ok), do: {:ok, check(%{timers: %{}})}
 
   # a timer for every subscription holding tuples
   defp check(state) do
     Process.send_after(self(), :check, @gap_ms)
 
     :ets.select(Tables.batches(), [
-      {{:"$1", :"$2", :"$3", :_, :_, :"$4", :_}, [{:>, :"$2", :"$3"}], [{{:"$1", :"$4"}}]}
+      {{:"$1", :"$2", :"$3", :_, :_, :"$4", :_, :_, :_}, [{:>, :"$2", :"$3"}], [{{:"$1", :"$4"}}]}
     ])
     |> Enum.reduce(state, fn {ref, delay}, state -> arm(state, ref, delay) end)
   end
@@ -123,19 +182,24 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   @impl true
   def handle_info({:pending, ref}, state) do
     case :ets.lookup(Tables.batches(), ref) do
-      [{^ref, _, _, _, _, delay, _}] -> {:noreply, arm(state, ref, delay)}
+      [{^ref, _, _, _, _, delay, _, _, _}] -> {:noreply, arm(state, ref, delay)}
       [] -> {:noreply, state}
     end
   end
 
-  def handle_info({:full, ref}, state), do: {:noreply, state |> disarm(ref) |> flush(ref)}
+  def handle_info({:full, ref}, state) do
+    tell(ref)
+    {:noreply, disarm(state, ref)}
+  end
 
-  def handle_info({:due, ref}, state),
-    do: {:noreply, %{state | timers: Map.delete(state.timers, ref)} |> flush(ref)}
+  def handle_info({:due, ref}, state) do
+    tell(ref)
+    {:noreply, %{state | timers: Map.delete(state.timers, ref)}}
+  end
 
   def handle_info({:closed, ref}, state) do
     Process.send_after(self(), {:sweep, ref}, @sweep_ms)
-    {:noreply, %{disarm(state, ref) | gaps: Map.delete(state.gaps, ref)}}
+    {:noreply, disarm(state, ref)}
   end
 
   def handle_info({:sweep, ref}, state) do
@@ -147,20 +211,17 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
 
   def handle_info(_other, state), do: {:noreply, state}
 
-  @impl true
-  def handle_call({:flush, ref}, _from, state) do
-    state = disarm(state, ref)
+  # tells the subscriber that tuples are held, unless it was told and has
+  # not taken them yet
+  defp tell(ref) do
+    case :ets.lookup(Tables.batches(), ref) do
+      [{^ref, next, taken, pid, _, _, _, 0, _}] when next > taken ->
+        :ets.update_element(Tables.batches(), ref, {8, 1})
+        send(pid, {:blackboard_held, ref})
 
-    state =
-      case :ets.lookup(Tables.batches(), ref) do
-        [{^ref, next, sent, pid, max_batch, delay, _max_queue}] ->
-          send_held(state, ref, {sent, next}, pid, max_batch, delay)
-
-        [] ->
-          state
-      end
-
-    {:reply, :ok, state}
+      _told_or_empty_or_closed ->
+        :ok
+    end
   end
 
   defp arm(state, ref, delay) do
@@ -180,79 +241,6 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
       {timer, timers} ->
         Process.cancel_timer(timer)
         %{state | timers: timers}
-    end
-  end
-
-  defp flush(state, ref) do
-    case :ets.lookup(Tables.batches(), ref) do
-      [{^ref, next, sent, pid, max_batch, delay, max_queue}] ->
-        if backed_up?(pid, max(div(max_queue, max_batch), 1)),
-          do: arm(state, ref, delay),
-          else: send_held(state, ref, {sent, next}, pid, max_batch, delay)
-
-      [] ->
-        state
-    end
-  end
-
-  defp backed_up?(pid, limit) do
-    case Process.info(pid, :message_queue_len) do
-      {:message_queue_len, queued} -> queued >= limit
-      nil -> false
-    end
-  end
-
-  defp send_held(state, ref, {sent, next}, pid, max_batch, delay) do
-    rows =
-      :ets.select(Tables.batched(), [
-        {{{ref, :"$1"}, :"$2", :"$3"}, [{:>, :"$1", sent}], [{{:"$1", :"$2", :"$3"}}]}
-      ])
-
-    {entries, last, state} = take_run(rows, sent, next, state, ref, [])
-
-    entries
-    |> Enum.chunk_every(max_batch)
-    |> Enum.each(&send(pid, {:blackboard_batch, ref, &1}))
-
-    if last > sent do
-      :ets.update_element(Tables.batches(), ref, {3, last})
-
-      :ets.select_delete(Tables.batched(), [
-        {{{ref, :"$1"}, :_, :_}, [{:"=<", :"$1", last}], [true]}
-      ])
-    end
-
-    case :ets.lookup(Tables.batches(), ref) do
-      [{^ref, next, _, _, _, _, _}] when next > last -> arm(state, ref, delay)
-      _ -> state
-    end
-  end
-
-  # the held tuples that follow `last` without a gap, oldest first, and
-  # the last position taken; a gap (a position taken before `next`, or
-  # before a row, and not inserted) older than @gap_ms is passed over
-  defp take_run([{position, tuple, at} | rest], last, next, state, ref, acc)
-       when position == last + 1 do
-    acc = if tuple == :dropped, do: acc, else: [{tuple, at} | acc]
-    take_run(rest, position, next, state, ref, acc)
-  end
-
-  defp take_run([], last, next, state, ref, acc) when last >= next,
-    do: {Enum.reverse(acc), last, %{state | gaps: Map.delete(state.gaps, ref)}}
-
-  defp take_run(rows, last, next, state, ref, acc) do
-    gap = last + 1
-    now = System.monotonic_time(:millisecond)
-
-    case state.gaps do
-      %{^ref => {^gap, seen}} when now - seen >= @gap_ms ->
-        take_run(rows, gap, next, %{state | gaps: Map.delete(state.gaps, ref)}, ref, acc)
-
-      %{^ref => {^gap, _seen}} ->
-        {Enum.reverse(acc), last, state}
-
-      _ ->
-        {Enum.reverse(acc), last, %{state | gaps: Map.put(state.gaps, ref, {gap, now})}}
     end
   end
 end

@@ -18,8 +18,8 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
   #                         {{:watermark, node}, boot, seq}
-  #   batches  set          {ref, next, sent, pid, max_batch, max_delay_ms, max_queue}
-  #                         a batched subscription's positions (see Batches)
+  #   batches  set          {ref, next, taken, pid, max_batch, max_delay_ms, max_queue,
+  #                          notified, gap}  a batched subscription (see Batches)
   #   batched  ordered_set  {{ref, position}, tuple | :dropped, monotonic_time}
   #                         the tuples held for batched subscriptions
   #   (and in persistent_term: the tables' ids, two arrays, counters/0 and
