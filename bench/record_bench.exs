@@ -67,10 +67,13 @@ defmodule ThinkingCap.Bench.Record do
       (`CLOCK_THREAD_CPUTIME_ID`); a recorder's CPU is the sum of its
       out-minus-in. It covers all a recorder does (its JSON, ETF,
       compression, file writes, its garbage collection) and nothing of
-      other processes; the cost the recording adds elsewhere (the
-      blackboard's delivery to its subscription, the modules' hosts
-      hashing what they are delivered for the trace) is in `vm_cpu_pct`:
-      the whole VM's CPU time (`/proc/self/stat`) per simulated second
+      other processes. The node's batch sender
+      (`ThinkingCap.Blackboard.Core.Batches`, which sends the recorders
+      their tuples in lists) is traced as the recorders are and printed on
+      a line of its own, with the sum. The rest of the cost the recording
+      adds elsewhere (the blackboard's delivery to its subscription, the
+      modules' hosts hashing what they are delivered for the trace) is in
+      `vm_cpu_pct`: the whole VM's CPU time (`/proc/self/stat`) per simulated second
       with recording minus without, less steady on a shared machine.
       The tracing costs the recorders a little at each schedule (the
       thread's CPU clock is read in a system call, 7.8 µs on the machine
@@ -153,6 +156,13 @@ defmodule ThinkingCap.Bench.Record do
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
+      IO.puts(
+        "  the blackboard's batch sender (the recorders' lists): " <>
+          "#{fmt(rec.sender_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple, " <>
+          "cpu_pct #{fmt(100 * rec.sender_cpu_us / (sim_s * 1.0e6), 1)}; with the recorders' " <>
+          "#{fmt(100 * (rec.recorder_cpu_us + rec.sender_cpu_us) / (sim_s * 1.0e6), 1)}"
+      )
+
       # what the measurement itself costs the recorders (see the moduledoc)
       net_us = max(rec.recorder_cpu_us - rec.recorder_runs * idle_us, 0)
 
@@ -215,12 +225,17 @@ defmodule ThinkingCap.Bench.Record do
       Process.sleep(2_000)
       recorders = if record?, do: Enum.map(1..fleet.n, &BlackBox.recorder(robot(&1))), else: []
       tracer = if record?, do: start_tracer(recorders)
+      # the node's batch sender works for the recorders (their lists)
+      sender = if record?, do: Process.whereis(ThinkingCap.Blackboard.Core.Batches)
+      sender_tracer = if sender, do: start_tracer([sender])
       before = snapshot(sim, recorders, rec_dir)
       wall0 = System.monotonic_time(:microsecond)
       goals = drive(fleet, sim, before.sim_time + seconds, goals)
       wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
       after_ = snapshot(sim, recorders, rec_dir)
+      if sender_tracer, do: :erlang.trace(sender, false, [:running, :timestamp])
       {cpu_us, runs} = if tracer, do: stop_tracer(tracer), else: {0, 0}
+      {sender_us, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0}
       _ = goals
 
       %{
@@ -238,6 +253,7 @@ defmodule ThinkingCap.Bench.Record do
         dropped: after_.dropped,
         bytes: after_.bytes - before.bytes,
         recorder_cpu_us: cpu_us,
+        sender_cpu_us: sender_us,
         recorder_runs: runs,
         files:
           if(record?,
@@ -406,14 +422,24 @@ defmodule ThinkingCap.Bench.Record do
   end
 
   defp stop_tracer(tracer) do
-    for {pid, _} <-
-          Registry.select(ThinkingCap.BlackBox.Registry, [
-            {{:"$1", :"$2", :_}, [], [{{:"$2", :"$1"}}]}
-          ]),
-        do: :erlang.trace(pid, false, [:running, :timestamp])
+    pids =
+      for {pid, _} <-
+            Registry.select(ThinkingCap.BlackBox.Registry, [
+              {{:"$1", :"$2", :_}, [], [{{:"$2", :"$1"}}]}
+            ]),
+          do: pid
 
+    stop_tracer(tracer, pids)
+  end
+
+  defp stop_tracer(tracer, pids) do
+    for pid <- pids, do: :erlang.trace(pid, false, [:running, :timestamp])
     :erlang.trace(:all, false, [:cpu_timestamp])
-    # the trace messages sent so far are in the tracer's queue
+    tracer_total(tracer)
+  end
+
+  # the trace messages sent so far are in the tracer's queue
+  defp tracer_total(tracer) do
     send(tracer, {:stop, self()})
 
     receive do

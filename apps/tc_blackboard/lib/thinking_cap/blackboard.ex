@@ -100,12 +100,29 @@ defmodule ThinkingCap.Blackboard do
   for it are dropped and counted (`on_overflow: :drop`, the default; see
   `dropped/1`) or it is unsubscribed and sent `{:blackboard_overflow, ref}`
   (`on_overflow: :disconnect`). The subscriptions of a process that exits
-  are removed.
+  are removed, with the tuples held for them.
+
+  **Batched subscribers.** A subscriber that takes many tuples a second
+  can ask for them in lists (`subscribe(t, batch: true)`): its tuples
+  are held on its node, and it is sent `{:blackboard_held, ref}` when
+  `max_batch` are held or `max_delay_ms` after the first; it then takes
+  them, `take_held(ref)`, `[{tuple, at}]` oldest first (`at` is the
+  node's `System.monotonic_time/0` when the tuple was held, when it
+  would have been sent). The order is the one above: the tuples of one
+  writer come in the order written, in one list or in lists that follow
+  each other; none comes twice and none is left out, but for a writer
+  killed in the middle of its write (its tuple may be lost, as an
+  unbatched subscriber may miss it, and the lists wait up to a second
+  for it). One notice at a time is sent: until the subscriber takes,
+  the tuples wait. Writers do not yield to batched subscribers, whom
+  they do not wake. `max_queue` bounds the tuples held (beyond it they
+  are dropped or the subscription ends, as `on_overflow` says).
 
   Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
   """
 
   alias ThinkingCap.Blackboard.Core.{
+    Batches,
     EvalSupervisor,
     Server,
     Store,
@@ -121,7 +138,15 @@ defmodule ThinkingCap.Blackboard do
 
   @type template :: Template.t()
   @type out_option :: {:key, term()} | {:ttl, pos_integer()}
-  @type subscribe_option :: {:max_queue, pos_integer()} | {:on_overflow, :drop | :disconnect}
+  @default_max_batch 64
+  @default_max_delay_ms 20
+
+  @type subscribe_option ::
+          {:max_queue, pos_integer()}
+          | {:on_overflow, :drop | :disconnect}
+          | {:batch, boolean()}
+          | {:max_batch, pos_integer()}
+          | {:max_delay_ms, pos_integer()}
 
   @doc """
   Writes `tuple`.
@@ -164,7 +189,7 @@ defmodule ThinkingCap.Blackboard do
 
       if recipients != [] do
         due = Subscriptions.send_to(recipients, tuple)
-        yield_to_subscribers()
+        if Subscriptions.wakes?(recipients), do: yield_to_subscribers()
         Subscriptions.check_queues(due)
       end
 
@@ -284,6 +309,17 @@ defmodule ThinkingCap.Blackboard do
   Options: `:max_queue` (default #{@default_max_queue}) and `:on_overflow`
   (`:drop`, the default, or `:disconnect`); see the moduledoc.
 
+  With `batch: true` the tuples are held instead, and the subscriber is
+  sent `{:blackboard_held, ref}` when `:max_batch` tuples (default
+  #{@default_max_batch}) are held or `:max_delay_ms` (default
+  #{@default_max_delay_ms}) after the first of them; `take_held/1` gives
+  them (see "Batched subscribers" in the moduledoc):
+
+      {:ok, ref} = Blackboard.subscribe({:scan, :r1, :_}, batch: true, max_delay_ms: 100)
+      receive do
+        {:blackboard_held, ^ref} -> for {scan, _at} <- Blackboard.take_held(ref), do: scan
+      end
+
   Cost to writers: a template that binds the first two elements (a stream,
   such as `{:scan, :r1, :_}`) is found by the lookup every write makes of
   its own stream. One that binds only the tag, binds neither, or is a
@@ -294,8 +330,8 @@ defmodule ThinkingCap.Blackboard do
   @spec subscribe(template(), [subscribe_option()]) :: {:ok, reference()}
   def subscribe(template, opts \\ []) do
     compiled = Template.compile(template)
-    {max_queue, on_overflow} = subscribe_options(opts)
-    {:ok, Subscriptions.subscribe(compiled, self(), max_queue, on_overflow)}
+    {max_queue, on_overflow, batch} = subscribe_options(opts)
+    {:ok, Subscriptions.subscribe(compiled, self(), max_queue, on_overflow, batch)}
   end
 
   @doc """
@@ -311,10 +347,22 @@ defmodule ThinkingCap.Blackboard do
   defp flush_subscription(ref) do
     receive do
       {:blackboard, ^ref, _} -> flush_subscription(ref)
+      {:blackboard_held, ^ref} -> flush_subscription(ref)
     after
       0 -> :ok
     end
   end
+
+  @doc """
+  The tuples held for the caller's batched subscription `ref`, oldest
+  first, as `[{tuple, at}]` (`at`: `System.monotonic_time/0` when it was
+  held), and they are no longer held. Called on `{:blackboard_held,
+  ref}`, or at any time (a subscriber that stops takes what is left).
+  [] for nothing held, or a subscription that is not the caller's or not
+  batched.
+  """
+  @spec take_held(reference()) :: [{tuple(), integer()}]
+  def take_held(ref) when is_reference(ref), do: Batches.take(ref)
 
   @doc "How many tuples were dropped for a subscription (nil if it is gone)."
   @spec dropped(reference()) :: non_neg_integer() | nil
@@ -355,18 +403,50 @@ defmodule ThinkingCap.Blackboard do
       do:
         raise(ArgumentError, "subscribe/2 options must be a keyword list, got: #{inspect(opts)}")
 
-    Enum.reduce(opts, {@default_max_queue, :drop}, fn
-      {:max_queue, n}, {_, policy} when is_integer(n) and n > 0 ->
-        {n, policy}
+    defaults = %{
+      max_queue: @default_max_queue,
+      on_overflow: :drop,
+      batch: false,
+      max_batch: nil,
+      max_delay_ms: nil
+    }
 
-      {:on_overflow, policy}, {n, _} when policy in [:drop, :disconnect] ->
-        {n, policy}
+    o =
+      Enum.reduce(opts, defaults, fn
+        {:max_queue, n}, o when is_integer(n) and n > 0 ->
+          %{o | max_queue: n}
 
-      other, _ ->
-        raise ArgumentError,
-              "bad subscribe/2 option #{inspect(other)}; expected max_queue: positive integer, " <>
-                "on_overflow: :drop | :disconnect"
-    end)
+        {:on_overflow, policy}, o when policy in [:drop, :disconnect] ->
+          %{o | on_overflow: policy}
+
+        {:batch, batch}, o when is_boolean(batch) ->
+          %{o | batch: batch}
+
+        {key, n}, o when key in [:max_batch, :max_delay_ms] and is_integer(n) and n > 0 ->
+          Map.put(o, key, n)
+
+        other, _ ->
+          raise ArgumentError,
+                "bad subscribe/2 option #{inspect(other)}; expected max_queue: positive integer, " <>
+                  "on_overflow: :drop | :disconnect, batch: boolean, " <>
+                  "max_batch: positive integer, max_delay_ms: positive integer"
+      end)
+
+    batch =
+      cond do
+        o.batch ->
+          {o.max_batch || @default_max_batch, o.max_delay_ms || @default_max_delay_ms}
+
+        o.max_batch || o.max_delay_ms ->
+          raise ArgumentError,
+                "subscribe/2 options :max_batch and :max_delay_ms need batch: true, got: " <>
+                  inspect(opts)
+
+        true ->
+          nil
+      end
+
+    {o.max_queue, o.on_overflow, batch}
   end
 
   defp check_timeout(:infinity), do: :infinity

@@ -8,6 +8,7 @@ defmodule ThinkingCap.Blackboard.Application do
   #   Core.Replicator     sends this node's writes to the other nodes
   #   Core.Server         applies other nodes' writes, replicates takes,
   #                       snapshots, waiter wake-ups, monitors, expiry
+  #   Core.Batches        sends batched subscriptions their lists
   use Application
 
   alias ThinkingCap.Blackboard.Core
@@ -19,7 +20,8 @@ defmodule ThinkingCap.Blackboard.Application do
       Core.Tables,
       {Task.Supervisor, name: Core.EvalSupervisor},
       Core.Replicator,
-      Core.Server
+      Core.Server,
+      Core.Batches
     ]
 
     Supervisor.start_link(children,

@@ -55,11 +55,15 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Times
 
-  A message's **log time is the time the recorder received the tuple**,
-  in nanoseconds since the Unix epoch: the system's time when the
-  recorder started, advanced by the monotonic clock (so that a change of
-  the system's time cannot put messages out of order); one clock for
-  every channel, in the order the tuples came. Its **publish time is
+  A message's **log time is the time the tuple was delivered to the
+  recorder**, in nanoseconds since the Unix epoch: the system's time
+  when the recorder started, advanced by the monotonic clock (so that a
+  change of the system's time cannot put messages out of order); one
+  clock for every channel. The tuples and the callbacks come in lists
+  (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 64 at a
+  time or a tenth of `chunk_seconds` after the first;
+  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or 100 ms), each stamped
+  when it was held for the recorder, which is its log time. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
   time. Foxglove messages carry the stamp in their `timestamp` too.
@@ -67,21 +71,27 @@ defmodule ThinkingCap.BlackBox.Recorder do
   ## Cost
 
   Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
-  and two record headers; per traced callback, a small term. A tuple or
-  a callback is only noted when it comes (its log time taken then) and
-  written with the others, 32 at a time (or at the chunk's end): woken
-  for nearly every tuple, the recorder would encode one or two at a
-  time, its code and data cold each time. The file
+  and two record headers; per traced callback, a small term. The
+  tuples and callbacks come in lists, so that the recorder is woken
+  once a list rather than once a tuple, and are written 32 at a time
+  (or at the chunk's end). The file
   gets one write per chunk. The process starts with heaps sized for an
   open chunk and the tuples noted, so that it is not collected every
-  few tuples. The subscription drops tuples when the recorder falls
-  `max_queue` (1000) behind; `info/1` counts them.
+  few tuples. The subscription drops tuples when 1000 are held for the
+  recorder; `info/1` counts them.
   """
   use GenServer
   require Logger
 
   # a module's traced callbacks written in one message
   @batch 64
+
+  # Tuples come in lists (as the modules' callbacks do, Trace's
+  # batching), held a tenth of a chunk (100 ms for chunks of a second):
+  # nothing of a chunk is written before its end, and the cost of a list
+  # (its sending, the recorder's wake-up) is shared by more tuples
+  @list_max 64
+  @list_share 0.1
 
   # tuples and callbacks noted before they are written (when so many, or
   # at the chunk's tick): 512 at a time held the robots' modules up (the
@@ -200,8 +210,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
     with :ok <- File.mkdir_p(state.dir),
          {:ok, state} <- begin_file(state) do
-      refs = for t <- templates, do: elem(Blackboard.subscribe(t), 1)
-      if config.replay, do: :ok = Trace.attach(config.robot)
+      lists = [batch: true, max_batch: @list_max, max_delay_ms: list_ms(config.chunk_seconds)]
+      refs = for t <- templates, do: elem(Blackboard.subscribe(t, lists), 1)
+      if config.replay, do: :ok = Trace.attach(config.robot, batch: true)
       :timer.send_interval(round(config.chunk_seconds * 1000), :tick)
       {:ok, %{state | refs: refs}}
     else
@@ -209,20 +220,35 @@ defmodule ThinkingCap.BlackBox.Recorder do
     end
   end
 
+  defp list_ms(chunk_seconds), do: max(round(chunk_seconds * 1000 * @list_share), 1)
+
   defp compression(:none), do: ""
   defp compression(algorithm), do: Atom.to_string(algorithm)
 
-  # A tuple or a traced callback is only noted on receipt (its log time
-  # taken then) and written with the others noted when `@pending_max`
-  # are, or at the chunk's tick: the recorder is woken for nearly every
-  # message, and encoding one or two at each wake-up, its code and data
-  # cold again, cost more CPU than in a batch. A chunk is only written at
-  # its end, so a VM killed loses no more than before.
+  # A tuple or a traced callback is noted with its log time and written
+  # with the others noted when `@pending_max` are, or at the chunk's
+  # tick: encoding one or two at a time, its code and data cold again,
+  # costs more CPU than in a batch. A chunk is only written at its end,
+  # so a VM killed loses no more than before.
   @impl true
+  def handle_info({:blackboard_held, ref}, state) when is_reference(ref),
+    do: {:noreply, state |> take_held(ref) |> drained()}
+
+  # a module's callbacks (ThinkingCap.Runtime.Trace), in a list
+  def handle_info({:tc_trace_batch, robot, name, events}, %{robot: robot} = state)
+      when is_list(events) do
+    state =
+      add_all(state, events, fn {n, at, event}, s ->
+        {:callback, log_time(s, at), name, n, event}
+      end)
+
+    {:noreply, drained(state)}
+  end
+
+  # one at a time: a subscription or a trace not in lists
   def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple),
     do: {:noreply, note(state, {:tuple, now(state), tuple})}
 
-  # a module's callback (ThinkingCap.Runtime.Trace)
   def handle_info({:tc_trace, robot, name, n, event}, %{robot: robot} = state),
     do: {:noreply, note(state, {:callback, now(state), name, n, event})}
 
@@ -243,7 +269,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   @impl true
   def handle_call(:info, _from, state) do
-    state = drain(state)
+    state = state |> collect() |> drain()
     dropped = Enum.reduce(state.refs, 0, &((Blackboard.dropped(&1) || 0) + &2))
 
     info = %{
@@ -261,26 +287,60 @@ defmodule ThinkingCap.BlackBox.Recorder do
   end
 
   def handle_call(:flush, _from, state) do
-    state = state |> drain() |> close_chunk()
+    state = state |> collect() |> drain() |> close_chunk()
     {:reply, if(state.error, do: {:error, state.error}, else: :ok), state}
   end
 
   def handle_call(:rotate, _from, state) do
-    state = drain(state)
+    state = state |> collect() |> drain()
     closed = state.path
     state = rotate_file(state)
     {:reply, if(state.error, do: {:error, state.error}, else: {:ok, closed}), state}
   end
 
   @impl true
-  def terminate(_reason, state), do: state |> drain() |> end_file()
+  def terminate(_reason, state), do: state |> collect() |> drain() |> end_file()
+
+  # The tuples held for the recorder and the lists of callbacks in its
+  # mailbox, noted: so that a flush, a rotation or a stop leaves nothing
+  # delivered unwritten.
+  defp collect(state) do
+    state = Enum.reduce(state.refs, state, &take_held(&2, &1))
+    take_lists(state)
+  end
+
+  defp take_held(state, ref) do
+    entries = Blackboard.take_held(ref)
+    add_all(state, entries, fn {tuple, at}, s -> {:tuple, log_time(s, at), tuple} end)
+  end
+
+  defp take_lists(%{robot: robot} = state) do
+    receive do
+      # a notice is taken (its flag cleared), so that the next one comes
+      {:blackboard_held, ref} when is_reference(ref) ->
+        state |> take_held(ref) |> take_lists()
+
+      {:tc_trace_batch, ^robot, name, events} when is_list(events) ->
+        state
+        |> add_all(events, fn {n, at, event}, s ->
+          {:callback, log_time(s, at), name, n, event}
+        end)
+        |> take_lists()
+    after
+      0 -> state
+    end
+  end
+
+  defp add_all(state, items, item), do: Enum.reduce(items, state, &add(&2, item.(&1, &2)))
 
   ## Noted messages
 
-  defp note(state, item) do
-    state = %{state | pending: [item | state.pending], pending_n: state.pending_n + 1}
-    if state.pending_n >= @pending_max, do: drain(state), else: state
-  end
+  defp note(state, item), do: state |> add(item) |> drained()
+
+  defp add(state, item),
+    do: %{state | pending: [item | state.pending], pending_n: state.pending_n + 1}
+
+  defp drained(state), do: if(state.pending_n >= @pending_max, do: drain(state), else: state)
 
   defp drain(%{pending: []} = state), do: state
 
@@ -439,4 +499,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   # the log time: the epoch's, on the monotonic clock
   defp now(state), do: state.epoch + System.monotonic_time(:nanosecond)
+
+  # the log time of a tuple or callback held for a list: when it was held
+  defp log_time(state, at), do: state.epoch + System.convert_time_unit(at, :native, :nanosecond)
 end

@@ -160,6 +160,57 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     end
   end
 
+  test "tuples and callbacks come in lists, each logged when it was delivered",
+       %{tmp_dir: dir} do
+    robot = robot()
+    r = Atom.to_string(robot)
+    {:ok, pid} = BlackBox.record(robot, dir: dir, chunk_seconds: 0.5)
+
+    # woken once a list: a batched subscription (a tenth of a chunk) and
+    # a batched trace sink
+    assert [%{batch: %{max_batch: 64, max_delay_ms: 50}}] =
+             for(s <- Blackboard.subscriptions(), s.pid == pid, do: s)
+
+    assert ThinkingCap.Runtime.Trace.batch_sinks(robot) == [pid]
+    assert ThinkingCap.Runtime.Trace.plain_sinks(robot) == []
+
+    # each log time is its write's, not the list's arrival
+    times =
+      for i <- 1..3 do
+        before = System.os_time(:nanosecond)
+        Blackboard.out(Tuples.drive(robot, %{command: {:velocity, i * 0.1, 0.0}}))
+        later = System.os_time(:nanosecond)
+        Process.sleep(30)
+        {before, later}
+      end
+
+    await_messages(pid, 6)
+    :ok = BlackBox.stop(robot)
+    assert [file] = Path.wildcard(Path.join(dir, "*.mcap"))
+    assert {:ok, mcap} = Reader.read(file)
+    topic = Map.new(mcap.channels, fn {id, c} -> {id, c.topic} end)
+    logged = for m <- mcap.messages, topic[m.channel_id] == "/etf/#{r}/drive", do: m.log_time
+    assert length(logged) == 3
+
+    # within a few ms (the epoch's clock against the system's), where the
+    # lists came 50 ms after their first tuple
+    for {log_time, {before, later}} <- Enum.zip(logged, times) do
+      assert log_time >= before - 5_000_000 and log_time <= later + 5_000_000
+    end
+  end
+
+  test "a stop writes the tuples still held for the recorder", %{tmp_dir: dir} do
+    robot = robot()
+    r = Atom.to_string(robot)
+    {:ok, _pid} = BlackBox.record(robot, dir: dir)
+    # held for up to 100 ms before they are sent: stopped before that
+    for i <- 1..5, do: Blackboard.out(Tuples.drive(robot, %{command: {:velocity, i * 0.1, 0.0}}))
+    :ok = BlackBox.stop(robot)
+    assert [file] = Path.wildcard(Path.join(dir, "*.mcap"))
+    assert {:ok, mcap} = Reader.read(file)
+    assert Topics.counts(mcap, "etf") == %{"/etf/#{r}/drive" => 5}
+  end
+
   test "chunks are written every chunk_seconds: the open file reads up to its last chunk",
        %{tmp_dir: dir} do
     robot = robot()

@@ -17,6 +17,8 @@ defmodule ThinkingCap.Runtime.Host do
 
   # the count of the module's callbacks since its init, for its trace
   @trace_n :"$tc_trace_n"
+  # its traced callbacks held for the batched sinks: {count, newest first}
+  @trace_held :"$tc_trace_held"
 
   def start_link(spec), do: GenServer.start_link(__MODULE__, spec)
 
@@ -162,6 +164,11 @@ defmodule ThinkingCap.Runtime.Host do
 
   def handle_info({:tc_run_effects, effects}, state), do: {:noreply, run(effects, state)}
 
+  def handle_info(:tc_trace_flush, state) do
+    flush_trace(state.spec)
+    {:noreply, state}
+  end
+
   # never blocking on a busy or dead link (:noconnect): a handoff lost is
   # replaced by the next one
   def handle_info(:tc_handoff, %{spec: spec} = state) do
@@ -269,6 +276,7 @@ defmodule ThinkingCap.Runtime.Host do
 
   @impl true
   def terminate(reason, state) do
+    flush_trace(state.spec)
     # leave at once: when stop/1 returns the module is gone from whereis/1
     # on this node (pg would otherwise drop it when it sees the exit)
     Enum.each(groups(state.spec), &:pg.leave(ThinkingCap.Runtime.scope(), &1, self()))
@@ -304,29 +312,76 @@ defmodule ThinkingCap.Runtime.Host do
 
   # Runs a callback (`run` gives {effects, mstate}) and, while the robot's
   # trace has sinks (it is being recorded), sends them its input and its
-  # outputs, or what it raised (ThinkingCap.Runtime.Trace).
+  # outputs, or what it raised (ThinkingCap.Runtime.Trace): at once to
+  # the plain sinks, in lists to the batched ones.
   defp trace(spec, traced, input, run) do
     n = Process.get(@trace_n, 0)
     Process.put(@trace_n, n + 1)
 
-    case if(traced, do: Trace.sinks(spec.robot), else: []) do
-      [] ->
+    case if(traced, do: trace_sinks(spec.robot), else: :none) do
+      :none ->
         run.()
 
       sinks ->
         try do
           {effects, mstate} = run.()
           outputs = if is_list(effects), do: Trace.outputs(effects, spec.robot), else: effects
-          event = {input.(), outputs}
-          Trace.send(sinks, spec.robot, spec.name, n, event)
+          emit(spec, sinks, n, {input.(), outputs})
           {effects, mstate}
         catch
           kind, reason ->
-            Trace.send(sinks, spec.robot, spec.name, n, {input.(), raised(kind, reason)})
+            emit(spec, sinks, n, {input.(), raised(kind, reason)})
+            flush_trace(spec)
             :erlang.raise(kind, reason, __STACKTRACE__)
         end
     end
   end
+
+  defp trace_sinks(robot) do
+    case {Trace.plain_sinks(robot), Trace.batch_sinks(robot)} do
+      {[], []} -> :none
+      sinks -> sinks
+    end
+  end
+
+  defp emit(spec, {plain, batched}, n, event) do
+    if plain != [], do: Trace.send(plain, spec.robot, spec.name, n, event)
+    if batched != [], do: hold_trace(spec, {n, :erlang.monotonic_time(), event})
+  end
+
+  # held until Trace.batching/0's count, or its delay after the first
+  defp hold_trace(spec, item) do
+    {max_batch, delay} = Trace.batching()
+
+    case Process.get(@trace_held, {0, []}) do
+      {0, _} ->
+        Process.send_after(self(), :tc_trace_flush, delay)
+        Process.put(@trace_held, {1, [item]})
+
+      {count, items} when count + 1 >= max_batch ->
+        Process.put(@trace_held, {0, []})
+        send_trace(spec, [item | items])
+
+      {count, items} ->
+        Process.put(@trace_held, {count + 1, [item | items]})
+    end
+  end
+
+  defp flush_trace(spec) do
+    case Process.put(@trace_held, {0, []}) do
+      {_, [_ | _] = items} -> send_trace(spec, items)
+      _nothing -> :ok
+    end
+  end
+
+  defp send_trace(spec, newest_first),
+    do:
+      Trace.send_batch(
+        Trace.batch_sinks(spec.robot),
+        spec.robot,
+        spec.name,
+        Enum.reverse(newest_first)
+      )
 
   defp raised(kind, reason),
     do: {:raised, kind, kind |> Exception.format_banner(reason) |> String.slice(0, 500)}

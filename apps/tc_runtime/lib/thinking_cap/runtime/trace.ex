@@ -18,6 +18,15 @@ defmodule ThinkingCap.Runtime.Trace do
   another node; a message the link cannot take at once is dropped, and
   the gap shows in the numbers.
 
+  A sink that takes every callback of many modules (the recorder) can
+  ask for them in lists (`attach(robot, batch: true)`): each host then
+  holds its module's events and sends them as `{:tc_trace_batch, robot,
+  name, [{n, at, event}]}`, oldest first, when it holds 64, or
+  100 ms after the first (`at` is `System.monotonic_time/0` when the
+  callback ended, when the event would have been sent). A module's
+  lists come in its order; a host that stops sends what it holds first,
+  but one that is killed loses it (the numbers show the gap).
+
   ## Events
 
   A sink gets `{:tc_trace, robot, name, n, {input, outputs}}` for each
@@ -82,23 +91,57 @@ defmodule ThinkingCap.Runtime.Trace do
   # phash2's widest range
   @range 4_294_967_296
 
-  @doc "Makes the calling process a sink of `robot`'s trace."
-  @spec attach(atom()) :: :ok
-  def attach(robot) when is_atom(robot),
-    do: :pg.join(ThinkingCap.Runtime.scope(), group(robot), self())
+  # a host's events held for the batched sinks: so many, or so long
+  @max_batch 64
+  @max_delay_ms 100
+
+  @doc """
+  Makes the calling process a sink of `robot`'s trace; with `batch: true`
+  its events come in lists (see the moduledoc).
+  """
+  @spec attach(atom(), [{:batch, boolean()}]) :: :ok
+  def attach(robot, opts \\ [])
+
+  def attach(robot, opts) when is_atom(robot) and is_list(opts) do
+    batch =
+      case opts do
+        [] -> false
+        [batch: batch] when is_boolean(batch) -> batch
+        _ -> raise ArgumentError, "Trace.attach/2 takes [batch: boolean], got: #{inspect(opts)}"
+      end
+
+    :pg.join(ThinkingCap.Runtime.scope(), group(robot, batch), self())
+  end
 
   @doc "The calling process stops being a sink of `robot`'s trace."
   @spec detach(atom()) :: :ok
   def detach(robot) when is_atom(robot) do
-    _ = :pg.leave(ThinkingCap.Runtime.scope(), group(robot), self())
+    _ = :pg.leave(ThinkingCap.Runtime.scope(), group(robot, false), self())
+    _ = :pg.leave(ThinkingCap.Runtime.scope(), group(robot, true), self())
     :ok
   end
 
-  @doc "The processes attached to `robot`'s trace, on every node."
+  @doc "The processes attached to `robot`'s trace, on every node, batched or not."
   @spec sinks(atom()) :: [pid()]
-  def sinks(robot), do: :pg.get_members(ThinkingCap.Runtime.scope(), group(robot))
+  def sinks(robot), do: plain_sinks(robot) ++ batch_sinks(robot)
 
-  defp group(robot), do: {:tc_trace, robot}
+  @doc false
+  # the sinks sent each event as it comes
+  @spec plain_sinks(atom()) :: [pid()]
+  def plain_sinks(robot), do: :pg.get_members(ThinkingCap.Runtime.scope(), group(robot, false))
+
+  @doc false
+  # the sinks sent lists
+  @spec batch_sinks(atom()) :: [pid()]
+  def batch_sinks(robot), do: :pg.get_members(ThinkingCap.Runtime.scope(), group(robot, true))
+
+  defp group(robot, false), do: {:tc_trace, robot}
+  defp group(robot, true), do: {:tc_trace_batch, robot}
+
+  @doc false
+  # how many events a host holds for the batched sinks, and how long
+  @spec batching() :: {pos_integer(), pos_integer()}
+  def batching, do: {@max_batch, @max_delay_ms}
 
   @doc """
   Whether a module's callbacks are traced: unless its
@@ -162,6 +205,15 @@ defmodule ThinkingCap.Runtime.Trace do
   @spec send([pid()], atom(), atom(), non_neg_integer(), event()) :: :ok
   def send(sinks, robot, name, n, event) do
     message = {:tc_trace, robot, name, n, event}
+    Enum.each(sinks, &:erlang.send(&1, message, [:noconnect, :nosuspend]))
+  end
+
+  @doc false
+  # Sends a list of one module's events, `[{n, at, event}]` oldest first,
+  # to the batched sinks; never blocks on a busy link.
+  @spec send_batch([pid()], atom(), atom(), [{non_neg_integer(), integer(), event()}]) :: :ok
+  def send_batch(sinks, robot, name, events) do
+    message = {:tc_trace_batch, robot, name, events}
     Enum.each(sinks, &:erlang.send(&1, message, [:noconnect, :nosuspend]))
   end
 end

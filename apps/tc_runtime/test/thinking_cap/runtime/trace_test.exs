@@ -133,6 +133,65 @@ defmodule ThinkingCap.Runtime.TraceTest do
     end)
   end
 
+  # the batched lists of `name` until `count` events came: [{n, at, event}]
+  defp batched(robot, name, count, acc \\ [])
+  defp batched(_robot, _name, count, acc) when count <= 0, do: acc
+
+  defp batched(robot, name, count, acc) do
+    receive do
+      {:tc_trace_batch, ^robot, ^name, events} ->
+        assert length(events) in 1..64
+        batched(robot, name, count - length(events), acc ++ events)
+    after
+      2_000 -> flunk("#{count} batched events of #{inspect(name)} missing")
+    end
+  end
+
+  test "a batched sink gets the same events in lists, by count and by time",
+       %{tmp_dir: dir} do
+    {adf, robot, name} = event_module(dir, "batched")
+
+    :ok = Trace.attach(robot)
+    :ok = Trace.attach(robot, batch: true)
+    assert Enum.count(Trace.sinks(robot), &(&1 == self())) == 2
+    {:ok, _} = Runtime.start(adf)
+    for n <- 1..150, do: Blackboard.out({:tick, robot, %{n: n}})
+    plain = for _ <- 0..150, do: traced(robot, name)
+
+    # 151 events: two full lists at once, the rest after the delay
+    before = System.monotonic_time()
+
+    lists =
+      for _ <- 1..3 do
+        assert_receive {:tc_trace_batch, ^robot, ^name, events}, 2_000
+        events
+      end
+
+    assert Enum.map(lists, &length/1) == [64, 64, 23]
+    events = Enum.concat(lists)
+    assert for({n, _at, event} <- events, do: {n, event}) == plain
+    ats = for {_n, at, _event} <- events, do: at
+    assert ats == Enum.sort(ats) and List.last(ats) <= before
+    refute_received {:tc_trace_batch, ^robot, ^name, _}
+
+    # a crash: what it held and what it raised are sent before it goes
+    Blackboard.out({:tick, robot, %{n: 1}})
+    Blackboard.out({:tick, robot, %{n: :crash}})
+    [{n1, _, {{:tuple, _}, [_]}}, {n2, _, {{:tuple, _}, raised}}] = batched(robot, name, 2)
+    assert {n1, n2} == {151, 152}
+    assert raised == {:raised, :error, "** (RuntimeError) asked to crash"}
+    # restarted, from init
+    assert [{0, _, {{:init, _}, _}}] = batched(robot, name, 1)
+
+    :ok = Trace.detach(robot)
+    assert Trace.sinks(robot) == []
+  end
+
+  test "Trace.attach/2 refuses options it does not know" do
+    assert_raise ArgumentError, ~r/batch: boolean/, fn -> Trace.attach(:r1, batch: 1) end
+    assert_raise ArgumentError, ~r/batch: boolean/, fn -> Trace.attach(:r1, max: 2) end
+  end
+
   test "a module that says trace: false is not traced", %{tmp_dir: dir} do
     {adf, robot, _name} = event_module(dir, "untraced", ThinkingCap.Test.Modules.Untraced)
 

@@ -8,21 +8,26 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   # (policy :disconnect). A writer finds the recipients (`recipients/1`),
   # sends (`send_to/2`) and, once it let them run, reads the queues that
   # were due a read (`check_queues/1`); the server does the three at once
-  # (`deliver/1`).
+  # (`deliver/1`). A batched subscription's tuples are not sent but held
+  # (Batches), and sent to it in lists.
 
-  alias ThinkingCap.Blackboard.Core.{Server, Tables}
+  alias ThinkingCap.Blackboard.Core.{Batches, Server, Tables}
   alias ThinkingCap.Blackboard.Template
 
   @type policy :: :drop | :disconnect
 
-  @spec subscribe(Template.compiled(), pid(), pos_integer(), policy()) :: reference()
-  def subscribe(template, pid, max_queue, on_overflow) do
+  @type batch :: nil | {pos_integer(), pos_integer()}
+
+  @spec subscribe(Template.compiled(), pid(), pos_integer(), policy(), batch()) :: reference()
+  def subscribe(template, pid, max_queue, on_overflow, batch \\ nil) do
     ref = make_ref()
     :ets.insert(Tables.sub_refs(), {ref, template.index, pid, 0, template.source})
+    # its positions before its row: a writer that finds the row can hold tuples
+    if batch, do: Batches.open(ref, pid, batch, max_queue)
 
     row =
       {template.index, ref, pid, Template.residual_matcher(template), max_queue, on_overflow,
-       Tables.send_slot(ref)}
+       Tables.send_slot(ref), batch}
 
     :ets.insert(Tables.subs(), row)
 
@@ -35,8 +40,9 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   def unsubscribe(ref) do
     case :ets.take(Tables.sub_refs(), ref) do
       [{^ref, index, _pid, _dropped, _source}] ->
-        for {_, ^ref, _, _, _, _, _} = sub <- :ets.lookup(Tables.subs(), index) do
+        for {_, ^ref, _, _, _, _, _, batch} = sub <- :ets.lookup(Tables.subs(), index) do
           :ets.delete_object(Tables.subs(), sub)
+          if batch, do: Batches.close(ref)
         end
 
         Tables.count_subscription(index, -1)
@@ -64,7 +70,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   @doc false
   @spec list() :: [map()]
   def list do
-    for {_index, ref, pid, _matcher, max_queue, on_overflow, _sent} <-
+    for {_index, ref, pid, _matcher, max_queue, on_overflow, _sent, batch} <-
           :ets.tab2list(Tables.subs()),
         [{^ref, _, _, dropped, source}] <- [:ets.lookup(Tables.sub_refs(), ref)] do
       %{
@@ -73,7 +79,12 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
         template: source,
         max_queue: max_queue,
         on_overflow: on_overflow,
-        dropped: dropped
+        dropped: dropped,
+        batch:
+          case batch do
+            nil -> false
+            {max_batch, max_delay_ms} -> %{max_batch: max_batch, max_delay_ms: max_delay_ms}
+          end
       }
     end
   end
@@ -142,7 +153,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   end
 
   defp matching([], _tuple), do: []
-  defp matching([{_, _, _, {:positions, _, []}, _, _, _}] = rows, _tuple), do: rows
+  defp matching([{_, _, _, {:positions, _, []}, _, _, _, _}] = rows, _tuple), do: rows
   defp matching(rows, tuple), do: Enum.filter(rows, &Template.matches?(elem(&1, 3), tuple))
 
   @doc false
@@ -154,7 +165,21 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   defp send_to([], _tuple, due), do: due
 
-  defp send_to([{_index, ref, pid, _matcher, max_queue, policy, slot} = sub | rest], tuple, due) do
+  defp send_to(
+         [{_index, ref, pid, _matcher, _max_queue, policy, _slot, {_, _}} | rest],
+         tuple,
+         due
+       ) do
+    # held, to be sent in a list: nothing to read about its queue here
+    if Batches.hold(ref, tuple) == :full, do: overflow(policy, ref, pid)
+    send_to(rest, tuple, due)
+  end
+
+  defp send_to(
+         [{_index, ref, pid, _matcher, max_queue, policy, slot, nil} = sub | rest],
+         tuple,
+         due
+       ) do
     case send_bounded(ref, pid, max_queue, policy, slot, tuple) do
       :due -> send_to(rest, tuple, [sub | due])
       :sent -> send_to(rest, tuple, due)
@@ -199,11 +224,17 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   end
 
   @doc false
+  # Whether sending `tuple` to `recipients/1`'s subscriptions wakes one
+  # (a batched subscription's tuples are held instead).
+  @spec wakes?([tuple()]) :: boolean()
+  def wakes?(recipients), do: Enum.any?(recipients, &(elem(&1, 7) == nil))
+
+  @doc false
   # Reads the queues `send_to/2` said were due, and marks those found full.
   @spec check_queues([tuple()]) :: :ok
   def check_queues([]), do: :ok
 
-  def check_queues([{_index, ref, pid, _matcher, max_queue, policy, slot} | rest]) do
+  def check_queues([{_index, ref, pid, _matcher, max_queue, policy, slot, _batch} | rest]) do
     unless room?(pid, max_queue, Tables.send_counts(), slot), do: full(policy, ref, pid)
     check_queues(rest)
   end
@@ -234,6 +265,8 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
        do: flag_full(counts, slot, flag)
   end
 
+  # a tuple not delivered (its subscriber's queue, or the tuples held for
+  # it, full): counted, or the subscription ended and its subscriber told
   defp overflow(:drop, ref, _pid) do
     :ets.update_counter(Tables.sub_refs(), ref, {4, 1})
   rescue

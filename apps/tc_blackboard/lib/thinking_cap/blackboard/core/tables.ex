@@ -11,12 +11,17 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #                         (see Store for the two)
   #   keys     set          {key_bin, {arity, first, second, seq, owner}, stamp}
   #                         latest-value index
-  #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow, slot}
+  #   subs     bag          {index, ref, pid, matcher, max_queue, on_overflow, slot,
+  #                          batch}  (batch: nil, or {max_batch, max_delay_ms})
   #   sub_refs set          {ref, index, pid, dropped, template}
   #   waiters  ordered_set  {{index, wseq}, pid, ref, kind, template, woken?}
   #   tombs    set          {record_key, at_ms}  deletes that overtook their insert
   #   meta     set          {:boot, id}, {:peers, [server_pid]},
   #                         {{:watermark, node}, boot, seq}
+  #   batches  set          {ref, next, taken, pid, max_batch, max_delay_ms, max_queue,
+  #                          notified, gap}  a batched subscription (see Batches)
+  #   batched  ordered_set  {{ref, position}, tuple | :dropped, monotonic_time}
+  #                         the tuples held for batched subscriptions
   #   (and in persistent_term: the tables' ids, two arrays, counters/0 and
   #   send_counts/0, and the index flags, tag_indexed?/2 and wide_indexed/0)
 
@@ -34,7 +39,9 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
     sub_refs: :tc_bb_sub_refs,
     waiters: :tc_bb_waiters,
     tombs: :tc_bb_tombs,
-    meta: :tc_bb_meta
+    meta: :tc_bb_meta,
+    batches: :tc_bb_batches,
+    batched: :tc_bb_batched
   ]
   @ids {__MODULE__, :ids}
 
@@ -160,7 +167,11 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
       sub_refs: [:set | plain],
       waiters: [:ordered_set | plain],
       tombs: [:set | plain],
-      meta: [:set, {:read_concurrency, true} | plain]
+      meta: [:set, {:read_concurrency, true} | plain],
+      # every write a batched subscription matches takes a position here
+      # and inserts there, from many schedulers
+      batches: [:set, :public, :named_table, write_concurrency: true],
+      batched: [:ordered_set, :public, :named_table, write_concurrency: true]
     ]
 
     ids =
