@@ -114,7 +114,10 @@ defmodule ThinkingCap.Sim do
     * `:at` - start pose `{x, y, theta}`, point `{x, y}` or waypoint name (required);
     * `:controller` - `{module, args}` of a `ThinkingCap.Sim.Controller`, or
     * `:owner` - a pid that gets the readings and sends commands (`command/3`);
-    * `:seed` - the robot's own seed (default: derived from the simulation's).
+    * `:seed` - the robot's own seed (default: derived from the simulation's);
+    * `:publish` - sensor names (`:sim_pose` too) whose readings go to the
+      blackboard even when the simulation does not publish (default `[]`):
+      a fleet shown on the dashboard by its true poses alone.
 
   Refused when the id is taken or the start pose is not free.
   """
@@ -188,6 +191,10 @@ defmodule ThinkingCap.Sim do
   @doc "The walkers and where they stand."
   @spec walkers(sim()) :: %{term() => {float(), float()}}
   def walkers(sim), do: GenServer.call(sim, :walkers)
+
+  @doc "The walkers as discs `{x, y, radius}`, in order of id."
+  @spec walker_discs(sim()) :: [{float(), float(), float()}]
+  def walker_discs(sim), do: GenServer.call(sim, :walker_discs)
 
   @doc """
   Moves a robot to `pose` (a point, a pose or a waypoint's name) without

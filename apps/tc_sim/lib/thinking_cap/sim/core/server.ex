@@ -388,6 +388,7 @@ defmodule ThinkingCap.Sim.Core.Server do
          {:ok, description} <- description(opts),
          {:ok, pose} <- World.resolve_pose(state.world, Keyword.get(opts, :at)),
          {:ok, sink} <- sink(opts),
+         {:ok, publish} <- publish(opts),
          :ok <- free(state, pose, description) do
       {index, state} = take_index(state)
 
@@ -397,6 +398,7 @@ defmodule ThinkingCap.Sim.Core.Server do
         description: description,
         pose: pose,
         sink: sink,
+        publish: publish,
         seed: Keyword.get(opts, :seed, :erlang.phash2({state.seed, id}))
       }
 
@@ -461,6 +463,11 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_call(:walkers, _from, state),
     do: {:reply, Map.new(state.walkers, fn {id, w} -> {id, w.at} end), state}
+
+  def handle_call(:walker_discs, _from, state) do
+    discs = for {_id, %{at: {x, y}} = w} <- Enum.sort(state.walkers), do: {x, y, w.radius}
+    {:reply, discs, state}
+  end
 
   def handle_call({:teleport, id, at}, _from, state) do
     with {:ok, {_index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
@@ -628,6 +635,18 @@ defmodule ThinkingCap.Sim.Core.Server do
       {module, nil} when is_atom(module) -> controller(module, [])
       {nil, pid} when is_pid(pid) -> {:ok, {:owner, pid}}
       _ -> {:error, "give controller: {module, args} or owner: pid, not both"}
+    end
+  end
+
+  defp publish(opts) do
+    case Keyword.get(opts, :publish, []) do
+      list when is_list(list) ->
+        if Enum.all?(list, &is_atom/1),
+          do: {:ok, MapSet.new(list)},
+          else: {:error, "publish: #{inspect(list, limit: 5)} is not a list of sensor names"}
+
+      other ->
+        {:error, "publish: #{inspect(other, limit: 5)} is not a list of sensor names"}
     end
   end
 
