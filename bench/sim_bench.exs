@@ -155,7 +155,8 @@ defmodule ThinkingCap.Bench.Sim do
       "  #{k} nodes: #{fmt(spread.wall)} s wall, rtf #{fmt(seconds / spread.wall)}, " <>
         "#{fmt(s.rays / spread.wall / 1.0e6)} M rays/s, robots per node " <>
         "#{Enum.map_join(nodes, "/", &Map.get(per_node, &1, 0))}, " <>
-        "#{s.node_handovers} handed over between nodes, #{s.ghosts} ghosts at the last step"
+        "#{s.node_handovers} handed over between nodes, #{s.ghosts} ghosts at the last step, " <>
+        "coordinator CPU #{fmt(spread.cpu * 1000 / s.steps)} ms a step"
     )
 
     # the reference on the first peer alone: the same priority as the

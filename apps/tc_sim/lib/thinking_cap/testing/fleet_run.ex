@@ -18,9 +18,10 @@ defmodule ThinkingCap.Testing.FleetRun do
   wandering (`ThinkingCap.Sim.Wander`) at free places drawn from `seed`,
   runs `seconds` of simulated time, samples every robot's true pose
   every `sample_every` simulated seconds, and stops. Returns
-  `%{samples: [%{id => pose}], wall: seconds, status: Sim.status/1,
-  placements: [%{id => node}]}` (the placement after each sample; `wall`
-  the time spent stepping, samples not counted).
+  `%{samples: [%{id => pose}], wall: seconds, cpu: seconds, status:
+  Sim.status/1, placements: [%{id => node}]}` (the placement after each
+  sample; `wall` the time spent stepping, samples not counted, and `cpu`
+  this node's CPU time meanwhile, every scheduler's).
   Options: `:world` (a WDF path or `ThinkingCap.Config.WDF`),
   `:description`, `:robots`, `:seconds`, `:sample_every` (default: only
   at the end), `:step` (default 0.1), `:seed` (default 1), `:walkers`
@@ -29,6 +30,7 @@ defmodule ThinkingCap.Testing.FleetRun do
   @spec run(keyword()) :: %{
           samples: [%{atom() => tuple()}],
           wall: float(),
+          cpu: float(),
           status: map(),
           placements: [%{atom() => node()}]
         }
@@ -54,18 +56,22 @@ defmodule ThinkingCap.Testing.FleetRun do
       world = Sim.world(sim)
       rng = :rand.seed_s(:exsss, {seed, 77, 5})
       :ok = place(sim, world, d, Keyword.fetch!(opts, :robots), opts, rng)
-      {samples, placements, wall} =
-        Enum.reduce(1..max(round(seconds / every), 1), {[], [], 0}, fn _, {s, p, wall} ->
+
+      {samples, placements, wall, cpu} =
+        Enum.reduce(1..max(round(seconds / every), 1), {[], [], 0, 0}, fn _, {s, p, wall, cpu} ->
           t0 = System.monotonic_time()
+          {c0, _} = :erlang.statistics(:runtime)
           :ok = Sim.run_for(sim, every)
+          {c1, _} = :erlang.statistics(:runtime)
           wall = wall + System.monotonic_time() - t0
-          {[Sim.robots(sim) | s], [Sim.placement(sim) | p], wall}
+          {[Sim.robots(sim) | s], [Sim.placement(sim) | p], wall, cpu + c1 - c0}
         end)
 
       %{
         samples: Enum.reverse(samples),
         placements: Enum.reverse(placements),
         wall: System.convert_time_unit(wall, :native, :microsecond) / 1.0e6,
+        cpu: cpu / 1000,
         status: Sim.status(sim)
       }
     after

@@ -89,6 +89,70 @@ defmodule ThinkingCap.Sim.NodesTest do
     end
   end
 
+  describe "doors and reset across nodes" do
+    test "a door opened reaches every region; reset closes it and puts the robots back", ctx do
+      [a, b] = ctx.nodes
+      dir = ctx.tmp_dir
+      door = [name: :d, from: {12, 0}, to: {12, 4}, open: false]
+      wdf = T.wdf!(dir, walls: T.box(20, 4), doors: [door])
+      laser = [name: :laser, type: :laser, range: {0.05, 8.0}, fov: 3.0, beams: 61, rate: 10]
+      robot = T.robot!(dir, sensors: [laser])
+      call = fn f, args -> Cluster.call(a, Sim, f, args) end
+
+      {:ok, sim} =
+        call.(:start, [
+          [world: wdf, mode: :fast, running: false, step: 0.1, nodes: [a.node, b.node]] ++
+            [borders: [10.0]]
+        ])
+
+      try do
+        for {id, at} <- [west: {5.0, 2.0, 0.0}, east: {15.0, 2.0, :math.pi()}] do
+          :ok =
+            call.(:add_robot, [
+              sim,
+              id,
+              [description: robot, at: at, controller: {Cruise, [command: :stop]}]
+            ])
+        end
+
+        assert call.(:placement, [sim]) == %{west: a.node, east: b.node}
+
+        ahead = fn ->
+          :ok = call.(:step, [sim, 1])
+
+          for id <- [:west, :east] do
+            {:ok, c} = call.(:controller_state, [sim, id])
+            Enum.at(c.readings.laser.ranges, 30)
+          end
+        end
+
+        # closed: each sees the door; open: each sees the other robot
+        # (a ghost of the other node), 9.6 m away, past the laser's 8 m
+        [w, e] = ahead.()
+        assert_in_delta w, 7.0, 1.0e-6
+        assert_in_delta e, 3.0, 1.0e-6
+        :ok = call.(:set_door, [sim, :d, true])
+        assert ahead.() == [8.0, 8.0]
+
+        :ok = call.(:teleport, [sim, :west, {9.0, 2.0, 0.0}])
+        [w, e] = ahead.()
+        assert_in_delta w, 15.0 - 0.2 - 9.0, 1.0e-6
+        assert_in_delta e, 15.0 - 9.0 - 0.2, 1.0e-6
+        # a place taken by a robot of the other node is refused
+        assert {:error, _} = call.(:teleport, [sim, :west, {15.1, 2.0, 0.0}])
+
+        :ok = call.(:reset, [sim])
+        assert call.(:time, [sim]) == 0.0
+        assert {:ok, {5.0, 2.0, 0.0}} = call.(:pose, [sim, :west])
+        [w, e] = ahead.()
+        assert_in_delta w, 7.0, 1.0e-6
+        assert_in_delta e, 3.0, 1.0e-6
+      after
+        Cluster.call(a, GenServer, :stop, [sim])
+      end
+    end
+  end
+
   describe "a fleet across two nodes" do
     test "every trajectory equals the one-node run's with the same seed", %{nodes: [a, b]} do
       {:ok, d} = ThinkingCap.Robot.Description.load(@fleet_rdf)
