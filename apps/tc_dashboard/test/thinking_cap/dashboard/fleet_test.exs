@@ -2,13 +2,17 @@ defmodule ThinkingCap.Dashboard.FleetTest do
   # The fleet example as bin/run starts it (priv/examples/fleet.adf): read
   # and checked like `mix tc.check`, started by the runtime with the
   # dashboard (on free ports), then its hundred robots and its walkers
-  # looked for in the simulator, on the blackboard and in what the
-  # dashboard sends browsers; then everything stopped and cleaned away.
+  # looked for in the simulator, on the blackboard, in what the
+  # dashboard sends browsers and on the page's map in a real browser
+  # (Debian's chromium, as the other browser tests); then everything
+  # stopped and cleaned away.
   use ExUnit.Case, async: false
 
   alias ThinkingCap.{Blackboard, Config, Dashboard, Runtime, Sim}
   alias ThinkingCap.Dashboard.Telemetry
+  alias ThinkingCap.Dashboard.Test.Browser
 
+  @moduletag :browser
   @moduletag timeout: 120_000
   @examples Path.expand("../../../../../priv/examples", __DIR__)
   @adf Path.join(@examples, "fleet.adf")
@@ -59,7 +63,7 @@ defmodule ThinkingCap.Dashboard.FleetTest do
     assert Blackboard.rdp({:laser, :fleet_1, :_}) == :none
 
     # the dashboard has them all to send to a browser
-    {:ok, _info} = Dashboard.await(10_000)
+    {:ok, info} = Dashboard.await(10_000)
 
     :ok =
       wait_until(
@@ -72,6 +76,20 @@ defmodule ThinkingCap.Dashboard.FleetTest do
         end,
         10_000
       )
+
+    # and the page's map draws them: 100 robots, 20 walkers, one label
+    :ok = Browser.ensure_assets!()
+    {:ok, b} = Browser.start_link()
+    on_exit(fn -> Browser.stop(b) end)
+    Browser.open!(b, info.url <> "&robot=r1")
+    Browser.wait!(b, "Object.keys(tc.drawn).length === 100 && tc.walkersDrawn === 20")
+
+    assert Enum.sort(Browser.eval!(b, "Object.keys(tc.drawn)")) ==
+             Enum.sort(Enum.map([:r1 | fleet], &Atom.to_string/1))
+
+    assert Browser.eval!(b, "tc.selected") == "r1"
+    Browser.screenshot(b, "fleet")
+    assert Browser.page_errors(b) == []
   end
 
   defp distance({x0, y0, _}, {x1, y1, _}), do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
