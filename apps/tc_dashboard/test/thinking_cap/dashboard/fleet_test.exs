@@ -82,7 +82,11 @@ defmodule ThinkingCap.Dashboard.FleetTest do
     {:ok, b} = Browser.start_link()
     on_exit(fn -> Browser.stop(b) end)
     Browser.open!(b, info.url <> "&robot=r1")
-    Browser.wait!(b, "Object.keys(tc.drawn).length === 100 && tc.walkersDrawn === 20")
+    # (a bound on "it did happen", not a measurement: the page first takes
+    # the warehouse's 1.7 MB map, on a machine the whole suite loads)
+    Browser.wait!(b, "Object.keys(tc.drawn).length === 100 && tc.walkersDrawn === 20",
+      timeout: 30_000
+    )
 
     assert Enum.sort(Browser.eval!(b, "Object.keys(tc.drawn)")) ==
              Enum.sort(Enum.map([:r1 | fleet], &Atom.to_string/1))
