@@ -153,6 +153,35 @@ defmodule ThinkingCap.Sim.NodesTest do
     end
   end
 
+  describe "a node that goes down" do
+    test "takes the simulation and its regions down with it", %{nodes: [a, _], tmp_dir: dir} do
+      [c] = Cluster.start(1, apps: [], cookie: Cluster.cookie(a))
+      on_exit(fn -> Cluster.stop(c) end)
+      true = Cluster.connect(a, c)
+      wdf = T.wdf!(dir, walls: T.box(20, 4))
+
+      {:ok, sim} =
+        Cluster.call(a, Sim, :start, [
+          [world: wdf, mode: :fast, running: false, nodes: [a.node, c.node], borders: [10.0]]
+        ])
+
+      # the regions on node a: GenServers started from Core.Region
+      regions = fn ->
+        for pid <- Cluster.call(a, Process, :list, []),
+            {:dictionary, d} <- [Cluster.call(a, Process, :info, [pid, :dictionary])],
+            d[:"$initial_call"] == {ThinkingCap.Sim.Core.Region, :init, 1},
+            do: pid
+      end
+
+      assert length(regions.()) == 1
+      assert Cluster.call(a, Sim, :step, [sim, 5]) == :ok
+
+      :ok = Cluster.kill(c)
+      Cluster.wait_until(fn -> not Cluster.call(a, Process, :alive?, [sim]) end)
+      Cluster.wait_until(fn -> regions.() == [] end)
+    end
+  end
+
   describe "a fleet across two nodes" do
     test "every trajectory equals the one-node run's with the same seed", %{nodes: [a, b]} do
       {:ok, d} = ThinkingCap.Robot.Description.load(@fleet_rdf)
