@@ -1,8 +1,9 @@
 defmodule ThinkingCap.Bench.Sim do
   @moduledoc """
-  `mix tc.bench sim [--seconds S] [--robots N] [--scale-seconds T] [--walkers W]`: the
-  simulator on the workload of Stage's `cave.world` benchmark, then at fleet
-  scale.
+  `mix tc.bench sim [--seconds S] [--robots N] [--scale-seconds T] [--walkers W]
+  [--nodes K] [--nodes-seconds U] [--only nodes]`: the simulator on the
+  workload of Stage's `cave.world` benchmark, then at fleet scale, then
+  across nodes.
 
   N robots (default 100), each with a ring of 16 sonars (15° cone, 5 m,
   three rays per cone, up to two specular bounces, crosstalk on) and a
@@ -20,6 +21,17 @@ defmodule ThinkingCap.Bench.Sim do
   N-robot run (no walkers): 1.0 when the cost per ray does not depend on
   the fleet.
 
+  Across nodes (`sim_nodes` line): 20 × N robots and 4 × N walkers in
+  the map tiled 5 × 4 (150 m × 200 m, the same density), spread over K
+  local nodes (default 2, started with OTP's `:peer`; `ThinkingCap.Sim`'s
+  `:nodes`; this VM, made a node, coordinates), for U simulated seconds
+  (default 20), then the same on the first of them alone (`rtf_1`):
+  `equal` is 1 when every robot's pose at U / 2 and U is the same in
+  both runs. The peers' schedulers run at normal priority, the reference
+  too: this VM's may run at real-time priority, and would take the CPU
+  from them on a shared machine.
+  `--only nodes` runs this part alone.
+
   Real-time factor: simulated seconds per wall second. Rays: the rays of
   every sample (sonar cone rays and laser beams, without counting bounces)
   per wall second. Stage 4.3 ran the 100-robot workload at about 14× real
@@ -35,14 +47,27 @@ defmodule ThinkingCap.Bench.Sim do
   def run(args) do
     {opts, _, _} =
       OptionParser.parse(args,
-        strict: [seconds: :float, robots: :integer, scale_seconds: :float, walkers: :integer]
+        strict: [
+          seconds: :float,
+          robots: :integer,
+          scale_seconds: :float,
+          walkers: :integer,
+          nodes: :integer,
+          nodes_seconds: :float,
+          only: :string
+        ]
       )
 
-    seconds = opts[:seconds] || 600.0
     n = opts[:robots] || 100
-
     {:ok, description} = Description.load(Path.join(@dir, "cave_robot.rdf"))
     {:ok, world} = Sim.World.load(Path.join(@dir, "warehouse.wdf"))
+
+    if opts[:only] != "nodes", do: one_node(opts, n, description, world)
+    across_nodes(opts, n, description, world)
+  end
+
+  defp one_node(opts, n, description, world) do
+    seconds = opts[:seconds] || 600.0
 
     IO.puts(
       "sim: #{world.name} map, #{seconds} simulated s, step 0.1 s, " <>
@@ -89,6 +114,84 @@ defmodule ThinkingCap.Bench.Sim do
       "sim_scale: robots=#{10 * n} walkers=#{n_walkers} rtf=#{fmt(r.rtf)} " <>
         "ray_ratio=#{fmt(r.rays_per_s / main.rays_per_s)} rays_per_s=#{round(r.rays_per_s)}"
     )
+  end
+
+  # 20 x N robots and 4 x N walkers in the warehouse tiled 5 x 4, on
+  # nodes (this VM and peers), then on this node alone
+  defp across_nodes(opts, n, description, world) do
+    k = opts[:nodes] || 2
+    seconds = opts[:nodes_seconds] || 20.0
+    robots = 20 * n
+    start_distribution()
+
+    peers = ThinkingCap.Testing.Cluster.start(k, connection: :dist, apps: [])
+    nodes = Enum.map(peers, & &1.node)
+
+    wdf = %{world.wdf | name: "warehouse 5x4", grid: tile(world.wdf.grid, 5, 4)}
+    {:ok, big} = Sim.World.from_wdf(wdf)
+    walkers = Sim.Crowd.walkers(big, count: 4 * n, seed: 42)
+
+    opts = [
+      world: wdf,
+      description: description,
+      robots: robots,
+      seconds: seconds,
+      sample_every: seconds / 2,
+      seed: 42,
+      walkers: walkers
+    ]
+
+    IO.puts(
+      "sim_nodes: #{robots} robots and #{4 * n} walkers, warehouse tiled 5 x 4, " <>
+        "#{seconds} simulated s, nodes #{inspect(nodes)}"
+    )
+
+    # the coordinator here, the regions on the peers
+    spread = ThinkingCap.Testing.FleetRun.run(opts ++ [sim: [nodes: nodes]])
+    s = spread.status
+    per_node = spread.placements |> List.last() |> Map.values() |> Enum.frequencies()
+
+    IO.puts(
+      "  #{k} nodes: #{fmt(spread.wall)} s wall, rtf #{fmt(seconds / spread.wall)}, " <>
+        "#{fmt(s.rays / spread.wall / 1.0e6)} M rays/s, robots per node " <>
+        "#{Enum.map_join(nodes, "/", &Map.get(per_node, &1, 0))}, " <>
+        "#{s.node_handovers} handed over between nodes, #{s.ghosts} ghosts at the last step, " <>
+        "coordinator CPU #{fmt(spread.cpu * 1000 / s.steps)} ms a step"
+    )
+
+    # the reference on the first peer alone: the same priority as the
+    # regions' (this VM's schedulers may run at real-time priority)
+    alone =
+      ThinkingCap.Testing.Cluster.call(
+        hd(peers),
+        ThinkingCap.Testing.FleetRun,
+        :run,
+        [opts],
+        :infinity
+      )
+
+    ThinkingCap.Testing.Cluster.stop(peers)
+
+    IO.puts(
+      "  1 node: #{fmt(alone.wall)} s wall, rtf #{fmt(seconds / alone.wall)}, " <>
+        "#{fmt(alone.status.rays / alone.wall / 1.0e6)} M rays/s"
+    )
+
+    equal = if spread.samples == alone.samples, do: 1, else: 0
+
+    IO.puts(
+      "sim_nodes: nodes=#{k} robots=#{robots} rtf=#{fmt(seconds / spread.wall)} " <>
+        "equal=#{equal} rtf_1=#{fmt(seconds / alone.wall)} walkers=#{4 * n}"
+    )
+  end
+
+  defp start_distribution do
+    {_, 0} = System.cmd("epmd", ["-daemon"])
+
+    unless Node.alive?() do
+      {:ok, _} = :net_kernel.start([:"tc_sim_bench_#{System.pid()}@127.0.0.1", :longnames])
+      Node.set_cookie(:"sim_bench_#{:rand.uniform(1_000_000_000)}")
+    end
   end
 
   # the occupancy grid repeated nx times across and ny times up

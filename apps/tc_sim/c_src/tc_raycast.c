@@ -229,6 +229,13 @@ static int body_index_build(BodyIndex *x)
     memset(x->start, 0, ((size_t)nb + 1) * sizeof(int32_t));
     for (int i = 0; i < n; i++) {
         const Body *b = &x->b[i];
+        /* a body parked far away (out of the box) is in no bucket: it
+         * would crowd the corner bucket it is clamped to, and every
+         * query near that corner would look at it */
+        if (!(fabs(b->x) <= BODY_BOX && fabs(b->y) <= BODY_BOX)) {
+            cell[i] = -1;
+            continue;
+        }
         cell[i] = bucket_of((b->y - miny) * x->inv, x->h) * x->w +
                   bucket_of((b->x - minx) * x->inv, x->w);
         x->start[cell[i] + 1]++;
@@ -237,7 +244,7 @@ static int body_index_build(BodyIndex *x)
         x->start[k + 1] += x->start[k];
     /* ids ascending within a bucket */
     for (int i = 0; i < n; i++)
-        x->items[x->start[cell[i]]++] = i;
+        if (cell[i] >= 0) x->items[x->start[cell[i]]++] = i;
     for (int k = nb; k > 0; k--)
         x->start[k] = x->start[k - 1];
     x->start[0] = 0;

@@ -221,6 +221,8 @@ window.tc = {
   keys() { return [...store.items.keys()]; },
   /** where each robot was drawn last: {id: [x, y, radius]} in CSS pixels of the map canvas */
   get drawn() { return JSON.parse(JSON.stringify(map.drawn)); },
+  /** how many walkers (people of a simulated world) the map drew last */
+  get walkersDrawn() { return map.walkersDrawn || 0; },
   worldToScreen(x, y) { return map.worldToScreen(x, y); },
   /** the colour a robot is drawn in (#rrggbb) */
   robotColor(id) { return map.robotColor(id); },

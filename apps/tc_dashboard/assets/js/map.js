@@ -3,7 +3,7 @@
 // footprint (true and estimated, with the estimate's covariance and the
 // localizer's particles), the map it learned (obstacles it sensed
 // included), laser and sonar readings, the Local Perceptual Space, the
-// planned path and goal. Wheel to zoom, drag to pan, click to send the selected robot a
+// planned path and goal, and the people walking in a simulated world. Wheel to zoom, drag to pan, click to send the selected robot a
 // goal (a waypoint when the click is on one), click a robot to select it.
 //
 // World coordinates are metres, x east, y north (REP-103); the view keeps
@@ -30,7 +30,12 @@ export const LAYERS = {
   beacons: 'Beacons',
   waypoints: 'Waypoints',
   labels: 'Labels',
+  walkers: 'Walkers',
 };
+
+// more robots than this: only the selected one is labelled (a hundred
+// labels hide the map and cost a text measure each per frame)
+const LABELLED_ROBOTS = 20;
 
 export class MapView {
   /**
@@ -315,6 +320,7 @@ export class MapView {
       if (!p) continue;
       this._drawRobotOverlays(ctx, id, p);
     }
+    this.walkersDrawn = this.layers.walkers ? this._drawWalkers(ctx) : 0;
     for (const id of order) {
       const p = this.robotPose(id);
       if (!p) continue;
@@ -677,6 +683,29 @@ export class MapView {
     return [{ name: 'laser', type: 'laser' }, { name: 'sonar', type: 'sonar' }];
   }
 
+  /** The people walking in a simulated world (`sim_walkers/<world>`): grey discs. Returns how many. */
+  _drawWalkers(ctx) {
+    const w = this.store.world;
+    const v = w && this.store.get(`sim_walkers/${w.name}`);
+    if (!v || !Array.isArray(v.walkers)) return 0;
+    ctx.fillStyle = 'rgba(201,209,217,0.85)';
+    ctx.strokeStyle = '#0d1117';
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    let n = 0;
+    for (const d of v.walkers) {
+      if (!Array.isArray(d) || d.length < 2) continue;
+      const [sx, sy] = this.worldToScreen(d[0], d[1]);
+      const r = Math.max(3, (typeof d[2] === 'number' ? d[2] : 0.25) * this.scale);
+      ctx.moveTo(sx + r, sy);
+      ctx.arc(sx, sy, r, 0, TAU);
+      n += 1;
+    }
+    ctx.fill();
+    ctx.stroke();
+    return n;
+  }
+
   _radius(id) {
     const r = this.store.get(`robot/${id}`);
     const fp = r && obj(r.footprint);
@@ -1009,7 +1038,7 @@ export class MapView {
       ctx.stroke();
     }
 
-    if (this.layers.labels) {
+    if (this.layers.labels && (selected || s.robots.length <= LABELLED_ROBOTS)) {
       ctx.font = '600 11px ui-monospace, monospace';
       ctx.textAlign = 'center';
       ctx.textBaseline = 'top';

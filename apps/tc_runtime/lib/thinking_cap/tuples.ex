@@ -25,6 +25,9 @@ defmodule ThinkingCap.Tuples do
      "`ThinkingCap.Testing.Robot`", "tests"},
     {:sim_pose, :robot, "`%{pose: {x, y, θ}, stamp: t}`: the simulated robot's true pose",
      "simulator", "dashboard, `mix tc.run`, benchmarks"},
+    {:sim_walkers, :world,
+     "`%{walkers: [{x, y, radius}], stamp: t}`: the people walking in a simulated world " <>
+       "(the id is the world's name)", "simulator (`Sim.Fleet`)", "dashboard"},
     {:lps, :robot, "a `%ThinkingCap.Perception.LPS{}`: the Local Perceptual Space",
      "perception (`Perception.Fuser`)", "Blender, VehicleDrive, Monitor, WallFollower"},
     {:pose, :robot,
@@ -167,6 +170,8 @@ defmodule ThinkingCap.Tuples do
            }}
   @type driven :: {:driven, robot(), %{command: command(), count: pos_integer()}}
   @type sim_pose :: {:sim_pose, robot(), %{pose: {float(), float(), float()}, stamp: float()}}
+  @type sim_walkers ::
+          {:sim_walkers, term(), %{walkers: [{float(), float(), float()}], stamp: float()}}
   @type reading :: {atom(), robot(), map()}
   @type lps :: {:lps, robot(), struct()}
   @type pose ::
@@ -244,6 +249,7 @@ defmodule ThinkingCap.Tuples do
           | control()
           | driven()
           | sim_pose()
+          | sim_walkers()
           | reading()
           | lps()
           | pose()

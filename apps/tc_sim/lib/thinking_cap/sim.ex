@@ -102,10 +102,46 @@ defmodule ThinkingCap.Sim do
       included;
     * `:walkers` - people walking in the world: `[{id, opts}]` as
       `add_walker/3`;
+    * `:nodes` - spread the robots over these BEAM nodes (connected,
+      each with this code; see "Across nodes" below); `:shards` is then
+      per node (default: each node's schedulers);
+    * `:borders` - across nodes, the `length(nodes) - 1` ascending x
+      coordinates between their regions (default: the world's width cut
+      evenly);
     * `:name` - a name to register.
+
+  ## Across nodes
+
+  With `nodes: [a, b, ...]` the world is cut along x into strips, one
+  per node, between `borders`. Each node builds its own copy of the
+  static world (from the WDF: give `world:` as a WDF path that every
+  node can read, or a `ThinkingCap.Config.WDF`) and runs the shards of
+  the robots in its strip. This process stays the coordinator, and the
+  step keeps its two phases in lock-step: before the moves it sends each
+  node the bodies it must see, its own robots and the ghosts, every
+  robot of another region and every walker within sensor reach of its
+  robots (the longest sensor range of any robot, plus its footprint and
+  a margin for the step's move); the contacts among the moves and the
+  walkers' step are found here; then every shard senses. When the robots
+  are regrouped (`:regroup_every`), a robot now in another node's strip
+  is handed over to a shard of that node whole: body, sensors, random
+  state and controller state (an owner pid works from any node). Body
+  indexes are the coordinator's and every random draw is the robot's
+  own, so a run across nodes equals the one-node run with the same seed.
+  `placement/1` tells where each robot runs; `status/1` counts the
+  `node_handovers` and the last step's `ghosts`. A node that goes down
+  takes the simulation down with it (the regions are linked to it).
   """
   @spec start_link(keyword()) :: GenServer.on_start()
   def start_link(opts), do: Server.start_link(opts)
+
+  @doc """
+  Starts a simulation as `start_link/1` does, not linked to the caller
+  (started by a remote call, whose process ends at once). Stop it with
+  `GenServer.stop/1`.
+  """
+  @spec start(keyword()) :: GenServer.on_start()
+  def start(opts), do: Server.start(opts)
 
   @doc """
   Adds a robot. Options:
@@ -114,12 +150,19 @@ defmodule ThinkingCap.Sim do
     * `:at` - start pose `{x, y, theta}`, point `{x, y}` or waypoint name (required);
     * `:controller` - `{module, args}` of a `ThinkingCap.Sim.Controller`, or
     * `:owner` - a pid that gets the readings and sends commands (`command/3`);
-    * `:seed` - the robot's own seed (default: derived from the simulation's).
+    * `:seed` - the robot's own seed (default: derived from the simulation's);
+    * `:publish` - sensor names (`:sim_pose` too) whose readings go to the
+      blackboard even when the simulation does not publish (default `[]`):
+      a fleet shown on the dashboard by its true poses alone.
 
   Refused when the id is taken or the start pose is not free.
   """
   @spec add_robot(sim(), robot(), keyword()) :: :ok | {:error, String.t()}
   def add_robot(sim, id, opts), do: GenServer.call(sim, {:add_robot, id, opts}, 30_000)
+
+  @doc "The node each robot runs on (`:nodes`; every robot on this node otherwise)."
+  @spec placement(sim()) :: %{robot() => node()}
+  def placement(sim), do: GenServer.call(sim, :placement)
 
   @doc "Removes a robot."
   @spec remove_robot(sim(), robot()) :: :ok | {:error, :no_robot}
@@ -189,6 +232,10 @@ defmodule ThinkingCap.Sim do
   @spec walkers(sim()) :: %{term() => {float(), float()}}
   def walkers(sim), do: GenServer.call(sim, :walkers)
 
+  @doc "The walkers as discs `{x, y, radius}`, in order of id."
+  @spec walker_discs(sim()) :: [{float(), float(), float()}]
+  def walker_discs(sim), do: GenServer.call(sim, :walker_discs)
+
   @doc """
   Moves a robot to `pose` (a point, a pose or a waypoint's name) without
   its knowing: its odometry carries on from where it was, as when a robot
@@ -226,7 +273,8 @@ defmodule ThinkingCap.Sim do
 
   @doc """
   The clock (`time`, `steps`, `step`, `speed`, `mode`, `running`, `lagged`
-  releases in real-time mode), `robots`, `walkers`, `shards`, `handovers`
+  releases in real-time mode), `robots`, `walkers`, `shards`, `nodes`,
+  `node_handovers` and `ghosts` (see "Across nodes"), `handovers`
   (robots moved from one shard to another, see `:regroup_every`), `rays`
   cast (primary rays: cone rays and beams, bounces not counted) and
   `blocked` robot-steps (moves refused because of a contact).

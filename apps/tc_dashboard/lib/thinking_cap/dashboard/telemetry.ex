@@ -8,7 +8,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   last saw (`changes_since/1`), so a slow browser gets fewer, fresher frames
   and never a queue, and the blackboard's writers never wait for a browser.
 
-  Streams: `#{inspect(~w(sim_pose pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology black_box_dump)a)}`
+  Streams: `#{inspect(~w(sim_pose sim_walkers pose odom laser sonar lps plan activation control robot bumper beacons estop timing door map particles topology black_box_dump)a)}`
   (`{tag, id, payload}` tuples, keyed `"tag/id"`), plus `modules/all`, the
   modules running in the cluster, once a second, with those whose layer
   gave up (`{:module_gave_up, robot, _}`, `ThinkingCap.Runtime.Supervision`)
@@ -30,6 +30,7 @@ defmodule ThinkingCap.Dashboard.Telemetry do
   # the vocabulary's streams, and the sensors' conventional names
   @streams [
     Tuples.tag(:sim_pose),
+    Tuples.tag(:sim_walkers),
     Tuples.tag(:pose),
     :odom,
     :laser,

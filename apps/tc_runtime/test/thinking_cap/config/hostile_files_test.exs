@@ -118,8 +118,11 @@ defmodule ThinkingCap.Config.HostileFilesTest do
             {:ok, _} ->
               true
 
-            {:error, [_ | _] = errors} ->
-              length(errors) <= 51 and Enum.all?(errors, &(&1.file == path))
+            # each error names the file read, or the map a WDF names (the
+            # fleet example's, not beside the copy): after the WDF's own
+            {:error, [first | _] = errors} ->
+              length(errors) <= 51 and first.file == path and
+                Enum.all?(errors, &(&1.file == path or Path.extname(&1.file) in ~w(.yaml .pgm)))
           end
         rescue
           # PropEr (as Debian ships it) cannot report an exception itself

@@ -44,6 +44,9 @@ defmodule ThinkingCap.Sim.Core.Body do
       rng: rng,
       sensors: sensors,
       sink: sink,
+      # the readings published on the blackboard whatever the simulation's
+      # publish: option (a fleet shown on the dashboard by its poses)
+      publish: Map.get(spec, :publish, MapSet.new()),
       cstate: cstate,
       rays: 0
     }

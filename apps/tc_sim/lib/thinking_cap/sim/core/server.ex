@@ -11,7 +11,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim.{Raycast, World}
-  alias ThinkingCap.Sim.Core.{Contacts, Regions, Shard, Walkers}
+  alias ThinkingCap.Sim.Core.{Contacts, Ghosts, Region, Regions, Shard, Walkers}
 
   # robots per shard before more shards start: a shard rebuilds its
   # robots' state every step, and a large process heap makes each garbage
@@ -21,11 +21,21 @@ defmodule ThinkingCap.Sim.Core.Server do
   @per_shard 16
   # steps between two regroupings of the robots by place (Regions)
   @regroup_every 50
+  # added to the longest sensor reach for the ghosts of a region: a move's
+  # length within a step, with room to spare
+  @ghost_slack 0.5
 
   def start_link(opts) do
     case Keyword.fetch(opts, :name) do
       {:ok, name} -> GenServer.start_link(__MODULE__, opts, name: name)
       :error -> GenServer.start_link(__MODULE__, opts)
+    end
+  end
+
+  def start(opts) do
+    case Keyword.fetch(opts, :name) do
+      {:ok, name} -> GenServer.start(__MODULE__, opts, name: name)
+      :error -> GenServer.start(__MODULE__, opts)
     end
   end
 
@@ -38,7 +48,9 @@ defmodule ThinkingCap.Sim.Core.Server do
          {:ok, n_shards} <- count(opts, :shards, System.schedulers_online()),
          {:ok, per_shard} <- count(opts, :per_shard, @per_shard),
          {:ok, regroup_every} <- count(opts, :regroup_every, @regroup_every),
-         {:ok, world} <- world(Keyword.fetch(opts, :world)) do
+         {:ok, world} <- world(Keyword.fetch(opts, :world)),
+         {:ok, nodes} <- nodes(opts),
+         {:ok, borders} <- borders(opts, nodes, world) do
       counters = :counters.new(2, [:write_concurrency])
 
       shard_opts = [
@@ -50,49 +62,188 @@ defmodule ThinkingCap.Sim.Core.Server do
         counters: counters
       ]
 
-      shards =
-        for _ <- 1..n_shards do
-          {:ok, pid} = Shard.start_link(shard_opts)
-          pid
-        end
+      case start_shards(nodes, opts, n_shards, shard_opts) do
+        {:ok, shards, regions} ->
+          start_state(opts, %{
+            shards: shards,
+            regions: regions,
+            borders: borders,
+            shard_opts: shard_opts,
+            n_shards: n_shards,
+            per_shard: per_shard,
+            regroup_every: regroup_every,
+            world: world,
+            mode: mode,
+            dt: dt,
+            speed: speed,
+            seed: seed,
+            counters: counters
+          })
 
-      state = %{
-        shard_opts: shard_opts,
-        # shards start this many at a time, each taking per_shard robots
-        grow_by: n_shards,
-        per_shard: per_shard,
-        regroup_every: regroup_every,
-        # robots per shard
-        load: Map.new(shards, &{&1, 0}),
-        world: world,
-        initial_doors: world.doors,
-        mode: mode,
-        dt: dt,
-        speed: speed,
-        seed: seed,
-        step: 0,
-        running: Keyword.get(opts, :running, true),
-        shards: List.to_tuple(shards),
-        robots: %{},
-        # shard => its robots' body records
-        records: %{},
-        free_indexes: [],
-        next_index: 0,
-        counters: counters,
-        lagged: 0,
-        handovers: 0,
-        activity: nil,
-        target: nil,
-        started_at: System.monotonic_time(),
-        walkers: %{}
-      }
-
-      case start_walkers(state, Keyword.get(opts, :walkers, []), world) do
-        {:ok, state} -> {:ok, schedule(state)}
-        {:error, message} -> {:stop, "ThinkingCap.Sim: " <> message}
+        {:error, message} ->
+          {:stop, message}
       end
     else
       {:error, message} -> {:stop, message}
+    end
+  end
+
+  defp start_state(opts, s) do
+    %{shards: shards, shard_opts: shard_opts, n_shards: n_shards, per_shard: per_shard} = s
+    %{regroup_every: regroup_every, world: world, mode: mode, dt: dt, speed: speed} = s
+    %{seed: seed, counters: counters} = s
+
+    state = %{
+      shard_opts: shard_opts,
+      # shards start this many at a time, each taking per_shard robots
+      grow_by: n_shards,
+      per_shard: per_shard,
+      regroup_every: regroup_every,
+      # robots per shard
+      load: Map.new(shards, &{&1, 0}),
+      world: world,
+      initial_doors: world.doors,
+      mode: mode,
+      dt: dt,
+      speed: speed,
+      seed: seed,
+      step: 0,
+      running: Keyword.get(opts, :running, true),
+      shards: List.to_tuple(shards),
+      robots: %{},
+      # shard => its robots' body records
+      records: %{},
+      free_indexes: [],
+      next_index: 0,
+      counters: counters,
+      lagged: 0,
+      handovers: 0,
+      activity: nil,
+      target: nil,
+      started_at: System.monotonic_time(),
+      walkers: %{},
+      # across nodes: [{node, region}] in node order, shards to start at
+      # a time on each node, the strips' borders, the ghosts' reach
+      regions: s.regions,
+      grow_by_node: grow_by_node(shards),
+      borders: s.borders,
+      reach: 0.0,
+      node_handovers: 0,
+      ghosts: 0
+    }
+
+    case start_walkers(state, Keyword.get(opts, :walkers, []), world) do
+      {:ok, state} -> {:ok, schedule(state)}
+      {:error, message} -> {:stop, "ThinkingCap.Sim: " <> message}
+    end
+  end
+
+  defp grow_by_node(shards),
+    do: shards |> Enum.group_by(&node/1) |> Map.new(fn {n, list} -> {n, length(list)} end)
+
+  # the shards of a one-node simulation, or a region on each node (its
+  # own world and shards: `:shards` per node, default its schedulers)
+  defp start_shards(nil, _opts, n_shards, shard_opts) do
+    shards =
+      for _ <- 1..n_shards do
+        {:ok, pid} = Shard.start_link(shard_opts)
+        pid
+      end
+
+    {:ok, shards, nil}
+  end
+
+  defp start_shards(nodes, opts, _n_shards, shard_opts) do
+    region_opts = [
+      server: self(),
+      world: region_world(Keyword.fetch!(opts, :world)),
+      shards: opts[:shards],
+      dt: shard_opts[:dt],
+      seed: shard_opts[:seed],
+      publish: shard_opts[:publish]
+    ]
+
+    Enum.reduce_while(nodes, {:ok, []}, fn node, {:ok, acc} ->
+      case start_region(node, region_opts) do
+        {:ok, pid} -> {:cont, {:ok, [{node, pid} | acc]}}
+        {:error, message} -> {:halt, {:error, message, acc}}
+      end
+    end)
+    |> case do
+      {:ok, regions} ->
+        regions = Enum.reverse(regions)
+        shards = Enum.flat_map(regions, fn {_node, pid} -> GenServer.call(pid, :shards) end)
+        {:ok, shards, regions}
+
+      {:error, message, started} ->
+        for {_node, pid} <- started, do: Process.exit(pid, :shutdown)
+        {:error, message}
+    end
+  end
+
+  defp start_region(node, opts) do
+    case :erpc.call(node, Region, :start, [opts], 60_000) do
+      {:ok, pid} ->
+        Process.link(pid)
+        {:ok, pid}
+
+      {:error, reason} ->
+        {:error, "ThinkingCap.Sim: node #{inspect(node)}: #{reason_text(reason)}"}
+    end
+  catch
+    :error, {:erpc, reason} ->
+      {:error, "ThinkingCap.Sim: node #{inspect(node)} cannot be reached (#{inspect(reason)})"}
+
+    :error, {:exception, e, _} ->
+      {:error, "ThinkingCap.Sim: node #{inspect(node)}: #{Exception.message(e)}"}
+  end
+
+  defp reason_text(reason) when is_binary(reason), do: reason
+  defp reason_text(reason), do: inspect(reason)
+
+  # a region builds its own world: from the WDF (a path, or the WDF a
+  # world was built from)
+  defp region_world(%World{wdf: wdf}), do: wdf
+  defp region_world(path) when is_binary(path), do: Path.expand(path)
+  defp region_world(wdf), do: wdf
+
+  defp nodes(opts) do
+    case Keyword.get(opts, :nodes) do
+      nil ->
+        {:ok, nil}
+
+      [_ | _] = nodes ->
+        if Enum.all?(nodes, &is_atom/1) and nodes == Enum.uniq(nodes),
+          do: {:ok, nodes},
+          else: {:error, "ThinkingCap.Sim: nodes: #{inspect(nodes)} is not a list of nodes"}
+
+      other ->
+        {:error, "ThinkingCap.Sim: nodes: #{inspect(other, limit: 5)} is not a list of nodes"}
+    end
+  end
+
+  defp borders(_opts, nil, _world), do: {:ok, []}
+
+  defp borders(opts, nodes, world) do
+    n = length(nodes)
+
+    case Keyword.get(opts, :borders) do
+      nil ->
+        case world.bounds do
+          {{x0, _}, {x1, _}} -> {:ok, Ghosts.even_borders({x0, x1}, n)}
+          nil -> {:ok, Ghosts.even_borders({-1.0, 1.0}, n)}
+        end
+
+      list when is_list(list) ->
+        if length(list) == n - 1 and Enum.all?(list, &is_number/1) and list == Enum.sort(list),
+          do: {:ok, Enum.map(list, &(&1 * 1.0))},
+          else:
+            {:error,
+             "ThinkingCap.Sim: borders: #{inspect(list, limit: 5)} is not #{n - 1} ascending " <>
+               "numbers (one between each two of the #{n} nodes)"}
+
+      other ->
+        {:error, "ThinkingCap.Sim: borders: #{inspect(other, limit: 5)} is not a list of numbers"}
     end
   end
 
@@ -155,6 +306,18 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   defp ok_or({:ok, value}, _reason), do: {:ok, value}
   defp ok_or(:error, reason), do: {:error, reason}
+
+  # across nodes a region's world holds only the bodies near its robots:
+  # a robot carried elsewhere is checked against every body here first
+  defp free_here(%{regions: nil}, _shard, _id, _index, _pose), do: :ok
+
+  defp free_here(state, shard, id, index, {x, y, _} = pose) do
+    {:ok, radius} = GenServer.call(shard, {:get, id, :radius})
+
+    if World.free?(state.world, {x, y}, radius, index),
+      do: :ok,
+      else: {:error, {:occupied, pose}}
+  end
 
   defp occupied(pose), do: "ThinkingCap.Sim: #{inspect(pose)} overlaps a wall or a robot"
 
@@ -229,7 +392,7 @@ defmodule ThinkingCap.Sim.Core.Server do
     ref = make_ref()
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
-    Enum.each(shards, &GenServer.cast(&1, {:move, ref}))
+    state = start_moves(state, shards, ref)
     moves = collect_moves(ref, length(shards), [])
     taken_back = Contacts.taken_back(moves)
     Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
@@ -240,9 +403,57 @@ defmodule ThinkingCap.Sim.Core.Server do
     state
   end
 
+  # The first phase of a step. On one node the shards move at once; across
+  # nodes each region first gets the bodies it must see (its robots and
+  # their ghosts, Ghosts), then tells its shards to move.
+  defp start_moves(%{regions: nil} = state, shards, ref) do
+    Enum.each(shards, &GenServer.cast(&1, {:move, ref}))
+    state
+  end
+
+  defp start_moves(state, _shards, ref) do
+    own =
+      Enum.reduce(state.records, Map.new(state.regions, &{elem(&1, 0), []}), fn {shard, bin},
+                                                                                acc ->
+        Map.update!(acc, node(shard), &[bin | &1])
+      end)
+
+    walkers =
+      for {_id, %{at: {x, y}} = w} <- state.walkers,
+          into: <<>>,
+          do: Raycast.body_record(w.index, x, y, w.radius)
+
+    bodies = Ghosts.bodies(own, walkers, state.reach)
+    for {node, pid} <- state.regions, do: send(pid, {:move, ref, state.next_index, bodies[node]})
+    held = bodies |> Map.values() |> Enum.map(&Ghosts.count/1) |> Enum.sum()
+    %{state | ghosts: held - map_size(state.robots)}
+  end
+
   # Every regroup_every steps, robots near each other go to the same shard
   # (Regions): a shard then casts over one part of the map at a time.
+  # Across nodes, a robot first goes to the node of the strip it is in (a
+  # handover across a region's border), then to a shard of that node by
+  # place.
   defp regroup(%{step: step, regroup_every: every} = state) when rem(step, every) != 0, do: state
+
+  defp regroup(%{regions: [_ | _]} = state) do
+    by_index = Map.new(state.robots, fn {id, {index, _shard}} -> {index, id} end)
+    current = Map.new(state.robots, fn {id, {_index, shard}} -> {id, shard} end)
+    shards = Tuple.to_list(state.shards)
+
+    for(
+      {_shard, bin} <- state.records,
+      <<i::float-native-64, x::float-native-64, y::float-native-64, _::float-native-64 <- bin>>,
+      do: {Map.fetch!(by_index, trunc(i)), trunc(i), x, y}
+    )
+    |> Enum.group_by(fn {_id, _i, x, _y} -> region_node(state, x) end)
+    |> Enum.sort()
+    |> Enum.flat_map(fn {node, robots} ->
+      Regions.plan(robots, Enum.filter(shards, &(node(&1) == node)), current)
+    end)
+    |> Enum.reduce(state, &hand_over/2)
+  end
+
   defp regroup(state) when tuple_size(state.shards) < 2, do: state
 
   defp regroup(state) do
@@ -275,8 +486,15 @@ defmodule ThinkingCap.Sim.Core.Server do
       | robots: robots,
         records: state.records |> Map.put(from, from_records) |> Map.put(to, to_records),
         load: state.load |> Map.update!(from, &(&1 - n)) |> Map.update!(to, &(&1 + n)),
-        handovers: state.handovers + n
+        handovers: state.handovers + n,
+        node_handovers: state.node_handovers + if(node(from) == node(to), do: 0, else: n)
     }
+  end
+
+  # the node whose strip holds x
+  defp region_node(state, x) do
+    {node, _pid} = Enum.at(state.regions, Ghosts.strip(state.borders, x))
+    node
   end
 
   ## Walkers
@@ -388,6 +606,7 @@ defmodule ThinkingCap.Sim.Core.Server do
          {:ok, description} <- description(opts),
          {:ok, pose} <- World.resolve_pose(state.world, Keyword.get(opts, :at)),
          {:ok, sink} <- sink(opts),
+         {:ok, publish} <- publish(opts),
          :ok <- free(state, pose, description) do
       {index, state} = take_index(state)
 
@@ -397,10 +616,11 @@ defmodule ThinkingCap.Sim.Core.Server do
         description: description,
         pose: pose,
         sink: sink,
+        publish: publish,
         seed: Keyword.get(opts, :seed, :erlang.phash2({state.seed, id}))
       }
 
-      {shard, state} = pick_shard(state)
+      {shard, state} = pick_shard(state, pose)
       # the shard starts the robot's controller (a lock-step module stack may
       # build its maps first): within add_robot/3's own 30 s
       {:ok, records} = GenServer.call(shard, {:add, spec}, 28_000)
@@ -409,7 +629,8 @@ defmodule ThinkingCap.Sim.Core.Server do
         state
         | robots: Map.put(state.robots, id, {index, shard}),
           records: Map.put(state.records, shard, records),
-          load: Map.update!(state.load, shard, &(&1 + 1))
+          load: Map.update!(state.load, shard, &(&1 + 1)),
+          reach: max(state.reach, reach(description))
       }
 
       set_bodies(state)
@@ -462,9 +683,15 @@ defmodule ThinkingCap.Sim.Core.Server do
   def handle_call(:walkers, _from, state),
     do: {:reply, Map.new(state.walkers, fn {id, w} -> {id, w.at} end), state}
 
+  def handle_call(:walker_discs, _from, state) do
+    discs = for {_id, %{at: {x, y}} = w} <- Enum.sort(state.walkers), do: {x, y, w.radius}
+    {:reply, discs, state}
+  end
+
   def handle_call({:teleport, id, at}, _from, state) do
-    with {:ok, {_index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
+    with {:ok, {index, shard}} <- Map.fetch(state.robots, id) |> ok_or(:no_robot),
          {:ok, pose} <- World.resolve_pose(state.world, at),
+         :ok <- free_here(state, shard, id, index, pose),
          {:ok, records} <- GenServer.call(shard, {:teleport, id, pose}) do
       state = %{state | records: Map.put(state.records, shard, records)}
       set_bodies(state)
@@ -475,6 +702,9 @@ defmodule ThinkingCap.Sim.Core.Server do
     end
   end
 
+  def handle_call(:placement, _from, state),
+    do: {:reply, Map.new(state.robots, fn {id, {_index, shard}} -> {id, node(shard)} end), state}
+
   def handle_call({:attach, id, owner}, _from, state) do
     case state.robots do
       %{^id => {_index, shard}} -> {:reply, GenServer.call(shard, {:attach, id, owner}), state}
@@ -484,8 +714,12 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_call({:set_door, door, open?}, _from, state) do
     case World.set_door(state.world, door, open?) do
-      {:ok, world} ->
+      {:ok, world} when state.regions == nil ->
         Enum.each(Tuple.to_list(state.shards), &GenServer.cast(&1, {:world, world}))
+        {:reply, :ok, %{state | world: world}}
+
+      {:ok, world} ->
+        for {_node, pid} <- state.regions, do: :ok = GenServer.call(pid, {:set_door, door, open?})
         {:reply, :ok, %{state | world: world}}
 
       {:error, message} ->
@@ -514,9 +748,19 @@ defmodule ThinkingCap.Sim.Core.Server do
       end)
 
     records =
-      Map.new(Tuple.to_list(state.shards), fn shard ->
-        {shard, GenServer.call(shard, {:reset, world}, 30_000)}
-      end)
+      case state.regions do
+        nil ->
+          Map.new(Tuple.to_list(state.shards), fn shard ->
+            {shard, GenServer.call(shard, {:reset, world}, 30_000)}
+          end)
+
+        regions ->
+          doors = Map.new(state.initial_doors, fn {name, %{open: open}} -> {name, open} end)
+
+          regions
+          |> Enum.map(fn {_node, pid} -> GenServer.call(pid, {:reset, doors}, 60_000) end)
+          |> Enum.reduce(%{}, &Map.merge/2)
+      end
 
     walkers = Map.new(state.walkers, fn {id, w} -> {id, %{w | at: w.start, leg: 1, dir: 1}} end)
 
@@ -565,6 +809,16 @@ defmodule ThinkingCap.Sim.Core.Server do
   def handle_call(:world, _from, state), do: {:reply, state.world, state}
 
   def handle_call(:status, _from, state) do
+    {rays, blocked} =
+      Enum.reduce(
+        state.regions || [],
+        {:counters.get(state.counters, 1), :counters.get(state.counters, 2)},
+        fn {_node, pid}, {r, b} ->
+          {r2, b2} = GenServer.call(pid, :counters)
+          {r + r2, b + b2}
+        end
+      )
+
     {:reply,
      %{
        time: state.step * state.dt,
@@ -578,8 +832,11 @@ defmodule ThinkingCap.Sim.Core.Server do
        shards: tuple_size(state.shards),
        lagged: state.lagged,
        handovers: state.handovers,
-       rays: :counters.get(state.counters, 1),
-       blocked: :counters.get(state.counters, 2)
+       rays: rays,
+       blocked: blocked,
+       nodes: if(state.regions, do: Enum.map(state.regions, &elem(&1, 0)), else: [node()]),
+       node_handovers: state.node_handovers,
+       ghosts: state.ghosts
      }, state}
   end
 
@@ -600,6 +857,7 @@ defmodule ThinkingCap.Sim.Core.Server do
     Raycast.set_bodies(state.world.raycast, [])
     # a normal stop does not end the linked shards
     for pid <- Tuple.to_list(state.shards), do: Process.exit(pid, :shutdown)
+    for {_node, pid} <- state.regions || [], do: Process.exit(pid, :shutdown)
     :ok
   end
 
@@ -631,6 +889,18 @@ defmodule ThinkingCap.Sim.Core.Server do
     end
   end
 
+  defp publish(opts) do
+    case Keyword.get(opts, :publish, []) do
+      list when is_list(list) ->
+        if Enum.all?(list, &is_atom/1),
+          do: {:ok, MapSet.new(list)},
+          else: {:error, "publish: #{inspect(list, limit: 5)} is not a list of sensor names"}
+
+      other ->
+        {:error, "publish: #{inspect(other, limit: 5)} is not a list of sensor names"}
+    end
+  end
+
   defp controller(module, args) do
     if Code.ensure_loaded?(module) and function_exported?(module, :control, 2),
       do: {:ok, {:controller, module, args}},
@@ -647,7 +917,24 @@ defmodule ThinkingCap.Sim.Core.Server do
   # every shard holds per_shard robots, the first of grow_by new ones (as
   # many as the shards at the start: a multiple of the schedulers by
   # default); a new shard's world is the current one (doors as they are)
-  defp pick_shard(state) do
+  defp pick_shard(%{regions: [_ | _]} = state, {x, _, _}) do
+    node = region_node(state, x)
+    shards = state.shards |> Tuple.to_list() |> Enum.filter(&(node(&1) == node))
+    shard = Enum.min_by(shards, &state.load[&1])
+
+    if state.load[shard] < state.per_shard do
+      {shard, state}
+    else
+      {^node, region} = List.keyfind(state.regions, node, 0)
+      new = GenServer.call(region, {:grow, state.grow_by_node[node]}, 30_000)
+      rank = Map.new(Enum.with_index(state.regions), fn {{n, _}, i} -> {n, i} end)
+      all = Enum.sort_by(Tuple.to_list(state.shards) ++ new, &rank[node(&1)])
+      load = Enum.reduce(new, state.load, &Map.put(&2, &1, 0))
+      {hd(new), %{state | shards: List.to_tuple(all), load: load}}
+    end
+  end
+
+  defp pick_shard(state, _pose) do
     shards = Tuple.to_list(state.shards)
     shard = Enum.min_by(shards, &state.load[&1])
 
@@ -665,6 +952,19 @@ defmodule ThinkingCap.Sim.Core.Server do
       load = Enum.reduce(new, state.load, &Map.put(&2, &1, 0))
       {hd(new), %{state | shards: List.to_tuple(shards ++ new), load: load}}
     end
+  end
+
+  # how far from its centre a robot's sensors, moves and contacts can
+  # touch another body: a region holds the ghosts within this of its robots
+  defp reach(description) do
+    sensors =
+      for s <- description.sensors do
+        {px, py, _} = Map.get(s, :pose) || {0.0, 0.0, 0.0}
+        range = with {_min, max} <- Map.get(s, :range), do: max
+        (range || 0.0) + :math.sqrt(px * px + py * py) + (Map.get(s, :ring_radius) || 0.0)
+      end
+
+    Enum.max([0.0 | sensors]) + 2 * description.footprint.radius + @ghost_slack
   end
 
   defp take_index(%{free_indexes: [index | rest]} = state),

@@ -179,10 +179,9 @@ defmodule ThinkingCap.Sim.Core.Shard do
       _ -> :ok
     end
 
-    if publish do
-      for {sensor, payload} <- readings,
-          do: Blackboard.out(Tuples.reading(sensor, body.id, payload), key: {sensor, body.id})
-    end
+    for {sensor, payload} <- readings,
+        publish or MapSet.member?(body.publish, sensor),
+        do: Blackboard.out(Tuples.reading(sensor, body.id, payload), key: {sensor, body.id})
 
     :ok
   end

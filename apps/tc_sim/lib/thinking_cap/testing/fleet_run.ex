@@ -1,0 +1,116 @@
+defmodule ThinkingCap.Testing.FleetRun do
+  @moduledoc """
+  A fleet of wandering robots run as fast as possible, with the poses
+  sampled along the way: the same run on one node and across nodes can
+  be compared pose for pose. A function of this app (not of a test file)
+  so that it runs on a peer node too (`ThinkingCap.Testing.Cluster.call/5`).
+
+      ThinkingCap.Testing.FleetRun.run(world: wdf, description: d, robots: 40,
+                                        seconds: 20.0, sample_every: 1.0, sim: [nodes: nodes])
+  """
+
+  alias ThinkingCap.Config.RosMap
+  alias ThinkingCap.Sim
+
+  @doc """
+  Starts a simulation in `:fast` mode (`:sim` options added to `world:`,
+  `seed:`, `step:` and `walkers:`), puts `robots` robots of `description`
+  wandering (`ThinkingCap.Sim.Wander`) at free places drawn from `seed`,
+  runs `seconds` of simulated time, samples every robot's true pose
+  every `sample_every` simulated seconds, and stops. Returns
+  `%{samples: [%{id => pose}], wall: seconds, cpu: seconds, status:
+  Sim.status/1, placements: [%{id => node}]}` (the placement after each
+  sample; `wall` the time spent stepping, samples not counted, and `cpu`
+  this node's CPU time meanwhile, every scheduler's).
+  Options: `:world` (a WDF path or `ThinkingCap.Config.WDF`),
+  `:description`, `:robots`, `:seconds`, `:sample_every` (default: only
+  at the end), `:step` (default 0.1), `:seed` (default 1), `:walkers`
+  (default `[]`), `:clearance` around a start place (default 0.3), `:sim`.
+  """
+  @spec run(keyword()) :: %{
+          samples: [%{atom() => tuple()}],
+          wall: float(),
+          cpu: float(),
+          status: map(),
+          placements: [%{atom() => node()}]
+        }
+  def run(opts) do
+    d = Keyword.fetch!(opts, :description)
+    seconds = Keyword.fetch!(opts, :seconds)
+    every = Keyword.get(opts, :sample_every, seconds)
+    seed = Keyword.get(opts, :seed, 1)
+
+    sim_opts =
+      [
+        world: Keyword.fetch!(opts, :world),
+        mode: :fast,
+        running: false,
+        step: Keyword.get(opts, :step, 0.1),
+        seed: seed,
+        walkers: Keyword.get(opts, :walkers, [])
+      ] ++ Keyword.get(opts, :sim, [])
+
+    {:ok, sim} = Sim.start_link(sim_opts)
+
+    try do
+      world = Sim.world(sim)
+      rng = :rand.seed_s(:exsss, {seed, 77, 5})
+      :ok = place(sim, world, d, Keyword.fetch!(opts, :robots), opts, rng)
+
+      {samples, placements, wall, cpu} =
+        Enum.reduce(1..max(round(seconds / every), 1), {[], [], 0, 0}, fn _, {s, p, wall, cpu} ->
+          t0 = System.monotonic_time()
+          {c0, _} = :erlang.statistics(:runtime)
+          :ok = Sim.run_for(sim, every)
+          {c1, _} = :erlang.statistics(:runtime)
+          wall = wall + System.monotonic_time() - t0
+          {[Sim.robots(sim) | s], [Sim.placement(sim) | p], wall, cpu + c1 - c0}
+        end)
+
+      %{
+        samples: Enum.reverse(samples),
+        placements: Enum.reverse(placements),
+        wall: System.convert_time_unit(wall, :native, :microsecond) / 1.0e6,
+        cpu: cpu / 1000,
+        status: Sim.status(sim)
+      }
+    after
+      GenServer.stop(sim, :normal, 60_000)
+    end
+  end
+
+  defp place(_sim, _world, _d, 0, _opts, _rng), do: :ok
+
+  defp place(sim, world, d, n, opts, rng) do
+    {{x0, y0}, {x1, y1}} = world.bounds
+    {u, rng} = :rand.uniform_s(rng)
+    {v, rng} = :rand.uniform_s(rng)
+    {w, rng} = :rand.uniform_s(rng)
+    {x, y} = {x0 + u * (x1 - x0), y0 + v * (y1 - y0)}
+    clearance = Keyword.get(opts, :clearance, 0.3)
+
+    with true <- known_free?(world.wdf.grid, x, y),
+         true <- Sim.World.free?(world, {x, y}, d.footprint.radius + clearance),
+         :ok <-
+           Sim.add_robot(sim, :"r#{n}",
+             description: d,
+             at: {x, y, (w - 0.5) * 2 * :math.pi()},
+             controller: {Sim.Wander, [seed: n]}
+           ) do
+      place(sim, world, d, n - 1, opts, rng)
+    else
+      _ -> place(sim, world, d, n, opts, rng)
+    end
+  end
+
+  defp known_free?(nil, _x, _y), do: true
+
+  defp known_free?(grid, x, y) do
+    {ox, oy, _} = grid.origin
+    col = floor((x - ox) / grid.resolution)
+    row = floor((y - oy) / grid.resolution)
+
+    col >= 0 and row >= 0 and col < grid.width and row < grid.height and
+      RosMap.cell(grid, col, row) == 0
+  end
+end
