@@ -23,7 +23,6 @@ defmodule ThinkingCap.Sim.Fleet do
   """
   use ThinkingCap.Module
 
-  alias ThinkingCap.Config.RosMap
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
   alias ThinkingCap.Tuples
@@ -117,7 +116,7 @@ defmodule ThinkingCap.Sim.Fleet do
   defp add(sim, world, d, id, r, seed, rng, left) do
     {{x, y, theta}, rng} = draw(world, rng)
 
-    with true <- known_free?(world, x, y) and Sim.World.free?(world, {x, y}, r),
+    with true <- Sim.World.known_free?(world, {x, y}) and Sim.World.free?(world, {x, y}, r),
          :ok <-
            Sim.add_robot(sim, id,
              description: d,
@@ -139,18 +138,5 @@ defmodule ThinkingCap.Sim.Fleet do
     {v, rng} = :rand.uniform_s(rng)
     {w, rng} = :rand.uniform_s(rng)
     {{x0 + u * (x1 - x0), y0 + v * (y1 - y0), (w - 0.5) * 2 * :math.pi()}, rng}
-  end
-
-  # inside the building: a cell of the map known to be free (a map's
-  # unknown outside is not a place to start)
-  defp known_free?(%{wdf: %{grid: nil}}, _x, _y), do: true
-
-  defp known_free?(%{wdf: %{grid: grid}}, x, y) do
-    {ox, oy, _} = grid.origin
-    col = floor((x - ox) / grid.resolution)
-    row = floor((y - oy) / grid.resolution)
-
-    col >= 0 and row >= 0 and col < grid.width and row < grid.height and
-      RosMap.cell(grid, col, row) == 0
   end
 end

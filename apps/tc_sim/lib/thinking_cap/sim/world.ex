@@ -9,7 +9,7 @@ defmodule ThinkingCap.Sim.World do
   at a time (build another for another simulation).
   """
 
-  alias ThinkingCap.Config.WDF
+  alias ThinkingCap.Config.{RosMap, WDF}
   alias ThinkingCap.Sim.Raycast
 
   @enforce_keys [:name, :raycast]
@@ -101,6 +101,23 @@ defmodule ThinkingCap.Sim.World do
         {:error, "#{inspect(other)} is not a pose, a point or a waypoint name"}
     end
   end
+
+  @doc """
+  Whether `{x, y}` lies in a cell the world's map knows to be free
+  (`true` for a world without a map): a map's unknown outside is not a
+  place to put a robot.
+  """
+  @spec known_free?(t(), point()) :: boolean()
+  def known_free?(%__MODULE__{wdf: %WDF{grid: grid}}, {x, y}) when grid != nil do
+    {ox, oy, _} = grid.origin
+    col = floor((x - ox) / grid.resolution)
+    row = floor((y - oy) / grid.resolution)
+
+    col >= 0 and row >= 0 and col < grid.width and row < grid.height and
+      RosMap.cell(grid, col, row) == 0
+  end
+
+  def known_free?(%__MODULE__{}, _point), do: true
 
   @doc """
   Whether a disc of `radius` at `{x, y}` touches nothing (other robots

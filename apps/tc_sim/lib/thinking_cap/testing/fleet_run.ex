@@ -9,7 +9,6 @@ defmodule ThinkingCap.Testing.FleetRun do
                                         seconds: 20.0, sample_every: 1.0, sim: [nodes: nodes])
   """
 
-  alias ThinkingCap.Config.RosMap
   alias ThinkingCap.Sim
 
   @doc """
@@ -89,7 +88,7 @@ defmodule ThinkingCap.Testing.FleetRun do
     {x, y} = {x0 + u * (x1 - x0), y0 + v * (y1 - y0)}
     clearance = Keyword.get(opts, :clearance, 0.3)
 
-    with true <- known_free?(world.wdf.grid, x, y),
+    with true <- Sim.World.known_free?(world, {x, y}),
          true <- Sim.World.free?(world, {x, y}, d.footprint.radius + clearance),
          :ok <-
            Sim.add_robot(sim, :"r#{n}",
@@ -101,16 +100,5 @@ defmodule ThinkingCap.Testing.FleetRun do
     else
       _ -> place(sim, world, d, n, opts, rng)
     end
-  end
-
-  defp known_free?(nil, _x, _y), do: true
-
-  defp known_free?(grid, x, y) do
-    {ox, oy, _} = grid.origin
-    col = floor((x - ox) / grid.resolution)
-    row = floor((y - oy) / grid.resolution)
-
-    col >= 0 and row >= 0 and col < grid.width and row < grid.height and
-      RosMap.cell(grid, col, row) == 0
   end
 end
