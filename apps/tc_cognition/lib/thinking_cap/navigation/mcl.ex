@@ -756,12 +756,7 @@ defmodule ThinkingCap.Navigation.MCL do
         "a place away fits it better by #{gain} per beam)"
     )
 
-    # a share kept at each of the next best places: a scan among like
-    # racks or rooms, or boxes the map lacks, may make a wrong place fit
-    # best, and only the moves to come tell
-    {filter, best} =
-      ParticleFilter.relocalize_to(state.filter, found, seed: state.params[:seed], floor: 0.05)
-
+    {filter, best} = ParticleFilter.relocalize_to(state.filter, found, seed: state.params[:seed])
     if best, do: Logger.info("#{inspect(state.robot)}: best fit at #{place(best)}")
 
     %{

@@ -350,11 +350,8 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   σ_θ}` option `sigma`, default `{0.1, 0.05}`), the better poses with
   more: in proportion to their likelihood over the best's, tempered (a
   scan alone may not tell two places apart: the moves to come will).
-  Option `floor` (default 0.0): the share of the particles each of the
-  next best four candidates gets at least, so that a place a scan
-  happens to fit worse is still there when the moves tell. Returns the
-  filter and the best pose, or the filter unchanged and nil without a
-  candidate.
+  Returns the filter and the best pose, or the filter unchanged and nil
+  without a candidate.
   """
   @spec relocalize_to(t(), [{float(), float(), float(), float()}], keyword()) ::
           {t(), pose() | nil}
@@ -364,14 +361,6 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   def relocalize_to(%__MODULE__{} = pf, [{best_ll, bx, by, bth} | _] = found, opts) do
     {s_xy, s_th} = Keyword.get(opts, :sigma, {0.1, 0.05})
     weights = Enum.map(found, fn {ll, _, _, _} -> :math.exp(max((ll - best_ll) / 4, -30.0)) end)
-    total = Enum.sum(weights)
-    floor = Keyword.get(opts, :floor, 0.0)
-
-    weights =
-      weights
-      |> Enum.with_index()
-      |> Enum.map(fn {w, i} -> if i in 1..4, do: max(w, floor * total), else: w end)
-
     total = Enum.sum(weights)
     rng = :rand.seed_s(:exsss, {Keyword.get(opts, :seed, 1), 5, 5})
 
