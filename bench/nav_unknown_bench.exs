@@ -75,7 +75,7 @@ defmodule ThinkingCap.Bench.NavUnknown do
           end)
 
         results = Enum.reject(results, &is_nil/1)
-        print(name, results)
+        print(name, results, dump: true)
         results
       end)
 
@@ -194,7 +194,9 @@ defmodule ThinkingCap.Bench.NavUnknown do
     world
   end
 
-  defp print(label, results) do
+  # `dump: true` (once per map, not again for the total) appends the
+  # replans to TC_REPLANS's file
+  defp print(label, results, opts \\ []) do
     s = NavRun.summary(results)
 
     repairs =
@@ -207,7 +209,7 @@ defmodule ThinkingCap.Bench.NavUnknown do
     restarts = Enum.count(repairs, &(&1.kind == :restart))
     jumps = Enum.count(repairs, &(&1.kind == :jump))
 
-    if path = System.get_env("TC_REPLANS"),
+    if (path = System.get_env("TC_REPLANS")) && opts[:dump],
       do: File.write!(path, Enum.map(repairs, &(inspect(&1) <> "\n")), [:append])
 
     astar = NavRun.mean(Enum.map(repairs, & &1.astar_cpu_us))
