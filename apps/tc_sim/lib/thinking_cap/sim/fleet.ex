@@ -114,7 +114,7 @@ defmodule ThinkingCap.Sim.Fleet do
     do: {:error, "no free place for #{inspect(id)} in #{world.name} after #{@attempts} draws"}
 
   defp add(sim, world, d, id, r, seed, rng, left) do
-    {{x, y, theta}, rng} = draw(world, rng)
+    {{x, y, theta}, rng} = Sim.World.random_pose(world, rng)
 
     with true <- Sim.World.known_free?(world, {x, y}) and Sim.World.free?(world, {x, y}, r),
          :ok <-
@@ -128,15 +128,5 @@ defmodule ThinkingCap.Sim.Fleet do
     else
       _ -> add(sim, world, d, id, r, seed, rng, left - 1)
     end
-  end
-
-  defp draw(%{bounds: nil}, rng), do: {{0.0, 0.0, 0.0}, rng}
-
-  defp draw(world, rng) do
-    {{x0, y0}, {x1, y1}} = world.bounds
-    {u, rng} = :rand.uniform_s(rng)
-    {v, rng} = :rand.uniform_s(rng)
-    {w, rng} = :rand.uniform_s(rng)
-    {{x0 + u * (x1 - x0), y0 + v * (y1 - y0), (w - 0.5) * 2 * :math.pi()}, rng}
   end
 end

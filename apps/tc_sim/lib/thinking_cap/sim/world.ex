@@ -103,6 +103,22 @@ defmodule ThinkingCap.Sim.World do
   end
 
   @doc """
+  A pose drawn uniformly within the world's bounds (any heading), and
+  the next state of `rng` (`:rand` state): the start of a search for a
+  free place, with `known_free?/2` and `free?/3`. The origin for a world
+  without bounds.
+  """
+  @spec random_pose(t(), :rand.state()) :: {{float(), float(), float()}, :rand.state()}
+  def random_pose(%__MODULE__{bounds: nil}, rng), do: {{0.0, 0.0, 0.0}, rng}
+
+  def random_pose(%__MODULE__{bounds: {{x0, y0}, {x1, y1}}}, rng) do
+    {u, rng} = :rand.uniform_s(rng)
+    {v, rng} = :rand.uniform_s(rng)
+    {w, rng} = :rand.uniform_s(rng)
+    {{x0 + u * (x1 - x0), y0 + v * (y1 - y0), (w - 0.5) * 2 * :math.pi()}, rng}
+  end
+
+  @doc """
   Whether `{x, y}` lies in a cell the world's map knows to be free
   (`true` for a world without a map): a map's unknown outside is not a
   place to put a robot.

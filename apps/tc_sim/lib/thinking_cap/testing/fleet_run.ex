@@ -81,11 +81,7 @@ defmodule ThinkingCap.Testing.FleetRun do
   defp place(_sim, _world, _d, 0, _opts, _rng), do: :ok
 
   defp place(sim, world, d, n, opts, rng) do
-    {{x0, y0}, {x1, y1}} = world.bounds
-    {u, rng} = :rand.uniform_s(rng)
-    {v, rng} = :rand.uniform_s(rng)
-    {w, rng} = :rand.uniform_s(rng)
-    {x, y} = {x0 + u * (x1 - x0), y0 + v * (y1 - y0)}
+    {{x, y, theta}, rng} = Sim.World.random_pose(world, rng)
     clearance = Keyword.get(opts, :clearance, 0.3)
 
     with true <- Sim.World.known_free?(world, {x, y}),
@@ -93,7 +89,7 @@ defmodule ThinkingCap.Testing.FleetRun do
          :ok <-
            Sim.add_robot(sim, :"r#{n}",
              description: d,
-             at: {x, y, (w - 0.5) * 2 * :math.pi()},
+             at: {x, y, theta},
              controller: {Sim.Wander, [seed: n]}
            ) do
       place(sim, world, d, n - 1, opts, rng)

@@ -25,6 +25,33 @@ defmodule ThinkingCap.Sim.WorldTest do
     refute World.known_free?(world, {ox - 1.0, oy})
   end
 
+  test "random_pose draws within the bounds, any heading, the same for the same seed" do
+    {:ok, world} = World.load(@wdf)
+    {{x0, y0}, {x1, y1}} = world.bounds
+
+    draw = fn seed ->
+      rng = :rand.seed_s(:exsss, {seed, 1, 1})
+
+      {poses, _} = Enum.map_reduce(1..200, rng, fn _, rng -> World.random_pose(world, rng) end)
+
+      poses
+    end
+
+    poses = draw.(3)
+    assert poses == draw.(3)
+    refute poses == draw.(4)
+
+    assert Enum.all?(poses, fn {x, y, th} ->
+             x >= x0 and x <= x1 and y >= y0 and y <= y1 and th >= -:math.pi() and
+               th <= :math.pi()
+           end)
+
+    # spread over the bounds, not stuck in a corner
+    {xs, ys} = {Enum.map(poses, &elem(&1, 0)), Enum.map(poses, &elem(&1, 1))}
+    assert Enum.max(xs) - Enum.min(xs) > 0.8 * (x1 - x0)
+    assert Enum.max(ys) - Enum.min(ys) > 0.8 * (y1 - y0)
+  end
+
   test "a world without a map is free everywhere it knows" do
     {:ok, world} = World.from_wdf(%ThinkingCap.Config.WDF{name: "empty"})
     assert World.known_free?(world, {3.0, 4.0})
