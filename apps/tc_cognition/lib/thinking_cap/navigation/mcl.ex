@@ -148,6 +148,7 @@ defmodule ThinkingCap.Navigation.MCL do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Tuples
   require Tuples
+  alias ThinkingCap.Geometry
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
   @pair {:tuple, [:non_neg_number, :non_neg_number]}
@@ -214,6 +215,12 @@ defmodule ThinkingCap.Navigation.MCL do
   # m the robot moves after a poor scan no other place explained before
   # another search
   @quiet 0.5
+  # m the robot moves before a place away that fitted better is sought
+  # again, within how many m of travel the second search must find it, and
+  # within how many m of where the odometry carried it
+  @recheck 0.3
+  @suspect_for 3.0
+  @same 0.5
 
   @impl true
   def init(params, context) do
@@ -272,6 +279,9 @@ defmodule ThinkingCap.Navigation.MCL do
       poor: 0,
       travelled: 0.0,
       quiet_until: nil,
+      # places away a search found better while nothing contradicted the
+      # pose: a move if the next search finds them again
+      suspects: nil,
       updates: 0,
       spread: 0,
       checked: nil,
@@ -680,11 +690,16 @@ defmodule ThinkingCap.Navigation.MCL do
     best = ParticleFilter.best(filter)
     used = max(ParticleFilter.echoes(filter, beams), 1)
 
+    # the places away the last search found, where the odometry carried
+    # them, are sought again beside the lattice's
+    carried = carried(state)
+
     found =
       ParticleFilter.search(filter, beams,
         step: state.params[:search_step],
         headings: state.params[:search_headings],
-        from: best
+        from: best,
+        also: carried
       )
 
     {near, far} = Enum.split_with(found, &near?(&1, best))
@@ -700,11 +715,28 @@ defmodule ThinkingCap.Navigation.MCL do
     # places away that fit about as well as the best near one
     alike = Enum.filter(far, fn {ll, _, _, _} -> ll >= local_ll - margin end)
 
+    # the places away that fit clearly better than the best near one
+    better = Enum.filter(far, fn {ll, _, _, _} -> ll - local_ll > margin end)
+
     cond do
-      far != [] and elem(hd(far), 0) - local_ll > margin ->
+      better != [] and (contradicted?(state) or seen_before?(carried, better)) ->
         lost(state, Enum.sort_by(near ++ far, &(-elem(&1, 0))), gain(far, local, used), best)
 
-      local_ll - here > margin and alike != [] ->
+      better != [] ->
+        # nothing the laser sees contradicts the tracked pose (its beams
+        # end short of the map's walls: boxes, people, or a move): a
+        # move only if a search after the robot moved on finds the
+        # same place away again
+        Logger.info(
+          "#{inspect(state.robot)}: a place away fits the scan better at #{place(best)} " <>
+            "(#{describe_fit(state)}; by #{gain(far, local, used)} per beam), but nothing " <>
+            "seen contradicts the pose: searching again after #{@recheck} m"
+        )
+
+        suspects = %{odometry: state.last_odometry, places: better, at: state.travelled}
+        settle(%{state | poor: 0, quiet_until: state.travelled + @recheck, suspects: suspects})
+
+      local_ll - here > margin and alike != [] and contradicted?(state) ->
         # the tracked pose is wrong, and the scan fits places near and
         # away alike (a symmetric room, or boxes the map lacks): the
         # moves to come tell them apart. A robot is seldom carried away,
@@ -724,7 +756,10 @@ defmodule ThinkingCap.Navigation.MCL do
 
         state = %{state | poor: 0, quiet_until: state.travelled + @quiet}
 
-        if local_ll - here > margin do
+        # a near place that fits better while nothing contradicts the
+        # tracked pose is most likely the boxes' doing: the weighings to
+        # come are left to it
+        if local_ll - here > margin and contradicted?(state) do
           {filter, _} = ParticleFilter.relocalize_to(filter, near, seed: state.params[:seed])
           settle(%{state | filter: filter, updates: 0})
         else
@@ -733,13 +768,36 @@ defmodule ThinkingCap.Navigation.MCL do
     end
   end
 
+  # the tracked pose contradicted: more than lost_through of the beams
+  # judged pass through walls of the map
+  defp contradicted?(state), do: through?(state, state.through)
+
+  # the places away the last search found (within @suspect_for m of
+  # travel), carried by the odometry since
+  defp carried(%{suspects: nil}), do: []
+
+  defp carried(%{suspects: suspects} = state) do
+    if state.travelled - suspects.at <= @suspect_for do
+      delta = Geometry.relative(suspects.odometry, state.last_odometry)
+      for {_, x, y, th} <- suspects.places, do: Geometry.compose({x, y, th}, delta)
+    else
+      []
+    end
+  end
+
+  # a place of `found` where a place the last search found away is now
+  defp seen_before?(carried, found),
+    do: Enum.any?(carried, fn pose -> Enum.any?(found, &near?(&1, pose, @same, @near_turn)) end)
+
   # near the tracked pose: a small correction of it, in place and heading
   # (the same place turned round is another hypothesis: in a symmetric
   # map, the twin place a half turn away fits as well)
-  defp near?({_, x, y, th}, {bx, by, bth}),
+  defp near?(candidate, pose, within \\ @near, turn \\ @near_turn)
+
+  defp near?({_, x, y, th}, {bx, by, bth}, within, turn),
     do:
-      (x - bx) ** 2 + (y - by) ** 2 <= @near * @near and
-        abs(normalize_angle(th - bth)) <= @near_turn
+      (x - bx) ** 2 + (y - by) ** 2 <= within * within and
+        abs(normalize_angle(th - bth)) <= turn
 
   defp gain([], _local, _used), do: "-"
   defp gain([c | _], local, used), do: gain(elem(c, 0), local, used)
@@ -766,7 +824,8 @@ defmodule ThinkingCap.Navigation.MCL do
         spread: 0,
         status: :relocalizing,
         updates: 0,
-        quiet_until: nil
+        quiet_until: nil,
+        suspects: nil
     }
   end
 

@@ -300,7 +300,9 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
   scored with a wider sensor model and at most one per place, each
   refined on finer lattices round it while they find better, and with
   the pose `from` (default the estimate: a robot that was not moved
-  keeps its place if it fits best), refined likewise. Returns
+  keeps its place if it fits best) and the poses of option `also`
+  (default none: places an earlier search found, carried by the
+  odometry since), refined likewise. Returns
   `[{log_likelihood, x, y, θ}]` scored with the filter's sensor model,
   best first; `[]` without a map.
   """
@@ -337,6 +339,10 @@ defmodule ThinkingCap.Navigation.ParticleFilter do
     |> distinct(top)
     |> Enum.map(fn {_, x, y, th} -> {score(pf, beams, {x, y, th}), x, y, th} end)
     |> List.insert_at(0, {ll, x * 1.0, y * 1.0, th * 1.0})
+    |> Kernel.++(
+      for {x, y, th} <- Keyword.get(opts, :also, []),
+          do: {score(pf, beams, {x, y, th}), x * 1.0, y * 1.0, th * 1.0}
+    )
     |> Enum.map(fn c ->
       c
       |> then(&climb(pf, beams, &1, step / 2, turn, 4))
