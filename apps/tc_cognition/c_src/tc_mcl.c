@@ -423,29 +423,73 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     }
     int kept = 0;
     int stride = (int)fmax(1.0, round(step / f->res));
-    /* a pose needs its robot in known free space, clear of obstacles */
+    /* the lattice's poses: a robot in known free space, clear of obstacles */
+    size_t cells = 0, cap = (size_t)(r1 - r0 + stride) / stride * ((c1 - c0 + stride) / stride) + 1;
+    int *lc = malloc(cap * 2 * sizeof(int));
+    /* per cell, what a beam ending there scores (score()'s terms) */
+    size_t n = (size_t)f->w * f->h;
+    float *ll = malloc(n * sizeof(float));
+    /* per heading, each beam's endpoint from the robot's centre */
+    double *off = malloc(2 * (size_t)bs.n * sizeof(double));
+    if (!lc || !ll || !off) {
+        free(best_l), free(best_p), free(lc), free(ll), free(off);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
     for (int r = r0 + stride / 2; r <= r1; r += stride)
         for (int c = c0 + stride / 2; c <= c1; c += stride) {
             size_t i = (size_t)r * f->w + c;
             if (f->unknown[i] || f->dist[i] < 0.15) continue;
+            lc[2 * cells] = c, lc[2 * cells + 1] = r, cells++;
+        }
+    double rand_p = m.z_rand / m.range_max, two_s2 = 2.0 * m.sigma * m.sigma;
+    double neutral = log(m.z_hit * exp(-0.5) + rand_p), off_map = f->strict ? log(rand_p) : neutral;
+    for (size_t i = 0; i < n; i++) {
+        double dd = f->dist[i];
+        ll[i] = f->unknown[i] && !f->strict ? (float)neutral
+                                            : (float)log(m.z_hit * exp(-dd * dd / two_s2) + rand_p);
+    }
+    /* the best a beam can score: a pose whose sum cannot reach the
+     * worst kept one with its remaining beams at that best is dropped */
+    double top_beam = log(m.z_hit + rand_p);
+    for (int k = 0; k < headings; k++) {
+        double th = -M_PI + TWO_PI * k / headings;
+        if (fabs(tc_wrap(th - bth)) > bhalf) continue;
+        double ct = cos(th), st = sin(th);
+        int e = 0;
+        for (int i = 0; i < bs.n; i++) {
+            const double *q = bs.b + 4 * i;
+            if (!(q[3] < m.range_max)) continue;
+            off[2 * e] = ct * q[0] - st * q[1] + q[3] * cos(th + q[2]);
+            off[2 * e + 1] = st * q[0] + ct * q[1] + q[3] * sin(th + q[2]);
+            e++;
+        }
+        for (size_t j = 0; j < cells; j++) {
+            int c = lc[2 * j], r = lc[2 * j + 1];
             double x = f->ox + (c + 0.5) * f->res, y = f->oy + (r + 0.5) * f->res;
-            for (int k = 0; k < headings; k++) {
-                double th = -M_PI + TWO_PI * k / headings;
-                if (fabs(tc_wrap(th - bth)) > bhalf) continue;
-                int known;
-                double l = score(f, &bs, &m, x, y, th, &known);
-                if (kept < top || l > best_l[kept - 1]) {
-                    int j = kept < top ? kept++ : top - 1;
-                    while (j > 0 && best_l[j - 1] < l) {
-                        best_l[j] = best_l[j - 1];
-                        memcpy(best_p + 3 * j, best_p + 3 * (j - 1), 3 * sizeof(double));
-                        j--;
-                    }
-                    best_l[j] = l;
-                    best_p[3 * j] = x, best_p[3 * j + 1] = y, best_p[3 * j + 2] = th;
+            double l = 0.0, floor_l = kept < top ? -INFINITY : best_l[kept - 1];
+            int i = 0;
+            for (; i < e; i++) {
+                long col = (long)floor((x + off[2 * i] - f->ox) / f->res);
+                long row = (long)floor((y + off[2 * i + 1] - f->oy) / f->res);
+                l += col < 0 || row < 0 || col >= f->w || row >= f->h ? off_map
+                                                                       : ll[(size_t)row * f->w + col];
+                /* checked every 8 beams: it cannot make the kept ones */
+                if ((i & 7) == 7 && l + (e - 1 - i) * top_beam <= floor_l) break;
+            }
+            if (i < e) continue;
+            if (kept < top || l > best_l[kept - 1]) {
+                int at = kept < top ? kept++ : top - 1;
+                while (at > 0 && best_l[at - 1] < l) {
+                    best_l[at] = best_l[at - 1];
+                    memcpy(best_p + 3 * at, best_p + 3 * (at - 1), 3 * sizeof(double));
+                    at--;
                 }
+                best_l[at] = l;
+                best_p[3 * at] = x, best_p[3 * at + 1] = y, best_p[3 * at + 2] = th;
             }
         }
+    }
+    free(lc), free(ll), free(off);
     ERL_NIF_TERM list = enif_make_list(env, 0);
     for (int j = kept - 1; j >= 0; j--)
         list = enif_make_list_cell(

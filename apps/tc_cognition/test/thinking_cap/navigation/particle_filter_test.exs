@@ -2,6 +2,7 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.Navigation.{OccupancyGrid, ParticleFilter}
+  alias ThinkingCap.Navigation.Core.GridNif
 
   # 4 x 4 m of 0.1 m cells: a wall along x = 3.0, the strip x < 1 unknown
   defp map do
@@ -111,6 +112,48 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
     assert Enum.any?(found, fn {_, cx, cy, _} -> abs(cx - 2.5) < 0.6 and abs(cy - 3.0) < 0.6 end)
     assert {^before, _} = ParticleFilter.estimate(pf)
     assert ParticleFilter.echoes(pf, scan) == 13
+  end
+
+  test "the lattice keeps the poses that score best, as scoring each pose would" do
+    pf = filter(true)
+    # a few beams of every kind: on the wall, in the open, into the
+    # unknown strip, off the map, without echo
+    # (beyond 8 of them, the lattice drops poses that cannot make the best)
+    fan = for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)}
+    other = [{0.4, 1.3}, {-0.5, 0.7}, {:math.pi(), 1.2}, {1.2, 6.0}, {2.0, 1.0e6}]
+    scan = beams(fan ++ other ++ for(a <- 1..6, do: {a * 0.5, a * 0.4}))
+
+    model = {0.3, 0.9, 0.1, 8.0}
+
+    found = GridNif.field_search(pf.field, scan, model, 0.2, 36, 25, {0.0, 0.0, 4.0, 4.0})
+
+    # every pose of the same lattice (every second cell from the second,
+    # known free and 0.15 m or more from the wall), scored one by one
+    every =
+      for r <- 1..39//2, c <- 1..39//2, c >= 10 and abs(c - 30) >= 2, k <- 0..35 do
+        {x, y, th} = {(c + 0.5) * 0.1, (r + 0.5) * 0.1, -:math.pi() + 2 * :math.pi() * k / 36}
+        {ll, _} = GridNif.field_score(pf.field, scan, model, {x, y, th})
+        ll
+      end
+
+    best = every |> Enum.sort(:desc) |> Enum.take(25)
+    assert length(found) == 25
+
+    for {{ll, _, _, _}, expected} <- Enum.zip(found, best),
+        do: assert_in_delta(ll, expected, 1.0e-3)
+  end
+
+  test "a search refines the places it is given beside the lattice's" do
+    pf = filter(true)
+    scan = beams(for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)})
+    # a lattice far from the pose the scan was taken from; the place
+    # given near it is refined onto it
+    found = ParticleFilter.search(pf, scan, around: {{1.5, 0.5}, 0.3}, also: [{2.1, 2.1, 0.08}])
+
+    assert [{_, x, y, th} | _] = found
+    assert_in_delta x, 2.0, 0.05
+    assert_in_delta th, 0.0, 0.05
+    assert y > 1.0
   end
 
   test "the mode of a cloud split between two places stands at one of them" do
