@@ -59,10 +59,16 @@ defmodule ThinkingCap.Navigation.MCL do
   `lost_margin` (log-likelihood per beam with an echo), and the scan
   would not be poor from there, or when a place near fits better than
   the best particle by as much and places away fit about as well (a
-  symmetric room: the moves to come tell them apart). Otherwise nothing
-  moves (the particles are only spread round the places near when these
-  fit better by as much), and the robot goes on 0.5 m before it searches
-  again. A robot
+  symmetric room: the moves to come tell them apart). Both need the
+  tracked pose contradicted (more than `lost_through` of the beams
+  through walls): a scan whose beams all end short of the map's walls is
+  explained by boxes and people the map lacks as well as by a move. Then
+  a place away is a move only if the next search, 0.3 m of travel later,
+  finds it again where the odometry carried it (those places are sought
+  again beside the lattice's). Otherwise nothing moves (the particles
+  are only spread round the places near when these fit better by as
+  much and the pose is contradicted), and the robot goes on 0.5 m
+  before it searches again. A robot
   lost has its particles spread round the places found
   (`relocalizing`), and the scans after are weighed
   tempered (at most forty times, until the cloud gathers), so that
