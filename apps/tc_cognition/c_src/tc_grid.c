@@ -957,6 +957,7 @@ static ErlNifFunc funcs[] = {
     {"dsl_plan", 1, tc_nif_dsl_plan, 0},
     {"dsl_forget_path", 1, tc_nif_dsl_forget_path, 0},
     {"dsl_cpu_ns", 1, tc_nif_dsl_cpu_ns, 0},
+    {"dsl_queued", 1, tc_nif_dsl_queued, 0},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.Navigation.Core.GridNif, funcs, load, NULL, upgrade, NULL)

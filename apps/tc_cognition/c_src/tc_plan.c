@@ -417,12 +417,10 @@ typedef struct {
     int w, h;
     uint8_t *cells;
     Vertex *v;
-    /* the queue: an indexed 4-ary heap holding each inconsistent vertex
-     * once (pos: its index + 1, 0 when not queued), its key changed in
-     * place */
+    /* the queue: a 4-ary heap holding each inconsistent vertex at least
+     * once with its key, and stale entries (q_stale) */
     Queued *q;
     size_t qn, qcap;
-    int32_t *pos;
     /* a bit per vertex: looked at by the update being applied (small, so
      * it stays in cache; cleared after each update) */
     uint64_t *seen;
@@ -494,7 +492,6 @@ static void dsl_free(ErlNifEnv *env, void *obj)
     free(d->cells);
     big_free(d->v, n * sizeof(Vertex));
     free(d->q);
-    big_free(d->pos, n * sizeof(int32_t));
     free(d->seen);
     free(d->path);
     free(d->spare);
@@ -534,21 +531,15 @@ static inline int qless(const Queued *a, const Queued *b)
     return a->k1 < b->k1 || (a->k1 == b->k1 && a->k2 < b->k2);
 }
 
-static inline void q_put(Dsl *d, size_t i, Queued x)
-{
-    d->q[i] = x;
-    d->pos[x.u] = (int32_t)i + 1;
-}
-
 static void q_up(Dsl *d, size_t i, Queued x)
 {
     while (i > 0) {
         size_t p = (i - 1) / 4;
         if (!qless(&x, &d->q[p])) break;
-        q_put(d, i, d->q[p]);
+        d->q[i] = d->q[p];
         i = p;
     }
-    q_put(d, i, x);
+    d->q[i] = x;
 }
 
 static void q_down(Dsl *d, size_t i, Queued x)
@@ -561,48 +552,63 @@ static void q_down(Dsl *d, size_t i, Queued x)
         for (size_t j = c + 1; j < end; j++)
             if (qless(&d->q[j], &d->q[best])) best = j;
         if (!qless(&d->q[best], &x)) break;
-        q_put(d, i, d->q[best]);
+        d->q[i] = d->q[best];
         i = best;
     }
-    q_put(d, i, x);
+    d->q[i] = x;
 }
 
-/* queues u with this key, or moves it to this key if it is queued */
+static inline int q_stale(const Dsl *d, const Queued *e);
+
+/* the stale entries dropped and the heap made again (Floyd's) */
+static void q_compact(Dsl *d)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < d->qn; i++)
+        if (!q_stale(d, &d->q[i])) d->q[n++] = d->q[i];
+    d->qn = n;
+    for (size_t i = n > 1 ? (n - 2) / 4 + 1 : 0; i-- > 0;) q_down(d, i, d->q[i]);
+}
+
+/* queues u with this key; an entry of u queued before with another key
+ * is left in the queue, stale (see q_stale). A full queue is first
+ * rid of its stale entries, and grows only if that leaves it more than
+ * half full: stale entries that never reach the top (behind the robot)
+ * do not pile up over a long run. */
 static int q_set(Dsl *d, int32_t u, int64_t k1, int64_t k2)
 {
     Queued x = {k1, k2, u};
-    int32_t p = d->pos[u];
-    if (p) {
-        size_t i = (size_t)p - 1;
-        if (qless(&x, &d->q[i]))
-            q_up(d, i, x);
-        else
-            q_down(d, i, x);
-        return 1;
-    }
     if (d->qn == d->qcap) {
-        size_t cap = d->qcap ? 2 * d->qcap : 1024;
-        Queued *q = realloc(d->q, cap * sizeof(Queued));
-        if (!q) return 0;
-        d->q = q;
-        d->qcap = cap;
+        if (d->qcap) q_compact(d);
+        if (d->qcap == 0 || d->qn > d->qcap / 2) {
+            size_t cap = d->qcap ? 2 * d->qcap : 1024;
+            Queued *q = realloc(d->q, cap * sizeof(Queued));
+            if (!q) return 0;
+            d->q = q;
+            d->qcap = cap;
+        }
     }
     q_up(d, d->qn++, x);
     return 1;
 }
 
-static void q_remove(Dsl *d, int32_t u)
+/* the top of the queue taken out */
+static void q_pop(Dsl *d)
 {
-    int32_t p = d->pos[u];
-    if (!p) return;
-    d->pos[u] = 0;
-    size_t i = (size_t)p - 1;
     Queued last = d->q[--d->qn];
-    if (i == d->qn) return;
-    if (qless(&last, &d->q[i]))
-        q_up(d, i, last);
-    else
-        q_down(d, i, last);
+    if (d->qn > 0) q_down(d, 0, last);
+}
+
+/* An entry no longer says what its vertex is: the vertex is consistent,
+ * or was queued again with another order (k2 holds min(g, rhs) and
+ * whether g < rhs). A vertex is queued again, not moved in the queue,
+ * when its key changes: the heap then needs no index of where each
+ * vertex stands, whose updates on every move of an entry were most of a
+ * repair's cost (each a read of memory far from the last). */
+static inline int q_stale(const Dsl *d, const Queued *e)
+{
+    int64_t g = G(d, e->u), rhs = RHS(d, e->u);
+    return g == rhs || e->k2 != order(g, rhs);
 }
 
 /* UpdateVertex: queued with its key if inconsistent, out of the queue if
@@ -614,7 +620,7 @@ static int update_vertex(Dsl *d, int32_t u)
         int64_t k = g < rhs ? g : rhs;
         return q_set(d, u, k + octile(d->sc, d->sr, u % d->w, u / d->w) + d->km, order(g, rhs));
     }
-    q_remove(d, u);
+    /* consistent: its entries, if any, are stale */
     return 1;
 }
 
@@ -647,7 +653,6 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->h = h;
     d->cells = malloc(n);
     d->v = big_zeroed(n * sizeof(Vertex));
-    d->pos = big_zeroed(n * sizeof(int32_t));
     d->seen = calloc(n / 64 + 1, sizeof(uint64_t));
     d->on = calloc(n / 64 + 1, sizeof(uint64_t));
     d->touched = malloc(TOUCHED * sizeof(int32_t));
@@ -656,7 +661,7 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     d->sc = s % w;
     d->sr = s / w;
     d->goal = g;
-    if (!d->cells || !d->v || !d->pos || !d->seen || !d->on || !d->touched || !d->lock) {
+    if (!d->cells || !d->v || !d->seen || !d->on || !d->touched || !d->lock) {
         enif_release_resource(d);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
@@ -955,6 +960,18 @@ ERL_NIF_TERM tc_nif_dsl_cpu_ns(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     return enif_make_int64(env, ns);
 }
 
+/* dsl_queued(dsl): the entries in the queue, stale ones included */
+ERL_NIF_TERM tc_nif_dsl_queued(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    Dsl *d;
+    if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
+    enif_mutex_lock(d->lock);
+    size_t n = d->qn;
+    enif_mutex_unlock(d->lock);
+    return enif_make_uint64(env, n);
+}
+
 /* ComputeShortestPath, processing at most `budget` vertices (0: no
  * limit); returns the vertices processed, -1 out of memory, and sets
  * *done when the start is consistent (or nothing is left to do). A
@@ -974,6 +991,10 @@ static long compute(Dsl *d, long budget, int *done)
         }
         Queued e = d->q[0];
         int32_t u = e.u;
+        if (q_stale(d, &e)) {
+            q_pop(d);
+            continue;
+        }
         int64_t gs = G(d, d->start), rs = RHS(d, d->start);
         int64_t ms = gs < rs ? gs : rs;
         if (!(e.k1 < ms + d->km || (e.k1 == ms + d->km && e.k2 < -(UNDER >> 1)) || rs > gs))
@@ -986,11 +1007,11 @@ static long compute(Dsl *d, long budget, int *done)
             continue;
         }
         processed++;
+        q_pop(d);
         int m = edges(d->cells, w, d->h, u, to, cost);
         if (gu > ru) {
             /* overconsistent: settle it, offer the new g to its predecessors */
             dsl_set_g(d, u, ru);
-            q_remove(d, u);
             for (int k = 0; k < m; k++) {
                 int32_t s = to[k];
                 if (s == d->goal) continue;

@@ -15,6 +15,7 @@ ERL_NIF_TERM tc_nif_dsl_sync(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
 ERL_NIF_TERM tc_nif_dsl_move_start(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_forget_path(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_cpu_ns(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
+ERL_NIF_TERM tc_nif_dsl_queued(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 ERL_NIF_TERM tc_nif_dsl_plan(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]);
 
 #endif

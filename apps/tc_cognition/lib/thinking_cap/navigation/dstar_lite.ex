@@ -189,6 +189,16 @@ defmodule ThinkingCap.Navigation.DStarLite do
   @spec cpu_time(t()) :: non_neg_integer()
   def cpu_time(%__MODULE__{store: {dsl, _}}), do: GridNif.dsl_cpu_ns(dsl)
 
+  @doc """
+  The entries in the search's queue. A vertex whose key changes is
+  queued again rather than moved, and its old entry left stale; stale
+  entries are dropped when they reach the top or when the queue is
+  full, so that a long run of repairs keeps the queue about the size of
+  the search's frontier.
+  """
+  @spec queued(t()) :: non_neg_integer()
+  def queued(%__MODULE__{store: {dsl, _}}), do: GridNif.dsl_queued(dsl)
+
   defp next_version(%__MODULE__{store: {_dsl, a}, version: v} = state) do
     case :atomics.compare_exchange(a, 1, v, v + 1) do
       :ok ->

@@ -84,4 +84,5 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def dsl_plan(_dsl), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_forget_path(_dsl), do: :erlang.nif_error(:nif_not_loaded)
   def dsl_cpu_ns(_dsl), do: :erlang.nif_error(:nif_not_loaded)
+  def dsl_queued(_dsl), do: :erlang.nif_error(:nif_not_loaded)
 end
