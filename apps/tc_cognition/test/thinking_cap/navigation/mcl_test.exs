@@ -101,19 +101,7 @@ defmodule ThinkingCap.Navigation.MCLTest do
       end
     end
 
-    # the image's first row is the map's top
-    pixels = for r <- (h - 1)..0, c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)>>
-    File.write!(Path.join(dir, "racks.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
-
-    File.write!(
-      Path.join(dir, "racks.yaml"),
-      "image: racks.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n" <>
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\nnegate: 0\n"
-    )
-
-    path = Path.join(dir, "racks.wdf")
-    File.write!(path, ~s([name: "racks", map: [yaml: "racks.yaml"]]))
-    path
+    map_world(dir, "racks", {w, h}, cell)
   end
 
   test "a kidnapping between racks the map knows only by one edge is noticed and undone", %{
@@ -187,18 +175,7 @@ defmodule ThinkingCap.Navigation.MCLTest do
       end
     end
 
-    pixels = for r <- (h - 1)..0, c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)>>
-    File.write!(Path.join(dir, "#{name}.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
-
-    File.write!(
-      Path.join(dir, "#{name}.yaml"),
-      "image: #{name}.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n" <>
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\nnegate: 0\n"
-    )
-
-    path = Path.join(dir, "#{name}.wdf")
-    File.write!(path, ~s([name: "#{name}", map: [yaml: "#{name}.yaml"]]))
-    path
+    map_world(dir, name, {w, h}, cell)
   end
 
   test "boxes the map lacks and its open unknown end do not make the robot lost; a kidnap does",
@@ -436,27 +413,29 @@ defmodule ThinkingCap.Navigation.MCLTest do
   # two rooms of 8 x 4 m side by side, walls 0.1 m thick (`rects`), as a
   # map_server map
   defp two_rooms(dir, rects) do
-    {w, h} = {320, 80}
+    inside? = fn x, y ->
+      Enum.any?(rects, fn {x0, y0, x1, y1} -> x >= x0 and x <= x1 and y >= y0 and y <= y1 end)
+    end
 
-    pixels =
-      for r <- (h - 1)..0, c <- 0..(w - 1), into: <<>> do
-        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+    cell = fn c, r -> if inside?.((c + 0.5) * 0.05, (r + 0.5) * 0.05), do: 0, else: 254 end
+    map_world(dir, "rooms", {320, 80}, cell)
+  end
 
-        if Enum.any?(rects, fn {x0, y0, x1, y1} -> x >= x0 and x <= x1 and y >= y0 and y <= y1 end),
-           do: <<0>>,
-           else: <<254>>
-      end
-
-    File.write!(Path.join(dir, "rooms.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
+  # a world of one map_server map (0.05 m cells; `cell.(col, row)` the
+  # pixel, row 0 at the bottom), written into `dir`; returns its WDF
+  defp map_world(dir, name, {w, h}, cell) do
+    # the image's first row is the map's top
+    pixels = for r <- (h - 1)..0, c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)>>
+    File.write!(Path.join(dir, "#{name}.pgm"), ["P5\n#{w} #{h}\n255\n", pixels])
 
     File.write!(
-      Path.join(dir, "rooms.yaml"),
-      "image: rooms.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n" <>
+      Path.join(dir, "#{name}.yaml"),
+      "image: #{name}.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n" <>
         "occupied_thresh: 0.65\nfree_thresh: 0.196\nnegate: 0\n"
     )
 
-    path = Path.join(dir, "rooms.wdf")
-    File.write!(path, ~s([name: "rooms", map: [yaml: "rooms.yaml"]]))
+    path = Path.join(dir, "#{name}.wdf")
+    File.write!(path, ~s([name: "#{name}", map: [yaml: "#{name}.yaml"]]))
     path
   end
 
@@ -527,7 +506,7 @@ defmodule ThinkingCap.Navigation.MCLTest do
 
     moves = Enum.flat_map(legs, fn {n, move} -> List.duplicate(move, n) end)
 
-    {_, state, worst, statuses} =
+    {_, _state, worst, statuses} =
       Enum.reduce(Enum.with_index(moves, 1), {{0.9, 2.0, 0.0}, state, 0.0, []}, fn
         {{d, turn}, i}, {{x, y, th}, state, worst, statuses} ->
           pose = {x + d * :math.cos(th), y + d * :math.sin(th), th + turn}
