@@ -35,8 +35,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
     * `/ID/TAG`, JSON on a Foxglove schema (`ThinkingCap.BlackBox.Foxglove`),
       for Foxglove and the MCAP tools; the large tuples that come many a
       second (the LPS, MCL's particles, the topology, the map's
-      segments) at most once a second each, their whole terms (below)
-      every time;
+      segments) at most once a second of the robot's clock (their
+      stamps) each, their whole terms (below) every time;
     * `/etf/ID/TAG`, the tuple whole, in Erlang's external term format
       (`:erlang.term_to_binary/1`; message encoding `etf`, no schema): the
       exact terms the modules received, atoms, tuples and floats as they
