@@ -83,10 +83,6 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     {channel, w, chans} = channel(w, chans, topic, schema, %{})
     {sequence, chans} = next(chans, channel)
 
-    # one binary (off the heap when large) rather than the JSON's many
-    # small pieces, which the open chunk would keep on the heap
-    data = IO.iodata_to_binary(data)
-
     case Writer.add_message(w, channel, time, publish, data, sequence) do
       {:ok, w} -> write_all(rest, w, chans, time, publish, n + 1)
       {:error, reason} -> {:error, reason, chans}
