@@ -16,7 +16,9 @@ defmodule ThinkingCap.BlackBox.Foxglove do
   The payload of a `thinkingcap.Tuple` is the term as JSON, whatever it
   holds: atoms as strings, tuples as arrays, structs as objects with
   their `"__struct__"`, binaries that are not UTF-8 as
-  `{"base64": ...}`, pids and functions printed. A Foxglove message's
+  `{"base64": ...}`, pids and functions printed. Floats, in every
+  message, are written to the millionth from 0.01 up (smaller ones
+  whole): the recording keeps the exact terms beside. A Foxglove message's
   `timestamp` is the payload's `stamp` (seconds on the robot's clock)
   when it has one, else the time given.
 
@@ -278,7 +280,8 @@ defmodule ThinkingCap.BlackBox.Foxglove do
   defp more_millimetres([r | rest]), do: [?,, millimetre(r) | more_millimetres(rest)]
   defp more_millimetres([]), do: [?]]
 
-  defp millimetre(r), do: :erlang.float_to_binary(round(r * 1000) / 1000, [:short])
+  defp millimetre(r) when is_float(r), do: :erlang.float_to_binary(r, [{:decimals, 3}, :compact])
+  defp millimetre(r) when is_integer(r), do: Integer.to_string(r)
 
   @doc """
   The stamp of a tuple's payload in nanoseconds (its `stamp:` in

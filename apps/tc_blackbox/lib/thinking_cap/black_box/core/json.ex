@@ -4,8 +4,11 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   # atoms become strings (nil null, booleans booleans), tuples and lists
   # arrays (an improper list's tail its last element), structs objects
   # with their "__struct__", binaries that are not UTF-8 `{"base64": ...}`,
-  # pids, references, ports and functions their printed form. Floats keep
-  # every digit (the shortest form that reads back the same).
+  # pids, references, ports and functions their printed form. Floats from
+  # 0.01 up are written to the millionth (a micrometre, a microradian:
+  # what a viewer needs, and their last digits compress badly), smaller
+  # ones with every digit (the shortest form that reads back the same);
+  # the recorder keeps the exact terms beside.
   #
   # Written here rather than through jiffy: the recorder turns every
   # tuple into JSON, and for its small terms building the iodata in
@@ -17,10 +20,15 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   def encode(term), do: value(term)
 
   @doc false
-  # a number: an integer as it is, a float in its shortest form
+  # a number: an integer as it is, a float to the millionth (from 0.01 up)
   @spec number(number()) :: binary()
   def number(x) when is_integer(x), do: Integer.to_string(x)
-  def number(x) when is_float(x), do: :erlang.float_to_binary(x, [:short])
+  def number(x) when is_float(x), do: float(x)
+
+  defp float(x) when (x >= 0.01 and x < 1.0e15) or (x <= -0.01 and x > -1.0e15),
+    do: :erlang.float_to_binary(x, [{:decimals, 6}, :compact])
+
+  defp float(x), do: :erlang.float_to_binary(x, [:short])
 
   @spec value(term()) :: iodata()
   def value(nil), do: "null"
@@ -28,7 +36,7 @@ defmodule ThinkingCap.BlackBox.Core.JSON do
   def value(false), do: "false"
   def value(x) when is_atom(x), do: string(Atom.to_string(x))
   def value(x) when is_integer(x), do: Integer.to_string(x)
-  def value(x) when is_float(x), do: :erlang.float_to_binary(x, [:short])
+  def value(x) when is_float(x), do: float(x)
 
   def value(x) when is_binary(x) do
     if String.valid?(x), do: string(x), else: ["{\"base64\":\"", Base.encode64(x), "\"}"]

@@ -6,13 +6,17 @@ defmodule ThinkingCap.BlackBox.Core.JSONTest do
   defp text(term), do: term |> JSON.encode() |> IO.iodata_to_binary()
   defp decode(term), do: :jiffy.decode(text(term), [:return_maps, :use_nil])
 
-  test "numbers: integers as they are, floats in their shortest exact form" do
+  test "numbers: integers as they are, floats to the millionth from 0.01 up" do
     for x <- [0, -7, 123_456_789_012_345_678_901_234_567_890, 0.1, -2.5, 1.0e-7, 6.02e23, -0.0] do
       assert decode(x) == x
     end
 
     assert text(0.1) == "0.1"
     assert text([1.5, 2, 3.0]) == "[1.5,2,3.0]"
+    assert text(2.7240969296835993) == "2.724097"
+    assert text(-0.7853981633974483) == "-0.785398"
+    assert text(0.0012345678901) == "0.0012345678901"
+    assert text(1.0e15) == "1.0e15"
   end
 
   test "strings are quoted and escaped where JSON needs it" do
@@ -59,6 +63,7 @@ defmodule ThinkingCap.BlackBox.Core.JSONTest do
       bins: Enum.map(1..72, &(&1 / 7))
     }
 
-    assert decode(term) == :jiffy.decode(:jiffy.encode(term), [:return_maps, :use_nil])
+    rounded = %{term | bins: Enum.map(term.bins, &(round(&1 * 1.0e6) / 1.0e6))}
+    assert decode(term) == :jiffy.decode(:jiffy.encode(rounded), [:return_maps, :use_nil])
   end
 end
