@@ -62,7 +62,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   clock for every channel. The tuples and the callbacks come in lists
   (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 64 at a
   time or a tenth of `chunk_seconds` after the first;
-  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or 100 ms), each stamped
+  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or as long), each stamped
   when it was held for the recorder, which is its log time. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
@@ -212,7 +212,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
          {:ok, state} <- begin_file(state) do
       lists = [batch: true, max_batch: @list_max, max_delay_ms: list_ms(config.chunk_seconds)]
       refs = for t <- templates, do: elem(Blackboard.subscribe(t, lists), 1)
-      if config.replay, do: :ok = Trace.attach(config.robot, batch: true)
+      trace = [batch: true, max_delay_ms: lists[:max_delay_ms]]
+      if config.replay, do: :ok = Trace.attach(config.robot, trace)
       :timer.send_interval(round(config.chunk_seconds * 1000), :tick)
       {:ok, %{state | refs: refs}}
     else
