@@ -80,7 +80,9 @@ defmodule ThinkingCap.Bench.Record do
       of the README's figures, and a trace message sent): the bench
       measures one traced schedule of a process that does nothing (it
       answers pings) and prints the recorders' CPU less that much a
-      schedule beside the figure;
+      schedule beside the figure. The recorders are traced for their
+      garbage collections too, on the same clock: the part of their
+      CPU the collections took, and how many, are printed;
     * `misses_added`: the deadline misses (fallbacks applied by the timing
       worker) of every robot's control cycle (`control_I`) during the
       recorded run, minus those during the run without; the bases'
@@ -153,7 +155,8 @@ defmodule ThinkingCap.Bench.Record do
           "recorders #{fmt(rec.recorder_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple " <>
           "(scheduled #{fmt(rec.recorder_runs / max(rec.tuples, 1), 2)} times a tuple, " <>
           "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time; " <>
-          "garbage collection #{fmt(rec.recorder_gc_us / max(rec.tuples, 1), 1)} µs a tuple); " <>
+          "garbage collection #{fmt(rec.recorder_gc_us / max(rec.tuples, 1), 1)} µs a tuple, " <>
+          "#{rec.recorder_gcs} collections of #{fmt(rec.recorder_gc_us / max(rec.recorder_gcs, 1), 0)} µs); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
@@ -238,8 +241,8 @@ defmodule ThinkingCap.Bench.Record do
       if sender_tracer,
         do: :erlang.trace(sender, false, [:running, :garbage_collection, :timestamp])
 
-      {cpu_us, runs, gc_us} = if tracer, do: stop_tracer(tracer), else: {0, 0, 0}
-      {sender_us, _, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, 0}
+      {cpu_us, runs, {gc_us, gc_n}} = if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}}
+      {sender_us, _, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, {0, 0}}
       _ = goals
 
       %{
@@ -258,6 +261,7 @@ defmodule ThinkingCap.Bench.Record do
         bytes: after_.bytes - before.bytes,
         recorder_cpu_us: cpu_us,
         recorder_gc_us: gc_us,
+        recorder_gcs: gc_n,
         sender_cpu_us: sender_us,
         recorder_runs: runs,
         files:
@@ -396,7 +400,7 @@ defmodule ThinkingCap.Bench.Record do
         end
 
         send(parent, :tracing)
-        tracer_loop(%{}, 0, 0, %{}, 0)
+        tracer_loop(%{}, 0, 0, %{}, {0, 0})
       end)
 
     Process.flag(:priority, :normal)
@@ -415,29 +419,35 @@ defmodule ThinkingCap.Bench.Record do
   end
 
   # the recorders' CPU time (µs), how many times they were scheduled, and
-  # the part of that time their garbage collections took
-  defp tracer_loop(ins, total, runs, gcs, gc) do
+  # the part of that time their garbage collections took, and how many
+  defp tracer_loop(ins, total, runs, gcs, {gc, gc_n} = gc_sum) do
     receive do
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:in, :in_exiting] ->
-        tracer_loop(Map.put(ins, pid, ts), total, runs, gcs, gc)
+        tracer_loop(Map.put(ins, pid, ts), total, runs, gcs, gc_sum)
 
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:out, :out_exiting, :out_exited] ->
         case Map.pop(ins, pid) do
-          {nil, ins} -> tracer_loop(ins, total, runs, gcs, gc)
-          {t_in, ins} -> tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1, gcs, gc)
+          {nil, ins} ->
+            tracer_loop(ins, total, runs, gcs, gc_sum)
+
+          {t_in, ins} ->
+            tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1, gcs, gc_sum)
         end
 
       {:trace_ts, pid, kind, _info, ts} when kind in [:gc_minor_start, :gc_major_start] ->
-        tracer_loop(ins, total, runs, Map.put(gcs, pid, ts), gc)
+        tracer_loop(ins, total, runs, Map.put(gcs, pid, ts), gc_sum)
 
       {:trace_ts, pid, kind, _info, ts} when kind in [:gc_minor_end, :gc_major_end] ->
         case Map.pop(gcs, pid) do
-          {nil, gcs} -> tracer_loop(ins, total, runs, gcs, gc)
-          {t0, gcs} -> tracer_loop(ins, total, runs, gcs, gc + :timer.now_diff(ts, t0))
+          {nil, gcs} ->
+            tracer_loop(ins, total, runs, gcs, gc_sum)
+
+          {t0, gcs} ->
+            tracer_loop(ins, total, runs, gcs, {gc + :timer.now_diff(ts, t0), gc_n + 1})
         end
 
       {:stop, from} ->
-        send(from, {:cpu_us, total, runs, gc})
+        send(from, {:cpu_us, total, runs, gc_sum})
     end
   end
 
