@@ -70,15 +70,16 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Cost
 
-  Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
-  and two record headers; per traced callback, a small term. The
-  tuples and callbacks come in lists, so that the recorder is woken
-  once a list rather than once a tuple, and are written 32 at a time
-  (or at the chunk's end). The file
-  gets one write per chunk. The process starts with heaps sized for an
-  open chunk and the tuples noted, so that it is not collected every
-  few tuples. The subscription drops tuples when 1000 are held for the
-  recorder; `info/1` counts them.
+  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass),
+  `term_to_binary/1` and two record headers; per traced callback, a
+  small term. The tuples and callbacks come in lists, so that the
+  recorder is woken once a list rather than once a tuple, and are
+  written 32 at a time (or at the chunk's end). The writer compresses
+  the chunk as its records come (`ThinkingCap.MCAP.Compression.stream/1`),
+  so that they are not kept on the heap; the file gets one write per
+  chunk. The process starts with a heap of 1 MB, so that it is not
+  collected every few tuples. The subscription drops tuples when 1000
+  are held for the recorder; `info/1` counts them.
   """
   use GenServer
   require Logger
@@ -98,11 +99,12 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # bench's control cycles missed a fifth of their deadlines), 32 do not
   @pending_max 32
 
-  # The open chunk (up to `chunk_bytes` of records, most of them
-  # binaries off the heap) and the tuples noted live in the process:
-  # heaps sized for them spare the recorder a garbage collection every
-  # few tuples (words: 1 MB of heap, 2 MB of binaries; 32,768 words of
-  # heap cost a third more CPU)
+  # The tuples taken and noted, and their JSON, live in the process
+  # (the open chunk does not: it is compressed as it comes): heaps sized
+  # for them spare the recorder a garbage collection every few tuples
+  # (words: 1 MB of heap, 2 MB of binaries; in the bench, 32,768 words
+  # or the default made no clear difference, their collections more
+  # often but shorter)
   @spawn_opt [min_heap_size: 131_072, min_bin_vheap_size: 262_144]
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
