@@ -80,7 +80,9 @@ defmodule ThinkingCap.Bench.Record do
       of the README's figures, and a trace message sent): the bench
       measures one traced schedule of a process that does nothing (it
       answers pings) and prints the recorders' CPU less that much a
-      schedule beside the figure;
+      schedule beside the figure. The recorders are traced for their
+      garbage collections too, on the same clock: the part of their
+      CPU the collections took, and how many, are printed;
     * `misses_added`: the deadline misses (fallbacks applied by the timing
       worker) of every robot's control cycle (`control_I`) during the
       recorded run, minus those during the run without; the bases'
@@ -152,7 +154,9 @@ defmodule ThinkingCap.Bench.Record do
           "a week in #{fmt(week_gb, 1)} GB (64 GB card: #{fmt(64 / week_gb * 7, 1)} days); " <>
           "recorders #{fmt(rec.recorder_cpu_us / max(rec.tuples, 1), 1)} µs CPU per tuple " <>
           "(scheduled #{fmt(rec.recorder_runs / max(rec.tuples, 1), 2)} times a tuple, " <>
-          "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time); " <>
+          "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time; " <>
+          "garbage collection #{fmt(rec.recorder_gc_us / max(rec.tuples, 1), 1)} µs a tuple, " <>
+          "#{rec.recorder_gcs} collections of #{fmt(rec.recorder_gc_us / max(rec.recorder_gcs, 1), 0)} µs); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
@@ -233,9 +237,12 @@ defmodule ThinkingCap.Bench.Record do
       goals = drive(fleet, sim, before.sim_time + seconds, goals)
       wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
       after_ = snapshot(sim, recorders, rec_dir)
-      if sender_tracer, do: :erlang.trace(sender, false, [:running, :timestamp])
-      {cpu_us, runs} = if tracer, do: stop_tracer(tracer), else: {0, 0}
-      {sender_us, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0}
+
+      if sender_tracer,
+        do: :erlang.trace(sender, false, [:running, :garbage_collection, :timestamp])
+
+      {cpu_us, runs, {gc_us, gc_n}} = if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}}
+      {sender_us, _, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, {0, 0}}
       _ = goals
 
       %{
@@ -253,6 +260,8 @@ defmodule ThinkingCap.Bench.Record do
         dropped: after_.dropped,
         bytes: after_.bytes - before.bytes,
         recorder_cpu_us: cpu_us,
+        recorder_gc_us: gc_us,
+        recorder_gcs: gc_n,
         sender_cpu_us: sender_us,
         recorder_runs: runs,
         files:
@@ -391,12 +400,17 @@ defmodule ThinkingCap.Bench.Record do
         end
 
         send(parent, :tracing)
-        tracer_loop(%{}, 0, 0)
+        tracer_loop(%{}, 0, 0, %{}, {0, 0})
       end)
 
     Process.flag(:priority, :normal)
     :erlang.trace(:all, true, [:cpu_timestamp])
-    for pid <- pids, pid, do: :erlang.trace(pid, true, [:running, :timestamp, {:tracer, tracer}])
+
+    for pid <- pids,
+        pid,
+        do:
+          :erlang.trace(pid, true, [:running, :garbage_collection, :timestamp, {:tracer, tracer}])
+
     send(tracer, :go)
 
     receive do
@@ -404,20 +418,36 @@ defmodule ThinkingCap.Bench.Record do
     end
   end
 
-  # the recorders' CPU time (µs) and how many times they were scheduled
-  defp tracer_loop(ins, total, runs) do
+  # the recorders' CPU time (µs), how many times they were scheduled, and
+  # the part of that time their garbage collections took, and how many
+  defp tracer_loop(ins, total, runs, gcs, {gc, gc_n} = gc_sum) do
     receive do
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:in, :in_exiting] ->
-        tracer_loop(Map.put(ins, pid, ts), total, runs)
+        tracer_loop(Map.put(ins, pid, ts), total, runs, gcs, gc_sum)
 
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:out, :out_exiting, :out_exited] ->
         case Map.pop(ins, pid) do
-          {nil, ins} -> tracer_loop(ins, total, runs)
-          {t_in, ins} -> tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1)
+          {nil, ins} ->
+            tracer_loop(ins, total, runs, gcs, gc_sum)
+
+          {t_in, ins} ->
+            tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1, gcs, gc_sum)
+        end
+
+      {:trace_ts, pid, kind, _info, ts} when kind in [:gc_minor_start, :gc_major_start] ->
+        tracer_loop(ins, total, runs, Map.put(gcs, pid, ts), gc_sum)
+
+      {:trace_ts, pid, kind, _info, ts} when kind in [:gc_minor_end, :gc_major_end] ->
+        case Map.pop(gcs, pid) do
+          {nil, gcs} ->
+            tracer_loop(ins, total, runs, gcs, gc_sum)
+
+          {t0, gcs} ->
+            tracer_loop(ins, total, runs, gcs, {gc + :timer.now_diff(ts, t0), gc_n + 1})
         end
 
       {:stop, from} ->
-        send(from, {:cpu_us, total, runs})
+        send(from, {:cpu_us, total, runs, gc_sum})
     end
   end
 
@@ -433,7 +463,7 @@ defmodule ThinkingCap.Bench.Record do
   end
 
   defp stop_tracer(tracer, pids) do
-    for pid <- pids, do: :erlang.trace(pid, false, [:running, :timestamp])
+    for pid <- pids, do: :erlang.trace(pid, false, [:running, :garbage_collection, :timestamp])
     :erlang.trace(:all, false, [:cpu_timestamp])
     tracer_total(tracer)
   end
@@ -443,7 +473,7 @@ defmodule ThinkingCap.Bench.Record do
     send(tracer, {:stop, self()})
 
     receive do
-      {:cpu_us, us, runs} -> {us, runs}
+      {:cpu_us, us, runs, gc} -> {us, runs, gc}
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
     end
@@ -469,13 +499,13 @@ defmodule ThinkingCap.Bench.Record do
       end
     end
 
-    :erlang.trace(echo, false, [:running, :timestamp])
+    :erlang.trace(echo, false, [:running, :garbage_collection, :timestamp])
     :erlang.trace(:all, false, [:cpu_timestamp])
     send(tracer, {:stop, self()})
     Process.exit(echo, :kill)
 
     receive do
-      {:cpu_us, us, runs} -> us / max(runs, 1)
+      {:cpu_us, us, runs, _gc} -> us / max(runs, 1)
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
     end

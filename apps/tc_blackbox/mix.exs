@@ -3,7 +3,7 @@ Code.require_file("../../mix/c_build.exs", __DIR__)
 defmodule Mix.Tasks.Compile.TcMcap do
   @moduledoc false
   # Builds the MCAP compression NIF (c_src/tc_mcap.c -> priv/lib/tc_mcap.so),
-  # linked to Debian's libzstd and liblz4.
+  # linked to Debian's libzstd, liblz4 and zlib (its CRC-32).
   use Mix.Task.Compiler
 
   # run inside the app's project (cwd), not the umbrella's
@@ -14,7 +14,7 @@ defmodule Mix.Tasks.Compile.TcMcap do
   def run(_args) do
     ThinkingCap.Build.C.compile("tc_mcap", __DIR__, ["c_src/tc_mcap.c"], @target,
       nif: true,
-      ldflags: ["-lzstd", "-llz4"]
+      ldflags: ["-lzstd", "-llz4", "-lz"]
     )
   end
 

@@ -2,7 +2,7 @@ defmodule ThinkingCap.MCAPTest do
   use ExUnit.Case, async: true
 
   alias ThinkingCap.MCAP
-  alias ThinkingCap.MCAP.{Message, Reader, Writer}
+  alias ThinkingCap.MCAP.{Compression, Message, Reader, Writer}
 
   @algorithms ["", "zstd", "lz4"]
 
@@ -81,6 +81,34 @@ defmodule ThinkingCap.MCAPTest do
 
         assert Enum.map(lfile.messages, &{&1.channel_id, &1.log_time, &1.data, &1.sequence}) ==
                  sent
+      end
+    end
+
+    test "a chunk stream compresses what it is given, piece by piece, chunk after chunk" do
+      for algorithm <- @algorithms do
+        stream = Compression.stream(algorithm)
+
+        for round <- 1..3 do
+          # small pieces (a normal scheduler), one big (a dirty one), iodata
+          pieces =
+            for i <- 1..40,
+                do: [:binary.copy(<<round, i>>, i * 50), "json", [?{, "#{i}", ?}]]
+
+          big = :crypto.strong_rand_bytes(70_000) <> :binary.copy("x", 200_000)
+          pieces = pieces ++ [big]
+
+          for piece <- pieces,
+              do: :ok = Compression.add(stream, piece, IO.iodata_length(piece))
+
+          data = IO.iodata_to_binary(pieces)
+          {compressed, crc, size} = Compression.finish(stream)
+          assert size == byte_size(data) and crc == :erlang.crc32(data)
+          assert {:ok, ^data} = Compression.decompress(algorithm, compressed, size)
+        end
+
+        # a chunk with nothing in it
+        {compressed, crc, 0} = Compression.finish(stream)
+        assert crc == 0 and {:ok, ""} == Compression.decompress(algorithm, compressed, 0)
       end
     end
 

@@ -16,7 +16,9 @@ defmodule ThinkingCap.BlackBox.Foxglove do
   The payload of a `thinkingcap.Tuple` is the term as JSON, whatever it
   holds: atoms as strings, tuples as arrays, structs as objects with
   their `"__struct__"`, binaries that are not UTF-8 as
-  `{"base64": ...}`, pids and functions printed. A Foxglove message's
+  `{"base64": ...}`, pids and functions printed. Floats, in every
+  message, are written to the millionth from 0.01 up (smaller ones
+  whole): the recording keeps the exact terms beside. A Foxglove message's
   `timestamp` is the payload's `stamp` (seconds on the robot's clock)
   when it has one, else the time given.
 
@@ -34,6 +36,9 @@ defmodule ThinkingCap.BlackBox.Foxglove do
 
   # foxglove.NumericType
   @int8 2
+
+  # a scan's pose: the robot's frame itself
+  @identity ~s({"position":{"x":0.0,"y":0.0,"z":0.0},"orientation":{"x":0,"y":0,"z":0,"w":1}})
 
   time = %{
     "type" => "object",
@@ -148,91 +153,135 @@ defmodule ThinkingCap.BlackBox.Foxglove do
          time_ns
        )
        when is_list(ranges) and is_number(a0) and is_number(a1) and is_atom(robot) do
-    json = %{
-      timestamp: timestamp(scan, time_ns),
-      frame_id: "#{robot}/base_link",
-      pose: identity(),
-      start_angle: a0,
-      end_angle: a1,
-      ranges: millimetres(ranges),
-      intensities: []
-    }
+    json = [
+      "{\"timestamp\":",
+      timestamp(scan, time_ns),
+      ",\"frame_id\":",
+      JSON.string(frame(robot)),
+      ",\"pose\":",
+      @identity,
+      ",\"start_angle\":",
+      JSON.number(a0),
+      ",\"end_angle\":",
+      JSON.number(a1),
+      ",\"ranges\":",
+      millimetres(ranges),
+      ",\"intensities\":[]}"
+    ]
 
-    [{topic(robot, sensor), "foxglove.LaserScan", :jiffy.encode(json)}]
+    [{topic(robot, sensor), "foxglove.LaserScan", json}]
   end
 
   defp convert(Tuples.map(robot, %OccupancyGrid{} = grid), time_ns) do
     {x, y} = grid.origin
 
-    json = %{
-      timestamp: timestamp(grid, time_ns),
-      frame_id: "map",
-      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: %{x: 0, y: 0, z: 0, w: 1}},
-      column_count: grid.width,
-      cell_size: %{x: grid.resolution, y: grid.resolution},
-      row_stride: grid.width,
-      cell_stride: 1,
-      fields: [%{name: "occupancy", offset: 0, type: @int8}],
-      data: Base.encode64(grid.data)
-    }
+    json = [
+      "{\"timestamp\":",
+      timestamp(grid, time_ns),
+      ",\"frame_id\":\"map\",\"pose\":{\"position\":",
+      point(x, y),
+      ",\"orientation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}},\"column_count\":",
+      JSON.number(grid.width),
+      ",\"cell_size\":{\"x\":",
+      JSON.number(grid.resolution),
+      ",\"y\":",
+      JSON.number(grid.resolution),
+      "},\"row_stride\":",
+      JSON.number(grid.width),
+      ",\"cell_stride\":1,\"fields\":[{\"name\":\"occupancy\",\"offset\":0,\"type\":",
+      Integer.to_string(@int8),
+      "}],\"data\":\"",
+      Base.encode64(grid.data),
+      "\"}"
+    ]
 
-    [{topic(robot, :map), "foxglove.Grid", :jiffy.encode(json)}]
+    [{topic(robot, :map), "foxglove.Grid", json}]
   end
 
   defp convert(Tuples.pose(robot, %{pose: {x, y, theta}} = estimate), time_ns)
        when is_number(x) and is_number(y) and is_number(theta) do
     stamp = timestamp(estimate, time_ns)
     q = yaw(theta)
+    position = point(x, y)
 
-    pose = %{
-      timestamp: stamp,
-      frame_id: "map",
-      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: q}
-    }
+    pose = [
+      "{\"timestamp\":",
+      stamp,
+      ",\"frame_id\":\"map\",\"pose\":{\"position\":",
+      position,
+      ",\"orientation\":",
+      q,
+      "}}"
+    ]
 
-    transform = %{
-      timestamp: stamp,
-      parent_frame_id: "map",
-      child_frame_id: "#{robot}/base_link",
-      translation: %{x: x, y: y, z: 0.0},
-      rotation: q
-    }
+    transform = [
+      "{\"timestamp\":",
+      stamp,
+      ",\"parent_frame_id\":\"map\",\"child_frame_id\":",
+      JSON.string(frame(robot)),
+      ",\"translation\":",
+      position,
+      ",\"rotation\":",
+      q,
+      ?}
+    ]
 
     [
-      {topic(robot, :pose), "foxglove.PoseInFrame", :jiffy.encode(pose)},
-      {topic(robot, :tf), "foxglove.FrameTransform", :jiffy.encode(transform)}
+      {topic(robot, :pose), "foxglove.PoseInFrame", pose},
+      {topic(robot, :tf), "foxglove.FrameTransform", transform}
     ]
   end
 
   defp convert(Tuples.sim_pose(robot, %{pose: {x, y, theta}} = truth), time_ns)
        when is_number(x) and is_number(y) and is_number(theta) do
-    pose = %{
-      timestamp: timestamp(truth, time_ns),
-      frame_id: "map",
-      pose: %{position: %{x: x, y: y, z: 0.0}, orientation: yaw(theta)}
-    }
+    pose = [
+      "{\"timestamp\":",
+      timestamp(truth, time_ns),
+      ",\"frame_id\":\"map\",\"pose\":{\"position\":",
+      point(x, y),
+      ",\"orientation\":",
+      yaw(theta),
+      "}}"
+    ]
 
-    [{topic(robot, :sim_pose), "foxglove.PoseInFrame", :jiffy.encode(pose)}]
+    [{topic(robot, :sim_pose), "foxglove.PoseInFrame", pose}]
   end
 
   defp convert(tuple, _time_ns), do: generic(tuple)
 
   defp generic({tag, id, payload}) do
-    json = %{tag: JSON.to_ejson(tag), robot: JSON.to_ejson(id), payload: JSON.to_ejson(payload)}
-    [{topic(id, tag), "thinkingcap.Tuple", :jiffy.encode(json, [:use_nil])}]
+    json = [
+      "{\"tag\":",
+      JSON.value(tag),
+      ",\"robot\":",
+      JSON.value(id),
+      ",\"payload\":",
+      JSON.value(payload),
+      ?}
+    ]
+
+    [{topic(id, tag), "thinkingcap.Tuple", json}]
   end
 
   defp generic(other) do
-    json = %{tag: nil, robot: nil, payload: JSON.to_ejson(other)}
-    [{"/tuple/#{tuple_size(other)}", "thinkingcap.Tuple", :jiffy.encode(json, [:use_nil])}]
+    json = ["{\"tag\":null,\"robot\":null,\"payload\":", JSON.value(other), ?}]
+    [{"/tuple/#{tuple_size(other)}", "thinkingcap.Tuple", json}]
   end
+
+  defp frame(robot), do: Atom.to_string(robot) <> "/base_link"
 
   # A scan's ranges to the millimetre: shorter JSON, quicker to write and
   # to compress than every digit of a double (the exact ones are in the
   # recording's terms). A range that is not a number raises (the scan is
   # then recorded as it is).
-  defp millimetres([r | rest]), do: [round(r * 1000) / 1000 | millimetres(rest)]
-  defp millimetres([]), do: []
+  defp millimetres([]), do: "[]"
+  defp millimetres([r | rest]), do: [?[, millimetre(r) | more_millimetres(rest)]
+
+  defp more_millimetres([r | rest]), do: [?,, millimetre(r) | more_millimetres(rest)]
+  defp more_millimetres([]), do: [?]]
+
+  defp millimetre(r) when is_float(r), do: :erlang.float_to_binary(r, [{:decimals, 3}, :compact])
+  defp millimetre(r) when is_integer(r), do: Integer.to_string(r)
 
   @doc """
   The stamp of a tuple's payload in nanoseconds (its `stamp:` in
@@ -257,11 +306,25 @@ defmodule ThinkingCap.BlackBox.Foxglove do
 
   defp timestamp(_payload, time_ns), do: time(time_ns)
 
-  defp time(ns), do: %{sec: div(ns, 1_000_000_000), nsec: rem(ns, 1_000_000_000)}
+  defp time(ns),
+    do: [
+      "{\"sec\":",
+      Integer.to_string(div(ns, 1_000_000_000)),
+      ",\"nsec\":",
+      Integer.to_string(rem(ns, 1_000_000_000)),
+      ?}
+    ]
 
-  defp identity,
-    do: %{position: %{x: 0.0, y: 0.0, z: 0.0}, orientation: %{x: 0, y: 0, z: 0, w: 1}}
+  defp point(x, y), do: ["{\"x\":", JSON.number(x), ",\"y\":", JSON.number(y), ",\"z\":0.0}"]
 
   # a rotation by theta about z, as a quaternion
-  defp yaw(theta), do: %{x: 0.0, y: 0.0, z: :math.sin(theta / 2), w: :math.cos(theta / 2)}
+  defp yaw(theta) do
+    [
+      "{\"x\":0.0,\"y\":0.0,\"z\":",
+      JSON.number(:math.sin(theta / 2)),
+      ",\"w\":",
+      JSON.number(:math.cos(theta / 2)),
+      ?}
+    ]
+  end
 end

@@ -35,8 +35,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
     * `/ID/TAG`, JSON on a Foxglove schema (`ThinkingCap.BlackBox.Foxglove`),
       for Foxglove and the MCAP tools; the large tuples that come many a
       second (the LPS, MCL's particles, the topology, the map's
-      segments) at most once a second each, their whole terms (below)
-      every time;
+      segments) at most once a second of the robot's clock (their
+      stamps) each, their whole terms (below) every time;
     * `/etf/ID/TAG`, the tuple whole, in Erlang's external term format
       (`:erlang.term_to_binary/1`; message encoding `etf`, no schema): the
       exact terms the modules received, atoms, tuples and floats as they
@@ -62,7 +62,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   clock for every channel. The tuples and the callbacks come in lists
   (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 64 at a
   time or a tenth of `chunk_seconds` after the first;
-  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or 100 ms), each stamped
+  `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or as long), each stamped
   when it was held for the recorder, which is its log time. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
   a simulation) in nanoseconds, when its payload has one, else the log
@@ -70,15 +70,16 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Cost
 
-  Per tuple: the conversion to JSON (jiffy, in C), `term_to_binary/1`
-  and two record headers; per traced callback, a small term. The
-  tuples and callbacks come in lists, so that the recorder is woken
-  once a list rather than once a tuple, and are written 32 at a time
-  (or at the chunk's end). The file
-  gets one write per chunk. The process starts with heaps sized for an
-  open chunk and the tuples noted, so that it is not collected every
-  few tuples. The subscription drops tuples when 1000 are held for the
-  recorder; `info/1` counts them.
+  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass),
+  `term_to_binary/1` and two record headers; per traced callback, a
+  small term. The tuples and callbacks come in lists, so that the
+  recorder is woken once a list rather than once a tuple, and are
+  written 32 at a time (or at the chunk's end). The writer compresses
+  the chunk as its records come (`ThinkingCap.MCAP.Compression.stream/1`),
+  so that they are not kept on the heap; the file gets one write per
+  chunk. The process starts with a heap of 1 MB, so that it is not
+  collected every few tuples. The subscription drops tuples when 1000
+  are held for the recorder; `info/1` counts them.
   """
   use GenServer
   require Logger
@@ -98,11 +99,12 @@ defmodule ThinkingCap.BlackBox.Recorder do
   # bench's control cycles missed a fifth of their deadlines), 32 do not
   @pending_max 32
 
-  # The open chunk (up to `chunk_bytes` of records, most of them
-  # binaries off the heap) and the tuples noted live in the process:
-  # heaps sized for them spare the recorder a garbage collection every
-  # few tuples (words: 1 MB of heap, 2 MB of binaries; 32,768 words of
-  # heap cost a third more CPU)
+  # The tuples taken and noted, and their JSON, live in the process
+  # (the open chunk does not: it is compressed as it comes): heaps sized
+  # for them spare the recorder a garbage collection every few tuples
+  # (words: 1 MB of heap, 2 MB of binaries; in the bench, 32,768 words
+  # or the default made no clear difference, their collections more
+  # often but shorter)
   @spawn_opt [min_heap_size: 131_072, min_bin_vheap_size: 262_144]
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
@@ -212,7 +214,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
          {:ok, state} <- begin_file(state) do
       lists = [batch: true, max_batch: @list_max, max_delay_ms: list_ms(config.chunk_seconds)]
       refs = for t <- templates, do: elem(Blackboard.subscribe(t, lists), 1)
-      if config.replay, do: :ok = Trace.attach(config.robot, batch: true)
+      trace = [batch: true, max_delay_ms: lists[:max_delay_ms]]
+      if config.replay, do: :ok = Trace.attach(config.robot, trace)
       :timer.send_interval(round(config.chunk_seconds * 1000), :tick)
       {:ok, %{state | refs: refs}}
     else

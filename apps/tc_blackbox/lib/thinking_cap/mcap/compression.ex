@@ -53,6 +53,35 @@ defmodule ThinkingCap.MCAP.Compression do
 
   def decompress(_other, _data, _size), do: {:error, :unsupported}
 
+  @typedoc "A chunk being compressed as its records come (`stream/1`)."
+  @opaque stream :: reference()
+
+  # what one call of add/2 runs on a normal scheduler; more goes to a dirty one
+  @normal_max 65_536
+
+  @doc """
+  A stream that compresses a chunk as its records come (`add/3`), in
+  pieces of a few KB, and keeps the CRC-32 of what it was given; `finish/1`
+  ends the chunk. The records need not be kept until the chunk closes,
+  and no call takes long.
+  """
+  @spec stream(algorithm()) :: stream()
+  def stream(""), do: chunk_new(0, @zstd_level)
+  def stream("zstd"), do: chunk_new(1, @zstd_level)
+  def stream("lz4"), do: chunk_new(2, @zstd_level)
+
+  @doc "Adds `data` (`size` bytes) to the chunk being compressed."
+  @spec add(stream(), iodata(), non_neg_integer()) :: :ok
+  def add(stream, data, size) when size <= @normal_max, do: chunk_add(stream, data)
+  def add(stream, data, _size), do: chunk_add_dirty(stream, data)
+
+  @doc """
+  Ends the chunk: its compressed bytes, the CRC-32 and the size of what
+  was added. The stream is then empty, for the next chunk.
+  """
+  @spec finish(stream()) :: {binary(), non_neg_integer(), non_neg_integer()}
+  def finish(stream), do: chunk_finish(stream)
+
   # the NIF's functions (exported: a NIF replaces them)
   @doc false
   def zstd_compress(_data, _level), do: :erlang.nif_error(:nif_not_loaded)
@@ -62,4 +91,12 @@ defmodule ThinkingCap.MCAP.Compression do
   def nif_zstd_decompress(_data, _size), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_lz4_decompress(_data, _size), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_new(_algorithm, _level), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_add(_stream, _data), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_add_dirty(_stream, _data), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_finish(_stream), do: :erlang.nif_error(:nif_not_loaded)
 end

@@ -10,12 +10,14 @@ defmodule ThinkingCap.MCAP.Writer do
       {:ok, w} = Writer.add_message(w, channel, log_time, publish_time, json)
       {:ok, _bytes} = Writer.close(w)
 
-  Schema, Channel and Message records go into the open chunk. A chunk is
-  closed, compressed and written, with a Message Index per channel after
-  it, when it holds `chunk_bytes` (`add_message/6` says so) or when the
-  caller asks (`close_chunk/1`, the recorder's timer): one write per
-  chunk, so the file on disk is valid up to its last whole chunk whatever
-  happens to the process. `close/1` writes the Data End record, the
+  Schema, Channel and Message records go into the open chunk, compressed
+  as they come (`ThinkingCap.MCAP.Compression.stream/1`, 16 KB at a
+  time), so that a chunk's records are not kept on the heap. A chunk is
+  closed and written, with a Message Index per channel after it, when it
+  holds `chunk_bytes` (`add_message/6` says so) or when the caller asks
+  (`close_chunk/1`, the recorder's timer): one write per chunk, so the
+  file on disk is valid up to its last whole chunk whatever happens to
+  the process. `close/1` writes the Data End record, the
   summary (schemas, channels, statistics, chunk indexes), the summary
   offsets and the footer.
 
@@ -28,6 +30,9 @@ defmodule ThinkingCap.MCAP.Writer do
 
   @default_chunk_bytes 1_048_576
 
+  # records given to the compression stream this many bytes at a time
+  @piece_bytes 16_384
+
   defstruct [
     :sink,
     :compression,
@@ -38,10 +43,13 @@ defmodule ThinkingCap.MCAP.Writer do
     channels: [],
     next_schema: 1,
     next_channel: 0,
-    # the open chunk: its records (reversed), their size, its time span,
+    # the open chunk: its compression stream, the records not yet given
+    # to it (reversed) and their size, the chunk's size, its time span,
     # and its messages' [{channel, log_time, offset}] (reversed; grouped
     # by channel when the chunk closes)
-    chunk: [],
+    stream: nil,
+    piece: [],
+    piece_size: 0,
     chunk_size: 0,
     chunk_start: nil,
     chunk_end: nil,
@@ -89,7 +97,12 @@ defmodule ThinkingCap.MCAP.Writer do
         {:error, {:chunk_bytes, chunk_bytes}}
 
       true ->
-        {:ok, %__MODULE__{compression: compression, chunk_bytes: chunk_bytes}}
+        {:ok,
+         %__MODULE__{
+           compression: compression,
+           chunk_bytes: chunk_bytes,
+           stream: Compression.stream(compression)
+         }}
     end
   end
 
@@ -144,14 +157,19 @@ defmodule ThinkingCap.MCAP.Writer do
     # the hot path: one update of the struct
     w = %{
       w
-      | chunk: [record | w.chunk],
+      | piece: [record | w.piece],
+        piece_size: w.piece_size + size,
         chunk_size: w.chunk_size + size,
         chunk_messages: [{channel_id, log_time, w.chunk_size} | w.chunk_messages],
         chunk_start: if(w.chunk_start, do: min(w.chunk_start, log_time), else: log_time),
         chunk_end: if(w.chunk_end, do: max(w.chunk_end, log_time), else: log_time)
     }
 
-    if w.chunk_size >= w.chunk_bytes, do: close_chunk(w), else: {:ok, w}
+    cond do
+      w.chunk_size >= w.chunk_bytes -> close_chunk(w)
+      w.piece_size >= @piece_bytes -> {:ok, give(w)}
+      true -> {:ok, w}
+    end
   end
 
   @doc "Bytes in the open chunk (uncompressed)."
@@ -176,9 +194,8 @@ defmodule ThinkingCap.MCAP.Writer do
 
   def close_chunk(%__MODULE__{} = w) do
     by_channel = group_by_channel(w.chunk_messages)
-    records = Enum.reverse(w.chunk)
-    crc = :erlang.crc32(records)
-    compressed = Compression.compress(w.compression, records)
+    {compressed, crc, size} = Compression.finish(give(w).stream)
+    ^size = w.chunk_size
     {start_time, end_time} = {w.chunk_start || 0, w.chunk_end || 0}
 
     {chunk, chunk_length} =
@@ -210,7 +227,8 @@ defmodule ThinkingCap.MCAP.Writer do
 
     w = %{
       w
-      | chunk: [],
+      | piece: [],
+        piece_size: 0,
         chunk_size: 0,
         chunk_start: nil,
         chunk_end: nil,
@@ -350,7 +368,20 @@ defmodule ThinkingCap.MCAP.Writer do
     do: {:ok, acc |> Enum.reverse() |> IO.iodata_to_binary()}
 
   defp put_record(w, {record, size}),
-    do: %{w | chunk: [record | w.chunk], chunk_size: w.chunk_size + size}
+    do: %{
+      w
+      | piece: [record | w.piece],
+        piece_size: w.piece_size + size,
+        chunk_size: w.chunk_size + size
+    }
+
+  # the records kept so far, given to the compression stream
+  defp give(%__MODULE__{piece: []} = w), do: w
+
+  defp give(w) do
+    :ok = Compression.add(w.stream, Enum.reverse(w.piece), w.piece_size)
+    %{w | piece: [], piece_size: 0}
+  end
 
   defp write(%__MODULE__{sink: {:file, fd}} = w, data) do
     case :file.write(fd, data) do

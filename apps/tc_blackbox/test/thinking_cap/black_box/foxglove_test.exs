@@ -71,8 +71,9 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
     t = decode(t)
     assert p["frame_id"] == "map"
     assert p["pose"]["position"] == %{"x" => 1.0, "y" => 2.0, "z" => 0.0}
-    assert_in_delta p["pose"]["orientation"]["z"], :math.sqrt(0.5), 1.0e-12
-    assert_in_delta p["pose"]["orientation"]["w"], :math.sqrt(0.5), 1.0e-12
+    # to the millionth
+    assert_in_delta p["pose"]["orientation"]["z"], :math.sqrt(0.5), 1.0e-6
+    assert_in_delta p["pose"]["orientation"]["w"], :math.sqrt(0.5), 1.0e-6
     assert t["parent_frame_id"] == "map" and t["child_frame_id"] == "r1/base_link"
     assert t["translation"] == p["pose"]["position"]
     assert t["rotation"] == p["pose"]["orientation"]

@@ -349,9 +349,9 @@ defmodule ThinkingCap.Runtime.Host do
     if batched != [], do: hold_trace(spec, {n, :erlang.monotonic_time(), event})
   end
 
-  # held until Trace.batching/0's count, or its delay after the first
+  # held until Trace.batching/1's count, or its delay after the first
   defp hold_trace(spec, item) do
-    {max_batch, delay} = Trace.batching()
+    {max_batch, delay} = Trace.batching(spec.robot)
 
     case Process.get(@trace_held, {0, []}) do
       {0, _} ->

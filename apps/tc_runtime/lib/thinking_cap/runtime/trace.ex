@@ -22,7 +22,8 @@ defmodule ThinkingCap.Runtime.Trace do
   ask for them in lists (`attach(robot, batch: true)`): each host then
   holds its module's events and sends them as `{:tc_trace_batch, robot,
   name, [{n, at, event}]}`, oldest first, when it holds 64, or
-  100 ms after the first (`at` is `System.monotonic_time/0` when the
+  100 ms after the first (`max_delay_ms:` sets that delay for the
+  robot's hosts; the last batched attach of a robot sets it) (`at` is `System.monotonic_time/0` when the
   callback ended, when the event would have been sent). A module's
   lists come in its order; a host that stops sends what it holds first,
   but one that is killed loses it (the numbers show the gap).
@@ -97,20 +98,41 @@ defmodule ThinkingCap.Runtime.Trace do
 
   @doc """
   Makes the calling process a sink of `robot`'s trace; with `batch: true`
-  its events come in lists (see the moduledoc).
+  its events come in lists (see the moduledoc), held up to
+  `max_delay_ms` (default #{@max_delay_ms}) after the first.
   """
-  @spec attach(atom(), [{:batch, boolean()}]) :: :ok
+  @spec attach(atom(), [{:batch, boolean()} | {:max_delay_ms, pos_integer()}]) :: :ok
   def attach(robot, opts \\ [])
 
   def attach(robot, opts) when is_atom(robot) and is_list(opts) do
-    batch =
+    {batch, delay} =
       case opts do
-        [] -> false
-        [batch: batch] when is_boolean(batch) -> batch
-        _ -> raise ArgumentError, "Trace.attach/2 takes [batch: boolean], got: #{inspect(opts)}"
+        [] ->
+          {false, nil}
+
+        [batch: batch] when is_boolean(batch) ->
+          {batch, @max_delay_ms}
+
+        [batch: true, max_delay_ms: ms] when is_integer(ms) and ms > 0 ->
+          {true, ms}
+
+        _ ->
+          raise ArgumentError,
+                "Trace.attach/2 takes [batch: boolean] or [batch: true, max_delay_ms: " <>
+                  "positive integer], got: #{inspect(opts)}"
       end
 
+    if batch, do: put_delay(robot, delay)
     :pg.join(ThinkingCap.Runtime.scope(), group(robot, batch), self())
+  end
+
+  # a robot's hold, read by its hosts at each event: written only when it
+  # changes (a persistent term's update is costly, its read is not)
+  defp put_delay(robot, delay) do
+    key = {__MODULE__, :delay, robot}
+
+    if :persistent_term.get(key, @max_delay_ms) != delay,
+      do: :persistent_term.put(key, delay)
   end
 
   @doc "The calling process stops being a sink of `robot`'s trace."
@@ -118,6 +140,8 @@ defmodule ThinkingCap.Runtime.Trace do
   def detach(robot) when is_atom(robot) do
     _ = :pg.leave(ThinkingCap.Runtime.scope(), group(robot, false), self())
     _ = :pg.leave(ThinkingCap.Runtime.scope(), group(robot, true), self())
+    # the robot's hold, once no batched sink is left
+    if batch_sinks(robot) == [], do: :persistent_term.erase({__MODULE__, :delay, robot})
     :ok
   end
 
@@ -139,9 +163,10 @@ defmodule ThinkingCap.Runtime.Trace do
   defp group(robot, true), do: {:tc_trace_batch, robot}
 
   @doc false
-  # how many events a host holds for the batched sinks, and how long
-  @spec batching() :: {pos_integer(), pos_integer()}
-  def batching, do: {@max_batch, @max_delay_ms}
+  # how many events a host of `robot` holds for the batched sinks, and how long
+  @spec batching(atom()) :: {pos_integer(), pos_integer()}
+  def batching(robot),
+    do: {@max_batch, :persistent_term.get({__MODULE__, :delay, robot}, @max_delay_ms)}
 
   @doc """
   Whether a module's callbacks are traced: unless its

@@ -187,9 +187,40 @@ defmodule ThinkingCap.Runtime.TraceTest do
     assert Trace.sinks(robot) == []
   end
 
+  test "a batched sink may have its robot's events held longer", %{tmp_dir: dir} do
+    {adf, robot, name} = event_module(dir, "held")
+
+    :ok = Trace.attach(robot, batch: true, max_delay_ms: 1_000)
+    assert Trace.batching(robot) == {64, 1_000}
+    {:ok, _} = Runtime.start(adf)
+    # init; then two tuples 200 ms apart: one list, a second after the first
+    assert_receive {:tc_trace_batch, ^robot, ^name, [{0, _, {{:init, _}, _}}]}, 3_000
+    Blackboard.out({:tick, robot, %{n: 1}})
+    Process.sleep(200)
+    Blackboard.out({:tick, robot, %{n: 2}})
+    refute_receive {:tc_trace_batch, ^robot, ^name, _}, 300
+    assert_receive {:tc_trace_batch, ^robot, ^name, [{1, _, _}, {2, _, _}]}, 3_000
+
+    # the last detach forgets it; a batched attach without a delay has the default
+    :ok = Trace.detach(robot)
+    assert Trace.batching(robot) == {64, 100}
+    :ok = Trace.attach(robot, batch: true, max_delay_ms: 250)
+    :ok = Trace.attach(robot, batch: true)
+    assert Trace.batching(robot) == {64, 100}
+    :ok = Trace.detach(robot)
+  end
+
   test "Trace.attach/2 refuses options it does not know" do
     assert_raise ArgumentError, ~r/batch: boolean/, fn -> Trace.attach(:r1, batch: 1) end
     assert_raise ArgumentError, ~r/batch: boolean/, fn -> Trace.attach(:r1, max: 2) end
+
+    assert_raise ArgumentError, ~r/max_delay_ms/, fn ->
+      Trace.attach(:r1, batch: true, max_delay_ms: 0)
+    end
+
+    assert_raise ArgumentError, ~r/max_delay_ms/, fn ->
+      Trace.attach(:r1, batch: false, max_delay_ms: 10)
+    end
   end
 
   test "a module that says trace: false is not traced", %{tmp_dir: dir} do

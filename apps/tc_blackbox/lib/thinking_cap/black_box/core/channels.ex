@@ -7,7 +7,8 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # (`:erlang.term_to_binary/1`, message encoding "etf", no schema), on
   # `/etf/ID/TAG`, for a replay. The Foxglove messages of large tuples
   # that come many a second (the LPS: 9 KB of JSON, 180 µs, ten a second)
-  # are thinned to one a second per topic; their terms are all kept. A module's trace
+  # are thinned to one a second of the robot's clock (their stamps) per
+  # topic; their terms are all kept. A module's trace
   # (ThinkingCap.Runtime.Trace) goes on `/trace/ROBOT/NAME`, callbacks
   # `[{n, us, callback}]` a message ("etf" too), its sequence the
   # first's `n`, `us` each one's time after the message's. A
@@ -31,7 +32,8 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @etf "etf"
 
   # Foxglove's JSON of these tuples (large, and many a second) is written
-  # at most once a `@json_period_ns` per topic; their whole terms every time
+  # at most once a `@json_period_ns` of publish time per topic; their
+  # whole terms every time
   @big [:lps, :particles, :topology, :segments]
   @json_period_ns 1_000_000_000
 
@@ -53,23 +55,27 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
   def write_tuple(w, chans, tuple, time) do
     publish = Foxglove.stamp_ns(tuple) || time
-    {messages, chans} = foxglove(chans, tuple, time)
+    {messages, chans} = foxglove(chans, tuple, time, publish)
 
     with {:ok, w, chans, n} <- write_all(messages, w, chans, time, publish, 0) do
       if chans.terms, do: write_term(w, chans, tuple, time, publish, n), else: {:ok, w, chans, n}
     end
   end
 
-  defp foxglove(chans, {tag, id, _} = tuple, time) when tag in @big do
+  # thinned on the publish time (the robot's clock: a simulation's, which
+  # may run slower than the wall's), so that a recording holds the same
+  # whatever the speed; a stamp that went back (a new simulation) starts
+  # the period again
+  defp foxglove(chans, {tag, id, _} = tuple, time, publish) when tag in @big do
     key = {tag, id}
 
     case chans.json_at do
-      %{^key => at} when time - at < @json_period_ns -> {[], chans}
-      at -> {Foxglove.messages(tuple, time), %{chans | json_at: Map.put(at, key, time)}}
+      %{^key => at} when publish - at < @json_period_ns and publish >= at -> {[], chans}
+      at -> {Foxglove.messages(tuple, time), %{chans | json_at: Map.put(at, key, publish)}}
     end
   end
 
-  defp foxglove(chans, tuple, time), do: {Foxglove.messages(tuple, time), chans}
+  defp foxglove(chans, tuple, time, _publish), do: {Foxglove.messages(tuple, time), chans}
 
   defp write_all([], w, chans, _time, _publish, n), do: {:ok, w, chans, n}
 
