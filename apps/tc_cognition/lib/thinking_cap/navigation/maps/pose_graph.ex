@@ -19,6 +19,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   clearly better than the estimate when it moves it far (more than
   0.15 m or 0.05 rad: by 5 % of the points), and fixes the pose sharply (σ at most `max_sigma` m and
   `max_sigma_angle` rad) is a **loop closure**: an edge from the old node.
+  A large correction (more than 0.15 m or 0.05 rad) must be said by two
+  nodes' matches alike (this one's and one of the two before): one scan
+  may fit a wrong place well by chance, two in a row seldom do.
   In a corridor a scan fixes the place across it and the heading, not
   the place along it: the match's scores run level along the corridor
   through the window. Such a match moves the pose only across the
@@ -44,7 +47,8 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # more likely taken one wall for another beside it
   @ridge_move 0.15
 
-  defstruct nodes: %{},
+  defstruct pending: nil,
+            nodes: %{},
             odometry: %{},
             points: %{},
             along: %{},
@@ -61,6 +65,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           kind: :sequence | :odometry | :loop
         }
   @type t :: %__MODULE__{
+          pending: {non_neg_integer(), pose()} | nil,
           nodes: %{non_neg_integer() => pose()},
           odometry: %{non_neg_integer() => pose() | nil},
           points: %{non_neg_integer() => binary()},
@@ -205,6 +210,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   def close_loop(%__MODULE__{} = g, id) do
     with {:ok, anchor, ref} <- submap(g, id),
          {:ok, matched, cov} <- match(g, id, ref, window(g, anchor, id)),
+         {:ok, g} <- confirmed(g, id, matched),
          {:ok, edge} <- loop_edge(g, anchor, id, matched, cov) do
       if agrees?(g, edge) do
         # the graph already says so: kept, nothing to optimize
@@ -218,9 +224,38 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           else: {:none, g}
       end
     else
+      {:pending, g} -> {:none, g}
       _ -> {:none, g}
     end
   end
+
+  # A large correction (more than 0.15 m or 0.05 rad) must be said twice:
+  # by this node's match and by one of the two nodes' before, alike
+  # within 0.1 m and 0.03 rad. One scan may fit a wrong place well by
+  # chance (a row of doors, boxes like others); two in a row seldom do.
+  defp confirmed(g, id, matched) do
+    {x, y, th} = pose(g, id)
+    {mx, my, mth} = matched
+    c = {mx - x, my - y, normalize_angle(mth - th)}
+
+    cond do
+      not large?(c) ->
+        {:ok, g}
+
+      alike?(g.pending, id, c) ->
+        {:ok, %{g | pending: nil}}
+
+      true ->
+        {:pending, %{g | pending: {id, c}}}
+    end
+  end
+
+  defp large?({dx, dy, dth}), do: :math.sqrt(dx * dx + dy * dy) > 0.15 or abs(dth) > 0.05
+
+  defp alike?({pid, {px, py, pth}}, id, {dx, dy, dth}) when id - pid <= 2,
+    do: :math.sqrt((dx - px) ** 2 + (dy - py) ** 2) <= 0.1 and abs(dth - pth) <= 0.03
+
+  defp alike?(_pending, _id, _c), do: false
 
   # whether a loop edge says what the graph's poses say already (within
   # 1 cm and 0.2 degrees)

@@ -205,6 +205,32 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     end
   end
 
+  describe "close_loop/2, a large correction" do
+    test "waits for a second node's match to say the same" do
+      walls = room(8.0, 6.0)
+      {truth, _} = DriftingCircle.poses(22)
+
+      g =
+        truth
+        |> Enum.take(20)
+        |> Enum.reduce(PoseGraph.new(loop_gap: 15), fn pose, g ->
+          {_id, g} = PoseGraph.add_node(g, pose, nil, bin(seen(walls, pose)))
+          g
+        end)
+
+      # the next two nodes 0.3 m off: a correction larger than 0.15 m
+      off = fn {x, y, th} -> {x + 0.3, y, th} end
+      t20 = Enum.at(truth, 20)
+      {id, g} = PoseGraph.add_node(g, off.(t20), nil, bin(seen(walls, t20)))
+      assert {:none, g} = PoseGraph.close_loop(g, id)
+
+      t21 = Enum.at(truth, 21)
+      {id, g} = PoseGraph.add_node(g, off.(t21), nil, bin(seen(walls, t21)))
+      assert {:closed, g, _from, _to} = PoseGraph.close_loop(g, id)
+      assert distance(PoseGraph.pose(g, id), t21) < 0.05
+    end
+  end
+
   describe "close_loop/2 in a corridor" do
     # down a long corridor and back: the way back drifted 0.12 m across
     # it and 0.3 m along it
