@@ -20,7 +20,9 @@ defmodule ThinkingCap.Bench.Explore do
   Ends with `explore: runs=N coverage_pct=C accuracy_pct=A seconds=S`.
 
   For tuning: `TC_TRACE=1` prints the estimate's error every second
-  (every 0.1 s in the first 10 s); `TC_LIMIT` cuts runs short (s);
+  (every 0.1 s in the first 10 s), and at the end the map builder's pose
+  graph against where the robot truly was (the nodes' mean error, 25
+  at a time, and what remains after the best rigid fit); `TC_LIMIT` cuts runs short (s);
   `TC_MCL` and `TC_MAPPER` hold keyword
   lists (Elixir terms) added to the localizer's and the map builder's
   params; `TC_KEEP=1` keeps the saved maps.
@@ -140,7 +142,9 @@ defmodule ThinkingCap.Bench.Explore do
         controller: {Sim.LockstepController, modules: modules, rdf: rdf, wdf: empty}
       )
 
+    Process.put(:node_truth, %{})
     {time, state} = drive(sim, 0.0)
+    if System.get_env("TC_TRACE"), do: node_report(sim)
     blocked = Sim.status(sim).blocked
     unless File.exists?(saved), do: save_unfinished(sim, saved)
     GenServer.stop(sim)
@@ -190,6 +194,7 @@ defmodule ThinkingCap.Bench.Explore do
         :ok = Sim.run_for(sim, dt)
         {:ok, {x, y, th}} = Sim.pose(sim, :explorer)
         {:ok, c} = Sim.controller_state(sim, :explorer)
+        note_node(c.lock, {x, y, th})
 
         case Lockstep.latest(c.lock, Tuples.pose(:explorer)) do
           Tuples.pose(_, %{pose: {ex, ey, eth}} = p) ->
@@ -208,6 +213,97 @@ defmodule ThinkingCap.Bench.Explore do
     else
       Sim.run_for(sim, 10.0)
     end
+  end
+
+  defp note_node(lock, truth) do
+    case Lockstep.state(lock, :mapper) do
+      %{loops: %{graph: g}} when g.next > 0 ->
+        id = g.next - 1
+        m = Process.get(:node_truth)
+        # where the node truly was: the truth moved by the node's place
+        # seen from the current estimate
+        with false <- Map.has_key?(m, id),
+             Tuples.pose(_, %{pose: est}) <- Lockstep.latest(lock, Tuples.pose(:explorer)) do
+          at =
+            ThinkingCap.Navigation.EKF.motion(
+              truth,
+              ThinkingCap.Navigation.EKF.relative(est, g.nodes[id])
+            )
+
+          Process.put(:node_truth, Map.put(m, id, at))
+        end
+
+      _ ->
+        :ok
+    end
+  end
+
+  # the final graph's nodes against where the robot truly was (TC_TRACE)
+  defp node_report(sim) do
+    {:ok, c} = Sim.controller_state(sim, :explorer)
+
+    with %{loops: %{graph: g}} <- Lockstep.state(c.lock, :mapper),
+         truth = Process.get(:node_truth),
+         [_ | _] <- for({id, t} <- truth, Map.has_key?(g.nodes, id), do: {id, g.nodes[id], t}) do
+      report_nodes(g, truth)
+    else
+      _ -> :ok
+    end
+  end
+
+  defp report_nodes(g, truth) do
+    pairs = for {id, t} <- truth, Map.has_key?(g.nodes, id), do: {id, g.nodes[id], t}
+    loops = Enum.count(g.edges, &(&1.kind == :loop))
+    IO.puts("nodes: #{g.next} loops edges: #{loops}")
+
+    pairs
+    |> Enum.sort()
+    |> Enum.chunk_every(25)
+    |> Enum.each(fn chunk ->
+      errs =
+        for {_, {x, y, th}, {tx, ty, tth}} <- chunk,
+            do: {:math.sqrt((x - tx) ** 2 + (y - ty) ** 2), normalize_angle(th - tth)}
+
+      {id0, _, {tx, ty, _}} = hd(chunk)
+      n = length(errs)
+
+      IO.puts(
+        "  node #{id0} at (#{NavRun.fmt(tx)}, #{NavRun.fmt(ty)}): err #{NavRun.fmt(Enum.sum(Enum.map(errs, &elem(&1, 0))) / n)} dth #{NavRun.fmt(Enum.sum(Enum.map(errs, &elem(&1, 1))) / n)}"
+      )
+    end)
+
+    # best rigid fit of node positions onto truth
+    n = length(pairs)
+
+    {mx, my, tx, ty} =
+      Enum.reduce(pairs, {0.0, 0.0, 0.0, 0.0}, fn {_, {x, y, _}, {a, b, _}}, {s1, s2, s3, s4} ->
+        {s1 + x / n, s2 + y / n, s3 + a / n, s4 + b / n}
+      end)
+
+    {sc, ss} =
+      Enum.reduce(pairs, {0.0, 0.0}, fn {_, {x, y, _}, {a, b, _}}, {sc, ss} ->
+        {px, py, qx, qy} = {x - mx, y - my, a - tx, b - ty}
+        {sc + px * qx + py * qy, ss + px * qy - py * qx}
+      end)
+
+    rot = :math.atan2(ss, sc)
+
+    res =
+      for {_, {x, y, _}, {a, b, _}} <- pairs do
+        {px, py} = {x - mx, y - my}
+
+        {rx, ry} =
+          {:math.cos(rot) * px - :math.sin(rot) * py + tx,
+           :math.sin(rot) * px + :math.cos(rot) * py + ty}
+
+        :math.sqrt((rx - a) ** 2 + (ry - b) ** 2)
+      end
+
+    raw = for {_, {x, y, _}, {a, b, _}} <- pairs, do: :math.sqrt((x - a) ** 2 + (y - b) ** 2)
+
+    IO.puts(
+      "fit: rotation #{NavRun.fmt(rot)} rad, centroids (#{NavRun.fmt(tx - mx)}, #{NavRun.fmt(ty - my)}) m apart; mean err raw #{NavRun.fmt(Enum.sum(raw) / n)} after fit #{NavRun.fmt(Enum.sum(res) / n)} max after #{NavRun.fmt(Enum.max(res))}"
+    )
   end
 
   # what the controller drove and which behaviours were active

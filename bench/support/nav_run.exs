@@ -288,7 +288,10 @@ defmodule ThinkingCap.Bench.NavRun do
   def fmt(x), do: :erlang.float_to_binary(x * 1.0, decimals: 2)
 
   def tmp_dir do
-    dir = Path.join(System.tmp_dir!(), "tc_bench_#{System.unique_integer([:positive])}")
+    # the OS process in the name: benchmarks run side by side must not
+    # share (and remove) each other's directories
+    name = "tc_bench_#{System.pid()}_#{System.unique_integer([:positive])}"
+    dir = Path.join(System.tmp_dir!(), name)
     File.mkdir_p!(dir)
     dir
   end

@@ -131,8 +131,11 @@ static double score_at(const Lgrid *g, const double *q, int n, double x, double 
 }
 
 /* slam_match(ref, query, {x, y, th}, {window_m, window_rad}, res, sigma)
- *   -> {{x, y, th}, score, {cxx, cxy, cxt, cyy, cyt, ctt}, score_at_guess}
- *      | :none (nothing to match, or the best pose on the window's border)
+ *   -> {{x, y, th}, score, {cxx, cxy, cxt, cyy, cyt, ctt}, score_at_guess, ridge}
+ *      | :none (nothing to match, or the best pose on the window's border,
+ *        unless on a ridge of scores: see below)
+ * ridge: true when the scores run level one way through the window (a
+ * corridor): the match then fixes the pose only across that way
  * scores are mean likelihoods of the query's points, 0 to 1 */
 ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -190,12 +193,13 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
             }
     }
 
-    /* a best pose on the window's border may be the slope of a peak
+    /* a best heading on the window's border may be the slope of a peak
      * outside it: no match */
-    if ((U > 0 && (bu == -U || bu == U || bv == -U || bv == U)) || (K > 0 && (bk == -K || bk == K))) {
+    if (K > 0 && (bk == -K || bk == K)) {
         free(scores), free(cells), free(g.l);
         return enif_make_atom(env, "none");
     }
+    int xy_border = U > 0 && (bu == -U || bu == U || bv == -U || bv == U);
     double at_guess = scores[((size_t)K * side + U) * side + U];
 
     /* the spread of the scores round the best: weights exp(beta (s - best)),
@@ -215,12 +219,70 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
                 sxx += wgt * x * x, sxy += wgt * x * y, sxt += wgt * x * t;
                 syy += wgt * y * y, syt += wgt * y * t, stt += wgt * t * t;
             }
-    free(scores);
     free(cells);
     mx /= sw, my /= sw, mt /= sw;
     double cxx = sxx / sw - mx * mx + res * res / 12, cxy = sxy / sw - mx * my;
     double cxt = sxt / sw - mx * mt, cyy = syy / sw - my * my + res * res / 12;
     double cyt = syt / sw - my * mt, ctt = stt / sw - mt * mt + dth * dth / 12;
+
+    /* whether the scores form a ridge (a corridor: its length not fixed)
+     * that runs level through the window: the spread much longer one way
+     * than across, the best well inside the window across it, and along
+     * it, at the best heading, the best score within a cell and a half of
+     * its line at least 90 % of the best all the way, over at least the
+     * window's width. The slope of a peak beyond the window's border
+     * falls away from it instead. */
+    int ridge = 0;
+    {
+        double tr = cxx + cyy, det = cxx * cyy - cxy * cxy;
+        double disc = sqrt(fmax(0.0, tr * tr / 4 - det));
+        double big = tr / 2 + disc, small = tr / 2 - disc;
+        /* the ridge's direction: the eigenvector of the larger eigenvalue */
+        double ex = cxy, ey = big - cxx;
+        if (fabs(ex) + fabs(ey) < 1e-12) ex = big - cyy, ey = cxy;
+        if (fabs(ex) + fabs(ey) < 1e-12) ex = 1.0, ey = 0.0;
+        double en = hypot(ex, ey);
+        ex /= en, ey /= en;
+        double across = fabs(-ey * bu * res + ex * bv * res);
+        int nb = 2 * side + 1;
+        float *level = (U > 0 && big >= 9 * small && across <= win[0] - 2 * res)
+                           ? calloc((size_t)nb, sizeof(float))
+                           : NULL;
+        if (level) {
+            for (int v = -U; v <= U; v++)
+                for (int u = -U; u <= U; u++) {
+                    double du = (u - bu) * res, dv = (v - bv) * res;
+                    if (fabs(-ey * du + ex * dv) > 1.5 * res) continue;
+                    int b = (int)lround((ex * du + ey * dv) / res) + side;
+                    float sc = scores[((size_t)(bk + K) * side + (v + U)) * side + (u + U)];
+                    if (b >= 0 && b < nb && sc > level[b]) level[b] = sc;
+                }
+            int first = -1, last = -1;
+            for (int b = 0; b < nb; b++)
+                if (level[b] > 0) {
+                    if (first < 0) first = b;
+                    last = b;
+                }
+            ridge = first >= 0 && (last - first) * res >= win[0];
+            /* (the best of three neighbouring steps: points spaced evenly
+             * along a wall make the scores ripple along it) */
+            for (int b = first; ridge && b <= last; b++) {
+                float m = level[b];
+                if (b > first && level[b - 1] > m) m = level[b - 1];
+                if (b < last && level[b + 1] > m) m = level[b + 1];
+                if (m < 0.9 * best) ridge = 0;
+            }
+            free(level);
+        }
+    }
+    free(scores);
+
+    /* a best place on the window's border may be the slope of a peak
+     * outside it: no match, unless on a ridge */
+    if (xy_border && !ridge) {
+        free(g.l);
+        return enif_make_atom(env, "none");
+    }
 
     /* refine: hill climbing on the bilinear likelihood */
     double x = guess[0] + bu * res, y = guess[1] + bv * res, th = guess[2] + bk * dth;
@@ -239,12 +301,12 @@ ERL_NIF_TERM tc_nif_slam_match(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     ERL_NIF_TERM cov[6] = {enif_make_double(env, cxx), enif_make_double(env, cxy),
                            enif_make_double(env, cxt), enif_make_double(env, cyy),
                            enif_make_double(env, cyt), enif_make_double(env, ctt)};
-    return enif_make_tuple4(
+    return enif_make_tuple5(
         env,
         enif_make_tuple3(env, enif_make_double(env, x), enif_make_double(env, y),
                          enif_make_double(env, tc_wrap(th))),
         enif_make_double(env, cur / nq), enif_make_tuple_from_array(env, cov, 6),
-        enif_make_double(env, at_guess / nq));
+        enif_make_double(env, at_guess / nq), enif_make_atom(env, ridge ? "true" : "false"));
 }
 
 /* ---- the pose graph ---- */

@@ -71,7 +71,10 @@ defmodule ThinkingCap.Navigation.Mapper do
     * `door_width`, `min_area` - the room segmentation's
       (`ThinkingCap.Navigation.Maps.Rooms.from_occupancy/2`);
     * `loop_closure` - in a map started from nothing, close loops
-      (default true; see below).
+      (default true; see below);
+    * `slam` - the loop closure's options, numbers
+      (`ThinkingCap.Navigation.Maps.Loops.new/1`, with those of
+      `ThinkingCap.Navigation.Maps.PoseGraph.new/1`; default none).
 
   ## Loop closure
 
@@ -134,7 +137,9 @@ defmodule ThinkingCap.Navigation.Mapper do
     laser: {@degrees, default: nil, doc: "laser degrees: k_empty, k_occupied, range"},
     sonar: {@degrees, default: nil, doc: "sonar degrees: k_empty, k_occupied, trust"},
     loop_closure:
-      {:boolean, default: true, doc: "close loops in a map built from nothing (pose-graph SLAM)"}
+      {:boolean, default: true, doc: "close loops in a map built from nothing (pose-graph SLAM)"},
+    slam:
+      {@degrees, default: [], doc: "the loop closure's options (Loops.new/1 and PoseGraph.new/1)"}
   ]
   @defaults ThinkingCap.Config.Schema.defaults(@params)
 
@@ -183,7 +188,10 @@ defmodule ThinkingCap.Navigation.Mapper do
       saved_at: nil,
       last_map: nil,
       lasers: lasers,
-      loops: if(blank and params[:loop_closure] and lasers != %{}, do: Loops.new())
+      loops:
+        if(blank and params[:loop_closure] and lasers != %{},
+          do: Loops.new(Enum.to_list(params[:slam]))
+        )
     }
 
     # odometry first, then what else it hears, then the range sensors

@@ -213,6 +213,21 @@ defmodule ThinkingCap.Navigation.MapperTest do
     end
   end
 
+  test "slam: the loop closure's options reach its pose graph", %{tmp_dir: dir} do
+    {_subscriptions, state} =
+      Mapper.init([slam: [loop_gap: 12, keep_distance: 0.2]], %{
+        name: :mapper,
+        robot: :r,
+        rdf: @rdf,
+        wdf: T.wdf!(dir, [])
+      })
+
+    assert state.loops.graph.params.loop_gap == 12
+    assert state.loops.params.keep_distance == 0.2
+    # the others keep their defaults
+    assert state.loops.graph.params.loop_radius == 4.0
+  end
+
   test "a robot with no range sensor cannot build a map", %{tmp_dir: dir} do
     rdf = T.rdf!(dir, sensors: [[name: :odom, type: :odometry]])
 

@@ -18,8 +18,16 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   points), lies inside the search window (not on its border), fits
   clearly better than the estimate when it moves it far (more than
   0.15 m or 0.05 rad: by 5 % of the points), and fixes the pose sharply (σ at most `max_sigma` m and
-  `max_sigma_angle` rad: a corridor's length is not fixed by a scan
-  inside it) is a **loop closure**: an edge from the old node. The graph
+  `max_sigma_angle` rad) is a **loop closure**: an edge from the old node.
+  A large correction (more than 0.15 m or 0.05 rad) must be said by two
+  nodes' matches alike (this one's and one of the two before): one scan
+  may fit a wrong place well by chance, two in a row seldom do.
+  In a corridor a scan fixes the place across it and the heading, not
+  the place along it: the match's scores run level along the corridor
+  through the window. Such a match moves the pose only across the
+  corridor, by at most 0.15 m (farther, one wall may have been taken for
+  another beside it), and its edge holds the pose across it and hardly
+  along it (σ 1 m). The graph
   is then optimized (Gauss-Newton, `slam_optimize`), and a loop edge that
   does not fit the rest afterwards (χ² above `max_chi2`) is dropped and
   the graph optimized again.
@@ -32,7 +40,15 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   alias ThinkingCap.Navigation.EKF
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
 
-  defstruct nodes: %{},
+  # the variance given to a corridor's match along the corridor, m²
+  @along_variance 1.0
+  # the farthest a corridor's match moves the pose across it, m: across a
+  # corridor the localizer seldom errs by more; a match that says so has
+  # more likely taken one wall for another beside it
+  @ridge_move 0.15
+
+  defstruct pending: nil,
+            nodes: %{},
             odometry: %{},
             points: %{},
             along: %{},
@@ -49,6 +65,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           kind: :sequence | :odometry | :loop
         }
   @type t :: %__MODULE__{
+          pending: {non_neg_integer(), pose()} | nil,
           nodes: %{non_neg_integer() => pose()},
           odometry: %{non_neg_integer() => pose() | nil},
           points: %{non_neg_integer() => binary()},
@@ -193,6 +210,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   def close_loop(%__MODULE__{} = g, id) do
     with {:ok, anchor, ref} <- submap(g, id),
          {:ok, matched, cov} <- match(g, id, ref, window(g, anchor, id)),
+         {:ok, g} <- confirmed(g, id, matched),
          {:ok, edge} <- loop_edge(g, anchor, id, matched, cov) do
       if agrees?(g, edge) do
         # the graph already says so: kept, nothing to optimize
@@ -206,9 +224,38 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
           else: {:none, g}
       end
     else
+      {:pending, g} -> {:none, g}
       _ -> {:none, g}
     end
   end
+
+  # A large correction (more than 0.15 m or 0.05 rad) must be said twice:
+  # by this node's match and by one of the two nodes' before, alike
+  # within 0.1 m and 0.03 rad. One scan may fit a wrong place well by
+  # chance (a row of doors, boxes like others); two in a row seldom do.
+  defp confirmed(g, id, matched) do
+    {x, y, th} = pose(g, id)
+    {mx, my, mth} = matched
+    c = {mx - x, my - y, normalize_angle(mth - th)}
+
+    cond do
+      not large?(c) ->
+        {:ok, g}
+
+      alike?(g.pending, id, c) ->
+        {:ok, %{g | pending: nil}}
+
+      true ->
+        {:pending, %{g | pending: {id, c}}}
+    end
+  end
+
+  defp large?({dx, dy, dth}), do: :math.sqrt(dx * dx + dy * dy) > 0.15 or abs(dth) > 0.05
+
+  defp alike?({pid, {px, py, pth}}, id, {dx, dy, dth}) when id - pid <= 2,
+    do: :math.sqrt((dx - px) ** 2 + (dy - py) ** 2) <= 0.1 and abs(dth - pth) <= 0.03
+
+  defp alike?(_pending, _id, _c), do: false
 
   # whether a loop edge says what the graph's poses say already (within
   # 1 cm and 0.2 degrees)
@@ -275,10 +322,13 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
              p.resolution,
              p.resolution
            ) do
-        {matched, score, cov, at_guess} when score >= p.min_score ->
-          if decisive?(pose(g, id), matched, score, at_guess),
-            do: sharp(p, matched, cov),
-            else: :none
+        {matched, score, cov, at_guess, ridge} when score >= p.min_score ->
+          with {:ok, matched, cov} <- sharp(p, pose(g, id), matched, cov, ridge),
+               true <- decisive?(pose(g, id), matched, score, at_guess) do
+            {:ok, matched, cov}
+          else
+            _ -> :none
+          end
 
         _ ->
           :none
@@ -295,10 +345,65 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     small or score - at_guess >= 0.05
   end
 
-  defp sharp(p, matched, {cxx, _cxy, _cxt, cyy, _cyt, ctt} = cov) do
-    if :math.sqrt(max(cxx, cyy)) <= p.max_sigma and :math.sqrt(ctt) <= p.max_sigma_angle,
-      do: {:ok, matched, cov},
-      else: :none
+  # A match must fix the heading and the place sharply. In a corridor (the
+  # scores run level along it through the window: `ridge`) it fixes the
+  # place across the corridor but not along it: then the match moves the
+  # pose only across, and the edge says next to nothing along it.
+  defp sharp(p, guess, matched, {cxx, cxy, cxt, cyy, cyt, ctt} = cov, ridge) do
+    {big, small, {ex, ey}} = principal(cxx, cxy, cyy)
+
+    cond do
+      :math.sqrt(ctt) > p.max_sigma_angle or :math.sqrt(small) > p.max_sigma ->
+        :none
+
+      :math.sqrt(big) <= p.max_sigma ->
+        {:ok, matched, cov}
+
+      ridge ->
+        {gx, gy, _} = guess
+        {mx, my, mth} = matched
+        along = (mx - gx) * ex + (my - gy) * ey
+        across = -(mx - gx) * ey + (my - gy) * ex
+        moved = {mx - along * ex, my - along * ey, mth}
+
+        if abs(across) <= @ridge_move,
+          do: ridge_match(moved, small, {ex, ey}, cxt, cyt, ctt),
+          else: :none
+
+      true ->
+        :none
+    end
+  end
+
+  defp ridge_match(moved, small, {ex, ey}, cxt, cyt, ctt) do
+    # across: the match's spread; along: loose
+    {ax, ay} = {-ey, ex}
+    at = cxt * ax + cyt * ay
+    l = @along_variance
+
+    cov =
+      {small * ax * ax + l * ex * ex, small * ax * ay + l * ex * ey, at * ax,
+       small * ay * ay + l * ey * ey, at * ay, ctt}
+
+    {:ok, moved, cov}
+  end
+
+  # the eigenvalues of a symmetric 2x2 (larger first) and the larger's
+  # unit eigenvector
+  defp principal(a, b, d) do
+    half = (a + d) / 2
+    disc = :math.sqrt(max(0.0, (a - d) * (a - d) / 4 + b * b))
+    big = half + disc
+
+    {ex, ey} =
+      cond do
+        abs(b) > 1.0e-12 -> {b, big - a}
+        a >= d -> {1.0, 0.0}
+        true -> {0.0, 1.0}
+      end
+
+    n = :math.sqrt(ex * ex + ey * ey)
+    {big, half - disc, {ex / n, ey / n}}
   end
 
   defp loop_edge(g, anchor, id, matched, {cxx, cxy, cxt, cyy, cyt, ctt}) do

@@ -43,7 +43,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       truth = {3.1, 2.2, 0.4}
       query = bin(seen(walls, truth))
 
-      {{x, y, th}, score, {cxx, _, _, cyy, _, ctt}, at_guess} =
+      {{x, y, th}, score, {cxx, _, _, cyy, _, ctt}, at_guess, false} =
         GridNif.slam_match(bin(walls), query, {3.3, 2.05, 0.5}, {0.5, 0.2}, 0.05, 0.05)
 
       assert_in_delta x, 3.1, 0.02
@@ -59,9 +59,24 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
 
       query = bin(seen(walls, {10.0, 0.75, 0.0}))
 
-      {_pose, _score, {cxx, _, _, cyy, _, _}, _at_guess} =
+      {_pose, _score, {cxx, _, _, cyy, _, _}, _at_guess, true} =
         GridNif.slam_match(bin(walls), query, {10.2, 0.75, 0.0}, {0.5, 0.1}, 0.05, 0.05)
 
+      assert :math.sqrt(cxx) > 0.1
+      assert :math.sqrt(cyy) < 0.05
+    end
+
+    test "in a corridor, a best pose on the border along it still fixes the place across it" do
+      # 40 m long, 2 m wide, nothing along it within the laser's reach
+      walls = for k <- 0..800, y <- [0.0, 2.0], do: {k * 0.05, y}
+      query = bin(seen(walls, {20.0, 1.0, 0.0}))
+
+      {{_x, y, th}, _score, {cxx, _, _, cyy, _, _}, at_guess, true} =
+        GridNif.slam_match(bin(walls), query, {20.3, 1.2, 0.03}, {0.5, 0.1}, 0.05, 0.05)
+
+      assert_in_delta y, 1.0, 0.02
+      assert_in_delta th, 0.0, 0.01
+      assert at_guess < 0.5
       assert :math.sqrt(cxx) > 0.1
       assert :math.sqrt(cyy) < 0.05
     end
@@ -190,6 +205,86 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     end
   end
 
+  describe "close_loop/2, a large correction" do
+    test "waits for a second node's match to say the same" do
+      walls = room(8.0, 6.0)
+      {truth, _} = DriftingCircle.poses(22)
+
+      g =
+        truth
+        |> Enum.take(20)
+        |> Enum.reduce(PoseGraph.new(loop_gap: 15), fn pose, g ->
+          {_id, g} = PoseGraph.add_node(g, pose, nil, bin(seen(walls, pose)))
+          g
+        end)
+
+      # the next two nodes 0.3 m off: a correction larger than 0.15 m
+      off = fn {x, y, th} -> {x + 0.3, y, th} end
+      t20 = Enum.at(truth, 20)
+      {id, g} = PoseGraph.add_node(g, off.(t20), nil, bin(seen(walls, t20)))
+      assert {:none, g} = PoseGraph.close_loop(g, id)
+
+      t21 = Enum.at(truth, 21)
+      {id, g} = PoseGraph.add_node(g, off.(t21), nil, bin(seen(walls, t21)))
+      assert {:closed, g, _from, _to} = PoseGraph.close_loop(g, id)
+      assert distance(PoseGraph.pose(g, id), t21) < 0.05
+    end
+  end
+
+  describe "close_loop/2 in a corridor" do
+    # down a long corridor and back: the way back drifted 0.12 m across
+    # it and 0.3 m along it
+    defp corridor_and_back(across \\ 0.12) do
+      walls = for k <- 0..800, y <- [0.0, 2.0], do: {k * 0.05, y}
+      out = for k <- 0..39, do: {10.0 + k * 0.3, 1.0, 0.0}
+      back = for k <- 0..15, do: {21.7 - k * 0.3, 1.0, :math.pi()}
+
+      {g, results} =
+        Enum.reduce(out ++ back, {PoseGraph.new(), []}, fn {x, y, th} = truth, {g, acc} ->
+          # out: true; the first node back 0.3 m along and 0.12 m across
+          # off; then each one step on from where the graph has the last
+          estimate =
+            cond do
+              th == 0.0 -> truth
+              x == 21.7 -> {x + 0.3, y + across, th}
+              true -> EKF.motion(PoseGraph.pose(g, PoseGraph.last(g)), {0.3, 0.0, 0.0})
+            end
+
+          {id, g} = PoseGraph.add_node(g, estimate, nil, bin(seen(walls, truth)))
+
+          case PoseGraph.close_loop(g, id) do
+            {:closed, g, _from, _to} -> {g, [:closed | acc]}
+            {:none, g} -> {g, [:none | acc]}
+          end
+        end)
+
+      {g, results, back}
+    end
+
+    test "a match that would move the pose far across the corridor is refused" do
+      # 0.25 m across: more than the localizer errs across a corridor
+      {_g, results, _back} = corridor_and_back(0.25)
+      refute :closed in results
+    end
+
+    test "fixes the place across the corridor and leaves it along as it was" do
+      {g, results, back} = corridor_and_back()
+      assert :closed in results
+      {x, y, _} = PoseGraph.pose(g, PoseGraph.last(g))
+      {tx, ty, _} = List.last(back)
+      assert_in_delta y, ty, 0.03
+      # along the corridor the scans say nothing: the drift stays
+      assert_in_delta x, tx + 0.3, 0.1
+
+      # the first way down is left where it was, but next to the turn
+      # (where the jump between the two ways is shared out)
+      for id <- 0..29 do
+        {_, y0, _} = PoseGraph.pose(g, id)
+        assert_in_delta y0, 1.0, 0.04
+      end
+    end
+  end
+
   describe "the loop window" do
     # round the room's centre; each step the estimate slips 6 cm in x
     # from where the graph has the node before (heading true): 0.9 m
@@ -226,12 +321,14 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       walls = room(8.0, 6.0)
       common = [loop_gap: 15, window_angle_growth: 0.0, max_window: 1.5]
 
-      {fixed, none} = slipping(walls, common ++ [window_growth: 0.0])
-      assert none == 0
+      # beyond the least window, a match may fix the place across a
+      # wall seen alone, but never undoes the drift along it
+      {fixed, _closed} = slipping(walls, common ++ [window_growth: 0.0])
+      {truth, _} = DriftingCircle.poses(30)
+      assert distance(PoseGraph.pose(fixed, PoseGraph.last(fixed)), List.last(truth)) > 0.5
 
       {grown, closed} = slipping(walls, common ++ [window_growth: 0.25])
       assert closed > 0
-      {truth, _} = DriftingCircle.poses(30)
 
       assert distance(PoseGraph.pose(grown, PoseGraph.last(grown)), List.last(truth)) <
                distance(PoseGraph.pose(fixed, PoseGraph.last(fixed)), List.last(truth)) / 4
