@@ -424,7 +424,10 @@ ERL_NIF_TERM tc_nif_field_search(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     int kept = 0;
     int stride = (int)fmax(1.0, round(step / f->res));
     /* the lattice's poses: a robot in known free space, clear of obstacles */
-    size_t cells = 0, cap = (size_t)(r1 - r0 + stride) / stride * ((c1 - c0 + stride) / stride) + 1;
+    /* (a box off the map has no rows or columns) */
+    size_t rows = r1 >= r0 ? (size_t)(r1 - r0) / stride + 1 : 0;
+    size_t cols = c1 >= c0 ? (size_t)(c1 - c0) / stride + 1 : 0;
+    size_t cells = 0, cap = rows * cols + 1;
     int *lc = malloc(cap * 2 * sizeof(int));
     /* per cell, what a beam ending there scores (score()'s terms) */
     size_t n = (size_t)f->w * f->h;

@@ -3,6 +3,7 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
   use ThinkingCap.BlackboardCase, async: false
 
   alias ThinkingCap.Blackboard.Core.{Batches, Tables}
+  import ThinkingCap.Testing.Cluster, only: [wait_until: 1]
 
   # the lists taken for `ref`, one per notice, until `count` tuples came
   defp receive_lists(ref, count, timeout, acc \\ [])
@@ -258,14 +259,6 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
 
     assert_raise ArgumentError, ~r/need batch: true/, fn ->
       Blackboard.subscribe({:a}, max_delay_ms: 10)
-    end
-  end
-
-  defp wait_until(fun, tries \\ 200) do
-    cond do
-      fun.() -> :ok
-      tries == 0 -> flunk("condition not met")
-      true -> Process.sleep(10) && wait_until(fun, tries - 1)
     end
   end
 end

@@ -143,6 +143,26 @@ defmodule ThinkingCap.Navigation.ParticleFilterTest do
         do: assert_in_delta(ll, expected, 1.0e-3)
   end
 
+  test "a search round a point off the map finds only the poses it was given" do
+    pf = filter(true)
+    scan = beams(for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)})
+
+    assert [] =
+             GridNif.field_search(
+               pf.field,
+               scan,
+               {0.3, 0.9, 0.1, 8.0},
+               0.2,
+               36,
+               5,
+               {50.0, 50.0, 60.0, 60.0}
+             )
+
+    found = ParticleFilter.search(pf, scan, around: {{55.0, 55.0}, 3.0}, from: {2.0, 2.0, 0.0})
+    assert [{_, x, _, _}] = found
+    assert_in_delta x, 2.0, 0.1
+  end
+
   test "a search refines the places it is given beside the lattice's" do
     pf = filter(true)
     scan = beams(for a <- -6..6, do: {a / 10, 1.0 / :math.cos(a / 10)})
