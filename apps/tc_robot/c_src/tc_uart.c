@@ -43,7 +43,9 @@
  *     'E' u8 n, code (n bytes), text...
  *                                    the command failed: code is an errno
  *                                    name ("enoent"), text says what failed
- *     'R' bytes...                   bytes received on the line
+ *     'R' u64 at, bytes...           bytes received on the line; at is
+ *                                    CLOCK_MONOTONIC in ns, read right
+ *                                    after the read() that got them
  *     'L' code...                    the line went away ("eio", "closed", ...);
  *                                    its fd is closed
  */
@@ -182,6 +184,20 @@ static void send_frame(uint8_t type, const void *body, size_t len) {
 }
 
 static void reply_ok(const void *body, size_t len) { send_frame('K', body, len); }
+
+/* Received bytes, stamped with the moment they were read: the BEAM may
+ * take them milliseconds later on a loaded machine. */
+static void send_received(const uint8_t *bytes, size_t len) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    uint64_t ns = (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+    uint8_t hdr[13];
+    tc_put32(hdr, (uint32_t)len + 9);
+    hdr[4] = 'R';
+    for (int i = 0; i < 8; i++) hdr[5 + i] = (uint8_t)(ns >> (56 - 8 * i));
+    tc_write_all(STDOUT_FILENO, hdr, sizeof hdr);
+    tc_write_all(STDOUT_FILENO, bytes, len);
+}
 
 static void reply_error(const char *code, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void reply_error(const char *code, const char *fmt, ...) {
@@ -492,7 +508,10 @@ static void handle_tty(short revents) {
     if (wbuf && (revents & (POLLOUT | POLLHUP | POLLERR))) continue_write();
     if (tty < 0 || !(revents & (POLLIN | POLLHUP | POLLERR))) return;
     ssize_t n = read(tty, buf, sizeof buf);
-    if (n > 0) { send_frame('R', buf, (size_t)n); return; }
+    if (n > 0) {
+        send_received(buf, (size_t)n);
+        return;
+    }
     if (n < 0 && errno == EINTR) return;
     int again = n < 0 && errno == EAGAIN;
     if (again && !(revents & (POLLHUP | POLLERR))) return;

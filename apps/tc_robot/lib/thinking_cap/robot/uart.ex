@@ -31,7 +31,10 @@ defmodule ThinkingCap.Robot.UART do
     * `framing:` a `ThinkingCap.Robot.UART.Framing` module or
       `{module, args}`, default `ThinkingCap.Robot.UART.Framing.None`;
     * `rx_framing_timeout:` ms after the last byte of an unfinished frame at
-      which it is delivered as `{:partial, binary}`; 0 (default) never.
+      which it is delivered as `{:partial, binary}`; 0 (default) never;
+    * `rx_timestamps:` `true` to have each active-mode frame stamped with
+      the moment the port program read its last bytes (see Messages);
+      `false` (default).
 
   Options are checked before anything is done: a bad one (an unknown key,
   a value out of range, a speed the port program does not support) is
@@ -53,6 +56,11 @@ defmodule ThinkingCap.Robot.UART do
     * `{:tc_uart, path, {:partial, binary}}`: an unfinished frame flushed
       by `rx_framing_timeout` (or given up by the framing, e.g. an
       over-long line);
+    * with `rx_timestamps: true`, each of those two as
+      `{:tc_uart, path, data, received_at}` instead: `received_at` is the
+      `System.monotonic_time/0` at which the port program read the bytes
+      that completed the frame. On a loaded machine the message may come
+      milliseconds later; the stamp does not move with it;
     * `{:tc_uart, path, {:error, reason}}`: the line went away (`:eio`,
       `:closed`: a USB adapter unplugged, the master of a pty closed) or
       the port program died (`:port_died`, and it is restarted). The UART
@@ -196,7 +204,9 @@ defmodule ThinkingCap.Robot.UART do
       controller: nil,
       rx_queue: :queue.new(),
       reader: nil,
-      rx_timer: nil
+      rx_timer: nil,
+      rx_at: nil,
+      clock_offset: clock_offset()
     }
 
     case start_worker(state) do
@@ -340,8 +350,10 @@ defmodule ThinkingCap.Robot.UART do
     ArgumentError -> {:reply, {:error, :port_died}, state}
   end
 
-  defp handle_frame(<<?R, bytes::binary>>, %{line: line} = state) when line != nil,
-    do: received(bytes, state)
+  defp handle_frame(<<?R, ns::64, bytes::binary>>, %{line: line} = state) when line != nil do
+    at = System.convert_time_unit(ns, :nanosecond, :native) + state.clock_offset
+    received(bytes, %{state | rx_at: at})
+  end
 
   defp handle_frame(<<?R, _::binary>>, state), do: state
 
@@ -464,7 +476,17 @@ defmodule ThinkingCap.Robot.UART do
   end
 
   defp deliver(item, %{config: %{active: true}} = state) do
-    if state.controller, do: send(state.controller, {:tc_uart, state.line.path, item})
+    cond do
+      state.controller == nil ->
+        :ok
+
+      stamped?(item, state) ->
+        send(state.controller, {:tc_uart, state.line.path, item, state.rx_at})
+
+      true ->
+        send(state.controller, {:tc_uart, state.line.path, item})
+    end
+
     state
   end
 
@@ -474,6 +496,19 @@ defmodule ThinkingCap.Robot.UART do
   end
 
   defp deliver(item, state), do: %{state | rx_queue: :queue.in(item, state.rx_queue)}
+
+  defp stamped?({:error, _}, _state), do: false
+  defp stamped?(_item, state), do: state.config.rx_timestamps and state.rx_at != nil
+
+  # Erlang's monotonic time less the OS's (CLOCK_MONOTONIC, which stamps
+  # the port program's reads), both in native units.
+  defp clock_offset do
+    os_now =
+      :erlang.system_info(:os_monotonic_time_source)
+      |> Keyword.fetch!(:time)
+
+    System.monotonic_time() - os_now
+  end
 
   defp read_reply({:error, _} = error), do: error
   defp read_reply(item), do: {:ok, item}

@@ -15,15 +15,19 @@ defmodule ThinkingCap.Testing.Create2Emulator do
   an error) and removes the link; `replug/1` makes a new pty and points
   the link at it.
 
-  The emulator and its UART run at high priority, as hardware does not
-  wait for the BEAM: commands are stamped as they arrive.
+  The emulator and its UART run at high priority (the UART's port program
+  at `SCHED_FIFO` 10 where the OS grants it), as hardware does not wait
+  for the BEAM, and commands are stamped with the moment the UART's
+  port program read them off the pty (`rx_timestamps: true`), not the
+  later one at which the BEAM got round to them.
 
   ## What it implements
 
   Modes Off (until Start), Passive, Safe, Full; Start, Reset, Stop, Safe,
   Full, Power; Drive (velocity and radius, the special radii) and Drive
   Direct (ignored unless in Safe or Full; every one received is recorded
-  with its `System.monotonic_time/0` for `commands/1`); Sensors, Query
+  with the `System.monotonic_time/0` at which it was read, for
+  `commands/1`); Sensors, Query
   List, Stream (a frame every 15 ms with the packets asked for) and
   Pause/Resume Stream. The other opcodes are consumed with their data
   bytes and ignored. Commands are parsed byte by byte, so they may arrive
@@ -169,6 +173,7 @@ defmodule ThinkingCap.Testing.Create2Emulator do
     # left running, a wire reopened) would reach that pty's owner
     Process.flag(:trap_exit, true)
     {:ok, uart} = UART.start_link(spawn_opt: [priority: :high])
+    realtime(uart)
 
     state = %{
       uart: uart,
@@ -185,6 +190,7 @@ defmodule ThinkingCap.Testing.Create2Emulator do
       distance: 0.0,
       angle: 0.0,
       at: System.monotonic_time(),
+      received_at: nil,
       packets: [],
       streaming: false,
       bumps: :none,
@@ -279,9 +285,10 @@ defmodule ThinkingCap.Testing.Create2Emulator do
     {:noreply, %{state | plugged: false, buffer: <<>>}}
   end
 
-  def handle_info({:tc_uart, _path, data}, %{plugged: true} = state) when is_binary(data) do
-    state = advance(state)
-    {buffer, state} = parse(state.buffer <> data, state)
+  def handle_info({:tc_uart, _path, data, at}, %{plugged: true} = state) when is_binary(data) do
+    # the wheels changed when the bytes came, not when the BEAM saw them
+    state = advance(state, at)
+    {buffer, state} = parse(state.buffer <> data, %{state | received_at: at})
     {:noreply, safety(%{state | buffer: buffer})}
   end
 
@@ -302,8 +309,22 @@ defmodule ThinkingCap.Testing.Create2Emulator do
 
   ## The line
 
+  # The port program reads the pty at a low real-time priority where the OS
+  # grants it, as a robot's UART takes bytes off the wire whatever else
+  # the machine runs; elsewhere it reads them as other programs let it.
+  defp realtime(uart) do
+    with chrt when is_binary(chrt) <- System.find_executable("chrt"),
+         pid when is_integer(pid) <- UART.os_pid(uart),
+         {_, 0} <- System.cmd(chrt, ["-f", "-p", "10", "#{pid}"], stderr_to_stdout: true) do
+      :ok
+    else
+      other -> Logger.debug("Create 2 emulator: UART not real-time: #{inspect(other)}")
+    end
+  end
+
   defp plug(state) do
-    with {:ok, slave} <- UART.open_pty(state.uart, speed: 115_200, active: true),
+    with {:ok, slave} <-
+           UART.open_pty(state.uart, speed: 115_200, active: true, rx_timestamps: true),
          :ok <- point_link(state.link, slave) do
       {:ok, %{state | plugged: true, buffer: <<>>}}
     end
@@ -425,7 +446,7 @@ defmodule ThinkingCap.Testing.Create2Emulator do
 
   defp record(state, command, applied) do
     records =
-      :queue.in(%{at: System.monotonic_time(), command: command, applied: applied}, state.records)
+      :queue.in(%{at: state.received_at, command: command, applied: applied}, state.records)
 
     if state.count >= @max_records,
       do: %{state | records: :queue.drop(records)},
@@ -442,8 +463,8 @@ defmodule ThinkingCap.Testing.Create2Emulator do
 
   ## Motion
 
-  defp advance(state) do
-    now = System.monotonic_time()
+  defp advance(state, at \\ System.monotonic_time()) do
+    now = max(at, state.at)
     dt = System.convert_time_unit(now - state.at, :native, :microsecond) / 1.0e6
     v = (state.left + state.right) / 2
     w = (state.right - state.left) / @wheel_base

@@ -182,6 +182,27 @@ defmodule ThinkingCap.Robot.UARTTest do
       assert_receive {:tc_uart, ^path, "next"}, @wait
     end
 
+    test "rx_timestamps: a frame carries the moment its bytes were read, not delivered" do
+      {master, slave, path} = pair([], framing: Framing.Line, rx_timestamps: true)
+      # the slave's process is held; its port program still reads the line
+      :sys.suspend(slave)
+      written = System.monotonic_time()
+      assert :ok = UART.write(master, "one\ntwo\n")
+      Process.sleep(200)
+      resumed = System.monotonic_time()
+      :sys.resume(slave)
+
+      assert_receive {:tc_uart, ^path, "one", at}, @wait
+      assert_receive {:tc_uart, ^path, "two", ^at}, @wait
+      assert at >= written
+      assert System.convert_time_unit(resumed - at, :native, :millisecond) >= 150
+
+      # without the option the same line's frames come unstamped
+      assert :ok = UART.configure(slave, rx_timestamps: false)
+      assert :ok = UART.write(master, "three\n")
+      assert_receive {:tc_uart, ^path, "three"}, @wait
+    end
+
     test "passive mode reads one frame at a time, partials included" do
       {master, slave, _path} =
         pair([], active: false, framing: Framing.Line, rx_framing_timeout: 30)
@@ -308,6 +329,7 @@ defmodule ThinkingCap.Robot.UARTTest do
             framing: String,
             framing: NoSuchModule,
             rx_framing_timeout: -1,
+            rx_timestamps: :yes,
             bogus: 1
           ] do
         assert {:error, {:bad_option, ^key, ^value}} = UART.configure(slave, [{key, value}])

@@ -14,7 +14,8 @@ defmodule ThinkingCap.Robot.UART.Options do
     flow_control: :none,
     active: true,
     framing: {Framing.None, []},
-    rx_framing_timeout: 0
+    rx_framing_timeout: 0,
+    rx_timestamps: false
   }
 
   @parity %{none: 0, even: 1, odd: 2}
@@ -28,7 +29,8 @@ defmodule ThinkingCap.Robot.UART.Options do
           flow_control: :none | :hardware | :software,
           active: boolean(),
           framing: {module(), term()},
-          rx_framing_timeout: non_neg_integer()
+          rx_framing_timeout: non_neg_integer(),
+          rx_timestamps: boolean()
         }
 
   @spec defaults() :: config()
@@ -58,6 +60,7 @@ defmodule ThinkingCap.Robot.UART.Options do
   defp check(:stop_bits, v, _) when v in [1, 2], do: {:ok, v}
   defp check(:flow_control, v, _) when is_map_key(@flow, v), do: {:ok, v}
   defp check(:active, v, _) when is_boolean(v), do: {:ok, v}
+  defp check(:rx_timestamps, v, _) when is_boolean(v), do: {:ok, v}
 
   defp check(:rx_framing_timeout, v, _) when is_integer(v) and v >= 0,
     do: {:ok, v}
