@@ -15,6 +15,26 @@ defmodule ThinkingCap.Test.Modules do
     def handle_cycle(release, state), do: {[command: {:vel, state.speed, release.cycle}], state}
   end
 
+  defmodule Punctual do
+    @moduledoc false
+    # tells its owner, each cycle, when handle_cycle/2 started and when the
+    # release left the worker, both against the instant it was due (ns)
+    use ThinkingCap.Module
+    @impl true
+    def init(params, _ctx), do: {:ok, params[:report_to]}
+    @impl true
+    def handle_cycle(release, to) do
+      started = ThinkingCap.Cycle.Clock.now_ns()
+
+      send(
+        to,
+        {:punctual, started - release.scheduled_ns, release.released_ns - release.scheduled_ns}
+      )
+
+      {[command: :on_time], to}
+    end
+  end
+
   defmodule Wired do
     @moduledoc false
     # hands its device's command path to the timing worker

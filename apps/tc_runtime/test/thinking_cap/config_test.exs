@@ -282,6 +282,26 @@ defmodule ThinkingCap.ConfigTest do
              ]
     end
 
+    test "a lead that runs past the period, and a lead on an event module", %{tmp_dir: dir} do
+      source = """
+      [
+        robot: :r1,
+        modules: [
+          a: [module: My.A, activity: :periodic, period: 0.1, deadline: 0.08, lead: 0.03],
+          b: [module: My.B, activity: :event, lead: 0.001],
+          c: [module: My.C, activity: :periodic, period: 0.1, deadline: 0.09, lead: 0.01]
+        ]
+      ]
+      """
+
+      path = write(dir, "lead.adf", source)
+
+      assert errors(path) == [
+               "#{path}:#{at(source, 4, "0.03]")}: modules.a.lead: 0.03 s early with a deadline of 0.08 s runs past the period 0.1 s (deadline + lead <= period)",
+               "#{path}:#{at(source, 5, "0.001]")}: modules.b.lead: only periodic modules have a lead (this one is event)"
+             ]
+    end
+
     test "with no nodes declared, :local is the only node", %{tmp_dir: dir} do
       path =
         write(

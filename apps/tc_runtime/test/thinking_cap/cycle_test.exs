@@ -30,7 +30,9 @@ defmodule ThinkingCap.CycleTest do
           [period: 0],
           [period: :fast],
           [period: 0.01, deadline: 0.02],
-          [period: 0.01, priority: 0]
+          [period: 0.01, priority: 0],
+          [period: 0.01, deadline: 0.008, lead: 0.003],
+          [period: 0.01, lead: -0.001]
         ] do
       assert_raise ArgumentError, fn -> Cycle.add(:"#{name}_bad", bad) end
     end
@@ -89,6 +91,27 @@ defmodule ThinkingCap.CycleTest do
     assert response > 4_000
     Cycle.result(r, {:vel, 1.0, 0.0})
     assert %{kind: :late, command: nil, applied_ns: nil} = applied(name)
+  end
+
+  test "a lead releases early; the owner waits for the instant due; the deadline counts from it",
+       %{name: name} do
+    :ok = Cycle.add(name, period: 0.02, deadline: 0.005, lead: 0.004, fallback: :stop)
+    r = release(name)
+    # scheduled_ns stays on the period's grid: the instant the release is due
+    r2 = release_after(name, r)
+    assert rem(r2.scheduled_ns - r.scheduled_ns, 20_000_000) == 0
+    :ok = Cycle.await_release(r2)
+    assert Cycle.Clock.now_ns() >= r2.scheduled_ns
+
+    # left unanswered: the fallback comes at scheduled_ns + deadline, not
+    # at the early release + deadline
+    fallback = applied_until(name, &(&1.cycle == r2.cycle))
+    assert %{kind: :fallback, command: :stop} = fallback
+    assert fallback.applied_ns >= r2.scheduled_ns + 5_000_000
+
+    # released early, unless the machine stalled the worker for the lead
+    early = for _ <- 1..5, r = release(name), do: r.released_ns < r.scheduled_ns
+    assert Enum.any?(early)
   end
 
   # Counts, not times: on a loaded machine any answer may be late and the

@@ -34,6 +34,31 @@ defmodule ThinkingCap.RuntimeTest do
     robots
   end
 
+  test "a module with a lead never starts its cycle before the instant due", %{tmp_dir: dir} do
+    me = :"lead_test_#{System.unique_integer([:positive])}"
+    Process.register(self(), me)
+
+    {adf, _robot, _name} =
+      adf(dir,
+        punctual:
+          "[module: ThinkingCap.Test.Modules.Punctual, activity: :periodic, period: 0.02, " <>
+            "deadline: 0.01, lead: 0.004, params: [report_to: :#{me}]]"
+      )
+
+    {:ok, _} = Runtime.start(adf)
+
+    reports =
+      for _ <- 1..10 do
+        assert_receive {:punctual, started, released}, 2_000
+        {started, released}
+      end
+
+    # handle_cycle/2 starts at the instant due or after it, never before,
+    # though the worker released most of these early
+    assert Enum.all?(reports, fn {started, _} -> started >= 0 end)
+    assert Enum.any?(reports, fn {_, released} -> released < 0 end)
+  end
+
   test "two robots' modules of the same name are told apart by {robot, name}", %{tmp_dir: dir} do
     name = :"echo_#{System.unique_integer([:positive])}"
 

@@ -113,6 +113,11 @@ defmodule ThinkingCap.Config.ADF do
       {:pos_number,
        doc:
          "seconds after a release by which the result is due (periodic only; default: the period)"},
+    lead:
+      {:non_neg_number,
+       default: 0.0,
+       doc:
+         "seconds early the timing worker releases it; the host then waits, busy, for the scheduled instant, so `handle_cycle/2` starts on time whatever the delivery took (periodic only; `ThinkingCap.Cycle`'s Lead; deadline + lead at most the period)"},
     priority:
       {{:int_range, 1, 99}, default: 50, doc: "periodic releases of higher priority go first"},
     fallback:
@@ -238,6 +243,7 @@ defmodule ThinkingCap.Config.ADF do
           layer: :reactive | :cognitive,
           period: float() | nil,
           deadline: float() | nil,
+          lead: float(),
           priority: 1..99,
           fallback: term(),
           subscribe: [tuple()],
@@ -431,9 +437,24 @@ defmodule ThinkingCap.Config.ADF do
     )
   end
 
+  defp check_timing(st, path, %{activity: :periodic, period: period, lead: lead} = m)
+       when is_number(period) and is_number(lead) and lead > 0 do
+    deadline = m.deadline || period
+
+    if deadline + lead > period,
+      do:
+        Schema.error(
+          st,
+          path ++ [:lead],
+          "#{Schema.path_string(path)}.lead: #{lead} s early with a deadline of " <>
+            "#{deadline} s runs past the period #{period} s (deadline + lead <= period)"
+        ),
+      else: st
+  end
+
   defp check_timing(st, path, %{activity: activity} = m) when activity in [:event, :background] do
-    Enum.reduce([:period, :deadline], st, fn key, st ->
-      if Map.get(m, key),
+    Enum.reduce([:period, :deadline, :lead], st, fn key, st ->
+      if Map.get(m, key) not in [nil, 0, 0.0],
         do:
           Schema.error(
             st,

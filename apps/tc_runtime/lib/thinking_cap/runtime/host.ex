@@ -105,6 +105,7 @@ defmodule ThinkingCap.Runtime.Host do
     opts = [
       period: spec.period,
       deadline: spec.deadline,
+      lead: spec.lead,
       priority: spec.priority,
       fallback: spec.fallback
     ]
@@ -131,6 +132,7 @@ defmodule ThinkingCap.Runtime.Host do
   def handle_info({:tc_cycle, :release, name, release}, %{spec: %{name: name}} = state) do
     # a release that queued up behind a slow cycle is stale: keep the newest
     release = newest_release(name, release)
+    :ok = Cycle.await_release(release)
     started = System.monotonic_time()
 
     {[{:cycle_result, command, wire} | effects], mstate} =

@@ -10,7 +10,7 @@ defmodule ThinkingCap.Cycle.Core.Activities do
   alias ThinkingCap.Cycle.Stats
 
   @doc "Adds an activity (or adds it again: its wire is kept on both sides) and tells the worker."
-  def add(state, name, owner, period, deadline, priority, fallback) do
+  def add(state, name, owner, period, deadline, lead, priority, fallback) do
     {id, state} = id_for(state, name)
     Process.monitor(owner)
 
@@ -22,6 +22,7 @@ defmodule ThinkingCap.Cycle.Core.Activities do
       name: name,
       period_ns: round(period * 1.0e9),
       deadline_ns: round(deadline * 1.0e9),
+      lead_ns: round(lead * 1.0e9),
       priority: priority,
       fallback: fallback,
       owner: owner,

@@ -6,10 +6,14 @@ defmodule ThinkingCap.Cycle.Core.Protocol do
 
   @kinds %{0 => :fresh, 1 => :fallback, 2 => :late}
 
-  @doc "'A': adds (or adds again) an activity."
+  @doc """
+  'A': adds (or adds again) an activity. The worker releases it `lead_ns`
+  early, so its deadline runs that much longer from the release.
+  """
   def add(a) do
     fallback = :erlang.term_to_binary(a.fallback)
-    <<?A, a.id::16, a.period_ns::64, a.deadline_ns::64, a.priority, fallback::binary>>
+    deadline = a.deadline_ns + a.lead_ns
+    <<?A, a.id::16, a.period_ns::64, deadline::64, a.priority, fallback::binary>>
   end
 
   @doc "'R': removes an activity (the worker applies its fallback)."

@@ -13,10 +13,11 @@ defmodule ThinkingCap.Cycle.Core.Releases do
   def release(state, id, cycle, scheduled, released) do
     case state.activities do
       %{^id => a} ->
+        # released lead_ns early: the owner waits for the scheduled instant
         send(
           a.owner,
           {:tc_cycle, :release, a.name,
-           %{id: id, cycle: cycle, scheduled_ns: scheduled, released_ns: released}}
+           %{id: id, cycle: cycle, scheduled_ns: scheduled + a.lead_ns, released_ns: released}}
         )
 
         a = %{a | stats: Stats.release(a.stats, scheduled, released), release: {cycle, released}}
