@@ -500,14 +500,11 @@ defmodule ThinkingCap.Robot.UART do
   defp stamped?({:error, _}, _state), do: false
   defp stamped?(_item, state), do: state.config.rx_timestamps and state.rx_at != nil
 
-  # Erlang's monotonic time less the OS's (CLOCK_MONOTONIC, which stamps
-  # the port program's reads), both in native units.
+  # Erlang's monotonic time less CLOCK_MONOTONIC (which stamps the port
+  # program's reads, and is the timing worker's clock), in native units
   defp clock_offset do
-    os_now =
-      :erlang.system_info(:os_monotonic_time_source)
-      |> Keyword.fetch!(:time)
-
-    System.monotonic_time() - os_now
+    System.monotonic_time() -
+      System.convert_time_unit(ThinkingCap.Cycle.Clock.now_ns(), :nanosecond, :native)
   end
 
   defp read_reply({:error, _} = error), do: error
