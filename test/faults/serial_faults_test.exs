@@ -16,8 +16,9 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
 
   @rdf Path.expand("../../priv/examples/create2.rdf", __DIR__)
 
-  test "the node driving a Create 2 dies: its timing worker puts the stop on the wire at once",
-       %{tmp_dir: dir} do
+  # A Create 2 emulator on a pty, and a peer node whose Create 2 driver
+  # (its timing worker owning the serial command path) drives it forward
+  defp driving_create2(dir) do
     link = Path.join(dir, "create2")
     emu = start_supervised!({Create2Emulator, link: link})
 
@@ -43,6 +44,12 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     command = {:drive, robot, %{command: {:velocity, 0.2, 0.0}}}
     :ok = Cluster.call(node, Blackboard, :out, [command, [key: {:drive, robot}]])
     Cluster.wait_until(fn -> match?(%{left: 200, right: 200}, Create2Emulator.state(emu)) end)
+    {emu, node}
+  end
+
+  test "the node driving a Create 2 dies: its timing worker puts the stop on the wire at once",
+       %{tmp_dir: dir} do
+    {emu, node} = driving_create2(dir)
     Process.sleep(200)
 
     probe = start_stall_probe()
@@ -77,30 +84,7 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
 
   test "SIGTERM on the node driving a Create 2: the stop is the last frame, the node gone in 5 s",
        %{tmp_dir: dir} do
-    link = Path.join(dir, "create2")
-    emu = start_supervised!({Create2Emulator, link: link})
-    robot = :"t#{System.unique_integer([:positive])}"
-    adf = Path.join(dir, "#{robot}.adf")
-
-    File.write!(adf, """
-    [
-      robot: :#{robot},
-      rdf: #{inspect(@rdf)},
-      modules: [
-        base: [module: ThinkingCap.Robot.Create2, activity: :periodic, period: 0.01,
-               deadline: 0.003, fallback: :stop,
-               params: [device: #{inspect(link)}, command_timeout: 30.0]]
-      ]
-    ]
-    """)
-
-    [node] = Cluster.start(1, apps: [:tc_robot])
-    on_exit(fn -> Cluster.stop(node) end)
-    assert {:ok, _} = Cluster.call(node, Runtime, :start, [adf])
-
-    command = {:drive, robot, %{command: {:velocity, 0.2, 0.0}}}
-    :ok = Cluster.call(node, Blackboard, :out, [command, [key: {:drive, robot}]])
-    Cluster.wait_until(fn -> match?(%{left: 200, right: 200}, Create2Emulator.state(emu)) end)
+    {emu, node} = driving_create2(dir)
 
     os_pid = Cluster.call(node, System, :pid, [])
     Tally.injected()
