@@ -95,7 +95,7 @@ defmodule ThinkingCap.Bench.NavUnknown do
         {ThinkingCap.Navigation.MCL,
          [initial: pair.start, initial_sigma: {0.1, 0.05}] ++ NavRun.env_params("TC_MCL")},
       mapper: {ThinkingCap.Navigation.Mapper, NavRun.env_params("TC_MAPPER")},
-      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      control: {ThinkingCap.Control.Blender, NavRun.env_params("TC_CONTROL"), period: 0.1},
       planner:
         {ThinkingCap.Planner.Monitor, [task: {:go_to, pair.goal}, compare: true], period: 0.5}
     ]

@@ -419,7 +419,7 @@ defmodule ThinkingCap.Bench.NavRun do
 
   @doc """
   Extra params for a module, for tuning: the keyword list (an Elixir term)
-  in the environment variable `name` (`TC_MCL`, `TC_MAPPER`), or `[]`.
+  in the environment variable `name` (`TC_MCL`, `TC_MAPPER`, `TC_CONTROL`), or `[]`.
   """
   def env_params(name) do
     case System.get_env(name) do
