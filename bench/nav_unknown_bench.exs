@@ -23,7 +23,12 @@ defmodule ThinkingCap.Bench.NavUnknown do
   shared with other programs, the wall clock also counts the time the
   operating system gave them, a few milliseconds at random that swamp
   a repair of a few hundred microseconds. The wall-clock means and their
-  ratio are printed beside. `TC_REPLANS=FILE` appends every replan's
+  ratio are printed beside. `TC_DRAW=DIR` draws each run as `DIR/run_SEED.png`
+  (1 cm a pixel: the true world, the learned map's occupied cells in
+  orange, the shortest path before the boxes in blue, the true shortest
+  one in teal, the path driven in red) and a frame each time the plan's
+  length jumps by 0.9 m or more (the plan before in purple, after in
+  green). `TC_REPLANS=FILE` appends every replan's
   record (`ThinkingCap.Navigation.PathPlanner`'s `last`) to FILE.
 
   Ends with
@@ -90,7 +95,7 @@ defmodule ThinkingCap.Bench.NavUnknown do
         {ThinkingCap.Navigation.MCL,
          [initial: pair.start, initial_sigma: {0.1, 0.05}] ++ NavRun.env_params("TC_MCL")},
       mapper: {ThinkingCap.Navigation.Mapper, NavRun.env_params("TC_MAPPER")},
-      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      control: {ThinkingCap.Control.Blender, NavRun.env_params("TC_CONTROL"), period: 0.1},
       planner:
         {ThinkingCap.Planner.Monitor, [task: {:go_to, pair.goal}, compare: true], period: 0.5}
     ]
@@ -177,8 +182,9 @@ defmodule ThinkingCap.Bench.NavUnknown do
     {grid, tight} = NavRun.grids(truth, radius)
     {sx, sy, _} = pair.start
 
-    with {:ok, _} <-
+    with {:ok, %{path: cells}} <-
            AStar.plan(grid, Grid.cell_of(grid, {sx, sy}), Grid.cell_of(grid, pair.goal)),
+         Process.put(:true_path, Enum.map(cells, &Grid.centre(grid, &1))),
          {:ok, %{cost: cost}} <-
            AStar.plan(tight, Grid.cell_of(tight, {sx, sy}), Grid.cell_of(tight, pair.goal)) do
       {%{pair | optimal: cost * tight.resolution}, true}

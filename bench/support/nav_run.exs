@@ -157,8 +157,25 @@ defmodule ThinkingCap.Bench.NavRun do
         do: :ok = apply(Sim, :add_walker, [sim | walker])
 
     limit = pair.optimal / 0.2 * 3 + 30
-    acc = %{driven: 0.0, last: {sx, sy}, replans: %{}}
+    acc = %{driven: 0.0, last: {sx, sy}, replans: %{}, track: []}
+
+    acc =
+      if d = System.get_env("TC_DRAW"),
+        do: Map.put(acc, :draw_ctx, {d, world, pair, seed}),
+        else: acc
+
     {time, acc} = drive(sim, limit, acc, 0)
+
+    if dir = System.get_env("TC_DRAW") do
+      {:ok, cs} = Sim.controller_state(sim, :nav)
+      m = Lockstep.latest(cs.lock, Tuples.map(:nav))
+      p = Lockstep.latest(cs.lock, Tuples.plan(:nav))
+
+      draw(dir, world, pair, acc.track, seed, m && elem(m, 2), [
+        {(p && elem(p, 2).path) || [], {200, 0, 200}}
+      ])
+    end
+
     status = Sim.status(sim)
     {:ok, cstate} = Sim.controller_state(sim, :nav)
     plan = Lockstep.latest(cstate.lock, Tuples.plan(:nav))
@@ -197,7 +214,9 @@ defmodule ThinkingCap.Bench.NavRun do
     {:ok, {x, y, _}} = Sim.pose(sim, :nav)
     {lx, ly} = acc.last
     acc = %{acc | driven: acc.driven + :math.sqrt((x - lx) ** 2 + (y - ly) ** 2), last: {x, y}}
+    acc = %{acc | track: [{x, y} | acc.track]}
     time = Sim.time(sim)
+    acc = flip_frame(acc, sim, time, opts_world(acc))
     {:ok, cstate} = Sim.controller_state(sim, :nav)
     plan = Lockstep.latest(cstate.lock, Tuples.plan(:nav))
 
@@ -230,7 +249,20 @@ defmodule ThinkingCap.Bench.NavRun do
     Tuples.drive(_, %{command: command}) =
       Lockstep.latest(lock, Tuples.drive(:nav)) || Tuples.drive(nil, %{command: nil})
 
-    state = if plan, do: elem(plan, 2).state
+    state =
+      case plan do
+        Tuples.plan(_, %{state: st, path: path, replans: n}) ->
+          len =
+            (path || [])
+            |> Enum.chunk_every(2, 1, :discard)
+            |> Enum.map(fn [{a, b}, {c, d}] -> :math.sqrt((c - a) ** 2 + (d - b) ** 2) end)
+            |> Enum.sum()
+
+          "#{st} path=#{fmt(len)} replans=#{n}"
+
+        _ ->
+          nil
+      end
 
     estimate =
       case Lockstep.latest(lock, Tuples.pose(:nav)) do
@@ -245,6 +277,120 @@ defmodule ThinkingCap.Bench.NavRun do
       "    t=#{fmt(time)} (#{fmt(x)}, #{fmt(y)})#{estimate} #{state} #{inspect(command)} " <>
         Enum.join(activation, " ")
     )
+  end
+
+  # TC_DRAW=DIR: the true world (black), the optimal path (blue), the
+  # path driven (red, its start green) as DIR/run_SEED.png, 2 cm a pixel
+  defp opts_world(acc), do: Map.get(acc, :draw_ctx)
+
+  # TC_DRAW: a frame each time the plan's length jumps by 1.5 m or more
+  defp flip_frame(acc, _sim, _time, nil), do: acc
+
+  defp flip_frame(acc, sim, time, {dir, world, pair, seed}) do
+    {:ok, cs} = Sim.controller_state(sim, :nav)
+    p = Lockstep.latest(cs.lock, Tuples.plan(:nav))
+    path = (p && elem(p, 2).path) || []
+
+    len =
+      path
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.map(fn [{a, b}, {c, d}] -> :math.sqrt((c - a) ** 2 + (d - b) ** 2) end)
+      |> Enum.sum()
+
+    old = Map.get(acc, :old_plan, {[], len})
+
+    if abs(len - elem(old, 1)) >= 0.9 and elem(old, 0) != [] do
+      m = Lockstep.latest(cs.lock, Tuples.map(:nav))
+
+      draw(dir, world, pair, acc.track, "#{seed}_t#{round(time * 10)}", m && elem(m, 2), [
+        {elem(old, 0), {200, 0, 200}},
+        {path, {0, 220, 0}}
+      ])
+    end
+
+    Map.put(acc, :old_plan, {path, len})
+  end
+
+  defp draw(dir, world, pair, track, seed, map, plan) do
+    {:ok, w} = Sim.World.load(world)
+    {xs, ys} = Enum.unzip(track ++ pair.path)
+
+    {x0, x1, y0, y1} =
+      {Enum.min(xs) - 1.5, Enum.max(xs) + 1.5, Enum.min(ys) - 1.5, Enum.max(ys) + 1.5}
+
+    res = 0.01
+    {cols, rows} = {ceil((x1 - x0) / res), ceil((y1 - y0) / res)}
+    px = fn {x, y} -> {floor((x - x0) / res), rows - 1 - floor((y - y0) / res)} end
+
+    marks =
+      Map.new(
+        Enum.map(pair.path, &{px.(&1), {0, 0, 255}}) ++
+          Enum.map(Process.get(:true_path, []), &{px.(&1), {0, 160, 160}}) ++
+          Enum.map(track, &{px.(&1), {255, 0, 0}}) ++
+          Enum.flat_map(plan, fn {pts, colour} ->
+            for pt <- densify(pts),
+                {c, r} = px.(pt),
+                dc <- -1..1,
+                dr <- -1..1,
+                do: {{c + dc, r + dr}, colour}
+          end) ++
+          [{px.(List.last(track)), {0, 200, 0}}, {px.(pair.goal), {255, 0, 255}}]
+      )
+
+    pixels =
+      for r <- 0..(rows - 1), c <- 0..(cols - 1), into: <<>> do
+        case Map.get(marks, {c, r}) do
+          {a, b, d} ->
+            <<a, b, d>>
+
+          nil ->
+            p = {x0 + (c + 0.5) * res, y0 + (rows - 1 - r + 0.5) * res}
+
+            sensed =
+              map &&
+                ThinkingCap.Navigation.OccupancyGrid.value(
+                  map,
+                  ThinkingCap.Navigation.OccupancyGrid.cell_of(map, p)
+                )
+
+            cond do
+              not Sim.World.free?(w, p, 0.0) and sensed != nil and sensed >= 50 -> <<90, 40, 0>>
+              not Sim.World.free?(w, p, 0.0) -> <<0, 0, 0>>
+              sensed != nil and sensed >= 50 -> <<255, 150, 0>>
+              not Sim.World.known_free?(w, p) -> <<120, 120, 120>>
+              true -> <<255, 255, 255>>
+            end
+        end
+      end
+
+    File.mkdir_p!(dir)
+    File.write!(Path.join(dir, "run_#{seed}.png"), png(cols, rows, pixels))
+  end
+
+  defp densify([a, b | rest]) do
+    {ax, ay} = a
+    {bx, by} = b
+    n = max(1, ceil(:math.sqrt((bx - ax) ** 2 + (by - ay) ** 2) / 0.01))
+
+    for(i <- 0..(n - 1), do: {ax + (bx - ax) * i / n, ay + (by - ay) * i / n}) ++
+      densify([b | rest])
+  end
+
+  defp densify(pts), do: pts
+
+  defp png(cols, rows, rgb) do
+    raw =
+      for r <- 0..(rows - 1),
+          into: <<>>,
+          do: <<0, binary_part(rgb, r * cols * 3, cols * 3)::binary>>
+
+    chunk = fn type, data ->
+      <<byte_size(data)::32, type::binary, data::binary, :erlang.crc32(type <> data)::32>>
+    end
+
+    <<137, 80, 78, 71, 13, 10, 26, 10>> <>
+      chunk.("IHDR", <<cols::32, rows::32, 8, 2, 0, 0, 0>>) <>
+      chunk.("IDAT", :zlib.compress(raw)) <> chunk.("IEND", <<>>)
   end
 
   @doc "One line for a run."
@@ -273,7 +419,7 @@ defmodule ThinkingCap.Bench.NavRun do
 
   @doc """
   Extra params for a module, for tuning: the keyword list (an Elixir term)
-  in the environment variable `name` (`TC_MCL`, `TC_MAPPER`), or `[]`.
+  in the environment variable `name` (`TC_MCL`, `TC_MAPPER`, `TC_CONTROL`), or `[]`.
   """
   def env_params(name) do
     case System.get_env(name) do
