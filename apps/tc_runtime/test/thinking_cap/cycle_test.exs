@@ -513,7 +513,19 @@ defmodule ThinkingCap.CycleTest do
 
     {:os_pid, os_pid} = Port.info(port, :os_pid)
     on_exit(fn -> System.cmd("kill", ["-9", "#{os_pid}"], stderr_to_stdout: true) end)
+    # the line has its reader once cat holds it open: a worker that opens
+    # it before then is refused (ENXIO), as by a line with nobody on it
+    ThinkingCap.Testing.Cluster.wait_until(fn -> holds?(os_pid, path) end, 5000)
     port
+  end
+
+  defp holds?(os_pid, path) do
+    fds = "/proc/#{os_pid}/fd"
+
+    case File.ls(fds) do
+      {:ok, names} -> Enum.any?(names, &(File.read_link(Path.join(fds, &1)) == {:ok, path}))
+      {:error, _} -> false
+    end
   end
 
   # until cat has the FIFO open, opening it for writing fails (ENXIO)
