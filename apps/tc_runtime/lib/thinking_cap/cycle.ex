@@ -121,6 +121,8 @@ defmodule ThinkingCap.Cycle do
   @max_wire Wires.max_bytes()
   # the timing worker's table (MAX_ACTIVITIES in c_src/tc_timing.c)
   @max_activities 256
+  # a lead is spent spinning: a few times the delivery it makes up for
+  @max_lead 0.005
 
   @doc "Starts the cycle and its timing worker (registered as `#{inspect(__MODULE__)}`)."
   @spec start_link(keyword()) :: GenServer.on_start()
@@ -130,8 +132,9 @@ defmodule ThinkingCap.Cycle do
   Adds a periodic activity: `period` and `deadline` in seconds, `priority`
   1..99 (releases due together go highest first), `fallback` (the command
   applied on a missed deadline, default `:stop`), `owner` (the process that
-  gets the releases, default the caller), `lead` (seconds, default 0; see
-  "Lead" in the moduledoc; `deadline + lead` at most the period).
+  gets the releases, default the caller), `lead` (seconds, default 0, at
+  most #{@max_lead}; see "Lead" in the moduledoc; `deadline + lead` at
+  most the period).
 
   Adding a name again takes the activity over (a restarted module) unless
   another live process owns it: that is refused with the owner's pid.
@@ -148,9 +151,9 @@ defmodule ThinkingCap.Cycle do
     priority = Keyword.get(opts, :priority, 50)
 
     unless is_number(deadline) and deadline > 0 and is_number(lead) and lead >= 0 and
-             deadline + lead <= period and priority in 1..99 do
+             lead <= @max_lead and deadline + lead <= period and priority in 1..99 do
       raise ArgumentError,
-            "activity #{inspect(name)}: need 0 < deadline, 0 <= lead, " <>
+            "activity #{inspect(name)}: need 0 < deadline, 0 <= lead <= #{@max_lead}, " <>
               "deadline + lead <= period and priority 1..99"
     end
 
@@ -179,12 +182,13 @@ defmodule ThinkingCap.Cycle do
   @doc """
   Waits, busy, until the release's `scheduled_ns` on the worker's clock
   (`ThinkingCap.Cycle.Clock`): a release of an activity with a `lead`
-  comes early. Returns at once for a release that is due or late.
+  comes early (at most #{@max_lead * 1000} ms). Returns at once for a
+  release that is due or late.
   """
   @spec await_release(release()) :: :ok
-  def await_release(%{scheduled_ns: due}) do
-    if ThinkingCap.Cycle.Clock.now_ns() < due, do: await_release(%{scheduled_ns: due}), else: :ok
-  end
+  def await_release(%{scheduled_ns: due}), do: spin_until(due)
+
+  defp spin_until(due), do: if(Clock.now_ns() < due, do: spin_until(due), else: :ok)
 
   @doc """
   Sends the result of a release (the command to apply) to the worker. Safe

@@ -282,14 +282,15 @@ defmodule ThinkingCap.ConfigTest do
              ]
     end
 
-    test "a lead that runs past the period, and a lead on an event module", %{tmp_dir: dir} do
+    test "a lead too long, one that runs past the period, one on an event module", %{tmp_dir: dir} do
       source = """
       [
         robot: :r1,
         modules: [
-          a: [module: My.A, activity: :periodic, period: 0.1, deadline: 0.08, lead: 0.03],
+          a: [module: My.A, activity: :periodic, period: 0.01, deadline: 0.008, lead: 0.003],
           b: [module: My.B, activity: :event, lead: 0.001],
-          c: [module: My.C, activity: :periodic, period: 0.1, deadline: 0.09, lead: 0.01]
+          c: [module: My.C, activity: :periodic, period: 0.1, deadline: 0.095, lead: 0.005],
+          d: [module: My.D, activity: :periodic, period: 0.1, deadline: 0.05, lead: 0.03]
         ]
       ]
       """
@@ -297,7 +298,8 @@ defmodule ThinkingCap.ConfigTest do
       path = write(dir, "lead.adf", source)
 
       assert errors(path) == [
-               "#{path}:#{at(source, 4, "0.03]")}: modules.a.lead: 0.03 s early with a deadline of 0.08 s runs past the period 0.1 s (deadline + lead <= period)",
+               "#{path}:#{at(source, 7, "0.03]")}: modules.d.lead: expected a number from 0.0 to 0.005, got 0.03",
+               "#{path}:#{at(source, 4, "0.003]")}: modules.a.lead: 0.003 s early with a deadline of 0.008 s runs past the period 0.01 s (deadline + lead <= period)",
                "#{path}:#{at(source, 5, "0.001]")}: modules.b.lead: only periodic modules have a lead (this one is event)"
              ]
     end

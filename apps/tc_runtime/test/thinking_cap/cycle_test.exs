@@ -32,7 +32,8 @@ defmodule ThinkingCap.CycleTest do
           [period: 0.01, deadline: 0.02],
           [period: 0.01, priority: 0],
           [period: 0.01, deadline: 0.008, lead: 0.003],
-          [period: 0.01, lead: -0.001]
+          [period: 0.01, lead: -0.001],
+          [period: 0.1, deadline: 0.05, lead: 0.01]
         ] do
       assert_raise ArgumentError, fn -> Cycle.add(:"#{name}_bad", bad) end
     end

@@ -114,10 +114,10 @@ defmodule ThinkingCap.Config.ADF do
        doc:
          "seconds after a release by which the result is due (periodic only; default: the period)"},
     lead:
-      {:non_neg_number,
+      {{:number_range, 0.0, 0.005},
        default: 0.0,
        doc:
-         "seconds early the timing worker releases it; the host then waits, busy, for the scheduled instant, so `handle_cycle/2` starts on time whatever the delivery took (periodic only; `ThinkingCap.Cycle`'s Lead; deadline + lead at most the period)"},
+         "seconds early (at most 5 ms: it is spent spinning) the timing worker releases it; the host then waits, busy, for the scheduled instant, so `handle_cycle/2` starts on time whatever the delivery took (periodic only; `ThinkingCap.Cycle`'s Lead; deadline + lead at most the period)"},
     priority:
       {{:int_range, 1, 99}, default: 50, doc: "periodic releases of higher priority go first"},
     fallback:
