@@ -138,6 +138,32 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert w < -0.3 * @wmax
     end
 
+    test "a planned path that turns off to one side says which side to go round by" do
+      # a pillar ahead and another on the left: the right is the freer side
+      pillar = line({0.45, -0.1}, {0.45, 0.1}) ++ [{0.25, 0.3}]
+      assert AvoidObstacles.freer_side(inputs(pillar), AvoidObstacles.init()) == :right
+
+      # the path goes off to the left (through a gap beside the pillar):
+      # round it by the left, where there is room
+      left_path = [{0.0, 0.0}, {0.3, 0.5}, {0.6, 1.0}]
+      scene = inputs(pillar, path: left_path)
+      assert AvoidObstacles.freer_side(scene, AvoidObstacles.init()) == :left
+      assert {_, _, w} = run(AvoidObstacles, [], scene)
+      assert w > 0.3 * @wmax
+
+      # not where the left has no room for the robot; nor for a path
+      # straight on, past the pillar
+      walled = pillar ++ line({0.05, 0.25}, {0.4, 0.25})
+
+      assert AvoidObstacles.freer_side(inputs(walled, path: left_path), AvoidObstacles.init()) ==
+               :right
+
+      straight = [{0.0, 0.0}, {1.0, 0.05}, {2.0, 0.1}]
+
+      assert AvoidObstacles.freer_side(inputs(pillar, path: straight), AvoidObstacles.init()) ==
+               :right
+    end
+
     test "at the end of a dead-end alley a turn under way holds until the way is free" do
       # an alley 0.7 m wide (walls at y = ±0.35 in the world), its end at
       # x = 0.4; the robot at the origin turns in place, heading th
