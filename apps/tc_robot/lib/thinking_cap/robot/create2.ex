@@ -45,7 +45,9 @@ defmodule ThinkingCap.Robot.Create2 do
     * odometry, every frame: `%{pose: {x, y, theta}, v:, w:, twist:,
       left_counts:, right_counts:, stamp:}`, dead reckoning from the
       encoder counts (`ThinkingCap.Robot.Create2.Odometry`) in the frame
-      where the driver started;
+      where the driver started; `stamp` (s, `System.monotonic_time/0`'s
+      clock) is when the UART's port program read the frame off the line,
+      so a frame the BEAM took late does not bend the velocities;
     * bumper, on change and once a second: `%{pressed:, left:, right:,
       wheel_drop:}`;
     * `:battery`, once a second: `%{voltage:, current:, charge:, capacity:,
@@ -155,6 +157,7 @@ defmodule ThinkingCap.Robot.Create2 do
         rejected: 0,
         garbage_bytes: 0,
         last_frame_at: nil,
+        received_at: nil,
         restarted_at: nil,
         published_at: nil,
         published_link: nil,
@@ -242,6 +245,11 @@ defmodule ThinkingCap.Robot.Create2 do
   end
 
   @impl true
+  def handle_data({:tc_uart, path, data, received_at}, state) do
+    seconds = System.convert_time_unit(received_at, :native, :microsecond) / 1.0e6
+    handle_data({:tc_uart, path, data}, %{state | received_at: seconds})
+  end
+
   def handle_data({:tc_uart, _path, data}, state) do
     line(data, state)
   rescue
@@ -312,7 +320,10 @@ defmodule ThinkingCap.Robot.Create2 do
       flow_control: :none,
       active: true,
       framing: {Framing, @packets},
-      rx_framing_timeout: 50
+      rx_framing_timeout: 50,
+      # odometry is stamped when its frame came off the line, not when the
+      # BEAM got round to it: its velocities are counts over those stamps
+      rx_timestamps: true
     ]
 
     with :ok <- UART.open(state.uart, state.device, opts),
@@ -399,7 +410,8 @@ defmodule ThinkingCap.Robot.Create2 do
   defp frame(packets, state) do
     now = now_ms()
     bumps = packets[7]
-    odometry = Odometry.update(state.odometry, packets[43], packets[44], now / 1000)
+    stamp = state.received_at || now / 1000
+    odometry = Odometry.update(state.odometry, packets[43], packets[44], stamp)
 
     bumper = %{
       pressed: bumps.bump_left or bumps.bump_right,

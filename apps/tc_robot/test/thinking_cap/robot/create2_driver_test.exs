@@ -53,6 +53,31 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
     end
   end
 
+  describe "odometry stamps" do
+    @tag :tmp_dir
+    test "are when the frame came off the line, not when the driver got it", %{
+      description: d,
+      tmp_dir: dir
+    } do
+      link = Path.join(dir, "create2")
+      start_supervised!({ThinkingCap.Testing.Create2Emulator, link: link})
+      assert {:ok, state} = Create2.open(d, %{robot: :c, params: [device: link]})
+      on_exit(fn -> Create2.close(:normal, state) end)
+
+      # the driver's UART reports to this process: a frame handed to the
+      # driver 200 ms after it was read keeps the moment it was read
+      assert_receive {:tc_uart, _path, frame, read_at} when is_binary(frame), 5_000
+      Process.sleep(200)
+      handled = System.monotonic_time()
+
+      assert {[{:odometry, odometry} | _], _state} =
+               Create2.handle_data({:tc_uart, link, frame, read_at}, state)
+
+      assert odometry.stamp == System.convert_time_unit(read_at, :native, :microsecond) / 1.0e6
+      assert System.convert_time_unit(handled - read_at, :native, :millisecond) >= 200
+    end
+  end
+
   describe "open/2" do
     test "refuses a missing device, a bad mode, a device that is not there", %{description: d} do
       context = fn params -> %{robot: :c, params: params} end
