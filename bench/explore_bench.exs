@@ -25,7 +25,11 @@ defmodule ThinkingCap.Bench.Explore do
   at a time, and what remains after the best rigid fit); `TC_LIMIT` cuts runs short (s);
   `TC_MCL` and `TC_MAPPER` hold keyword
   lists (Elixir terms) added to the localizer's and the map builder's
-  params; `TC_KEEP=1` keeps the saved maps.
+  params; `TC_KEEP=1` keeps the saved maps; `TC_DUMP=path` (with
+  `TC_TRACE`) writes the final pose graph and where its nodes truly were
+  (`:erlang.term_to_binary/1` of `%{nodes:, truth:, edges:, along:}`);
+  `TC_IDEAL_ODOM=1` takes the systematic odometry errors (wheel
+  diameters, wheelbase) out of the simulated robot, leaving its slips.
   """
 
   alias ThinkingCap.Bench.NavRun
@@ -99,6 +103,17 @@ defmodule ThinkingCap.Bench.Explore do
   defp write_rdf(dir) do
     {:ok, data, _} = ThinkingCap.Config.Literal.parse(File.read!(NavRun.rdf()), NavRun.rdf())
     sensors = Enum.reject(data[:sensors], &(&1[:type] == :beacon_laser))
+
+    data =
+      if System.get_env("TC_IDEAL_ODOM"),
+        do:
+          Keyword.update!(
+            data,
+            :odometry_error,
+            &Keyword.merge(&1, wheel_diameter_ratio: 1.0, wheelbase_ratio: 1.0)
+          ),
+        else: data
+
     path = Path.join(dir, "no_beacons.rdf")
     File.write!(path, inspect(Keyword.put(data, :sensors, sensors), limit: :infinity))
     path
@@ -221,14 +236,25 @@ defmodule ThinkingCap.Bench.Explore do
         id = g.next - 1
         m = Process.get(:node_truth)
         # where the node truly was: the truth moved by the node's place
-        # seen from the current estimate
+        # seen from the current odometry reading (or, without one, from
+        # the current estimate: published up to 0.1 s before, a tenth of
+        # a radian off in a turn)
         with false <- Map.has_key?(m, id),
              Tuples.pose(_, %{pose: est}) <- Lockstep.latest(lock, Tuples.pose(:explorer)) do
           at =
-            ThinkingCap.Navigation.EKF.motion(
-              truth,
-              ThinkingCap.Navigation.EKF.relative(est, g.nodes[id])
-            )
+            case {g.odometry[id], Lockstep.latest(lock, Tuples.reading(:odom, :explorer))} do
+              {{_, _, _} = at_node, Tuples.reading(_, _, %{pose: {_, _, _} = now})} ->
+                ThinkingCap.Navigation.EKF.motion(
+                  truth,
+                  ThinkingCap.Navigation.EKF.relative(now, at_node)
+                )
+
+              _ ->
+                ThinkingCap.Navigation.EKF.motion(
+                  truth,
+                  ThinkingCap.Navigation.EKF.relative(est, g.nodes[id])
+                )
+            end
 
           Process.put(:node_truth, Map.put(m, id, at))
         end
@@ -253,6 +279,14 @@ defmodule ThinkingCap.Bench.Explore do
 
   defp report_nodes(g, truth) do
     pairs = for {id, t} <- truth, Map.has_key?(g.nodes, id), do: {id, g.nodes[id], t}
+
+    if path = System.get_env("TC_DUMP"),
+      do:
+        File.write!(
+          path,
+          :erlang.term_to_binary(%{nodes: g.nodes, truth: truth, edges: g.edges, along: g.along})
+        )
+
     loops = Enum.count(g.edges, &(&1.kind == :loop))
     IO.puts("nodes: #{g.next} loops edges: #{loops}")
 

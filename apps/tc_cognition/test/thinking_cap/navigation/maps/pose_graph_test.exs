@@ -335,6 +335,56 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     end
   end
 
+  describe "add_node/4, the edge from the node before" do
+    # across a room, 0.3 m a node, the estimates right but for the last
+    # one's, 0.03 rad and 3 cm off (the localizer's jitter)
+    defp jittered(opts) do
+      walls = room(8.0, 6.0)
+      truth = for k <- 0..6, do: {2.5 + 0.3 * k, 3.0 + 0.05 * k, 0.1}
+      {x, y, th} = List.last(truth)
+      estimates = Enum.drop(truth, -1) ++ [{x + 0.03, y - 0.02, th + 0.03}]
+
+      g =
+        Enum.zip(truth, estimates)
+        |> Enum.reduce(PoseGraph.new(opts), fn {t, e}, g ->
+          {_id, g} = PoseGraph.add_node(g, e, nil, bin(seen(walls, t)))
+          g
+        end)
+
+      edge = Enum.find(g.edges, &(&1.from == 5 and &1.to == 6))
+      {edge, EKF.relative(Enum.at(truth, 5), Enum.at(truth, 6))}
+    end
+
+    test "where the scan matches the nodes' before, the match makes the edge" do
+      {%{z: {zx, zy, zth}, kind: :sequence}, {tx, ty, tth}} = jittered([])
+      assert abs(zth - tth) < 0.005
+      assert :math.sqrt((zx - tx) ** 2 + (zy - ty) ** 2) < 0.02
+    end
+
+    test "in a corridor, which the scans do not fix along, the estimate makes it" do
+      walls = for k <- 0..400, y <- [0.0, 2.0], do: {k * 0.05, y}
+      truth = for k <- 0..6, do: {5.0 + 0.3 * k, 1.0, 0.0}
+      estimates = Enum.drop(truth, -1) ++ [{6.9, 1.0, 0.0}]
+
+      g =
+        Enum.zip(truth, estimates)
+        |> Enum.reduce(PoseGraph.new(), fn {t, e}, g ->
+          {_id, g} = PoseGraph.add_node(g, e, nil, bin(seen(walls, t)))
+          g
+        end)
+
+      assert %{z: {zx, zy, zth}} = Enum.find(g.edges, &(&1.from == 5 and &1.to == 6))
+      assert_in_delta zx, 0.4, 1.0e-9
+      assert_in_delta zy, 0.0, 1.0e-9
+      assert_in_delta zth, 0.0, 1.0e-9
+    end
+
+    test "with local_nodes: 0 the estimate alone makes it, jitter and all" do
+      {%{z: {_, _, zth}}, {_, _, tth}} = jittered(local_nodes: 0)
+      assert_in_delta zth - tth, 0.03, 1.0e-6
+    end
+  end
+
   test "scan_points/3: the endpoints with an echo, in the robot's frame" do
     scan = %{ranges: [1.0, 8.0, 2.0], angle_min: -0.5, angle_increment: 0.5, range_max: 8.0}
     points = PoseGraph.scan_points(scan, {0.1, 0.0, 0.0})
