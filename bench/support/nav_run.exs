@@ -325,7 +325,7 @@ defmodule ThinkingCap.Bench.NavRun do
     marks =
       Map.new(
         Enum.map(pair.path, &{px.(&1), {0, 0, 255}}) ++
-          Enum.map(Process.get(:true_path, []), &{px.(&1), {0, 160, 160}}) ++
+          Enum.map(Map.get(pair, :true_path, []), &{px.(&1), {0, 160, 160}}) ++
           Enum.map(track, &{px.(&1), {255, 0, 0}}) ++
           Enum.flat_map(plan, fn {pts, colour} ->
             for pt <- densify(pts),
