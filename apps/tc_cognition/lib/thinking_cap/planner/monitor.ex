@@ -196,6 +196,8 @@ defmodule ThinkingCap.Planner.Monitor do
       target: nil,
       stand_in: nil,
       looking: nil,
+      faced: nil,
+      map_at: nil,
       plan: nil,
       status: :idle,
       reason: nil,
@@ -292,7 +294,7 @@ defmodule ThinkingCap.Planner.Monitor do
   defp take_map(%{incoming: map} = state) do
     map = keep_frame(map, state.map)
     planner = PathPlanner.set_map(state.planner, map)
-    %{state | map: map, source: :sensed, incoming: nil, planner: planner}
+    %{state | map: map, source: :sensed, incoming: nil, planner: planner, map_at: state.time}
   end
 
   # a map that fits in the frame planned on (widened towards a goal in
@@ -463,7 +465,7 @@ defmodule ThinkingCap.Planner.Monitor do
         {[], %{state | status: :done, reason: "explored: no frontier left"}}
 
       %{point: point} ->
-        {[], plan(%{state | target: point, replans: 0, looking: nil})}
+        {[], plan(%{state | target: point, replans: 0, looking: nil, faced: nil})}
     end
   end
 
@@ -514,6 +516,14 @@ defmodule ThinkingCap.Planner.Monitor do
         if state.looking,
           do: {[], state},
           else: {[], plan(%{state | looking: state.time})}
+
+      # facing it now: judged on a map made after the robot turned to it,
+      # not on the one it had (the mapper publishes once a second). On
+      # the map of before the turn, the office's first frontier was given
+      # up half a second into an exploration, and the exploration ended.
+      reached?(state, distance) and state.task == :explore and not explored?(state) and
+        facing?(state) and not seen_since_facing?(state) and not faced_long?(state) ->
+        {[], %{state | faced: state.faced || state.time}}
 
       reached?(state, distance) ->
         # a frontier its stand-in does not see (round a corner) is left
@@ -856,6 +866,14 @@ defmodule ThinkingCap.Planner.Monitor do
   # a look at a frontier lasts at most @look_for seconds (time to turn
   # round and close in)
   @look_for 8.0
+  # a map came after the robot first faced the frontier it stands at
+  defp seen_since_facing?(%{faced: nil}), do: false
+  defp seen_since_facing?(%{faced: faced, map_at: at}), do: at != nil and at > faced
+
+  # ... or none for @look_for seconds (the map builder gone quiet)
+  defp faced_long?(%{faced: nil}), do: false
+  defp faced_long?(%{faced: faced, time: now}), do: now - faced >= @look_for
+
   defp still_looking?(%{looking: nil}), do: true
   defp still_looking?(%{looking: since, time: now}), do: now - since < @look_for
 

@@ -179,10 +179,17 @@ defmodule ThinkingCap.Planner.MonitorTest do
     {plan, _, state} = cycle(state, 2.0)
     assert plan.state == :moving and state.given_up == []
 
-    # facing it, the alcove still unknown: now it counts as unseen, given
-    # up (the only frontier: tried again in a second round, anew)
+    # facing it, but on the map made before it turned (the mapper
+    # publishes once a second): not judged yet
     assert state.rounds == 1
-    {_plan, _, state} = cycle(pose(state, {2.0, 2.0, :math.pi()}), 3.0)
+    map = state.map
+    {plan, _, state} = cycle(pose(state, {2.0, 2.0, :math.pi()}), 3.0)
+    assert plan.state == :moving and state.given_up == [] and state.rounds == 1
+
+    # a map made since, the alcove still unknown: now it counts as unseen,
+    # given up (the only frontier: tried again in a second round, anew)
+    {_, state} = Monitor.handle_tuple({:map, :r, %{map | version: map.version + 1}}, state)
+    {_plan, _, state} = cycle(state, 3.5)
     assert state.rounds == 2 and state.looking == nil
 
     # a robot that cannot turn to it (held, say) stops looking after 8 s:
@@ -194,6 +201,16 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert held.rounds == 1
     {_plan, _, held} = cycle(held, 10.0)
     assert held.rounds == 2
+
+    # facing it from the start, with no map coming after (the map builder
+    # gone quiet): it waits for one 8 s, then counts it as unseen
+    {_plan, _, quiet} = on_sensed_map(dir, :explore, {80, 80}, cell, {2.0, 2.0, :math.pi()})
+    {_plan, _, quiet} = cycle(quiet, 2.0)
+    assert quiet.rounds == 1 and is_number(quiet.faced)
+    {_plan, _, quiet} = cycle(quiet, 6.0)
+    assert quiet.rounds == 1
+    {_plan, _, quiet} = cycle(quiet, 11.0)
+    assert quiet.rounds == 2
   end
 
   @tag :tmp_dir
