@@ -216,9 +216,9 @@ defmodule ThinkingCap.Bench.NavRun do
     acc = %{acc | driven: acc.driven + :math.sqrt((x - lx) ** 2 + (y - ly) ** 2), last: {x, y}}
     acc = %{acc | track: [{x, y} | acc.track]}
     time = Sim.time(sim)
-    acc = flip_frame(acc, sim, time, opts_world(acc))
     {:ok, cstate} = Sim.controller_state(sim, :nav)
     plan = Lockstep.latest(cstate.lock, Tuples.plan(:nav))
+    acc = flip_frame(acc, cstate, time, plan)
 
     acc =
       case plan do
@@ -252,13 +252,7 @@ defmodule ThinkingCap.Bench.NavRun do
     state =
       case plan do
         Tuples.plan(_, %{state: st, path: path, replans: n}) ->
-          len =
-            (path || [])
-            |> Enum.chunk_every(2, 1, :discard)
-            |> Enum.map(fn [{a, b}, {c, d}] -> :math.sqrt((c - a) ** 2 + (d - b) ** 2) end)
-            |> Enum.sum()
-
-          "#{st} path=#{fmt(len)} replans=#{n}"
+          "#{st} path=#{fmt(path_length(path || []))} replans=#{n}"
 
         _ ->
           nil
@@ -281,26 +275,22 @@ defmodule ThinkingCap.Bench.NavRun do
 
   # TC_DRAW=DIR: the true world (black), the optimal path (blue), the
   # path driven (red, its start green) as DIR/run_SEED.png, 2 cm a pixel
-  defp opts_world(acc), do: Map.get(acc, :draw_ctx)
+  defp path_length(path) do
+    path
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.map(fn [{a, b}, {c, d}] -> :math.sqrt((c - a) ** 2 + (d - b) ** 2) end)
+    |> Enum.sum()
+  end
 
-  # TC_DRAW: a frame each time the plan's length jumps by 1.5 m or more
-  defp flip_frame(acc, _sim, _time, nil), do: acc
-
-  defp flip_frame(acc, sim, time, {dir, world, pair, seed}) do
-    {:ok, cs} = Sim.controller_state(sim, :nav)
-    p = Lockstep.latest(cs.lock, Tuples.plan(:nav))
-    path = (p && elem(p, 2).path) || []
-
-    len =
-      path
-      |> Enum.chunk_every(2, 1, :discard)
-      |> Enum.map(fn [{a, b}, {c, d}] -> :math.sqrt((c - a) ** 2 + (d - b) ** 2) end)
-      |> Enum.sum()
+  # TC_DRAW: a frame each time the plan's length jumps by 0.9 m or more
+  defp flip_frame(%{draw_ctx: {dir, world, pair, seed}} = acc, cstate, time, plan) do
+    path = (plan && elem(plan, 2).path) || []
+    len = path_length(path)
 
     old = Map.get(acc, :old_plan, {[], len})
 
     if abs(len - elem(old, 1)) >= 0.9 and elem(old, 0) != [] do
-      m = Lockstep.latest(cs.lock, Tuples.map(:nav))
+      m = Lockstep.latest(cstate.lock, Tuples.map(:nav))
 
       draw(dir, world, pair, acc.track, "#{seed}_t#{round(time * 10)}", m && elem(m, 2), [
         {elem(old, 0), {200, 0, 200}},
@@ -310,6 +300,8 @@ defmodule ThinkingCap.Bench.NavRun do
 
     Map.put(acc, :old_plan, {path, len})
   end
+
+  defp flip_frame(acc, _cstate, _time, _plan), do: acc
 
   defp draw(dir, world, pair, track, seed, map, plan) do
     {:ok, w} = Sim.World.load(world)

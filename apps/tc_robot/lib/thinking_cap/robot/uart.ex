@@ -206,7 +206,7 @@ defmodule ThinkingCap.Robot.UART do
       reader: nil,
       rx_timer: nil,
       rx_at: nil,
-      clock_offset: clock_offset()
+      clock_offset: 0
     }
 
     case start_worker(state) do
@@ -399,7 +399,10 @@ defmodule ThinkingCap.Robot.UART do
         config: config,
         framing: framing,
         controller: pid,
-        rx_queue: :queue.new()
+        rx_queue: :queue.new(),
+        # measured at each open: with time correction on, Erlang's clock
+        # may drift from the OS's over a long run
+        clock_offset: clock_offset()
     }
 
     {if(body == "", do: :ok, else: {:ok, path}), state}
