@@ -17,6 +17,14 @@
  * under one lock. When stdin closes (the BEAM is gone) the worker applies
  * every activity's fallback and exits.
  *
+ * Waking early: a thread's timer wakes it some tens of microseconds late,
+ * and now and then hundreds (an interrupt, the hypervisor). With
+ * `--wake-early-us N` (default 0) the timing thread sets its timer N us
+ * before each instant due and spins on the clock to the instant: a release
+ * goes out on time whenever the wake-up was less than N late. It never
+ * goes out early. If nothing is due any more when it wakes (a result came
+ * in meanwhile), it sleeps again without spinning.
+ *
  * Wires: an activity may own a device's command path (a serial line, a
  * pty, a FIFO). The worker opens the path write-only and non-blocking (it
  * never touches the line's termios: whoever opened the line set them),
@@ -61,7 +69,9 @@
  *                                     pending (none: no boost)
  *   worker -> BEAM
  *     'H' u8 sched_fifo_granted, u8 mlockall_granted, text...               hello
- *     'L' u16 id, u32 cycle, u64 scheduled_ns, u64 released_ns              release
+ *     'L' u16 id, u32 cycle, u64 scheduled_ns, u64 released_ns, u32 timer_late_ns
+ *         (how late the timing thread woke after its timer: cyclictest's
+ *         measure; with the early wake-up, before it spun)              release
  *     'P' u16 id, u32 cycle, u8 kind (0 fresh, 1 fallback, 2 late: the
  *         cycle is the late result's), u8 wired (1: the command's bytes
  *         went on the wire, whole),
@@ -412,23 +422,50 @@ static void set_boost(const uint8_t *p, uint32_t len) {
     update_boost();
 }
 
+static uint64_t wake_early_ns; /* --wake-early-us */
+#define MAX_WAKE_EARLY_US 2000
+
+static inline void spin_pause(void) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#elif defined(__aarch64__)
+    __asm__ __volatile__("yield");
+#endif
+}
+
+/* The next instant something is due: a release or a pending deadline
+ * (100 ms ahead when nothing is). */
+static uint64_t next_instant(void) {
+    pthread_mutex_lock(&lock);
+    uint64_t next = now_ns() + NS / 10;
+    for (int i = 0; i < MAX_ACTIVITIES; i++) {
+        activity *a = &acts[i];
+        if (!a->used) continue;
+        if (a->next_release < next) next = a->next_release;
+        if (a->awaiting && a->due < next) next = a->due;
+    }
+    pthread_mutex_unlock(&lock);
+    return next;
+}
+
 /* The timing thread: releases and deadlines. */
 static void *timing_loop(void *arg) {
     (void)arg;
     for (;;) {
-        pthread_mutex_lock(&lock);
-        uint64_t next = now_ns() + NS / 10; /* idle: look again in 100 ms */
-        for (int i = 0; i < MAX_ACTIVITIES; i++) {
-            activity *a = &acts[i];
-            if (!a->used) continue;
-            if (a->next_release < next) next = a->next_release;
-            if (a->awaiting && a->due < next) next = a->due;
-        }
-        pthread_mutex_unlock(&lock);
-
-        struct timespec ts = {.tv_sec = (time_t)(next / NS), .tv_nsec = (long)(next % NS)};
-        /* woken early (an activity was added or removed): plan again */
+        uint64_t next = next_instant();
+        uint64_t wake = next - (next > wake_early_ns ? wake_early_ns : 0);
+        struct timespec ts = {.tv_sec = (time_t)(wake / NS), .tv_nsec = (long)(wake % NS)};
+        /* woken before the timer (an activity was added or removed): plan again */
         if (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) continue;
+        uint64_t woke = now_ns();
+        uint64_t timer_late = woke > wake ? woke - wake : 0;
+        if (wake_early_ns) {
+            /* up ahead of time: a result that came meanwhile may have
+             * left nothing due; otherwise spin to the instant */
+            next = next_instant();
+            if (next > woke + wake_early_ns) continue;
+            while (now_ns() < next) spin_pause();
+        }
 
         lock_deferring();
         uint64_t now = now_ns();
@@ -466,7 +503,8 @@ static void *timing_loop(void *arg) {
             tc_put32(buf + 3, best->cycle);
             put64(buf + 7, scheduled);
             put64(buf + 15, released);
-            send_frame(buf, 23);
+            tc_put32(buf + 23, timer_late > UINT32_MAX ? UINT32_MAX : (uint32_t)timer_late);
+            send_frame(buf, 27);
         }
         update_boost();
         unlock_and_send();
@@ -619,8 +657,29 @@ static void handle_frame(const uint8_t *p, uint32_t len) {
     unlock_and_send();
 }
 
-int main(void) {
+/* --wake-early-us N: 0 to MAX_WAKE_EARLY_US; anything else refused. */
+static int parse_args(int argc, char **argv) {
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--wake-early-us") == 0 && i + 1 < argc) {
+            char *end;
+            errno = 0;
+            long us = strtol(argv[++i], &end, 10);
+            if (errno || *end || end == argv[i] || us < 0 || us > MAX_WAKE_EARLY_US) {
+                fprintf(stderr, "tc_timing: --wake-early-us takes 0 to %d, not %s\n", MAX_WAKE_EARLY_US, argv[i]);
+                return -1;
+            }
+            wake_early_ns = (uint64_t)us * 1000;
+        } else {
+            fprintf(stderr, "tc_timing: unknown argument %s\n", argv[i]);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+int main(int argc, char **argv) {
     char text[200];
+    if (parse_args(argc, argv) < 0) return 2;
     /* a write to a BEAM that is gone must fail, not kill the worker */
     signal(SIGPIPE, SIG_IGN);
     /* SIGUSR1 interrupts the timing thread's sleep (no SA_RESTART) */
@@ -652,11 +711,11 @@ int main(void) {
     struct sched_param reader_sp = {.sched_priority = 79};
     int reader_ok = fifo_ok && pthread_setschedparam(pthread_self(), SCHED_FIFO, &reader_sp) == 0;
 
-    snprintf(text, sizeof text, "SCHED_FIFO %s; mlockall %s",
+    snprintf(text, sizeof text, "SCHED_FIFO %s; mlockall %s; wakes %d us early",
              reader_ok ? "granted (timing 80, reader 79)"
              : fifo_ok ? "granted (timing 80; reader refused)"
                        : "refused: running at normal priority",
-             mlock_ok ? "granted" : strerror(mlock_errno));
+             mlock_ok ? "granted" : strerror(mlock_errno), (int)(wake_early_ns / 1000));
     uint8_t hello[256];
     hello[0] = 'H';
     hello[1] = (uint8_t)fifo_ok;

@@ -9,7 +9,8 @@ defmodule ThinkingCap.Cycle do
   (`status/0` says whether it did). Each release reaches the activity's
   owner as
 
-      {:tc_cycle, :release, name, %{id: id, cycle: n, scheduled_ns: t, released_ns: t}}
+      {:tc_cycle, :release, name, %{id: id, cycle: n, scheduled_ns: t, released_ns: t,
+                                    timer_late_ns: ns}}
 
   and the owner answers with `result/2` (the command to apply), straight to
   the worker's port. If no result arrives by the activity's deadline, the
@@ -45,6 +46,21 @@ defmodule ThinkingCap.Cycle do
   for what is left of the lead each cycle. The deadline still counts from
   `scheduled_ns`. `released_ns` is when the worker released it: with a
   lead, before `scheduled_ns`.
+
+  ## Waking early
+
+  A thread's timer wakes it a little late: tens of microseconds as a
+  rule, hundreds now and then on a virtual machine (`cyclictest` shows
+  the same). The worker's timing thread therefore sets its timer
+  `:tc_runtime, :wake_early_us` (default 100, at most 2000, 0 turns it
+  off) before each instant due, a release or a deadline, and spins on the
+  clock to the instant. A release leaves on time whenever the thread woke
+  less than that late, and never leaves early. If nothing is due any more
+  when it wakes (the result came in before the deadline), it sleeps again
+  without spinning. The price is up to that long of one core spinning per
+  instant due. Each release says how late the timer woke the thread
+  (`timer_late_ns`), and `timing/0` gives its statistics
+  (`timer_late_us`), so the machine's own wake-up latency stays visible.
 
   ## Wires
 
@@ -105,7 +121,8 @@ defmodule ThinkingCap.Cycle do
           id: non_neg_integer(),
           cycle: non_neg_integer(),
           scheduled_ns: integer(),
-          released_ns: integer()
+          released_ns: integer(),
+          timer_late_ns: non_neg_integer()
         }
 
   @type applied :: %{
@@ -426,8 +443,8 @@ defmodule ThinkingCap.Cycle do
 
   ## Frames
 
-  defp handle_frame({:release, id, cycle, scheduled, released}, state),
-    do: Releases.release(state, id, cycle, scheduled, released)
+  defp handle_frame({:release, id, cycle, scheduled, released, timer_late}, state),
+    do: Releases.release(state, id, cycle, {scheduled, released, timer_late})
 
   defp handle_frame({:applied, id, frame}, state), do: Releases.applied(state, id, frame)
 

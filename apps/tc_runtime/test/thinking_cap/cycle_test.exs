@@ -115,6 +115,41 @@ defmodule ThinkingCap.CycleTest do
     assert Enum.any?(early)
   end
 
+  test "the worker wakes early and spins: a release leaves on its instant, never before",
+       %{name: name} do
+    assert Cycle.status().message =~ "wakes 100 us early"
+    :ok = Cycle.add(name, period: 0.01, deadline: 0.005, fallback: :stop)
+    releases = for _ <- 1..20, do: release(name)
+    assert Enum.all?(releases, &(&1.released_ns >= &1.scheduled_ns))
+    # the thread woke some microseconds after its timer, yet the release
+    # left sooner after its instant than that: it woke ahead of the
+    # instant (without the early wake-up, a release leaves after its
+    # timer's lateness, never before)
+    assert Enum.any?(releases, &(&1.released_ns - &1.scheduled_ns < &1.timer_late_ns))
+    assert %{^name => %{timer_late_us: %{n: n}}} = Cycle.timing()
+    assert n >= 20
+  end
+
+  test "the worker refuses a wake-up earlier than 2 ms, and the setting is checked" do
+    worker = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")
+
+    assert {text, 2} = System.cmd(worker, ["--wake-early-us", "5000"], stderr_to_stdout: true)
+
+    assert text =~ "--wake-early-us takes 0 to 2000, not 5000"
+    assert {text, 2} = System.cmd(worker, ["--wake-early"], stderr_to_stdout: true)
+    assert text =~ "unknown argument --wake-early"
+
+    Application.put_env(:tc_runtime, :wake_early_us, 2500)
+
+    try do
+      assert_raise ArgumentError, ~r/wake_early_us must be an integer from 0 to 2000/, fn ->
+        ThinkingCap.Cycle.Core.Worker.wake_early_us()
+      end
+    after
+      Application.delete_env(:tc_runtime, :wake_early_us)
+    end
+  end
+
   # Counts, not times: on a loaded machine any answer may be late and the
   # worker may skip releases it was too late for; what is counted must
   # add up whatever the timing was.

@@ -2,7 +2,10 @@ defmodule ThinkingCap.Cycle.Stats do
   @moduledoc """
   Running timing statistics of one periodic activity: the figures of the
   ThinkingCap-II paper's timing tables. Release jitter (how late each
-  release left the timing worker), response time (release to result),
+  release left the timing worker), timer lateness (how late the worker's
+  thread woke after its timer, what `cyclictest` measures; with the
+  worker's early wake-up the release itself is later only when this
+  exceeds it), response time (release to result),
   cycle time (between consecutive releases), CPU time (the module's own
   computation of a result), with mean, standard deviation,
   minimum, maximum and a log2 histogram in microseconds; plus counts of
@@ -17,6 +20,7 @@ defmodule ThinkingCap.Cycle.Stats do
             last_scheduled: nil,
             period_ns: nil,
             jitter: nil,
+            timer: nil,
             response: nil,
             cycle_time: nil,
             cpu: nil
@@ -39,6 +43,7 @@ defmodule ThinkingCap.Cycle.Stats do
     do: %__MODULE__{
       period_ns: period_ns,
       jitter: series(),
+      timer: series(),
       cpu: series(),
       response: series(),
       cycle_time: series()
@@ -57,6 +62,10 @@ defmodule ThinkingCap.Cycle.Stats do
     s = %{s | jitter: add(s.jitter, (released - scheduled) / 1000)}
     if cycle_time, do: %{s | cycle_time: add(s.cycle_time, cycle_time / 1000)}, else: s
   end
+
+  @doc "Records how late the worker's thread woke after its timer for a release (ns)."
+  @spec timer(t(), non_neg_integer()) :: t()
+  def timer(%__MODULE__{} = s, late_ns), do: %{s | timer: add(s.timer, late_ns / 1000)}
 
   @doc "Records what the worker applied: `:fresh` (with its response time), `:fallback` or `:late`."
   @spec applied(t(), :fresh | :fallback | :late, integer()) :: t()
@@ -78,6 +87,7 @@ defmodule ThinkingCap.Cycle.Stats do
       skipped: s.skipped,
       period_us: s.period_ns / 1000,
       jitter_us: figures(s.jitter),
+      timer_late_us: figures(s.timer),
       response_us: figures(s.response),
       cycle_us: figures(s.cycle_time),
       cpu_us: figures(s.cpu)

@@ -118,7 +118,8 @@ defmodule ThinkingCap.Testing.Lockstep do
       id: 0,
       cycle: n,
       scheduled_ns: round(next * 1.0e9),
-      released_ns: round(time * 1.0e9)
+      released_ns: round(time * 1.0e9),
+      timer_late_ns: 0
     }
 
     {[{:cycle_result, command, _wire} | effects], s} =

@@ -41,13 +41,14 @@ defmodule ThinkingCap.Cycle.Core.Protocol do
     do: IO.iodata_to_binary([?B | for({tid, prio, _base} <- threads, do: <<tid::32, prio>>)])
 
   @doc """
-  A frame from the worker: `{:release, id, cycle, scheduled_ns, released_ns}`,
+  A frame from the worker: `{:release, id, cycle, scheduled_ns, released_ns,
+  timer_late_ns}`,
   `{:applied, id, event}` (its command still encoded: `command/1`),
   `{:hello, status}`, `{:wire_status, id, status, text}`,
   `{:wire_error, text}` (after "wire "), `{:error, text}` or `{:unknown, frame}`.
   """
-  def decode(<<?L, id::16, cycle::32, scheduled::64, released::64>>),
-    do: {:release, id, cycle, scheduled, released}
+  def decode(<<?L, id::16, cycle::32, scheduled::64, released::64, timer_late::32>>),
+    do: {:release, id, cycle, scheduled, released, timer_late}
 
   def decode(<<?P, id::16, cycle::32, kind, wired, response::64, command::binary>>)
       when is_map_key(@kinds, kind) do

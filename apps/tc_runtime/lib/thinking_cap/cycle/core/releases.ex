@@ -10,17 +10,24 @@ defmodule ThinkingCap.Cycle.Core.Releases do
   alias ThinkingCap.Cycle.Stats
 
   @doc "A release of activity `id`: to its owner, and into its statistics."
-  def release(state, id, cycle, scheduled, released) do
+  def release(state, id, cycle, {scheduled, released, timer_late}) do
     case state.activities do
       %{^id => a} ->
         # released lead_ns early: the owner waits for the scheduled instant
         send(
           a.owner,
           {:tc_cycle, :release, a.name,
-           %{id: id, cycle: cycle, scheduled_ns: scheduled + a.lead_ns, released_ns: released}}
+           %{
+             id: id,
+             cycle: cycle,
+             scheduled_ns: scheduled + a.lead_ns,
+             released_ns: released,
+             timer_late_ns: timer_late
+           }}
         )
 
-        a = %{a | stats: Stats.release(a.stats, scheduled, released), release: {cycle, released}}
+        stats = a.stats |> Stats.release(scheduled, released) |> Stats.timer(timer_late)
+        a = %{a | stats: stats, release: {cycle, released}}
         put_in(state.activities[id], a)
 
       _ ->

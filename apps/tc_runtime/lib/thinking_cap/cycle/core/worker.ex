@@ -11,6 +11,9 @@ defmodule ThinkingCap.Cycle.Core.Worker do
 
   @port_key {ThinkingCap.Cycle, :port}
 
+  # the worker's MAX_WAKE_EARLY_US
+  @max_wake_early_us 2000
+
   @doc """
   Starts the worker and waits for its hello; names the threads to boost.
   Returns `{port, status, boost}`.
@@ -19,7 +22,11 @@ defmodule ThinkingCap.Cycle.Core.Worker do
     path = Application.app_dir(:tc_runtime, "priv/bin/tc_timing")
     # :eof: the worker's output closing is the first sign of its death
     # (its exit status comes later, through the child-process helper)
-    port = Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status, :eof])
+    args = ["--wake-early-us", Integer.to_string(wake_early_us())]
+
+    port =
+      Port.open({:spawn_executable, path}, [:binary, {:packet, 4}, :exit_status, :eof, args: args])
+
     :persistent_term.put(@port_key, port)
 
     status =
@@ -35,6 +42,22 @@ defmodule ThinkingCap.Cycle.Core.Worker do
     boost = Scheduling.release_boost()
     Port.command(port, Protocol.boost(boost))
     {port, status, boost}
+  end
+
+  @doc """
+  How early the worker's thread wakes before each instant due, in µs
+  (`:tc_runtime, :wake_early_us`, default 100): see `ThinkingCap.Cycle`.
+  """
+  def wake_early_us do
+    case Application.get_env(:tc_runtime, :wake_early_us, 100) do
+      us when is_integer(us) and us in 0..@max_wake_early_us ->
+        us
+
+      other ->
+        raise ArgumentError,
+              ":tc_runtime, :wake_early_us must be an integer from 0 to #{@max_wake_early_us} " <>
+                "(microseconds), not #{inspect(other)}"
+    end
   end
 
   @doc "Sends a frame to the worker; nothing when there is none."
