@@ -613,26 +613,6 @@ static ERL_NIF_TERM nif_blocked(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     return out;
 }
 
-/* downsample(cells, w, h, k) -> {w', h', cells'}: each k x k block one
- * cell, non-zero if any of its cells is (the blocks at the right and top
- * edges may be partial) */
-static ERL_NIF_TERM nif_downsample(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
-{
-    (void)argc;
-    ErlNifBinary b;
-    int w, h, k;
-    if (!get_grid(env, argv, &b, &w, &h) || !enif_get_int(env, argv[3], &k) || k < 1 || k > 64)
-        return enif_make_badarg(env);
-    int cw = (w + k - 1) / k, ch = (h + k - 1) / k;
-    ERL_NIF_TERM out;
-    unsigned char *p = enif_make_new_binary(env, (size_t)cw * ch, &out);
-    memset(p, 0, (size_t)cw * ch);
-    for (int r = 0; r < h; r++)
-        for (int c = 0; c < w; c++)
-            if (b.data[(size_t)r * w + c]) p[(size_t)(r / k) * cw + c / k] = 1;
-    return enif_make_tuple3(env, enif_make_int(env, cw), enif_make_int(env, ch), out);
-}
-
 /* patch(cells, changes) -> a copy of cells with each {index, value} of
  * changes (native int32 pairs) set; indices outside are ignored */
 static ERL_NIF_TERM nif_patch(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
@@ -887,7 +867,9 @@ static ERL_NIF_TERM nif_frontiers(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
 
 /* shrink(occupancy, w, h, k) -> {w', h', occupancy'}: each k x k block
  * one cell, the largest of its signed values (unknown, -1, only where
- * every cell of the block is) */
+ * every cell of the block is; the blocks at the right and top edges may
+ * be partial). On blocked cells (0 or 1) a block is blocked if any of
+ * its cells is. */
 static ERL_NIF_TERM nif_shrink(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
@@ -924,7 +906,6 @@ static ErlNifFunc funcs[] = {
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"overlay", 3, nif_overlay, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"downsample", 4, nif_downsample, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"patch", 2, nif_patch, 0},
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},

@@ -152,7 +152,7 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   defp grids(planner, %OccupancyGrid{width: w, height: h} = map) do
     k = max(1, round(planner.resolution / map.resolution))
     blocked = GridNif.blocked(map.data, planner.threshold, 0)
-    {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.downsample(blocked, w, h, k)
+    {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.shrink(blocked, w, h, k)
     res = map.resolution * k
     radius = planner.radius / res
     old = planner.grid

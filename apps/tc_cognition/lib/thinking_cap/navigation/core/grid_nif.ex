@@ -31,7 +31,6 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
   def blocked(_occupancy, _threshold, _unknown), do: :erlang.nif_error(:nif_not_loaded)
   def overlay(_data, _mask, _value), do: :erlang.nif_error(:nif_not_loaded)
-  def downsample(_cells, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
   def patch(_cells, _changes), do: :erlang.nif_error(:nif_not_loaded)
 
   def shrink(_occupancy, _w, _h, _k), do: :erlang.nif_error(:nif_not_loaded)
