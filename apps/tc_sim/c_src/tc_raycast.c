@@ -609,6 +609,22 @@ static inline int seg_hit(const Seg *s, double px, double py, double dx, double 
     return 1;
 }
 
+/* Narrows [t0, t1] to where u + t v lies in [0, n]; 0 when it never does
+ * (v = 0 and u outside). */
+static inline int clip_axis(double u, double v, double n, double *t0, double *t1)
+{
+    if (v > 0) {
+        *t0 = fmax(*t0, -u / v);
+        *t1 = fmin(*t1, (n - u) / v);
+    } else if (v < 0) {
+        *t0 = fmax(*t0, (n - u) / v);
+        *t1 = fmin(*t1, -u / v);
+    } else if (!(u >= 0 && u <= n)) {
+        return 0;
+    }
+    return 1;
+}
+
 static void seg_trace(const World *w, double px, double py, double dx, double dy, Hit *h)
 {
     const double ih = w->sinvh;
@@ -616,25 +632,7 @@ static void seg_trace(const World *w, double px, double py, double dx, double dy
     const double ux = (px - w->sx0) * ih, uy = (py - w->sy0) * ih;
     const double vx = dx * ih, vy = dy * ih;
     double t0 = 0.0, t1 = h->t;
-    if (vx > 0) {
-        t0 = fmax(t0, -ux / vx);
-        t1 = fmin(t1, (W - ux) / vx);
-    } else if (vx < 0) {
-        t0 = fmax(t0, (W - ux) / vx);
-        t1 = fmin(t1, -ux / vx);
-    } else if (!(ux >= 0 && ux <= W)) {
-        return;
-    }
-    if (vy > 0) {
-        t0 = fmax(t0, -uy / vy);
-        t1 = fmin(t1, (H - uy) / vy);
-    } else if (vy < 0) {
-        t0 = fmax(t0, (H - uy) / vy);
-        t1 = fmin(t1, -uy / vy);
-    } else if (!(uy >= 0 && uy <= H)) {
-        return;
-    }
-    if (!(t0 <= t1)) return;
+    if (!clip_axis(ux, vx, W, &t0, &t1) || !clip_axis(uy, vy, H, &t0, &t1) || !(t0 <= t1)) return;
     const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
     const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
     const double tdx = vx != 0 ? fabs(1.0 / vx) : INFINITY;
