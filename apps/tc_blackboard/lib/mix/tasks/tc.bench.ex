@@ -10,19 +10,18 @@ defmodule Mix.Tasks.Tc.Bench do
   Benchmarks start what they compare against themselves.
 
   Benchmarks measure the VM a robot runs: when this one was started
-  without the release's scheduler flags (`+sbwt none +sbwtdcpu none
-  +sbwtdio none`, rel/vm.args.eex: the runtime may run the schedulers at
-  real-time priority, where they must not busy-wait), the task runs itself
-  again in a VM that has them.
+  without the release's emulator flags (`ThinkingCap.VMFlags`: no
+  busy-waiting schedulers, process heaps in the allocator's reused
+  carriers), the task runs itself again in a VM that has them.
   """
   use Mix.Task
 
-  @vm_flags "+sbwt none +sbwtdcpu none +sbwtdio none"
+  alias ThinkingCap.VMFlags
 
   @impl true
   def run([name | args]) do
     # (a VM this task started itself runs the benchmark whatever it finds)
-    if busy_wait_off?() or System.get_env("TC_BENCH_VM") == "1",
+    if VMFlags.set?() or System.get_env("TC_BENCH_VM") == "1",
       do: run_here(name, args),
       else: run_with_vm_flags([name | args])
   end
@@ -50,17 +49,9 @@ defmodule Mix.Tasks.Tc.Bench do
     module.run(args)
   end
 
-  defp busy_wait_off? do
-    case File.read("/proc/#{System.pid()}/cmdline") do
-      {:ok, cmdline} -> cmdline =~ <<"-sbwt", 0, "none">>
-      # not Linux: no real-time scheduling to protect
-      {:error, _} -> true
-    end
-  end
-
   defp run_with_vm_flags(argv) do
-    Mix.shell().info("tc.bench: running in a VM with #{@vm_flags}")
-    options = String.trim("#{System.get_env("ELIXIR_ERL_OPTIONS")} #{@vm_flags}")
+    Mix.shell().info("tc.bench: running in a VM with #{VMFlags.string()}")
+    options = String.trim("#{System.get_env("ELIXIR_ERL_OPTIONS")} #{VMFlags.string()}")
 
     {_, status} =
       System.cmd("mix", ["tc.bench" | argv],

@@ -75,13 +75,14 @@ defmodule ThinkingCap.Testing.Cluster do
     name = Atom.to_charlist(name)
     level = opts |> Keyword.get(:log_level, :warning) |> Atom.to_charlist()
 
-    # No busy-waiting, and schedulers left at normal priority (the runtime
-    # would put them at SCHED_FIFO): on a 2-core machine a peer's scheduler
-    # was seen spinning at real-time priority after another node of its
-    # cluster was killed, starving the whole machine.
+    # A node's emulator flags (no busy-waiting), and schedulers left at
+    # normal priority (the runtime would put them at SCHED_FIFO): on a
+    # 2-core machine a peer's scheduler was seen spinning at real-time
+    # priority after another node of its cluster was killed, starving
+    # the whole machine.
     args =
       [~c"-setcookie", Atom.to_charlist(cookie), ~c"-kernel", ~c"dist_auto_connect", ~c"once"] ++
-        [~c"+sbwt", ~c"none", ~c"+sbwtdcpu", ~c"none", ~c"+sbwtdio", ~c"none"] ++
+        ThinkingCap.VMFlags.charlists() ++
         [~c"-logger", ~c"level", level] ++
         [~c"-tc_runtime", ~c"beam_priority", ~c"nil", ~c"-pa" | :code.get_path()]
 
