@@ -17,8 +17,8 @@ defmodule ThinkingCap.Bench.Timing do
        running alongside, as the physical reference for wake-up latency.
 
   Jitter is how late each release left the timing worker (actual minus
-  scheduled release). The worker's thread wakes 100 µs before each instant
-  due and spins to it (`ThinkingCap.Cycle`'s "Waking early"), so a
+  scheduled release). The worker's thread wakes 100 µs before each
+  release and spins to it (`ThinkingCap.Cycle`'s "Waking early"), so a
   release is late only when the thread woke more than that late. How late
   its timer woke it (the quantity cyclictest measures) is printed beside
   as "worker's timer", and `timer_ratio` compares its p99 with

@@ -20,10 +20,10 @@
  * Waking early: a thread's timer wakes it some tens of microseconds late,
  * and now and then hundreds (an interrupt, the hypervisor). With
  * `--wake-early-us N` (default 0) the timing thread sets its timer N us
- * before each instant due and spins on the clock to the instant: a release
+ * before each release and spins on the clock to the instant: a release
  * goes out on time whenever the wake-up was less than N late. It never
- * goes out early. If nothing is due any more when it wakes (a result came
- * in meanwhile), it sleeps again without spinning.
+ * goes out early. Deadlines are waited for without it: a fallback does
+ * not need the microsecond, and most deadlines find their result in.
  *
  * Wires: an activity may own a device's command path (a serial line, a
  * pty, a FIFO). The worker opens the path write-only and non-blocking (it
@@ -434,36 +434,45 @@ static inline void spin_pause(void) {
 }
 
 /* The next instant something is due: a release or a pending deadline
- * (100 ms ahead when nothing is). */
-static uint64_t next_instant(void) {
+ * (100 ms ahead when nothing is); *release says whether a release is due
+ * then. */
+static uint64_t next_instant(int *release) {
     pthread_mutex_lock(&lock);
-    uint64_t next = now_ns() + NS / 10;
+    uint64_t next = now_ns() + NS / 10, first_release = UINT64_MAX;
     for (int i = 0; i < MAX_ACTIVITIES; i++) {
         activity *a = &acts[i];
         if (!a->used) continue;
-        if (a->next_release < next) next = a->next_release;
+        if (a->next_release < first_release) first_release = a->next_release;
         if (a->awaiting && a->due < next) next = a->due;
     }
     pthread_mutex_unlock(&lock);
-    return next;
+    *release = first_release <= next;
+    return *release ? first_release : next;
 }
 
 /* The timing thread: releases and deadlines. */
 static void *timing_loop(void *arg) {
     (void)arg;
     for (;;) {
-        uint64_t next = next_instant();
-        uint64_t wake = next - (next > wake_early_ns ? wake_early_ns : 0);
-        struct timespec ts = {.tv_sec = (time_t)(wake / NS), .tv_nsec = (long)(wake % NS)};
-        /* woken before the timer (an activity was added or removed): plan again */
-        if (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) continue;
-        uint64_t woke = now_ns();
-        uint64_t timer_late = woke > wake ? woke - wake : 0;
-        if (wake_early_ns) {
-            /* up ahead of time: a result that came meanwhile may have
-             * left nothing due; otherwise spin to the instant */
-            next = next_instant();
-            if (next > woke + wake_early_ns) continue;
+        int release;
+        uint64_t next = next_instant(&release);
+        /* early for a release only: a deadline's fallback does not need
+         * the microsecond, and most deadlines find their result in */
+        uint64_t early = release ? wake_early_ns : 0;
+        uint64_t wake = next > early ? next - early : 0;
+        uint64_t timer_late = 0;
+        if (wake > now_ns()) {
+            struct timespec ts = {.tv_sec = (time_t)(wake / NS), .tv_nsec = (long)(wake % NS)};
+            /* woken before the timer (an activity was added or removed): plan again */
+            if (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) continue;
+            uint64_t woke = now_ns();
+            timer_late = woke > wake ? woke - wake : 0;
+        }
+        if (early) {
+            /* up ahead of time: an activity removed meanwhile may have
+             * left nothing due so soon; otherwise spin to the instant */
+            next = next_instant(&release);
+            if (next > now_ns() + early) continue;
             while (now_ns() < next) spin_pause();
         }
 

@@ -53,14 +53,16 @@ defmodule ThinkingCap.Cycle do
   rule, hundreds now and then on a virtual machine (`cyclictest` shows
   the same). The worker's timing thread therefore sets its timer
   `:tc_runtime, :wake_early_us` (default 100, at most 2000, 0 turns it
-  off) before each instant due, a release or a deadline, and spins on the
-  clock to the instant. A release leaves on time whenever the thread woke
-  less than that late, and never leaves early. If nothing is due any more
-  when it wakes (the result came in before the deadline), it sleeps again
-  without spinning. The price is up to that long of one core spinning per
-  instant due. Each release says how late the timer woke the thread
-  (`timer_late_ns`), and `timing/0` gives its statistics
-  (`timer_late_us`), so the machine's own wake-up latency stays visible.
+  off) before each release and spins on the clock to the instant. A
+  release leaves on time whenever the thread woke less than that late,
+  and never leaves early. The price is up to that long of one core
+  spinning per release: 1 % of a core for a 100 Hz activity, more for a
+  node that hosts many (a simulated fleet may want 0). Deadlines are
+  waited for without it: a fallback does not need the microsecond, and
+  most deadlines find their result in. Each release says how late the
+  timer woke the thread (`timer_late_ns`), and `timing/0` gives its
+  statistics (`timer_late_us`), so the machine's own wake-up latency
+  stays visible.
 
   ## Wires
 

@@ -45,7 +45,7 @@ defmodule ThinkingCap.Cycle.Core.Worker do
   end
 
   @doc """
-  How early the worker's thread wakes before each instant due, in µs
+  How early the worker's thread wakes before each release, in µs
   (`:tc_runtime, :wake_early_us`, default 100): see `ThinkingCap.Cycle`.
   """
   def wake_early_us do
