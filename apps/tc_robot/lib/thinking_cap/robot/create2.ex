@@ -81,6 +81,8 @@ defmodule ThinkingCap.Robot.Create2 do
   alias ThinkingCap.Robot.Create2.{Framing, Odometry, Protocol}
 
   @packets [7, 19, 20, 22, 23, 25, 26, 35, 43, 44]
+  # a stream frame of them: header, length, the packets, checksum
+  @frame_bytes Protocol.stream_length(@packets) + 3
   @max_wheel_speed 500
   @publish_every_ms 1000
   @stale_stream_ms 1000
@@ -156,6 +158,7 @@ defmodule ThinkingCap.Robot.Create2 do
         frames: 0,
         rejected: 0,
         garbage_bytes: 0,
+        lost: 0,
         last_frame_at: nil,
         received_at: nil,
         restarted_at: nil,
@@ -379,15 +382,18 @@ defmodule ThinkingCap.Robot.Create2 do
     link(state, true)
   end
 
-  defp line({:rejected, :garbage, bytes}, state) when is_binary(bytes),
-    do: {[], %{state | garbage_bytes: state.garbage_bytes + byte_size(bytes)}}
+  # (frames lost since the last good one: the odometry's next step spans them)
+  defp line({:rejected, :garbage, bytes}, state) when is_binary(bytes) do
+    lost = state.lost + div(byte_size(bytes), @frame_bytes)
+    {[], %{state | garbage_bytes: state.garbage_bytes + byte_size(bytes), lost: lost}}
+  end
 
   defp line({:rejected, reason, bytes}, state) do
     Logger.debug(
       "#{inspect(state.robot)}: Create 2 frame rejected (#{reason}): #{inspect(bytes)}"
     )
 
-    {[], %{state | rejected: state.rejected + 1}}
+    {[], %{state | rejected: state.rejected + 1, lost: state.lost + 1}}
   end
 
   # a frame the framing held back when the line went quiet is whole
@@ -411,7 +417,7 @@ defmodule ThinkingCap.Robot.Create2 do
     now = now_ms()
     bumps = packets[7]
     stamp = state.received_at || now / 1000
-    odometry = Odometry.update(state.odometry, packets[43], packets[44], stamp)
+    odometry = Odometry.update(state.odometry, packets[43], packets[44], stamp, 1 + state.lost)
 
     bumper = %{
       pressed: bumps.bump_left or bumps.bump_right,
@@ -433,6 +439,7 @@ defmodule ThinkingCap.Robot.Create2 do
     state = %{
       state
       | odometry: odometry,
+        lost: 0,
         bumper: bumper,
         battery: battery,
         wheel_drop: bumper.wheel_drop,

@@ -71,4 +71,17 @@ defmodule ThinkingCap.Robot.Create2OdometryTest do
     odo = Odometry.update(odo, 31_010 + 1000, 1010 + 1000, 1.030)
     assert odo.jumps == 1
   end
+
+  test "a step over frames lost is judged on their periods, though read at one stamp" do
+    # ten frames lost at 0.3 m/s: 45 mm, 127 counts, arriving in the same
+    # read of the line as the frame before them
+    odo = Odometry.new(@r, @b) |> Odometry.update(1000, 1000, 2.0)
+    lost = Odometry.update(odo, 1127, 1127, 2.0, 11)
+    assert lost.jumps == 0
+    {x, _, _} = lost.pose
+    assert_in_delta x, 127 / @per_meter, 1.0e-9
+
+    # the same step taken as one frame's is no wheel's
+    assert Odometry.update(odo, 1127, 1127, 2.0).jumps == 1
+  end
 end

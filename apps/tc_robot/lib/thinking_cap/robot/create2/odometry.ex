@@ -7,10 +7,13 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
   the counter's range is taken as a wrap the other way.
 
   A step no wheel could make (faster than the OI's 500 mm/s, with a
-  generous margin, over the time since the previous counts) is not
-  integrated: such counts came from a frame that passed its 8-bit
+  generous margin, over the time since the previous counts, or over the
+  stream periods of the frames it spans when the driver lost some) is
+  not integrated: such counts came from a frame that passed its 8-bit
   checksum by chance. They become the new reference and `jumps` counts
-  them.
+  them. The frames count matters when several arrive in one read of the
+  line, all with that read's stamp: a step over ten lost frames then
+  came 0 s after the last counts.
 
   Speeds `v` (m/s) and `w` (rad/s) are the last step over the stream's
   period (15 ms): the robot samples its encoders on its own clock, so
@@ -61,23 +64,27 @@ defmodule ThinkingCap.Robot.Create2.Odometry do
     }
 
   @doc """
-  Integrates a new pair of encoder counts read at `stamp` (s). The first
-  pair (and the first after `rebase/1`) only sets the reference.
+  Integrates a new pair of encoder counts read at `stamp` (s), `frames`
+  stream frames after the last pair (1, more when frames between were
+  lost). The first pair (and the first after `rebase/1`) only sets the
+  reference.
   """
-  @spec update(t(), non_neg_integer(), non_neg_integer(), number()) :: t()
-  def update(%__MODULE__{left: nil} = odo, left, right, stamp),
+  @spec update(t(), non_neg_integer(), non_neg_integer(), number(), pos_integer()) :: t()
+  def update(odo, left, right, stamp, frames \\ 1)
+
+  def update(%__MODULE__{left: nil} = odo, left, right, stamp, _frames),
     do: %{odo | left: left, right: right, stamp: stamp, v: 0.0, w: 0.0}
 
-  def update(%__MODULE__{} = odo, left, right, stamp) do
+  def update(%__MODULE__{} = odo, left, right, stamp, frames) do
     steps = {wrap(left - odo.left), wrap(right - odo.right)}
 
-    if plausible?(odo, steps, stamp),
+    if plausible?(odo, steps, stamp, frames),
       do: step(odo, steps, left, right, stamp),
       else: %{odo | left: left, right: right, stamp: stamp, jumps: odo.jumps + 1}
   end
 
-  defp plausible?(odo, {sl, sr}, stamp) do
-    dt = max(stamp - (odo.stamp || stamp), 0.0)
+  defp plausible?(odo, {sl, sr}, stamp, frames) do
+    dt = max(stamp - (odo.stamp || stamp), frames * @period)
     allowed = @max_wheel_speed * @margin * dt / odo.meters_per_count + @slack
     abs(sl) <= allowed and abs(sr) <= allowed
   end
