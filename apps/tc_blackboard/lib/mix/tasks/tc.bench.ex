@@ -12,17 +12,18 @@ defmodule Mix.Tasks.Tc.Bench do
   Benchmarks measure the VM a robot runs: when this one was started
   without the release's scheduler flags (`+sbwt none +sbwtdcpu none
   +sbwtdio none`, rel/vm.args.eex: the runtime may run the schedulers at
-  real-time priority, where they must not busy-wait), the task runs itself
-  again in a VM that has them.
+  real-time priority, where they must not busy-wait) or its allocators'
+  super carrier (`+MMscs 1024`, which keeps freed memory mapped), the
+  task runs itself again in a VM that has them.
   """
   use Mix.Task
 
-  @vm_flags "+sbwt none +sbwtdcpu none +sbwtdio none"
+  @vm_flags "+sbwt none +sbwtdcpu none +sbwtdio none +MMscs 1024"
 
   @impl true
   def run([name | args]) do
     # (a VM this task started itself runs the benchmark whatever it finds)
-    if busy_wait_off?() or System.get_env("TC_BENCH_VM") == "1",
+    if release_flags?() or System.get_env("TC_BENCH_VM") == "1",
       do: run_here(name, args),
       else: run_with_vm_flags([name | args])
   end
@@ -50,9 +51,9 @@ defmodule Mix.Tasks.Tc.Bench do
     module.run(args)
   end
 
-  defp busy_wait_off? do
+  defp release_flags? do
     case File.read("/proc/#{System.pid()}/cmdline") do
-      {:ok, cmdline} -> cmdline =~ <<"-sbwt", 0, "none">>
+      {:ok, cmdline} -> cmdline =~ <<"-sbwt", 0, "none">> and cmdline =~ <<"-MMscs", 0>>
       # not Linux: no real-time scheduling to protect
       {:error, _} -> true
     end
