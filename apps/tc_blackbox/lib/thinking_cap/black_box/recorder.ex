@@ -77,8 +77,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
   written 32 at a time (or at the chunk's end). The writer compresses
   the chunk as its records come (`ThinkingCap.MCAP.Compression.stream/1`),
   so that they are not kept on the heap; the file gets one write per
-  chunk. The process starts with a heap of 1 MB, so that it is not
-  collected every few tuples. The subscription drops tuples when 1000
+  chunk. The process's heap stays small enough (46,422 words) that the
+  VM collects it where it runs, not on a dirty scheduler. The
+  subscription drops tuples when 1000
   are held for the recorder; `info/1` counts them.
   """
   use GenServer
@@ -100,12 +101,13 @@ defmodule ThinkingCap.BlackBox.Recorder do
   @pending_max 32
 
   # The tuples taken and noted, and their JSON, live in the process
-  # (the open chunk does not: it is compressed as it comes): heaps sized
-  # for them spare the recorder a garbage collection every few tuples
-  # (words: 1 MB of heap, 2 MB of binaries; in the bench, 32,768 words
-  # or the default made no clear difference, their collections more
-  # often but shorter)
-  @spawn_opt [min_heap_size: 131_072, min_bin_vheap_size: 262_144]
+  # (the open chunk does not: it is compressed as it comes). Its young
+  # heap (words) stays under 131,072, the size from which the VM moves
+  # a collection to a dirty scheduler: the recorder's 1 MB heap was
+  # collected there, taken off its scheduler and back, at every
+  # collection. Under 65,536 (512 KB) too, the heap allocator's
+  # single-block threshold. 2 MB of binaries.
+  @spawn_opt [min_heap_size: 46_422, min_bin_vheap_size: 262_144]
 
   alias ThinkingCap.BlackBox.Core.{Channels, Options}
   alias ThinkingCap.Blackboard
