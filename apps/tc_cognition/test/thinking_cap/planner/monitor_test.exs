@@ -113,6 +113,46 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
+  test "exploring: a frontier is dropped once seen, though unknown space lies behind a wall by it",
+       %{tmp_dir: dir} do
+    # 4 x 4 m walled round, known free west of x = 2.5, unknown east of it:
+    # one frontier along x = 2.5
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 3.9 or y > 3.9 -> 100
+        x < 2.5 -> 0
+        true -> -1
+      end
+    end
+
+    {plan, _actions, state} = on_sensed_map(dir, :explore, {80, 80}, cell, {1.0, 2.0, 0.0})
+    assert plan.state == :moving
+    {fx, _} = state.target
+    assert abs(fx - 2.5) < 0.1
+
+    # the next map: free up to a wall along x = 2.6 to 2.7, unknown behind
+    # it, 0.2 m from the frontier's point: no frontier is left
+    seen = fn c, r ->
+      x = (c + 0.5) * 0.05
+
+      cond do
+        cell.(c, r) != -1 -> cell.(c, r)
+        x < 2.6 -> 0
+        x < 2.7 -> 100
+        true -> -1
+      end
+    end
+
+    data = for r <- 0..79, c <- 0..79, into: <<>>, do: <<seen.(c, r)::signed-8>>
+    map = %{state.map | data: data, version: state.map.version + 1}
+    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
+    {plan, _actions, _state} = cycle(state, 2.0)
+    assert plan.state == :done
+  end
+
+  @tag :tmp_dir
   test "exploring: a frontier in a nook is seen from a stand-in with room, not driven into", %{
     tmp_dir: dir
   } do
