@@ -153,6 +153,43 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
+  test "exploring on the sensed map gives no door to cross; going to a point does", %{
+    tmp_dir: dir
+  } do
+    # 6 x 4 m walled round, a wall along x = 3 with a 1 m opening at y = 2,
+    # unknown east of x = 5: the way to the frontier goes through it
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 5.9 or y > 3.9 -> 100
+        x >= 3.0 and x < 3.1 and abs(y - 2.0) > 0.5 -> 100
+        x >= 5.0 -> -1
+        true -> 0
+      end
+    end
+
+    door = %{
+      name: :door_1,
+      centre: {3.05, 2.0},
+      connects: [:room_1, :room_2],
+      open: true,
+      from: {3.05, 1.5},
+      to: {3.05, 2.5}
+    }
+
+    topology = %ThinkingCap.Navigation.Topology{doors: %{door_1: door}}
+
+    for {task, expected} <- [{:explore, nil}, {{:go_to, {4.5, 2.0}}, :door_1}] do
+      {_plan, _actions, state} = on_sensed_map(dir, task, {120, 80}, cell, {1.0, 2.0, 0.0})
+      {_, state} = Monitor.handle_tuple({:topology, :r, topology}, state)
+      {plan, _actions, _state} = cycle(state, 1.5)
+      assert plan.state == :moving
+      assert (plan.door && plan.door.name) == expected
+    end
+  end
+
+  @tag :tmp_dir
   test "exploring: a frontier in a nook is seen from a stand-in with room, not driven into", %{
     tmp_dir: dir
   } do
