@@ -84,9 +84,8 @@ defmodule ThinkingCap.Navigation.Frontiers do
   Whether a frontier is still there: at least `min_length` metres of
   frontier cells (free, below `free_below`, with an unknown 4-neighbour
   inside the map; defaults as in `find/2`) within `radius` metres of a
-  point. Unknown
-  space behind a wall near the point does not count: it borders no free
-  cell.
+  point. Unknown space behind a wall near the point does not count: it
+  borders no free cell.
   """
   @spec remains?(OccupancyGrid.t(), {number(), number()}, float(), keyword()) :: boolean()
   def remains?(%OccupancyGrid{} = map, point, radius, opts \\ []) do
