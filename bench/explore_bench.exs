@@ -20,7 +20,10 @@ defmodule ThinkingCap.Bench.Explore do
   Ends with `explore: runs=N coverage_pct=C accuracy_pct=A seconds=S`.
 
   For tuning: `TC_TRACE=1` prints the estimate's error every second
-  (every 0.1 s in the first 10 s), and at the end the map builder's pose
+  (every 0.1 s in the first 10 s) with the command, the active
+  behaviours, the plan's state, the frontier aimed at (`tgt`), how many
+  were given up (`gu`) and the way left (`togo`, m); every 100 s the
+  coverage of the map built so far; and at the end the map builder's pose
   graph against where the robot truly was (the nodes' mean error, 25
   at a time, and what remains after the best rigid fit); `TC_LIMIT` cuts runs short (s);
   `TC_MCL` and `TC_MAPPER` hold keyword
@@ -158,6 +161,7 @@ defmodule ThinkingCap.Bench.Explore do
       )
 
     Process.put(:node_truth, %{})
+    Process.put(:truth, {truth, {sx, sy}})
     {time, state} = drive(sim, 0.0)
     if System.get_env("TC_TRACE"), do: node_report(sim)
     blocked = Sim.status(sim).blocked
@@ -188,6 +192,7 @@ defmodule ThinkingCap.Bench.Explore do
     t = t + 10.0
     {:ok, c} = Sim.controller_state(sim, :explorer)
     saved = Lockstep.latest(c.lock, Tuples.map_saved(:explorer))
+    if System.get_env("TC_TRACE") && rem(round(t), 100) == 0, do: coverage_so_far(c.lock, t)
 
     limit = min(@limit, limit())
 
@@ -196,6 +201,14 @@ defmodule ThinkingCap.Bench.Explore do
       Tuples.plan(_, %{state: s}) when t >= limit -> {t, s}
       _ -> drive(sim, t)
     end
+  end
+
+  # TC_TRACE: the coverage of the map built so far, every 100 s
+  defp coverage_so_far(lock, t) do
+    {truth, start} = Process.get(:truth)
+    grid = Lockstep.state(lock, :mapper).grid
+    map = ThinkingCap.Navigation.Maps.SensedGrid.occupancy(grid)
+    IO.puts("coverage at #{round(t)} s: #{NavRun.fmt(coverage(map, truth, start))} %")
   end
 
   defp limit, do: String.to_integer(System.get_env("TC_LIMIT") || "1800")
@@ -359,7 +372,32 @@ defmodule ThinkingCap.Bench.Explore do
           ""
       end
 
-    command <> " act=" <> active
+    command <> " act=" <> active <> plan(lock)
+  end
+
+  defp togo([_, _ | _] = path) do
+    path
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.reduce(0.0, fn [{ax, ay}, {bx, by}], l ->
+      l + :math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+    end)
+    |> NavRun.fmt()
+  end
+
+  defp togo(_path), do: "0.00"
+
+  # the frontier aimed at, the plan's state and how many were given up
+  defp plan(lock) do
+    case Lockstep.latest(lock, Tuples.plan(:explorer)) do
+      Tuples.plan(_, %{state: s, waypoint: {gx, gy}, given_up: g} = p) ->
+        " st=#{s} tgt=(#{NavRun.fmt(gx)},#{NavRun.fmt(gy)}) gu=#{length(g)} togo=#{togo(p[:path])}"
+
+      Tuples.plan(_, %{state: s, given_up: g}) ->
+        " st=#{s} gu=#{length(g)}"
+
+      _ ->
+        ""
+    end
   end
 
   ## scoring

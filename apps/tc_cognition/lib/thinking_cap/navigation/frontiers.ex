@@ -80,6 +80,37 @@ defmodule ThinkingCap.Navigation.Frontiers do
     Enum.any?(disc, fn cell -> inside?(map, cell) and OccupancyGrid.value(map, cell) == -1 end)
   end
 
+  @doc """
+  Whether a frontier is still there: at least `min_length` metres of
+  frontier cells (free, below `free_below`, with an unknown 4-neighbour
+  inside the map; defaults as in `find/2`) within `radius` metres of a
+  point. Unknown space behind a wall near the point does not count: it
+  borders no free cell.
+  """
+  @spec remains?(OccupancyGrid.t(), {number(), number()}, float(), keyword()) :: boolean()
+  def remains?(%OccupancyGrid{} = map, point, radius, opts \\ []) do
+    {c, r} = OccupancyGrid.cell_of(map, point)
+    k = ceil(radius / map.resolution)
+    need = max(1, round(Keyword.get(opts, :min_length, 0.4) / map.resolution))
+    free_below = Keyword.get(opts, :free_below, 20)
+
+    disc = for dc <- -k..k, dr <- -k..k, dc * dc + dr * dr <= k * k, do: {c + dc, r + dr}
+
+    disc
+    |> Stream.filter(&frontier_cell?(map, &1, free_below))
+    |> Enum.take(need)
+    |> length() == need
+  end
+
+  defp frontier_cell?(map, {c, r} = cell, free_below) do
+    v = OccupancyGrid.value(map, cell)
+
+    inside?(map, cell) and v >= 0 and v < free_below and
+      Enum.any?([{c + 1, r}, {c - 1, r}, {c, r + 1}, {c, r - 1}], fn n ->
+        inside?(map, n) and OccupancyGrid.value(map, n) == -1
+      end)
+  end
+
   defp inside?(%{width: w, height: h}, {c, r}), do: c >= 0 and r >= 0 and c < w and r < h
 
   defp dist({ax, ay}, {bx, by}), do: :math.sqrt((ax - bx) ** 2 + (ay - by) ** 2)

@@ -82,4 +82,16 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
     assert PathPlanner.distances(planner, {-3.0, 1.0}, [{1.0, 1.0}]) == [nil]
     assert PathPlanner.distances(PathPlanner.new(), {1.0, 1.0}, [{2.0, 1.0}]) == [nil]
   end
+
+  test "a frontier remains while free cells border unknown ones near it, not unknown behind a wall" do
+    map = map()
+    # below the wall, the upper half unknown 0.25 m away behind it
+    assert Frontiers.unknown_near?(map, {8.0, 2.9}, 0.5)
+    refute Frontiers.remains?(map, {8.0, 2.9}, 0.5)
+    # the lower half's frontier at x = 9.5 m, and the upper half's at 6 m
+    assert Frontiers.remains?(map, {9.3, 1.0}, 0.5)
+    assert Frontiers.remains?(map, {5.8, 4.0}, 0.5)
+    # too short a piece of frontier within the radius is none
+    refute Frontiers.remains?(map, {9.3, 1.0}, 0.5, min_length: 1.2)
+  end
 end

@@ -113,6 +113,83 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
+  test "exploring: a frontier is dropped once seen, though unknown space lies behind a wall by it",
+       %{tmp_dir: dir} do
+    # 4 x 4 m walled round, known free west of x = 2.5, unknown east of it:
+    # one frontier along x = 2.5
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 3.9 or y > 3.9 -> 100
+        x < 2.5 -> 0
+        true -> -1
+      end
+    end
+
+    {plan, _actions, state} = on_sensed_map(dir, :explore, {80, 80}, cell, {1.0, 2.0, 0.0})
+    assert plan.state == :moving
+    {fx, _} = state.target
+    assert abs(fx - 2.5) < 0.1
+
+    # the next map: free up to a wall along x = 2.6 to 2.7, unknown behind
+    # it, 0.2 m from the frontier's point: no frontier is left
+    seen = fn c, r ->
+      x = (c + 0.5) * 0.05
+
+      cond do
+        cell.(c, r) != -1 -> cell.(c, r)
+        x < 2.6 -> 0
+        x < 2.7 -> 100
+        true -> -1
+      end
+    end
+
+    data = for r <- 0..79, c <- 0..79, into: <<>>, do: <<seen.(c, r)::signed-8>>
+    map = %{state.map | data: data, version: state.map.version + 1}
+    {_, state} = Monitor.handle_tuple({:map, :r, map}, state)
+    {plan, _actions, _state} = cycle(state, 2.0)
+    assert plan.state == :done
+  end
+
+  @tag :tmp_dir
+  test "exploring on the sensed map gives no door to cross; going to a point does", %{
+    tmp_dir: dir
+  } do
+    # 6 x 4 m walled round, a wall along x = 3 with a 1 m opening at y = 2,
+    # unknown east of x = 5: the way to the frontier goes through it
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 5.9 or y > 3.9 -> 100
+        x >= 3.0 and x < 3.1 and abs(y - 2.0) > 0.5 -> 100
+        x >= 5.0 -> -1
+        true -> 0
+      end
+    end
+
+    door = %{
+      name: :door_1,
+      centre: {3.05, 2.0},
+      connects: [:room_1, :room_2],
+      open: true,
+      from: {3.05, 1.5},
+      to: {3.05, 2.5}
+    }
+
+    topology = %ThinkingCap.Navigation.Topology{doors: %{door_1: door}}
+
+    for {task, expected} <- [{:explore, nil}, {{:go_to, {4.5, 2.0}}, :door_1}] do
+      {_plan, _actions, state} = on_sensed_map(dir, task, {120, 80}, cell, {1.0, 2.0, 0.0})
+      {_, state} = Monitor.handle_tuple({:topology, :r, topology}, state)
+      {plan, _actions, _state} = cycle(state, 1.5)
+      assert plan.state == :moving
+      assert (plan.door && plan.door.name) == expected
+    end
+  end
+
+  @tag :tmp_dir
   test "exploring: a frontier in a nook is seen from a stand-in with room, not driven into", %{
     tmp_dir: dir
   } do
