@@ -451,7 +451,15 @@ defmodule ThinkingCap.Bench.Timing do
     robot = :"bench_#{tag}"
     body = Enum.map_join(modules, ",\n", fn {name, spec} -> "    #{name}_#{tag}: #{spec}" end)
     path = Path.join(dir, "#{tag}.adf")
-    File.write!(path, "[\n  robot: :#{robot},\n  modules: [\n#{body}\n  ]\n]\n")
+    # the black box on, as on a robot, its dumps (deadline-miss streaks
+    # under the hogs) in this run's directory
+    dumps = inspect(Path.join(dir, "black_box"))
+
+    File.write!(
+      path,
+      "[\n  robot: :#{robot},\n  black_box: [dir: #{dumps}],\n  modules: [\n#{body}\n  ]\n]\n"
+    )
+
     {:ok, started} = Runtime.start(Config.read!(path))
     Enum.map(started, & &1.name)
   end
