@@ -76,6 +76,67 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
       assert odometry.stamp == System.convert_time_unit(read_at, :native, :microsecond) / 1.0e6
       assert System.convert_time_unit(handled - read_at, :native, :millisecond) >= 200
     end
+
+    @tag :tmp_dir
+    test "a step over frames rejected in the same read is driven, not a jump", %{
+      description: d,
+      tmp_dir: dir
+    } do
+      link = Path.join(dir, "create2")
+      start_supervised!({ThinkingCap.Testing.Create2Emulator, link: link})
+      assert {:ok, state} = Create2.open(d, %{robot: :c, params: [device: link]})
+      on_exit(fn -> Create2.close(:normal, state) end)
+
+      frame = fn counts ->
+        Protocol.stream_frame(
+          for id <- Create2.packets() do
+            value =
+              case id do
+                7 ->
+                  %{
+                    bump_left: false,
+                    bump_right: false,
+                    wheel_drop_left: false,
+                    wheel_drop_right: false
+                  }
+
+                35 ->
+                  :safe
+
+                id when id in [43, 44] ->
+                  counts
+
+                26 ->
+                  2000
+
+                _ ->
+                  0
+              end
+
+            {id, value}
+          end
+        )
+      end
+
+      # the stream running: the emulator's own frame first
+      assert_receive {:tc_uart, _path, first, first_at} when is_binary(first), 5_000
+      {_actions, state} = Create2.handle_data({:tc_uart, link, first, first_at}, state)
+
+      # what the UART's framing cut from one read of the line, all with
+      # that read's stamp: a good frame, ten with a bad checksum (the
+      # wheels moved 127 counts meanwhile, 56 mm), and the next good one
+      read_at = System.monotonic_time()
+      rejected = List.duplicate({:rejected, :checksum, frame.(1050)}, 10)
+
+      {poses, _state} =
+        Enum.flat_map_reduce([frame.(1000)] ++ rejected ++ [frame.(1127)], state, fn data, st ->
+          {actions, st} = Create2.handle_data({:tc_uart, link, data, read_at}, st)
+          {for({:odometry, o} <- actions, do: o.pose), st}
+        end)
+
+      [{x0, _, _}, {x1, _, _}] = poses
+      assert_in_delta x1 - x0, 127 * 2 * :math.pi() * 0.036 / 508.8, 0.002
+    end
   end
 
   describe "open/2" do

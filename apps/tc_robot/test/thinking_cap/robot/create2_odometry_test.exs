@@ -73,7 +73,7 @@ defmodule ThinkingCap.Robot.Create2OdometryTest do
   end
 
   test "a step over frames lost is judged on their periods, though read at one stamp" do
-    # ten frames lost at 0.3 m/s: 45 mm, 127 counts, arriving in the same
+    # ten frames lost at 0.37 m/s: 127 counts (56 mm), arriving in the same
     # read of the line as the frame before them
     odo = Odometry.new(@r, @b) |> Odometry.update(1000, 1000, 2.0)
     lost = Odometry.update(odo, 1127, 1127, 2.0, 11)
