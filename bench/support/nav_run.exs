@@ -230,7 +230,7 @@ defmodule ThinkingCap.Bench.NavRun do
       end
 
     if Process.get(:trace) == true and rem(step, 5) == 0,
-      do: trace(time, {x, y}, plan, cstate.lock)
+      do: trace(time, {x, y}, plan, cstate.lock, Sim.walker_discs(sim))
 
     case plan do
       Tuples.plan(_, %{state: s}) when s in [:done, :failed] -> {time, acc}
@@ -239,7 +239,7 @@ defmodule ThinkingCap.Bench.NavRun do
     end
   end
 
-  defp trace(time, {x, y}, plan, lock) do
+  defp trace(time, {x, y}, plan, lock, walkers) do
     activation =
       case Lockstep.latest(lock, Tuples.activation(:nav)) do
         Tuples.activation(_, a) -> for {b, v} <- a, v >= 0.05, do: "#{b}=#{fmt(v)}"
@@ -267,9 +267,11 @@ defmodule ThinkingCap.Bench.NavRun do
           ""
       end
 
+    people = for {wx, wy, _r} <- walkers, do: " person (#{fmt(wx)}, #{fmt(wy)})"
+
     IO.puts(
       "    t=#{fmt(time)} (#{fmt(x)}, #{fmt(y)})#{estimate} #{state} #{inspect(command)} " <>
-        Enum.join(activation, " ")
+        Enum.join(activation, " ") <> Enum.join(people)
     )
   end
 

@@ -495,32 +495,50 @@ static ERL_NIF_TERM nif_edt(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return out;
 }
 
+/* The byte of a cell d2 (squared cells) from the nearest obstacle: 1
+ * within the radius, then a cost falling from `peak` at the radius to 0
+ * at radius + band as the square of the way left (at least 2: a cost
+ * under 2 is 0), 0 beyond. */
+static inline unsigned char banded(double d2, double radius, double band, double peak)
+{
+    if (d2 <= radius * radius + 1e-9) return 1;
+    if (band <= 0 || peak < 2) return 0;
+    double t = (radius + band - sqrt(d2)) / band;
+    if (t <= 0) return 0;
+    long v = lround(peak * t * t);
+    return v >= 2 ? (unsigned char)(v > 255 ? 255 : v) : 0;
+}
+
 /* inflate(cells, w, h, radius_cells) -> cells within radius (centre to
  * centre) of a non-zero cell set to 1, the others 0.
- * inflate(cells, w, h, radius_cells, old, max) -> {inflated, changed}:
- * also the cells where the result differs from `old` (a grid of the same
- * size), as native 32-bit indices, found while the result is written;
- * `too_many` instead when more than max differ. */
+ * inflate(cells, w, h, radius_cells, band_cells, peak) -> the same, with
+ * a cost band (banded above) round the inflated cells.
+ * inflate(cells, w, h, radius_cells, band_cells, peak, old, max) ->
+ * {inflated, changed}: also the cells where the result differs from
+ * `old` (a grid of the same size), as native 32-bit indices, found while
+ * the result is written; `too_many` instead when more than max differ. */
 static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     ErlNifBinary b, old;
     int w, h;
-    double radius;
+    double radius, band = 0, peak = 0;
     long max = 0;
     if (!get_grid(env, argv, &b, &w, &h) || !tc_number(env, argv[3], &radius) || radius < 0)
         return enif_make_badarg(env);
+    if (argc >= 6 && (!tc_number(env, argv[4], &band) || band < 0 ||
+                      !tc_number(env, argv[5], &peak) || peak < 0 || peak > 255))
+        return enif_make_badarg(env);
     size_t n = (size_t)w * h;
-    int diff = argc == 6;
-    if (diff && (!enif_inspect_binary(env, argv[4], &old) || old.size != n ||
-                 !enif_get_long(env, argv[5], &max) || max < 0))
+    int diff = argc == 8;
+    if (diff && (!enif_inspect_binary(env, argv[6], &old) || old.size != n ||
+                 !enif_get_long(env, argv[7], &max) || max < 0))
         return enif_make_badarg(env);
     double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
-    double r2 = radius * radius + 1e-9;
     ERL_NIF_TERM out;
     unsigned char *p = enif_make_new_binary(env, n, &out);
     if (!diff) {
-        for (size_t i = 0; i < n; i++) p[i] = g[i] <= r2 ? 1 : 0;
+        for (size_t i = 0; i < n; i++) p[i] = banded(g[i], radius, band, peak);
         free(g);
         return out;
     }
@@ -531,8 +549,8 @@ static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     for (size_t i = 0; i < n; i++) {
-        p[i] = g[i] <= r2 ? 1 : 0;
-        if (p[i] == (old.data[i] ? 1 : 0) || m > (size_t)max) continue;
+        p[i] = banded(g[i], radius, band, peak);
+        if (p[i] == old.data[i] || m > (size_t)max) continue;
         if (m == cap) {
             int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
             if (!more) {
@@ -903,6 +921,7 @@ static ErlNifFunc funcs[] = {
     {"edt", 3, nif_edt, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"inflate", 6, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"inflate", 8, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"overlay", 3, nif_overlay, ERL_NIF_DIRTY_JOB_CPU_BOUND},

@@ -5,7 +5,10 @@
  * same exact integer units: 8-connected, a straight step 2^36, a diagonal
  * round(sqrt(2) 2^36), no corner cutting (a diagonal step needs both
  * orthogonal cells passable), octile heuristic. Cells: row-major from the
- * bottom row, 0 passable, anything else blocked.
+ * bottom row, 0 passable, 1 blocked, 2..255 passable at a cost: a step
+ * between cells a and b costs its length times 1 + (p(a) + p(b)) / 16,
+ * p(v) = v for v >= 2, else 0 (a cost band round the obstacles). The
+ * octile heuristic stays a lower bound, so the plans stay optimal.
  *
  * A* keeps its scratch per thread between calls, stamped with the search
  * it belongs to, so a search costs only the cells it touches. D* Lite (Koenig & Likhachev,
@@ -32,6 +35,9 @@
 #define PLAN_BUDGET 4000
 #define SMALL_UPDATE 2000
 #define STRAIGHT (1LL << 36)
+#define BLOCKED 1
+/* a cell's cost byte as the step costs count it */
+#define PENALTY(v) ((v) >= 2 ? (int64_t)(v) : 0)
 
 /* the CPU time (ns) the calling thread has used: what a search costs,
  * without the time the OS gave to other threads meanwhile */
@@ -105,29 +111,50 @@ static int64_t octile(int c1, int r1, int c2, int r2)
     return dx > dy ? STRAIGHT * (dx - dy) + DIAGONAL * dy : STRAIGHT * (dy - dx) + DIAGONAL * dx;
 }
 
+/* The cost of a step of `base` units between cells of bytes a and b. */
+static inline int64_t step_cost(int64_t base, uint8_t a, uint8_t b)
+{
+    int64_t p = PENALTY(a) + PENALTY(b);
+    return p ? base + (base >> 4) * p : base;
+}
+
 /* The edges of cell i: up to 8 {neighbour, cost}, none from a blocked
  * cell, in the order left, right, down, up, down-left, down-right,
  * up-left, up-right. */
 static int edges(const uint8_t *cells, int w, int h, int32_t i, int32_t *to, int64_t *cost)
 {
-    if (cells[i]) return 0;
+    uint8_t v = cells[i];
+    if (v == BLOCKED) return 0;
     int c = i % w, r = i / w;
 #define AT(dc, dr)                                                                              \
     ((c + (dc)) >= 0 && (r + (dr)) >= 0 && (c + (dc)) < w && (r + (dr)) < h                     \
          ? cells[(size_t)(r + (dr)) * w + (c + (dc))]                                           \
-         : 1)
+         : BLOCKED)
     uint8_t l = AT(-1, 0), rr = AT(1, 0), d = AT(0, -1), u = AT(0, 1);
     uint8_t dl = AT(-1, -1), dr = AT(1, -1), ul = AT(-1, 1), ur = AT(1, 1);
 #undef AT
+    int bl = l == BLOCKED, br = rr == BLOCKED, bd = d == BLOCKED, bu = u == BLOCKED;
     int n = 0;
-    if (!l) to[n] = i - 1, cost[n++] = STRAIGHT;
-    if (!rr) to[n] = i + 1, cost[n++] = STRAIGHT;
-    if (!d) to[n] = i - w, cost[n++] = STRAIGHT;
-    if (!u) to[n] = i + w, cost[n++] = STRAIGHT;
-    if (!(l | d | dl)) to[n] = i - w - 1, cost[n++] = DIAGONAL;
-    if (!(rr | d | dr)) to[n] = i - w + 1, cost[n++] = DIAGONAL;
-    if (!(l | u | ul)) to[n] = i + w - 1, cost[n++] = DIAGONAL;
-    if (!(rr | u | ur)) to[n] = i + w + 1, cost[n++] = DIAGONAL;
+    if (!((v | l | rr | d | u | dl | dr | ul | ur) & 0xFE)) {
+        /* no costly cell round i: the steps' lengths */
+        if (!bl) to[n] = i - 1, cost[n++] = STRAIGHT;
+        if (!br) to[n] = i + 1, cost[n++] = STRAIGHT;
+        if (!bd) to[n] = i - w, cost[n++] = STRAIGHT;
+        if (!bu) to[n] = i + w, cost[n++] = STRAIGHT;
+        if (!(bl | bd | dl)) to[n] = i - w - 1, cost[n++] = DIAGONAL;
+        if (!(br | bd | dr)) to[n] = i - w + 1, cost[n++] = DIAGONAL;
+        if (!(bl | bu | ul)) to[n] = i + w - 1, cost[n++] = DIAGONAL;
+        if (!(br | bu | ur)) to[n] = i + w + 1, cost[n++] = DIAGONAL;
+        return n;
+    }
+    if (!bl) to[n] = i - 1, cost[n++] = step_cost(STRAIGHT, v, l);
+    if (!br) to[n] = i + 1, cost[n++] = step_cost(STRAIGHT, v, rr);
+    if (!bd) to[n] = i - w, cost[n++] = step_cost(STRAIGHT, v, d);
+    if (!bu) to[n] = i + w, cost[n++] = step_cost(STRAIGHT, v, u);
+    if (!(bl | bd | (dl == BLOCKED))) to[n] = i - w - 1, cost[n++] = step_cost(DIAGONAL, v, dl);
+    if (!(br | bd | (dr == BLOCKED))) to[n] = i - w + 1, cost[n++] = step_cost(DIAGONAL, v, dr);
+    if (!(bl | bu | (ul == BLOCKED))) to[n] = i + w - 1, cost[n++] = step_cost(DIAGONAL, v, ul);
+    if (!(br | bu | (ur == BLOCKED))) to[n] = i + w + 1, cost[n++] = step_cost(DIAGONAL, v, ur);
     return n;
 }
 
@@ -360,7 +387,7 @@ ERL_NIF_TERM tc_nif_costs(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     }
     /* a target is waited for only if its cell is passable */
     unsigned left = 0;
-    for (unsigned k = 0; k < count; k++) left += cells[targets[k]] == 0;
+    for (unsigned k = 0; k < count; k++) left += cells[targets[k]] != BLOCKED;
     Heap heap = {0};
     set_g(s, 0);
     int ok = heap_push(&heap, 0, 0, s);
@@ -677,10 +704,10 @@ ERL_NIF_TERM tc_nif_dsl_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return t;
 }
 
-/* Sets cell i blocked or free; returns 1 if that changed it. */
-static int set_cell(Dsl *d, int32_t i, int blocked)
+/* Sets cell i's byte (0 free, 1 blocked, 2..255 a cost); returns 1 if
+ * that changed it. */
+static int set_cell(Dsl *d, int32_t i, uint8_t v)
 {
-    uint8_t v = blocked ? 1 : 0;
     if (d->cells[i] == v) return 0;
     touch(d, i);
     d->cells[i] = v;
@@ -693,7 +720,8 @@ static int set_cell(Dsl *d, int32_t i, int blocked)
  * again, once per vertex however many changed cells it touches, and the
  * vertex queued if that made it inconsistent. A vertex whose rhs is
  * infinite (unexplored) next to cells that were only blocked is left
- * alone: its rhs cannot fall. Returns the number of vertices looked at,
+ * alone: its rhs cannot fall. (A cell made dearer counts as freed: its
+ * old cost is not kept.) Returns the number of vertices looked at,
  * or -1 out of memory. */
 static long repair_rhs(Dsl *d, const int32_t *changed, size_t m)
 {
@@ -702,7 +730,7 @@ static long repair_rhs(Dsl *d, const int32_t *changed, size_t m)
     uint64_t *seen = d->seen;
     for (size_t k = 0; k < m && ok; k++) {
         int32_t i = changed[k];
-        int freed = !d->cells[i];
+        int freed = d->cells[i] != BLOCKED;
         int c = i % w, r = i / w;
         for (int rr = r - 1; rr <= r + 1; rr++) {
             if (rr < 0 || rr >= h) continue;
@@ -867,7 +895,7 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
         for (size_t k = 0; k < nh && m <= (size_t)max && ok; k++) {
             int32_t j = hints[k];
             uint64_t bit = 1ULL << (j & 63);
-            if (d->cells[j] == (b.data[j] ? 1 : 0) || (seen[j >> 6] & bit)) continue;
+            if (d->cells[j] == b.data[j] || (seen[j >> 6] & bit)) continue;
             seen[j >> 6] |= bit;
             ok = push_changed(&changed, &m, &cap, j);
         }
@@ -877,7 +905,7 @@ static ERL_NIF_TERM dsl_sync_now(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
             size_t len = n - i < BLOCK ? n - i : BLOCK;
             if (!memcmp(d->cells + i, b.data + i, len)) continue;
             for (size_t j = i; j < i + len && m <= (size_t)max && ok; j++)
-                if (d->cells[j] != (b.data[j] ? 1 : 0))
+                if (d->cells[j] != b.data[j])
                     ok = push_changed(&changed, &m, &cap, (int32_t)j);
         }
     }
@@ -1189,7 +1217,7 @@ static ERL_NIF_TERM dsl_plan_run(ErlNifEnv *env, const ERL_NIF_TERM argv[], long
     int64_t t0 = cpu_now();
     if (!enif_get_resource(env, argv[0], DSL_TYPE, (void **)&d)) return enif_make_badarg(env);
     enif_mutex_lock(d->lock);
-    if (d->cells[d->start] || d->cells[d->goal]) {
+    if (d->cells[d->start] == BLOCKED || d->cells[d->goal] == BLOCKED) {
         enif_mutex_unlock(d->lock);
         return enif_make_tuple3(env, A_ERROR, A_NO_PATH, enif_make_long(env, 0));
     }

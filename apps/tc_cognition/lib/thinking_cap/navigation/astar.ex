@@ -2,9 +2,10 @@ defmodule ThinkingCap.Navigation.AStar do
   @moduledoc """
   Optimal path planning on a `ThinkingCap.Navigation.Grid` with A*.
 
-  Moves are 8-connected: a straight step costs 1, a diagonal step √2, and
-  a diagonal step is allowed only when both orthogonal cells it passes
-  between are passable (no corner cutting). The heuristic is the octile
+  Moves are 8-connected: a straight step costs 1, a diagonal step √2
+  (times more in a grid's costly cells, see `ThinkingCap.Navigation.Grid`
+  and `cost/2`), and a diagonal step is allowed only when both orthogonal
+  cells it passes between are passable (no corner cutting). The heuristic is the octile
   distance, which is consistent for these moves, so the path found is
   optimal. Costs are in cells; `path_length_m/2` turns a path into metres.
 
@@ -19,15 +20,17 @@ defmodule ThinkingCap.Navigation.AStar do
 
   alias ThinkingCap.Navigation.Grid
   alias ThinkingCap.Navigation.Core.{Cost, GridNif}
+  require Cost
 
   @type cell :: Grid.cell()
   @type result :: %{path: [cell()], cost: float(), expanded: non_neg_integer()}
   @type error :: :no_path | :blocked_start | :blocked_goal
 
   @doc """
-  The shortest path from `start` to `goal` (both cells, both included in
-  `path`), its `cost` in cells and the number of cells `expanded` (closed)
-  by the search.
+  The cheapest path from `start` to `goal` (both cells, both included in
+  `path`; the shortest on a grid without costly cells), its length in
+  cells `cost` (`cost/2` gives the cost the search minimised) and the
+  number of cells `expanded` (closed) by the search.
 
   Errors: `:blocked_start` or `:blocked_goal` when that cell is outside the
   grid or blocked, `:no_path` when the goal cannot be reached. There are no
@@ -92,6 +95,23 @@ defmodule ThinkingCap.Navigation.AStar do
     if adjacent_steps?(path),
       do: Cost.path_cost(path),
       else: path |> Enum.chunk_every(2, 1, :discard) |> Enum.map(&step/1) |> Enum.sum()
+  end
+
+  @doc """
+  The cost in cells of a path of adjacent cells on `grid`, the cost the
+  planners minimise: each step's length (1 or √2) times `1 + (p(a) +
+  p(b)) / 16` for the cells' bytes `a` and `b` (see
+  `ThinkingCap.Navigation.Grid`). Equal to `cost/1` on a grid without
+  costs; `nil` when the path enters a blocked cell or leaves the grid.
+  """
+  @spec cost(Grid.t(), [cell()]) :: float() | nil
+  def cost(%Grid{}, []), do: 0.0
+
+  def cost(%Grid{cells: cells, width: w, height: h}, path) do
+    case Cost.units(cells, w, h, path) do
+      nil -> nil
+      units -> units / Cost.straight()
+    end
   end
 
   defp adjacent_steps?([_]), do: true

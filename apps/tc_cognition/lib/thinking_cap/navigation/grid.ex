@@ -1,15 +1,23 @@
 defmodule ThinkingCap.Navigation.Grid do
   @moduledoc """
-  A planning grid: which cells a robot may not enter. One byte per cell,
-  row-major from the bottom row (cell `{col, row}` is byte
-  `row * width + col`), 0 passable, 1 blocked; `origin` is the world
-  position of the lower-left corner of cell `{0, 0}`, `resolution` the
-  cell size in metres (axis-aligned: no rotation).
+  A planning grid: which cells a robot may not enter, and what the others
+  cost. One byte per cell, row-major from the bottom row (cell
+  `{col, row}` is byte `row * width + col`): 0 passable, 1 blocked, 2 to
+  255 passable at a cost (a cost map's band round its obstacles, see
+  below); `origin` is the world position of the lower-left corner of
+  cell `{0, 0}`, `resolution` the cell size in metres (axis-aligned: no
+  rotation).
 
   The planners (`ThinkingCap.Navigation.AStar`,
   `ThinkingCap.Navigation.DStarLite`) search it 8-connected with octile
   costs and no corner cutting; the map builders of
-  `ThinkingCap.Navigation` produce it.
+  `ThinkingCap.Navigation` produce it. A step between cells of bytes `a`
+  and `b` costs its length (1 or √2) times `1 + (p(a) + p(b)) / 16`,
+  where `p(v)` is `v` from 2 up and 0 otherwise: a path through cells of
+  cost 255 costs about 33 times its length there, through cells of cost
+  8 twice.
+  `ThinkingCap.Navigation.PathPlanner` writes such a band beside the
+  grown obstacles, so that its plans keep off them where there is room.
   """
 
   @enforce_keys [:width, :height, :cells]
@@ -41,11 +49,11 @@ defmodule ThinkingCap.Navigation.Grid do
     }
   end
 
-  @doc "Whether `cell` is inside the grid and passable."
+  @doc "Whether `cell` is inside the grid and passable (at any cost)."
   @spec passable?(t(), cell()) :: boolean()
   def passable?(%__MODULE__{width: w, height: h, cells: cells}, {col, row})
       when col >= 0 and row >= 0 and col < w and row < h,
-      do: :binary.at(cells, row * w + col) == 0
+      do: :binary.at(cells, row * w + col) != 1
 
   def passable?(_grid, _cell), do: false
 

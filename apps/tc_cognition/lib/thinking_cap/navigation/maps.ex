@@ -190,7 +190,7 @@ defmodule ThinkingCap.Navigation.Maps do
   @doc "The number of blocked cells of a grid."
   @spec blocked_count(Grid.t()) :: non_neg_integer()
   def blocked_count(%Grid{cells: cells}),
-    do: byte_size(cells) - length(:binary.matches(cells, <<0>>))
+    do: length(:binary.matches(cells, <<1>>))
 
   ## frame
 

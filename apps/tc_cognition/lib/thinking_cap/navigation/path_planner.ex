@@ -15,6 +15,19 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   the planning cell, a whole multiple of the map's (a block is an
   obstacle if any of its cells is).
 
+  **The cost band.** With `band` (m, default 0: none), the cells within
+  `band` beyond the grown obstacles cost more to cross: `band_cost`
+  (2 to 255, default 200) at the obstacle's edge, falling as the square
+  of the way left to 0 at the band's outer edge (see
+  `ThinkingCap.Navigation.Grid` for what a cell's cost does to a step).
+  A plan then takes a gap that leaves the robot little room only when
+  the way round is much longer, and keeps to the middle of a passage a
+  little wider than the robot: the behaviours that drive it slow down
+  and turn back near obstacles, and a gap the planner fits by a
+  centimetre or two, they may refuse. D* Lite repairs a change of cost
+  as it repairs a change of obstacles; `distances/3` counts the costs
+  too (metres as the band weighs them).
+
   **Repairs.** A new map in the same frame changes only the cells whose
   blocked state differs. The next `plan/3` to the same goal repairs the
   last search: D* Lite finds those cells itself, in C, by comparing the
@@ -54,6 +67,8 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   require Cost
 
   defstruct radius: 0.25,
+            band: 0.0,
+            band_cost: 200,
             threshold: 50,
             resolution: 0.05,
             max_changes: 20_000,
@@ -71,6 +86,8 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   @type point :: {number(), number()}
   @type t :: %__MODULE__{
           radius: float(),
+          band: float(),
+          band_cost: 2..255,
           threshold: 0..100,
           resolution: float(),
           max_changes: pos_integer(),
@@ -94,16 +111,24 @@ defmodule ThinkingCap.Navigation.PathPlanner do
           | :no_path
 
   @doc """
-  A planner without a map. Options: `radius`, `threshold`, `resolution`,
-  `max_changes`, `max_jump` (m, default 1.5: a longer move of the start
-  is recorded as a `:jump`), `compare`, `clearance`.
+  A planner without a map. Options: `radius`, `band`, `band_cost`,
+  `threshold`, `resolution`, `max_changes`, `max_jump` (m, default 1.5: a
+  longer move of the start is recorded as a `:jump`), `compare`,
+  `clearance`.
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
+    band_cost = Keyword.get(opts, :band_cost, 200)
+
+    unless is_integer(band_cost) and band_cost in 2..255,
+      do: raise(ArgumentError, "band_cost: an integer from 2 to 255, got #{inspect(band_cost)}")
+
     struct!(
       __MODULE__,
       Keyword.take(opts, [
         :radius,
+        :band,
+        :band_cost,
         :threshold,
         :resolution,
         :max_changes,
@@ -155,13 +180,24 @@ defmodule ThinkingCap.Navigation.PathPlanner do
     {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.shrink(blocked, w, h, k)
     res = map.resolution * k
     radius = planner.radius / res
+    band = planner.band / res
     old = planner.grid
 
     {cells, diff} =
       if old != nil and
            {old.width, old.height, old.origin, old.resolution} == {cw, ch, map.origin, res},
-         do: GridNif.inflate(coarse, cw, ch, radius, old.cells, planner.max_changes),
-         else: {GridNif.inflate(coarse, cw, ch, radius), nil}
+         do:
+           GridNif.inflate(
+             coarse,
+             cw,
+             ch,
+             radius,
+             band,
+             planner.band_cost,
+             old.cells,
+             planner.max_changes
+           ),
+         else: {GridNif.inflate(coarse, cw, ch, radius, band, planner.band_cost), nil}
 
     {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), coarse, diff}
   end
@@ -242,7 +278,8 @@ defmodule ThinkingCap.Navigation.PathPlanner do
 
   @doc """
   The length (m) of the shortest path on the cost map from `from` to
-  each of `points`, in one search: a list in the order of `points`, `nil`
+  each of `points` (with a `band`, its cost: its length with the steps
+  through the band counted longer), in one search: a list in the order of `points`, `nil`
   for a point no path reaches, off the map, or in an obstacle with no free
   cell within the planner's radius. All `nil` without a map or when the
   robot's cell is blocked. The search stops once every point is reached.

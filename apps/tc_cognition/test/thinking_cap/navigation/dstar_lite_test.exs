@@ -355,6 +355,141 @@ defmodule ThinkingCap.Navigation.DStarLiteTest do
     end
   end
 
+  # a grid of bytes: free, blocked, or passable at a cost (2..255)
+  defp costly_cells(n, blocked) do
+    for _ <- 1..n, into: <<>> do
+      x = :rand.uniform()
+
+      cond do
+        x < blocked -> <<1>>
+        x < blocked + 0.3 -> <<Enum.random(2..255)>>
+        true -> <<0>>
+      end
+    end
+  end
+
+  # the cheapest cost in cells from start to goal by Dijkstra over the
+  # cost model written out here, not the NIF's: nil when none
+  defp dijkstra(%Grid{width: w, height: h} = grid, start, goal) do
+    byte = fn {c, r} ->
+      if c in 0..(w - 1) and r in 0..(h - 1), do: :binary.at(grid.cells, r * w + c), else: 1
+    end
+
+    p = fn v -> if v >= 2, do: v, else: 0 end
+
+    step = fn {c, r} = a, {c2, r2} = b ->
+      len = if c != c2 and r != r2, do: :math.sqrt(2), else: 1.0
+      corner_ok = c == c2 or r == r2 or (byte.({c2, r}) != 1 and byte.({c, r2}) != 1)
+
+      if byte.(b) != 1 and corner_ok,
+        do: len * (1 + (p.(byte.(a)) + p.(byte.(b))) / 16)
+    end
+
+    loop = fn loop, frontier, done ->
+      case Enum.min_by(frontier, &elem(&1, 1), fn -> nil end) do
+        nil ->
+          nil
+
+        {^goal, d} ->
+          d
+
+        {u, d} = entry ->
+          {c, r} = u
+          frontier = List.delete(frontier, entry)
+          done = MapSet.put(done, u)
+
+          frontier =
+            for dc <- -1..1,
+                dr <- -1..1,
+                {dc, dr} != {0, 0},
+                v = {c + dc, r + dr},
+                not MapSet.member?(done, v),
+                cost = step.(u, v),
+                cost != nil,
+                reduce: frontier do
+              acc ->
+                case List.keyfind(acc, v, 0) do
+                  {^v, old} when old <= d + cost -> acc
+                  _ -> [{v, d + cost} | List.keydelete(acc, v, 0)]
+                end
+            end
+
+          loop.(loop, frontier, done)
+      end
+    end
+
+    if byte.(start) == 1 or byte.(goal) == 1,
+      do: nil,
+      else: loop.(loop, [{start, 0.0}], MapSet.new())
+  end
+
+  test "on costly cells A* finds the cheapest path, as Dijkstra over the cost model (60 seeds)" do
+    for seed <- 1..60 do
+      :rand.seed(:exsss, {seed, 8, 21})
+      {w, h} = {5 + :rand.uniform(10), 5 + :rand.uniform(10)}
+      grid = Grid.new(w, h, cells: costly_cells(w * h, 0.15))
+      {start, goal} = {{:rand.uniform(w) - 1, :rand.uniform(h) - 1}, {0, 0}}
+      expected = dijkstra(grid, start, goal)
+
+      case AStar.plan(grid, start, goal) do
+        {:ok, %{path: path}} ->
+          assert valid_path?(grid, path)
+          assert abs(AStar.cost(grid, path) - expected) < 1.0e-6, "seed #{seed}"
+
+        {:error, _} ->
+          assert expected == nil, "seed #{seed}: A* found none, Dijkstra #{expected}"
+      end
+    end
+  end
+
+  test "on costly cells D* Lite repairs as A* searches from scratch (150 seeds)" do
+    for seed <- 1..150 do
+      :rand.seed(:exsss, {seed, 9, 4})
+      {w, h} = {8 + :rand.uniform(20), 8 + :rand.uniform(20)}
+      random_cell = fn -> {:rand.uniform(w) - 1, :rand.uniform(h) - 1} end
+      grid = Grid.new(w, h, cells: costly_cells(w * h, 0.12))
+      state = DStarLite.new(grid, random_cell.(), random_cell.())
+
+      Enum.reduce(1..8, state, fn step, state ->
+        astar = AStar.plan(state.grid, state.start, state.goal)
+
+        state =
+          case DStarLite.plan(state) do
+            {:ok, path, state} ->
+              assert {:ok, %{path: best}} = astar, "seed #{seed}, step #{step}"
+
+              assert abs(AStar.cost(state.grid, path) - AStar.cost(state.grid, best)) < 1.0e-9,
+                     "seed #{seed}, step #{step}: D* Lite #{AStar.cost(state.grid, path)}, " <>
+                       "A* #{AStar.cost(state.grid, best)}"
+
+              assert valid_path?(state.grid, path)
+              state
+
+            {:error, :no_path, state} ->
+              assert {:error, _} = astar, "seed #{seed}, step #{step}"
+              state
+          end
+
+        # some cells get another cost, are blocked or freed; the grid is
+        # handed over whole, with or without the cells named
+        bytes = :binary.bin_to_list(state.grid.cells)
+
+        bytes =
+          Enum.reduce(1..:rand.uniform(10), bytes, fn _, bytes ->
+            {c, r} = random_cell.()
+            List.replace_at(bytes, r * w + c, Enum.random([0, 1, 2, 40, 128, 255]))
+          end)
+
+        grid = %{state.grid | cells: :binary.list_to_bin(bytes)}
+        hint = if rem(step, 2) == 0, do: all_cells_hint(w, h)
+        {:ok, state, _} = DStarLite.update_grid(state, grid, :infinity, hint)
+        if :rand.uniform(2) == 1, do: DStarLite.move_start(state, random_cell.()), else: state
+      end)
+    end
+  end
+
+  defp all_cells_hint(w, h), do: for(i <- 0..(w * h - 1), into: <<>>, do: <<i::signed-native-32>>)
+
   test "update_grid with a hint refuses indices outside the grid" do
     new = fn -> DStarLite.new(Grid.new(4, 4), {0, 0}, {3, 3}) end
     grid = Grid.put(Grid.new(4, 4), [{1, 1}], true)

@@ -47,6 +47,32 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert Enum.all?(path, fn {x, y} -> x >= 0.3 and y >= 0.3 and x <= 9.7 and y <= 5.7 end)
   end
 
+  test "with a cost band, a plan takes the wide gap over the narrow, slightly shorter one" do
+    # a wall across the room at x = 5: a 0.7 m gap on the straight line,
+    # a 1.6 m one 1.5 m off it
+    wall = [{4.95, 0.0, 5.05, 2.65}, {4.95, 3.35, 5.05, 3.7}, {4.95, 5.3, 5.05, 6.0}]
+    crossing = fn path -> path |> Enum.min_by(fn {x, _} -> abs(x - 5.0) end) |> elem(1) end
+
+    plain = PathPlanner.new(radius: 0.3) |> PathPlanner.set_map(room(1, wall))
+    assert {:ok, path, _} = PathPlanner.plan(plain, {2.0, 3.0}, {8.0, 3.0})
+    assert crossing.(path) > 2.65 and crossing.(path) < 3.35
+
+    banded = PathPlanner.new(radius: 0.3, band: 0.3) |> PathPlanner.set_map(room(1, wall))
+    assert {:ok, path, _} = PathPlanner.plan(banded, {2.0, 3.0}, {8.0, 3.0})
+    assert crossing.(path) > 3.7 and crossing.(path) < 5.3
+
+    # the band: the cost falls from the grown obstacle's edge outwards,
+    # none beyond the band; blocked cells as without it
+    cost = fn planner, x -> :binary.at(planner.grid.cells, 60 * 200 + floor(x / 0.05)) end
+    costs = Enum.map([0.38, 0.43, 0.48, 0.53], &cost.(banded, &1))
+    assert costs == Enum.sort(costs, :desc) and length(Enum.uniq(costs)) == 4
+    assert hd(costs) in 100..200 and List.last(costs) in 2..60
+    assert cost.(banded, 0.68) == 0
+    assert cost.(banded, 0.3) == 1 and cost.(plain, 0.3) == 1
+    assert cost.(plain, 0.38) == 0
+    assert_raise ArgumentError, ~r/band_cost/, fn -> PathPlanner.new(band_cost: 300) end
+  end
+
   test "a box that appears on the path is planned around by repair, as A* from scratch would" do
     planner = PathPlanner.new(radius: 0.3, compare: true) |> PathPlanner.set_map(room(1))
     {:ok, _path, planner} = PathPlanner.plan(planner, {1.0, 3.0}, {9.0, 3.0})

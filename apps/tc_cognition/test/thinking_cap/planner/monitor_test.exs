@@ -389,6 +389,42 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert plan.state == :moving
   end
 
+  @tag :tmp_dir
+  test "after no progress, the new plan keeps off a narrow gap for a wide one farther off", %{
+    tmp_dir: dir
+  } do
+    # 6 x 4 m, a wall along y = 2 with a 0.6 m gap straight ahead (the
+    # robot fits with its margin, by 2 cm) and a 1.2 m gap 2 m to the west
+    cell = fn c, r ->
+      x = (c + 0.5) * 0.05
+      gap? = (x > 2.7 and x < 3.3) or (x > 0.4 and x < 1.6)
+      if r == 40 and not gap?, do: 100, else: 0
+    end
+
+    crossing = fn plan ->
+      plan.path |> Enum.min_by(fn {_x, y} -> abs(y - 2.0) end) |> elem(0)
+    end
+
+    {plan, _actions, state} =
+      on_sensed_map(dir, {:go_to, {3.0, 3.0}}, {120, 80}, cell, {3.0, 1.0, 1.57})
+
+    assert plan.state == :moving and abs(crossing.(plan) - 3.0) < 0.2
+
+    # the robot stays where it is: 12 s later, a new plan by the wide gap
+    {plan, _, state} =
+      Enum.reduce(1..30, {plan, nil, state}, fn i, {_, _, state} ->
+        cycle(state, 1.0 + i * 0.5)
+      end)
+
+    assert plan.replans == 1
+    assert crossing.(plan) > 0.4 and crossing.(plan) < 1.6
+
+    # a new waypoint is planned without the band: by the narrow gap again
+    {_, state} = Monitor.handle_tuple({:task, :r, %{task: {:go_to, {3.0, 3.2}}}}, state)
+    {plan, _, _state} = cycle(state, 17.0)
+    assert abs(crossing.(plan) - 3.0) < 0.2
+  end
+
   test "a robot that makes no progress gets a new plan, then gives the waypoint up" do
     state = start(@office, {:visit, [:desk_a, :dock]})
     state = pose(state, {5.0, 1.0, 0.0})

@@ -31,6 +31,41 @@ defmodule ThinkingCap.Navigation.Core.Cost do
   end
 
   @doc false
+  # the cost in units of a path of adjacent cells on a grid's bytes: each
+  # step's length times 1 + (p(a) + p(b)) / 16, p(v) = v from 2 up, as
+  # c_src/tc_plan.c counts it; nil if a cell is blocked (1) or outside
+  @spec units(binary(), pos_integer(), pos_integer(), [{integer(), integer()}]) ::
+          non_neg_integer() | nil
+  def units(cells, w, h, [first | rest]) do
+    byte = fn {c, r} ->
+      if c >= 0 and r >= 0 and c < w and r < h, do: :binary.at(cells, r * w + c), else: 1
+    end
+
+    Enum.reduce_while(rest, {0, first, byte.(first)}, fn {c, r} = cell, {sum, {pc, pr}, pb} ->
+      b = byte.(cell)
+      base = if c != pc and r != pr, do: @diagonal, else: @straight
+
+      if b == 1 or pb == 1,
+        do: {:halt, nil},
+        else: {:cont, {sum + step(base, pb, b), cell, b}}
+    end)
+    |> case do
+      nil -> nil
+      {sum, _, _} -> sum
+    end
+  end
+
+  defp step(base, a, b) do
+    case penalty(a) + penalty(b) do
+      0 -> base
+      p -> base + (base >>> 4) * p
+    end
+  end
+
+  defp penalty(v) when v >= 2, do: v
+  defp penalty(_v), do: 0
+
+  @doc false
   @spec path_cost([{integer(), integer()}]) :: float()
   def path_cost([first | rest]) do
     {straight, diagonal, _} =
