@@ -510,47 +510,63 @@ static inline unsigned char banded(double d2, double radius, double band, double
 }
 
 /* inflate(cells, w, h, radius_cells) -> cells within radius (centre to
- * centre) of a non-zero cell set to 1, the others 0.
- * inflate(cells, w, h, radius_cells, band_cells, peak) -> the same, with
- * a cost band (banded above) round the inflated cells.
- * inflate(cells, w, h, radius_cells, band_cells, peak, old, max) ->
- * {inflated, changed}: also the cells where the result differs from
- * `old` (a grid of the same size), as native 32-bit indices, found while
- * the result is written; `too_many` instead when more than max differ. */
+ * centre) of a non-zero cell set to 1, the others 0. */
 static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
-    ErlNifBinary b, old;
+    (void)argc;
+    ErlNifBinary b;
     int w, h;
-    double radius, band = 0, peak = 0;
-    long max = 0;
+    double radius;
     if (!get_grid(env, argv, &b, &w, &h) || !tc_number(env, argv[3], &radius) || radius < 0)
         return enif_make_badarg(env);
-    if (argc >= 6 && (!tc_number(env, argv[4], &band) || band < 0 ||
-                      !tc_number(env, argv[5], &peak) || peak < 0 || peak > 255))
-        return enif_make_badarg(env);
     size_t n = (size_t)w * h;
-    int diff = argc == 8;
-    if (diff && (!enif_inspect_binary(env, argv[6], &old) || old.size != n ||
-                 !enif_get_long(env, argv[7], &max) || max < 0))
-        return enif_make_badarg(env);
     double *g = tc_edt2(b.data, w, h);
     if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     ERL_NIF_TERM out;
     unsigned char *p = enif_make_new_binary(env, n, &out);
-    if (!diff) {
-        for (size_t i = 0; i < n; i++) p[i] = banded(g[i], radius, band, peak);
-        free(g);
-        return out;
-    }
+    for (size_t i = 0; i < n; i++) p[i] = banded(g[i], radius, 0, 0);
+    free(g);
+    return out;
+}
+
+/* cost_map(cells, w, h, radius_cells, band_cells, peak, old, max) ->
+ * {costs, changed, distances}, from one distance transform of the
+ * non-zero cells: `costs` the cells within radius set to 1 and the band
+ * round them (banded above); `changed` the cells where costs differ from
+ * `old` (a grid of the same size), as native 32-bit indices found while
+ * costs is written, `too_many` when more than max differ, nil when old
+ * is nil; `distances` each cell's distance (cells, native float32, 1e30
+ * where no cell is set) to the nearest set cell. */
+static ERL_NIF_TERM nif_cost_map(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b, old;
+    int w, h;
+    double radius, band, peak;
+    long max = 0;
+    if (!get_grid(env, argv, &b, &w, &h) || !tc_number(env, argv[3], &radius) || radius < 0 ||
+        !tc_number(env, argv[4], &band) || band < 0 || !tc_number(env, argv[5], &peak) ||
+        peak < 0 || peak > 255 || !enif_get_long(env, argv[7], &max) || max < 0)
+        return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    int diff = !enif_is_atom(env, argv[6]);
+    if (diff && (!enif_inspect_binary(env, argv[6], &old) || old.size != n))
+        return enif_make_badarg(env);
+    double *g = tc_edt2(b.data, w, h);
+    if (!g) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    ERL_NIF_TERM out, field, list;
+    unsigned char *p = enif_make_new_binary(env, n, &out);
+    float *dist = (float *)enif_make_new_binary(env, n * sizeof(float), &field);
     size_t m = 0, cap = 256;
-    int32_t *changed = malloc(cap * sizeof(int32_t));
-    if (!changed) {
+    int32_t *changed = diff ? malloc(cap * sizeof(int32_t)) : NULL;
+    if (diff && !changed) {
         free(g);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
     for (size_t i = 0; i < n; i++) {
+        dist[i] = isinf(g[i]) ? 1e30f : (float)sqrt(g[i]);
         p[i] = banded(g[i], radius, band, peak);
-        if (p[i] == old.data[i] || m > (size_t)max) continue;
+        if (!diff || p[i] == old.data[i] || m > (size_t)max) continue;
         if (m == cap) {
             int32_t *more = realloc(changed, 2 * cap * sizeof(int32_t));
             if (!more) {
@@ -564,15 +580,16 @@ static ERL_NIF_TERM nif_inflate(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         changed[m++] = (int32_t)i;
     }
     free(g);
-    ERL_NIF_TERM list;
-    if (m > (size_t)max) {
+    if (!diff) {
+        list = enif_make_atom(env, "nil");
+    } else if (m > (size_t)max) {
         list = enif_make_atom(env, "too_many");
     } else {
         unsigned char *q = enif_make_new_binary(env, m * sizeof(int32_t), &list);
         memcpy(q, changed, m * sizeof(int32_t));
     }
     free(changed);
-    return enif_make_tuple2(env, out, list);
+    return enif_make_tuple3(env, out, list, field);
 }
 
 /* diff(a, b, max) -> {count, [index]} the indices where a and b differ
@@ -920,8 +937,7 @@ static ErlNifFunc funcs[] = {
     {"fmap_import", 2, nif_fmap_import, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"edt", 3, nif_edt, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"inflate", 4, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"inflate", 6, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"inflate", 8, nif_inflate, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"cost_map", 8, nif_cost_map, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"diff", 3, nif_diff, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"blocked", 3, nif_blocked, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"overlay", 3, nif_overlay, ERL_NIF_DIRTY_JOB_CPU_BOUND},

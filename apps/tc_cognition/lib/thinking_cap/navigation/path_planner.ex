@@ -150,14 +150,12 @@ defmodule ThinkingCap.Navigation.PathPlanner do
       do: planner
 
   def set_map(%__MODULE__{} = planner, %OccupancyGrid{} = map) do
-    {grid, blocked, diff} = grids(planner, map)
-
-    field = %{grid: grid, distances: GridNif.edt(blocked, grid.width, grid.height)}
+    {grid, distances, diff} = grids(planner, map)
 
     %{
       planner
       | grid: grid,
-        field: field,
+        field: %{grid: grid, distances: distances},
         version: map.version,
         pending: changes(planner, grid, diff)
     }
@@ -171,35 +169,35 @@ defmodule ThinkingCap.Navigation.PathPlanner do
   def cost_grid(%__MODULE__{} = planner, %OccupancyGrid{} = map),
     do: elem(grids(%{planner | grid: nil}, map), 0)
 
-  # the cost map, the blocked cells before they are grown, and the cells
-  # where the cost map differs from the planner's last one (listed while
-  # it is written; nil without a last one of that size and frame)
+  # the cost map, the distances to the blocked cells before they are
+  # grown (one distance transform for both), and the cells where the
+  # cost map differs from the planner's last one (listed while it is
+  # written; nil without a last one of that size and frame)
   defp grids(planner, %OccupancyGrid{width: w, height: h} = map) do
     k = max(1, round(planner.resolution / map.resolution))
     blocked = GridNif.blocked(map.data, planner.threshold, 0)
     {cw, ch, coarse} = if k == 1, do: {w, h, blocked}, else: GridNif.shrink(blocked, w, h, k)
     res = map.resolution * k
-    radius = planner.radius / res
-    band = planner.band / res
     old = planner.grid
 
-    {cells, diff} =
+    old_cells =
       if old != nil and
            {old.width, old.height, old.origin, old.resolution} == {cw, ch, map.origin, res},
-         do:
-           GridNif.inflate(
-             coarse,
-             cw,
-             ch,
-             radius,
-             band,
-             planner.band_cost,
-             old.cells,
-             planner.max_changes
-           ),
-         else: {GridNif.inflate(coarse, cw, ch, radius, band, planner.band_cost), nil}
+         do: old.cells
 
-    {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), coarse, diff}
+    {cells, diff, distances} =
+      GridNif.cost_map(
+        coarse,
+        cw,
+        ch,
+        planner.radius / res,
+        planner.band / res,
+        planner.band_cost,
+        old_cells,
+        planner.max_changes
+      )
+
+    {Grid.new(cw, ch, cells: cells, resolution: res, origin: map.origin), distances, diff}
   end
 
   @doc """

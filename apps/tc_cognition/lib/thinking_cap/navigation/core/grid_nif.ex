@@ -27,9 +27,8 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def fmap_import(_map, _binary), do: :erlang.nif_error(:nif_not_loaded)
   def edt(_cells, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
   def inflate(_cells, _w, _h, _radius), do: :erlang.nif_error(:nif_not_loaded)
-  def inflate(_cells, _w, _h, _radius, _band, _peak), do: :erlang.nif_error(:nif_not_loaded)
 
-  def inflate(_cells, _w, _h, _radius, _band, _peak, _old, _max),
+  def cost_map(_cells, _w, _h, _radius, _band, _peak, _old, _max),
     do: :erlang.nif_error(:nif_not_loaded)
 
   def diff(_a, _b, _max), do: :erlang.nif_error(:nif_not_loaded)
