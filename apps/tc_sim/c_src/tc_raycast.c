@@ -1163,6 +1163,184 @@ static ERL_NIF_TERM nif_contacts(ErlNifEnv *env, int argc, const ERL_NIF_TERM ar
     return contacts_impl(env, argc, argv);
 }
 
+/* walkers_step(robots, walkers, dt, gap) -> one step of the walkers
+ * (Core.Walkers): robots are three native float64 each (x, y, radius),
+ * walkers six (x, y, radius, the target's x and y, speed), in the order
+ * they step. Each walker in turn goes straight to its target at its
+ * speed: onto it when within this step (arrived, no check), else by
+ * speed * dt if the new place keeps more than `gap` from every robot
+ * and every other walker as they stand by then (earlier walkers where
+ * they moved), else it waits. Returns three native float64 per walker:
+ * x, y and 0 (waited), 1 (stepped) or 2 (arrived). Buckets of the
+ * discs' places at the start, wide enough that a walker looks at its
+ * 3 x 3 only: linear in robots + walkers. */
+static ERL_NIF_TERM walkers_step_impl(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary rb, wb;
+    double dt, gap;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &rb) || !enif_inspect_binary(env, argv[1], &wb) ||
+        rb.size % (8 * 3) || wb.size % (8 * 6) || !enif_get_double(env, argv[2], &dt) ||
+        !enif_get_double(env, argv[3], &gap) || !(dt >= 0) || !(gap >= 0))
+        return enif_make_badarg(env);
+    const int nr = (int)(rb.size / 24), nw = (int)(wb.size / 48), n = nr + nw;
+    ERL_NIF_TERM out;
+    double *o = (double *)enif_make_new_binary(env, (size_t)nw * 3 * sizeof(double), &out);
+    if (nw == 0) return out;
+    double *px = enif_alloc((size_t)n * 3 * sizeof(double));
+    int32_t *cell = enif_alloc((size_t)n * 2 * sizeof(int32_t));
+    if (!px || !cell) {
+        if (px) enif_free(px);
+        if (cell) enif_free(cell);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    double *py = px + n, *pr = px + 2 * n;
+    int32_t *items = cell + n;
+    const double *r = (const double *)rb.data, *w = (const double *)wb.data;
+    double rmax = 0, wmax = 0, smax = 0, minx = BIG, miny = BIG, maxx = -BIG, maxy = -BIG;
+    for (int i = 0; i < n; i++) {
+        const double *d = i < nr ? r + (size_t)i * 3 : w + (size_t)(i - nr) * 6;
+        int k = i < nr ? 3 : 6;
+        for (int j = 0; j < k; j++)
+            if (!isfinite(d[j])) goto bad;
+        if (!(d[2] >= 0) || (i >= nr && !(d[5] >= 0))) goto bad;
+        px[i] = d[0];
+        py[i] = d[1];
+        pr[i] = d[2];
+        if (d[2] > rmax) rmax = d[2];
+        if (i >= nr) {
+            if (d[2] > wmax) wmax = d[2];
+            if (d[5] * dt > smax) smax = d[5] * dt;
+        }
+        minx = fmin(minx, d[0]);
+        maxx = fmax(maxx, d[0]);
+        miny = fmin(miny, d[1]);
+        maxy = fmax(maxy, d[1]);
+    }
+    /* a disc stands within smax of where it was bucketed */
+    double h = rmax + wmax + gap + smax;
+    if (!(h > 0) || !isfinite(h)) h = 1.0;
+    double ex = maxx - minx, ey = maxy - miny;
+    while ((floor(ex / h) + 1) * (floor(ey / h) + 1) > 4.0 * n + 16)
+        h *= 2;
+    const int W = (int)floor(ex / h) + 1, H = (int)floor(ey / h) + 1;
+    const double inv = 1.0 / h;
+    int32_t *start = enif_alloc(((size_t)W * H + 2) * sizeof(int32_t) * 2);
+    if (!start) goto bad;
+    int32_t *fill = start + (size_t)W * H + 2;
+    memset(start, 0, ((size_t)W * H + 2) * sizeof(int32_t));
+    for (int i = 0; i < n; i++) {
+        cell[i] = bucket_of((py[i] - miny) * inv, H) * W + bucket_of((px[i] - minx) * inv, W);
+        start[cell[i] + 1]++;
+    }
+    for (int k = 0; k < W * H; k++)
+        start[k + 1] += start[k];
+    memcpy(fill, start, ((size_t)W * H + 1) * sizeof(int32_t));
+    for (int i = 0; i < n; i++)
+        items[fill[cell[i]]++] = i;
+    for (int k = 0; k < nw; k++) {
+        const int i = nr + k;
+        const double *d = w + (size_t)k * 6;
+        const double x = px[i], y = py[i], tx = d[3], ty = d[4];
+        const double dist = sqrt((tx - x) * (tx - x) + (ty - y) * (ty - y));
+        const double step = d[5] * dt;
+        double *ok = o + (size_t)k * 3;
+        if (dist <= step) {
+            px[i] = tx;
+            py[i] = ty;
+            ok[0] = tx, ok[1] = ty, ok[2] = 2;
+            continue;
+        }
+        const double nx = x + (tx - x) * step / dist, ny = y + (ty - y) * step / dist;
+        const int ci = bucket_of((nx - minx) * inv, W), cj = bucket_of((ny - miny) * inv, H);
+        int clear = 1;
+        for (int j = cj - 1; j <= cj + 1 && clear; j++) {
+            if (j < 0 || j >= H) continue;
+            for (int c = ci - 1; c <= ci + 1 && clear; c++) {
+                if (c < 0 || c >= W) continue;
+                const int b = j * W + c;
+                for (int q = start[b]; q < start[b + 1]; q++) {
+                    const int e = items[q];
+                    if (e == i) continue;
+                    const double rr = pr[e] + pr[i] + gap;
+                    if ((px[e] - nx) * (px[e] - nx) + (py[e] - ny) * (py[e] - ny) <= rr * rr) {
+                        clear = 0;
+                        break;
+                    }
+                }
+            }
+        }
+        if (clear) px[i] = nx, py[i] = ny;
+        ok[0] = px[i], ok[1] = py[i], ok[2] = clear;
+    }
+    enif_free(start);
+    enif_free(px);
+    enif_free(cell);
+    return out;
+bad:
+    enif_free(px);
+    enif_free(cell);
+    return enif_make_badarg(env);
+}
+
+static ERL_NIF_TERM nif_walkers_step(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary wb;
+    if (enif_inspect_binary(env, argv[1], &wb) && wb.size / 48 > 20000)
+        return enif_schedule_nif(env, "walkers_step_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND,
+                                 walkers_step_impl, argc, argv);
+    return walkers_step_impl(env, argc, argv);
+}
+
+/* records_box(records) -> {min_x, min_y, max_x, max_y} of the centres of
+ * body records (four native float64 each: id, x, y, radius), nil for
+ * none. records_within(records, min_x, min_y, max_x, max_y) -> the
+ * records whose disc reaches into that box (Core.Ghosts). */
+static ERL_NIF_TERM nif_records_box(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary b;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &b) || b.size % 32) return enif_make_badarg(env);
+    const double *r = (const double *)b.data;
+    size_t n = b.size / 32;
+    if (n == 0) return enif_make_atom(env, "nil");
+    double ax = r[1], ay = r[2], bx = r[1], by = r[2];
+    for (size_t i = 1; i < n; i++) {
+        const double x = r[i * 4 + 1], y = r[i * 4 + 2];
+        ax = x < ax ? x : ax;
+        ay = y < ay ? y : ay;
+        bx = x > bx ? x : bx;
+        by = y > by ? y : by;
+    }
+    return enif_make_tuple4(env, enif_make_double(env, ax), enif_make_double(env, ay),
+                            enif_make_double(env, bx), enif_make_double(env, by));
+}
+
+static ERL_NIF_TERM nif_records_within(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary b;
+    double ax, ay, bx, by;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &b) || b.size % 32 ||
+        !enif_get_double(env, argv[1], &ax) || !enif_get_double(env, argv[2], &ay) ||
+        !enif_get_double(env, argv[3], &bx) || !enif_get_double(env, argv[4], &by))
+        return enif_make_badarg(env);
+    const double *r = (const double *)b.data;
+    size_t n = b.size / 32, m = 0;
+    double *keep = enif_alloc(b.size ? b.size : 1);
+    if (!keep) return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    for (size_t i = 0; i < n; i++) {
+        const double *d = r + i * 4;
+        if (d[1] + d[3] >= ax && d[1] - d[3] <= bx && d[2] + d[3] >= ay && d[2] - d[3] <= by)
+            memcpy(keep + 4 * m++, d, 32);
+    }
+    ERL_NIF_TERM out;
+    unsigned char *o = enif_make_new_binary(env, m * 32, &out);
+    memcpy(o, keep, m * 32);
+    enif_free(keep);
+    return out;
+}
+
 static ERL_NIF_TERM kind_atom(int kind)
 {
     switch (kind) {
@@ -1767,6 +1945,9 @@ static ErlNifFunc funcs[] = {
     {"set_bodies", 2, nif_set_bodies, 0},
     {"set_bodies_packed", 3, nif_set_bodies_packed, 0},
     {"contacts", 1, nif_contacts, 0},
+    {"walkers_step", 4, nif_walkers_step, 0},
+    {"records_box", 1, nif_records_box, 0},
+    {"records_within", 5, nif_records_within, 0},
     {"nif_cast_rays", 5, nif_cast_rays, 0},
     {"scan", 5, nif_scan, 0},
     {"scan_list", 5, nif_scan_list, 0},

@@ -192,6 +192,37 @@ defmodule ThinkingCap.Sim.Raycast do
   @spec contacts(binary()) :: [non_neg_integer()]
   def contacts(_moves), do: :erlang.nif_error(:nif_not_loaded)
 
+  @doc """
+  One step of walkers among robots (`ThinkingCap.Sim.Core.Walkers`, in
+  C). `robots` holds three native float64 per robot (`x, y, radius`),
+  `walkers` six per walker in the order they step (`x, y, radius`, the
+  target's `x, y`, `speed`). Each walker in turn goes straight towards
+  its target at its speed: onto it when it is within `speed * dt`
+  (arrived: no check), else one step if the new place keeps more than
+  `gap` from every robot and every other walker as they stand by then,
+  else it waits. Returns three native float64 per walker: where it
+  stands and 0.0 (waited), 1.0 (stepped) or 2.0 (arrived). Raises
+  `ArgumentError` for a malformed binary, a value that is not finite, a
+  negative radius, speed, `dt` or `gap`.
+  """
+  @spec walkers_step(binary(), binary(), float(), float()) :: binary()
+  def walkers_step(_robots, _walkers, _dt, _gap), do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc """
+  The box `{min_x, min_y, max_x, max_y}` round the centres of body
+  records (`body_record/4`, packed), `nil` for none.
+  """
+  @spec records_box(binary()) :: {float(), float(), float(), float()} | nil
+  def records_box(_records), do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc """
+  The body records (`body_record/4`, packed) whose disc reaches into the
+  box from `{min_x, min_y}` to `{max_x, max_y}`, in their order.
+  """
+  @spec records_within(binary(), float(), float(), float(), float()) :: binary()
+  def records_within(_records, _min_x, _min_y, _max_x, _max_y),
+    do: :erlang.nif_error(:nif_not_loaded)
+
   @doc "One disc's move for `contacts/1`."
   @spec move_record(non_neg_integer(), number(), number(), number(), number(), number()) ::
           binary()

@@ -245,6 +245,39 @@ defmodule ThinkingCap.Sim.NodesTest do
       assert Ghosts.bodies(%{a: [], b: own.b}, walkers, 3.0).a == <<>>
     end
 
+    test "the records' box and the records within a box, as the plain rule says (50 seeds)" do
+      for seed <- 1..50 do
+        :rand.seed(:exsss, {seed, 1, 1})
+
+        discs =
+          for i <- 0..:rand.uniform(40),
+              do: {i, 20 * :rand.uniform(), 20 * :rand.uniform(), :rand.uniform()}
+
+        bin = for {i, x, y, r} <- discs, into: <<>>, do: Sim.Raycast.body_record(i, x, y, r)
+        {xs, ys} = {Enum.map(discs, &elem(&1, 1)), Enum.map(discs, &elem(&1, 2))}
+
+        assert Sim.Raycast.records_box(bin) ==
+                 {Enum.min(xs), Enum.min(ys), Enum.max(xs), Enum.max(ys)}
+
+        {ax, ay} = {10 * :rand.uniform(), 10 * :rand.uniform()}
+        {bx, by} = {ax + 8 * :rand.uniform(), ay + 8 * :rand.uniform()}
+
+        expected =
+          for {i, x, y, r} <- discs,
+              x + r >= ax and x - r <= bx and y + r >= ay and y - r <= by,
+              into: <<>>,
+              do: Sim.Raycast.body_record(i, x, y, r)
+
+        assert Sim.Raycast.records_within(bin, ax, ay, bx, by) == expected
+      end
+
+      assert Sim.Raycast.records_box(<<>>) == nil
+
+      assert_raise ArgumentError, fn ->
+        Sim.Raycast.records_within(<<1, 2>>, 0.0, 0.0, 1.0, 1.0)
+      end
+    end
+
     test "strips: borders cut the width evenly; a point's strip counts the borders it passed" do
       assert Ghosts.even_borders({0.0, 30.0}, 3) == [10.0, 20.0]
       assert Ghosts.even_borders({0.0, 30.0}, 1) == []

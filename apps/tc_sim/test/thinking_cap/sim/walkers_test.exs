@@ -41,6 +41,33 @@ defmodule ThinkingCap.Sim.Core.WalkersTest do
   end
 
   test "crowded walkers among robots step as the plain rule says" do
+    crowd_against_brute(0.1, 60, 20)
+  end
+
+  test "long steps (a walker crosses buckets in one step) as the plain rule says" do
+    crowd_against_brute(0.7, 25, 5)
+  end
+
+  test "a malformed step is refused" do
+    walker =
+      <<0.0::float-native-64, 0.0::float-native-64, 0.2::float-native-64, 1.0::float-native-64,
+        0.0::float-native-64, 1.0::float-native-64>>
+
+    assert byte_size(ThinkingCap.Sim.Raycast.walkers_step(<<>>, walker, 0.1, 0.05)) == 24
+
+    for {robots, walkers, dt} <- [
+          {<<1.0::float-native-64>>, walker, 0.1},
+          {<<>>, binary_part(walker, 0, 40), 0.1},
+          {<<>>, walker, -0.1},
+          {<<0.0::float-native-64, 0.0::float-native-64, -1.0::float-native-64>>, walker, 0.1}
+        ] do
+      assert_raise ArgumentError, fn ->
+        ThinkingCap.Sim.Raycast.walkers_step(robots, walkers, dt, 0.05)
+      end
+    end
+  end
+
+  defp crowd_against_brute(dt, steps, min_waits) do
     rng = :rand.seed_s(:exsss, {4, 5, 6})
 
     point = fn rng ->
@@ -78,15 +105,15 @@ defmodule ThinkingCap.Sim.Core.WalkersTest do
     discs = for {_, x, y, r} <- robots, do: {x, y, r}
 
     {fast, slow, waits} =
-      Enum.reduce(1..60, {Map.new(walkers), Map.new(walkers), 0}, fn _, {fast, slow, waits} ->
-        fast2 = Walkers.step(fast, discs, 0.1)
-        slow2 = brute_step(slow, discs, 0.1)
+      Enum.reduce(1..steps, {Map.new(walkers), Map.new(walkers), 0}, fn _, {fast, slow, waits} ->
+        fast2 = Walkers.step(fast, discs, dt)
+        slow2 = brute_step(slow, discs, dt)
         assert fast2 == slow2
         {fast2, slow2, waits + Enum.count(fast2, fn {id, w} -> w.at == fast[id].at end)}
       end)
 
     assert fast == slow
     # walkers did wait for each other and for robots
-    assert waits > 20
+    assert waits > min_waits
   end
 end

@@ -11,6 +11,8 @@ defmodule ThinkingCap.Sim.Core.Ghosts do
   # Regions are strips of the world along x, one per node, between
   # `borders` (ascending): a robot belongs to the strip its x is in.
 
+  alias ThinkingCap.Sim.Raycast
+
   @record 32
 
   @doc """
@@ -50,26 +52,23 @@ defmodule ThinkingCap.Sim.Core.Ghosts do
 
   # the box around the records' centres, grown by reach; nil if none
   defp box(bins, reach) do
-    Enum.reduce(bins, nil, fn bin, acc ->
-      for <<_i::float-native-64, x::float-native-64, y::float-native-64,
-            _r::float-native-64 <- bin>>,
-          reduce: acc do
-        nil -> {x, y, x, y}
-        {ax, ay, bx, by} -> {min(ax, x), min(ay, y), max(bx, x), max(by, y)}
-      end
-    end)
+    bins
+    |> Enum.map(&Raycast.records_box/1)
+    |> Enum.reject(&is_nil/1)
     |> case do
-      nil -> nil
-      {ax, ay, bx, by} -> {ax - reach, ay - reach, bx + reach, by + reach}
+      [] ->
+        nil
+
+      boxes ->
+        {ax, ay, bx, by} =
+          Enum.reduce(boxes, fn {ax, ay, bx, by}, {cx, cy, dx, dy} ->
+            {min(ax, cx), min(ay, cy), max(bx, dx), max(by, dy)}
+          end)
+
+        {ax - reach, ay - reach, bx + reach, by + reach}
     end
   end
 
   # the records of bin whose disc reaches into the box
-  defp within(bin, {ax, ay, bx, by}) do
-    for <<rec::binary-size(@record) <- bin>>,
-        <<_i::float-native-64, x::float-native-64, y::float-native-64, r::float-native-64>> = rec,
-        x + r >= ax and x - r <= bx and y + r >= ay and y - r <= by,
-        into: <<>>,
-        do: rec
-  end
+  defp within(bin, {ax, ay, bx, by}), do: Raycast.records_within(bin, ax, ay, bx, by)
 end

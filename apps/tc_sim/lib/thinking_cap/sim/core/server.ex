@@ -558,13 +558,18 @@ defmodule ThinkingCap.Sim.Core.Server do
     do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
 
   # where the robots stand after this step's moves: {x, y, radius}
-  defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: []
+  defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: <<>>
 
+  # the robots where they stand after the moves, as Walkers.step/3 takes them
   defp standing(moves, taken_back, _walkers) do
     for bin <- moves,
-        <<i::float-native-64, x0::float-native-64, y0::float-native-64, x1::float-native-64,
-          y1::float-native-64, r::float-native-64 <- bin>> do
-      if MapSet.member?(taken_back, trunc(i)), do: {x0, y0, r}, else: {x1, y1, r}
+        <<i::float-native-64, x0::binary-size(16), x1::binary-size(16),
+          r::binary-size(8) <-
+            bin>>,
+        into: <<>> do
+      if MapSet.member?(taken_back, trunc(i)),
+        do: <<x0::binary, r::binary>>,
+        else: <<x1::binary, r::binary>>
     end
   end
 
