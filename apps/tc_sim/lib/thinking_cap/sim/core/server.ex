@@ -367,6 +367,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   def handle_info({:tc_cycle, :applied, _name, _event}, state), do: {:noreply, state}
 
   def handle_info({:stepped, _ref, _shard, _records}, state), do: {:noreply, state}
+  def handle_info({:stepped_all, _ref, _records}, state), do: {:noreply, state}
   def handle_info({:moved, _ref, _moves}, state), do: {:noreply, state}
 
   def handle_info(message, state) do
@@ -393,11 +394,17 @@ defmodule ThinkingCap.Sim.Core.Server do
     time = state.step * state.dt
     shards = Tuple.to_list(state.shards)
     state = start_moves(state, shards, ref)
-    moves = collect_moves(ref, length(shards), [])
+    answering = if state.regions, do: length(state.regions), else: length(shards)
+    moves = collect_moves(ref, answering, [])
     taken_back = Contacts.taken_back(moves)
-    Enum.each(shards, &GenServer.cast(&1, {:sense, ref, state.step, time, taken_back}))
+    sense = {:sense, ref, state.step, time, taken_back}
+
+    if state.regions,
+      do: for({_node, pid} <- state.regions, do: send(pid, sense)),
+      else: Enum.each(shards, &GenServer.cast(&1, sense))
+
     walkers = Walkers.step(state.walkers, standing(moves, taken_back, state.walkers), state.dt)
-    records = collect(ref, length(shards), state.records)
+    records = collect(ref, answering, state.records)
     state = %{state | step: state.step + 1, records: records, walkers: walkers}
     set_bodies(state)
     state
@@ -583,9 +590,11 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   defp collect(_ref, 0, records), do: records
 
+  # a shard's records, or (across nodes) a region's for all its shards
   defp collect(ref, n, records) do
     receive do
       {:stepped, ^ref, shard, bin} -> collect(ref, n - 1, Map.put(records, shard, bin))
+      {:stepped_all, ^ref, list} -> collect(ref, n - 1, Enum.into(list, records))
     end
   end
 
