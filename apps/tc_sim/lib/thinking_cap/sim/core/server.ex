@@ -479,8 +479,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   end
 
   defp hand_over({from, to, ids}, state) do
-    {bodies, from_records} = GenServer.call(from, {:take, ids}, 30_000)
-    {:ok, to_records} = GenServer.call(to, {:put, bodies}, 30_000)
+    {from_records, to_records} = GenServer.call(from, {:give, ids, to}, 60_000)
     n = length(ids)
 
     robots =

@@ -45,10 +45,13 @@ defmodule ThinkingCap.Sim.Core.Shard do
   end
 
   # a handover of robots to another shard (Regions): their whole state
-  def handle_call({:take, ids}, _from, state) do
+  # hands robots over to another shard itself: their bodies go from
+  # shard to shard (on one node, never through the coordinator's node)
+  def handle_call({:give, ids, to}, _from, state) do
     {taken, bodies} = Map.split(state.bodies, ids)
     taken = Enum.map(ids, &Map.fetch!(taken, &1))
-    {:reply, {taken, records(bodies)}, %{state | bodies: bodies}}
+    {:ok, to_records} = GenServer.call(to, {:put, taken}, 30_000)
+    {:reply, {records(bodies), to_records}, %{state | bodies: bodies}}
   end
 
   def handle_call({:put, bodies}, _from, state) do
