@@ -117,6 +117,11 @@ defmodule ThinkingCap.Blackboard do
   the tuples wait. Writers do not yield to batched subscribers, whom
   they do not wake. `max_queue` bounds the tuples held (beyond it they
   are dropped or the subscription ends, as `on_overflow` says).
+  With `hold: {module, function}` the writer holds what
+  `module.function(tuple)` returns instead of the tuple (the tuple
+  itself if it raises), and `take_held/1` gives that: a subscriber can
+  have its tuples held as it needs them, made once by their writer,
+  which copies what it holds anyway.
 
   Inspect the space from a shell with `ThinkingCap.Blackboard.IEx`.
   """
@@ -147,6 +152,7 @@ defmodule ThinkingCap.Blackboard do
           | {:batch, boolean()}
           | {:max_batch, pos_integer()}
           | {:max_delay_ms, pos_integer()}
+          | {:hold, {module(), atom()}}
 
   @doc """
   Writes `tuple`.
@@ -313,7 +319,10 @@ defmodule ThinkingCap.Blackboard do
   sent `{:blackboard_held, ref}` when `:max_batch` tuples (default
   #{@default_max_batch}) are held or `:max_delay_ms` (default
   #{@default_max_delay_ms}) after the first of them; `take_held/1` gives
-  them (see "Batched subscribers" in the moduledoc):
+  them (see "Batched subscribers" in the moduledoc). With `hold:
+  {module, function}` each is held as `module.function(tuple)` returns
+  it (the tuple itself if that raises); the writer runs it, so it must be
+  quick and must not depend on the subscriber's process:
 
       {:ok, ref} = Blackboard.subscribe({:scan, :r1, :_}, batch: true, max_delay_ms: 100)
       receive do
@@ -355,13 +364,14 @@ defmodule ThinkingCap.Blackboard do
 
   @doc """
   The tuples held for the caller's batched subscription `ref`, oldest
-  first, as `[{tuple, at}]` (`at`: `System.monotonic_time/0` when it was
+  first, as `[{tuple, at}]` (`tuple` as `hold:` made it, if the
+  subscription has one; `at`: `System.monotonic_time/0` when it was
   held), and they are no longer held. Called on `{:blackboard_held,
   ref}`, or at any time (a subscriber that stops takes what is left).
   [] for nothing held, or a subscription that is not the caller's or not
   batched.
   """
-  @spec take_held(reference()) :: [{tuple(), integer()}]
+  @spec take_held(reference()) :: [{term(), integer()}]
   def take_held(ref) when is_reference(ref), do: Batches.take(ref)
 
   @doc "How many tuples were dropped for a subscription (nil if it is gone)."
@@ -408,7 +418,8 @@ defmodule ThinkingCap.Blackboard do
       on_overflow: :drop,
       batch: false,
       max_batch: nil,
-      max_delay_ms: nil
+      max_delay_ms: nil,
+      hold: nil
     }
 
     o =
@@ -425,21 +436,25 @@ defmodule ThinkingCap.Blackboard do
         {key, n}, o when key in [:max_batch, :max_delay_ms] and is_integer(n) and n > 0 ->
           Map.put(o, key, n)
 
+        {:hold, {m, f} = hold}, o when is_atom(m) and is_atom(f) ->
+          %{o | hold: hold}
+
         other, _ ->
           raise ArgumentError,
                 "bad subscribe/2 option #{inspect(other)}; expected max_queue: positive integer, " <>
                   "on_overflow: :drop | :disconnect, batch: boolean, " <>
-                  "max_batch: positive integer, max_delay_ms: positive integer"
+                  "max_batch: positive integer, max_delay_ms: positive integer, " <>
+                  "hold: {module, function}"
       end)
 
     batch =
       cond do
         o.batch ->
-          {o.max_batch || @default_max_batch, o.max_delay_ms || @default_max_delay_ms}
+          {o.max_batch || @default_max_batch, o.max_delay_ms || @default_max_delay_ms, o.hold}
 
-        o.max_batch || o.max_delay_ms ->
+        o.max_batch || o.max_delay_ms || o.hold ->
           raise ArgumentError,
-                "subscribe/2 options :max_batch and :max_delay_ms need batch: true, got: " <>
+                "subscribe/2 options :max_batch, :max_delay_ms and :hold need batch: true, got: " <>
                   inspect(opts)
 
         true ->

@@ -248,6 +248,35 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
     end
   end
 
+  # a subscriber's `hold:` function (run by the writer)
+  @doc false
+  def as_held({_tag, _id, :boom}), do: raise("no")
+  def as_held({tag, id, payload}), do: {:held, tag, id, :erlang.term_to_binary(payload)}
+
+  test "hold: the writer holds what the subscriber's function makes of a tuple", %{id: id} do
+    {:ok, ref} =
+      Blackboard.subscribe({:h, id, :_},
+        batch: true,
+        max_batch: 3,
+        hold: {__MODULE__, :as_held}
+      )
+
+    writer = Task.async(fn -> for p <- [1, :boom, 3], do: Blackboard.out({:h, id, p}) end)
+    Task.await(writer)
+
+    # the tuple itself when the function raised
+    assert receive_tuples(ref, 3) == [
+             {:held, :h, id, :erlang.term_to_binary(1)},
+             {:h, id, :boom},
+             {:held, :h, id, :erlang.term_to_binary(3)}
+           ]
+
+    assert [%{batch: %{hold: {__MODULE__, :as_held}}}] =
+             for(s <- Blackboard.subscriptions(), s.ref == ref, do: s)
+
+    :ok = Blackboard.unsubscribe(ref)
+  end
+
   test "bad batch options are refused, naming the option" do
     assert_raise ArgumentError, ~r/bad subscribe\/2 option \{:batch, :yes\}/, fn ->
       Blackboard.subscribe({:a}, batch: :yes)
@@ -259,6 +288,14 @@ defmodule ThinkingCap.Blackboard.BatchSubscriptionTest do
 
     assert_raise ArgumentError, ~r/need batch: true/, fn ->
       Blackboard.subscribe({:a}, max_delay_ms: 10)
+    end
+
+    assert_raise ArgumentError, ~r/need batch: true/, fn ->
+      Blackboard.subscribe({:a}, hold: {__MODULE__, :as_held})
+    end
+
+    assert_raise ArgumentError, ~r/bad subscribe\/2 option \{:hold, :as_held\}/, fn ->
+      Blackboard.subscribe({:a}, batch: true, hold: :as_held)
     end
   end
 end

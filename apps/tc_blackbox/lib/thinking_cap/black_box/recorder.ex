@@ -60,8 +60,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
   when the recorder started, advanced by the monotonic clock (so that a
   change of the system's time cannot put messages out of order); one
   clock for every channel. The tuples and the callbacks come in lists
-  (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 64 at a
-  time or a tenth of `chunk_seconds` after the first;
+  (`ThinkingCap.Blackboard.subscribe/2`'s `batch: true`, up to 256 at a
+  time or a quarter of `chunk_seconds` after the first;
   `ThinkingCap.Runtime.Trace.attach/2`'s, 64 or as long), each stamped
   when it was held for the recorder, which is its log time. Its **publish time is
   the tuple's `stamp`** (seconds on the robot's clock: simulated time in
@@ -70,9 +70,14 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Cost
 
-  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass),
-  `term_to_binary/1` and two record headers; per traced callback, a
-  small term. The tuples and callbacks come in lists, so that the
+  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass)
+  and two record headers; per traced callback, a small term. The
+  tuple's `term_to_binary/1` is made by its writer, in place of the
+  copy it makes of the tuple for the recorder's list
+  (`Core.Channels.held/1`, the subscription's `hold:`): the recorder
+  takes a large tuple (the LPS) as that binary, without copying the
+  tuple out of the blackboard's table, and decodes it only for its
+  Foxglove message, once a second. The tuples and callbacks come in lists, so that the
   recorder is woken once a list rather than once a tuple, and are
   written 32 at a time (or at the chunk's end). The writer compresses
   the chunk as its records come (`ThinkingCap.MCAP.Compression.stream/1`),
@@ -89,11 +94,13 @@ defmodule ThinkingCap.BlackBox.Recorder do
   @batch 64
 
   # Tuples come in lists (as the modules' callbacks do, Trace's
-  # batching), held a tenth of a chunk (100 ms for chunks of a second):
+  # batching), held a quarter of a chunk (250 ms for chunks of a second):
   # nothing of a chunk is written before its end, and the cost of a list
-  # (its sending, the recorder's wake-up) is shared by more tuples
-  @list_max 64
-  @list_share 0.1
+  # (its sending, the recorder's wake-up) is shared by more tuples. The
+  # trace lists are held as long: the recorder is woken about every 4
+  # tuples, not every 3 (a tenth of a chunk, 64 at most)
+  @list_max 256
+  @list_share 0.25
 
   # tuples and callbacks noted before they are written (when so many, or
   # at the chunk's tick): 512 at a time held the robots' modules up (the
@@ -215,6 +222,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
     with :ok <- File.mkdir_p(state.dir),
          {:ok, state} <- begin_file(state) do
       lists = [batch: true, max_batch: @list_max, max_delay_ms: list_ms(config.chunk_seconds)]
+      # the tuples' terms made by their writers (Channels.held/1)
+      lists = if config.replay, do: [{:hold, {Channels, :held}} | lists], else: lists
       refs = for t <- templates, do: elem(Blackboard.subscribe(t, lists), 1)
       trace = [batch: true, max_delay_ms: lists[:max_delay_ms]]
       if config.replay, do: :ok = Trace.attach(config.robot, trace)
@@ -360,7 +369,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp write_item(_item, %{writer: nil} = state), do: state
 
   defp write_item({:tuple, now, tuple}, state) do
-    case Channels.write_tuple(state.writer, state.chans, tuple, now) do
+    case Channels.write_held(state.writer, state.chans, tuple, now) do
       {:ok, w, chans, n} ->
         maybe_rotate_by_size(%{state | writer: w, chans: chans, messages: state.messages + n})
 

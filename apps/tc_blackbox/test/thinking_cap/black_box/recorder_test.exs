@@ -3,6 +3,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
 
   alias ThinkingCap.{BlackBox, Blackboard}
   alias ThinkingCap.BlackBox.Recorder
+  alias ThinkingCap.BlackBox.Core.Channels
   alias ThinkingCap.BlackBox.Test.{NodeReader, Topics}
   alias ThinkingCap.MCAP.Reader
   alias ThinkingCap.Navigation.OccupancyGrid
@@ -166,9 +167,9 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     r = Atom.to_string(robot)
     {:ok, pid} = BlackBox.record(robot, dir: dir, chunk_seconds: 0.5)
 
-    # woken once a list: a batched subscription (a tenth of a chunk) and
-    # a batched trace sink
-    assert [%{batch: %{max_batch: 64, max_delay_ms: 50}}] =
+    # woken once a list: a batched subscription (a quarter of a chunk),
+    # its tuples held as their writers encoded them, and a batched trace sink
+    assert [%{batch: %{max_batch: 256, max_delay_ms: 125, hold: {Channels, :held}}}] =
              for(s <- Blackboard.subscriptions(), s.pid == pid, do: s)
 
     assert ThinkingCap.Runtime.Trace.batch_sinks(robot) == [pid]
@@ -193,7 +194,7 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     assert length(logged) == 3
 
     # within a few ms (the epoch's clock against the system's), where the
-    # lists came 50 ms after their first tuple
+    # lists came 125 ms after their first tuple
     for {log_time, {before, later}} <- Enum.zip(logged, times) do
       assert log_time >= before - 5_000_000 and log_time <= later + 5_000_000
     end

@@ -49,8 +49,8 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
 
   @doc false
   # A batched subscription's row; before its subscription row is inserted.
-  @spec open(reference(), pid(), {pos_integer(), pos_integer()}, pos_integer()) :: true
-  def open(ref, pid, {max_batch, max_delay_ms}, max_queue),
+  @spec open(reference(), pid(), {pos_integer(), pos_integer(), term()}, pos_integer()) :: true
+  def open(ref, pid, {max_batch, max_delay_ms, _hold}, max_queue),
     do:
       :ets.insert(
         Tables.batches(),
@@ -67,9 +67,10 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   end
 
   @doc false
-  # Holds `tuple` for the batched subscription `ref`: :ok, or :full when
-  # `max_queue` tuples are held already (it is not).
-  @spec hold(reference(), tuple()) :: :ok | :full
+  # Holds `tuple` (or what the subscription's `hold:` made of it) for the
+  # batched subscription `ref`: :ok, or :full when `max_queue` tuples are
+  # held already (it is not).
+  @spec hold(reference(), term()) :: :ok | :full
   def hold(ref, tuple) do
     [position, taken, max_batch, max_queue] =
       :ets.update_counter(Tables.batches(), ref, [{2, 1}, {3, 0}, {5, 0}, {7, 0}])
@@ -99,7 +100,7 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   # In the subscriber: the tuples held for its subscription `ref` that
   # follow the last taken without a gap, oldest first, `[{tuple, at}]`;
   # [] when none (or `ref` is not a batched subscription of the caller).
-  @spec take(reference()) :: [{tuple(), integer()}]
+  @spec take(reference()) :: [{term(), integer()}]
   def take(ref) do
     case :ets.lookup(Tables.batches(), ref) do
       [{^ref, next, taken, pid, _, _, _, _, gap}] when pid == self() ->

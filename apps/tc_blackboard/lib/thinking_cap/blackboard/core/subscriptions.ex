@@ -16,7 +16,7 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
 
   @type policy :: :drop | :disconnect
 
-  @type batch :: nil | {pos_integer(), pos_integer()}
+  @type batch :: nil | {pos_integer(), pos_integer(), {module(), atom()} | nil}
 
   @spec subscribe(Template.compiled(), pid(), pos_integer(), policy(), batch()) :: reference()
   def subscribe(template, pid, max_queue, on_overflow, batch \\ nil) do
@@ -82,8 +82,11 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
         dropped: dropped,
         batch:
           case batch do
-            nil -> false
-            {max_batch, max_delay_ms} -> %{max_batch: max_batch, max_delay_ms: max_delay_ms}
+            nil ->
+              false
+
+            {max_batch, max_delay_ms, hold} ->
+              %{max_batch: max_batch, max_delay_ms: max_delay_ms, hold: hold}
           end
       }
     end
@@ -166,12 +169,12 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
   defp send_to([], _tuple, due), do: due
 
   defp send_to(
-         [{_index, ref, pid, _matcher, _max_queue, policy, _slot, {_, _}} | rest],
+         [{_index, ref, pid, _matcher, _max_queue, policy, _slot, {_, _, hold}} | rest],
          tuple,
          due
        ) do
     # held, to be sent in a list: nothing to read about its queue here
-    if Batches.hold(ref, tuple) == :full, do: overflow(policy, ref, pid)
+    if Batches.hold(ref, held(hold, tuple)) == :full, do: overflow(policy, ref, pid)
     send_to(rest, tuple, due)
   end
 
@@ -184,6 +187,16 @@ defmodule ThinkingCap.Blackboard.Core.Subscriptions do
       :due -> send_to(rest, tuple, [sub | due])
       :sent -> send_to(rest, tuple, due)
     end
+  end
+
+  # what a batched subscription holds of a tuple: the tuple, or what its
+  # `hold:` function makes of it (the tuple if that raises)
+  defp held(nil, tuple), do: tuple
+
+  defp held({m, f}, tuple) do
+    apply(m, f, [tuple])
+  catch
+    _kind, _reason -> tuple
   end
 
   # Reading another process's queue length costs about a microsecond (the

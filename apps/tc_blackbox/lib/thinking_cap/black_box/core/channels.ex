@@ -49,16 +49,54 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   def new(robot, opts \\ []),
     do: %__MODULE__{robot: robot, terms: Keyword.get(opts, :terms, true)}
 
+  # What the blackboard holds of a tuple for the recorder (its batched
+  # subscription's `hold:`), made by the tuple's writer: its external
+  # term, made once where the tuple is copied anyway, so that the recorder
+  # neither copies a large tuple out of the held table nor encodes it.
+  # A large, thinned tuple is held without the tuple (its tag, id and
+  # stamp say where and when; its term is decoded for its Foxglove
+  # message, once a second); any other with it (its Foxglove message is
+  # written every time). `write_held/4` writes it.
+  @spec held(tuple()) :: tuple()
+  def held({tag, id, _payload} = tuple) when tag in @big,
+    do: {__MODULE__, :big, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
+
+  def held(tuple), do: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
+
+  # Writes what `held/1` made of a tuple (or a tuple, as `write_tuple/4`).
+  @spec write_held(Writer.t(), t(), tuple(), non_neg_integer()) ::
+          {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
+  def write_held(w, chans, {__MODULE__, :big, tag, id, stamp, etf}, time) do
+    publish = stamp || time
+    decoded = fn -> Foxglove.messages(:erlang.binary_to_term(etf), time) end
+    {messages, chans} = thinned(chans, {tag, id}, publish, decoded)
+    # its channel is its tag's and id's (`{tag, id, nil}` stands for the tuple)
+    write(w, chans, messages, {tag, id, nil}, etf, time, publish)
+  end
+
+  def write_held(w, chans, {__MODULE__, tuple, etf}, time),
+    do: write_tuple(w, chans, tuple, etf, time)
+
+  def write_held(w, chans, tuple, time), do: write_tuple(w, chans, tuple, nil, time)
+
   # Writes `tuple`, received at `time` (ns since the epoch): its Foxglove
   # messages, then the whole term. The count of messages written.
   @spec write_tuple(Writer.t(), t(), tuple(), non_neg_integer()) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
-  def write_tuple(w, chans, tuple, time) do
+  def write_tuple(w, chans, tuple, time), do: write_tuple(w, chans, tuple, nil, time)
+
+  # `etf`: the tuple's external term, or nil to make it here
+  defp write_tuple(w, chans, tuple, etf, time) do
     publish = Foxglove.stamp_ns(tuple) || time
     {messages, chans} = foxglove(chans, tuple, time, publish)
+    write(w, chans, messages, tuple, etf, time, publish)
+  end
 
+  defp write(w, chans, messages, tuple, etf, time, publish) do
     with {:ok, w, chans, n} <- write_all(messages, w, chans, time, publish, 0) do
-      if chans.terms, do: write_term(w, chans, tuple, time, publish, n), else: {:ok, w, chans, n}
+      if chans.terms,
+        do: write_term(w, chans, tuple, etf, time, publish, n),
+        else: {:ok, w, chans, n}
     end
   end
 
@@ -66,16 +104,17 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # may run slower than the wall's), so that a recording holds the same
   # whatever the speed; a stamp that went back (a new simulation) starts
   # the period again
-  defp foxglove(chans, {tag, id, _} = tuple, time, publish) when tag in @big do
-    key = {tag, id}
-
-    case chans.json_at do
-      %{^key => at} when publish - at < @json_period_ns and publish >= at -> {[], chans}
-      at -> {Foxglove.messages(tuple, time), %{chans | json_at: Map.put(at, key, publish)}}
-    end
-  end
+  defp foxglove(chans, {tag, id, _} = tuple, time, publish) when tag in @big,
+    do: thinned(chans, {tag, id}, publish, fn -> Foxglove.messages(tuple, time) end)
 
   defp foxglove(chans, tuple, time, _publish), do: {Foxglove.messages(tuple, time), chans}
+
+  defp thinned(chans, key, publish, messages) do
+    case chans.json_at do
+      %{^key => at} when publish - at < @json_period_ns and publish >= at -> {[], chans}
+      at -> {messages.(), %{chans | json_at: Map.put(at, key, publish)}}
+    end
+  end
 
   defp write_all([], w, chans, _time, _publish, n), do: {:ok, w, chans, n}
 
@@ -90,7 +129,8 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   end
 
   # the whole term on `/etf/ID/TAG`, its channel found by `{tag, id}`
-  defp write_term(w, chans, tuple, time, publish, n) do
+  # (`etf`, its term, made already or made here)
+  defp write_term(w, chans, tuple, etf, time, publish, n) do
     key = exact_key(tuple)
 
     {channel, w, chans} =
@@ -104,8 +144,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
       end
 
     {sequence, chans} = next(chans, channel)
+    etf = etf || :erlang.term_to_binary(tuple)
 
-    case Writer.add_message(w, channel, time, publish, :erlang.term_to_binary(tuple), sequence) do
+    case Writer.add_message(w, channel, time, publish, etf, sequence) do
       {:ok, w} -> {:ok, w, chans, n + 1}
       {:error, reason} -> {:error, reason, chans}
     end

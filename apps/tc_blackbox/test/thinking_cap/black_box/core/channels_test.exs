@@ -1,0 +1,58 @@
+defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
+  use ExUnit.Case, async: true
+
+  alias ThinkingCap.BlackBox.Core.Channels
+  alias ThinkingCap.MCAP.{Reader, Writer}
+
+  # a robot's tuples: large ones thinned (the LPS, several a second of
+  # its stamps), others not, one without a stamp, one not {tag, id, payload}
+  defp tuples do
+    lps = for k <- 0..24, do: {:lps, :r1, %{stamp: k * 0.1, bins: Enum.to_list(1..k)}}
+    odom = for k <- 0..24, do: {:odom, :r1, %{stamp: k * 0.1, pose: {k * 1.0, 0.0, 0.0}}}
+
+    Enum.zip(lps, odom)
+    |> Enum.flat_map(&Tuple.to_list/1)
+    |> Kernel.++([{:plan, :r1, %{goal: {1.0, 2.0}}}, {:pair, 1}])
+  end
+
+  defp file(write) do
+    {:ok, w} = Writer.new(compression: "")
+
+    {w, _chans} =
+      tuples()
+      |> Enum.with_index(1)
+      |> Enum.reduce({w, Channels.new(:r1)}, fn {tuple, n}, {w, chans} ->
+        {:ok, w, chans, _} = write.(w, chans, tuple, n * 1_000_000)
+        {w, chans}
+      end)
+
+    {:ok, bytes} = Writer.close(w)
+    bytes
+  end
+
+  test "a tuple held as its writer made it (held/1) is recorded as the tuple itself" do
+    as_tuples = file(&Channels.write_tuple/4)
+
+    as_held =
+      file(fn w, chans, t, time -> Channels.write_held(w, chans, Channels.held(t), time) end)
+
+    assert as_held == as_tuples
+
+    # the large tuples' terms all kept, their JSON once a second of their stamps
+    {:ok, read} = Reader.read_binary(as_held)
+    topics = Enum.frequencies(for m <- read.messages, do: read.channels[m.channel_id].topic)
+    assert topics["/etf/r1/lps"] == 25
+    assert topics["/r1/lps"] == 3
+    assert topics["/etf/r1/odom"] == 25
+    assert topics["/r1/odom"] == 25
+  end
+
+  test "held/1 keeps a large tuple's term, not the tuple" do
+    lps = {:lps, :r1, %{stamp: 1.5, bins: [1.0, 2.0]}}
+    assert {Channels, :big, :lps, :r1, 1_500_000_000, etf} = Channels.held(lps)
+    assert :erlang.binary_to_term(etf) == lps
+    odom = {:odom, :r1, %{stamp: 1.5}}
+    assert {Channels, ^odom, etf} = Channels.held(odom)
+    assert etf == :erlang.term_to_binary(odom)
+  end
+end
