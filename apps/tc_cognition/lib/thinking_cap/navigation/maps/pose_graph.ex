@@ -46,8 +46,8 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   building 5 their headings erred 1.4 to 2 times the spread they
   claimed, and its final graph, optimized again offline with their
   heading variance ten times larger, came 0.58 m off the truth instead
-  of 0.71. Explorations with 3 were better on both buildings' first
-  seed, but not yet measured further (README, the explore rows): the
+  of 0.71. Explorations with 3 were better in three runs of four on
+  buildings 5 and 21 and worse in one (README, the explore rows): the
   default stays 1.
 
   All poses are `{x, y, θ}` in the map's frame. Node ids count from 0;
