@@ -231,6 +231,36 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
     end
   end
 
+  describe "close_loop/2, the loop edge's heading" do
+    # round a room and back to the start, 5 cm off: a loop edge
+    defp loop_edge(opts) do
+      walls = room(8.0, 6.0)
+      {truth, _} = DriftingCircle.poses(21)
+
+      g =
+        truth
+        |> Enum.take(20)
+        |> Enum.reduce(PoseGraph.new([loop_gap: 15] ++ opts), fn pose, g ->
+          {_id, g} = PoseGraph.add_node(g, pose, nil, bin(seen(walls, pose)))
+          g
+        end)
+
+      {x, y, th} = t20 = Enum.at(truth, 20)
+      {id, g} = PoseGraph.add_node(g, {x + 0.05, y, th}, nil, bin(seen(walls, t20)))
+      {:closed, g, _, _} = PoseGraph.close_loop(g, id)
+      Enum.find(g.edges, &(&1.kind == :loop))
+    end
+
+    test "is trusted loop_heading_scale times less than its match says" do
+      %{info: {a1, _, _, d1, _, f1}} = loop_edge([])
+      %{info: {a3, _, _, d3, _, f3}} = loop_edge(loop_heading_scale: 3.0)
+      # the heading's information a ninth (σ three times), the place's about as it was
+      assert_in_delta f3 * 9 / f1, 1.0, 0.02
+      assert_in_delta a3 / a1, 1.0, 0.3
+      assert_in_delta d3 / d1, 1.0, 0.3
+    end
+  end
+
   describe "close_loop/2 in a corridor" do
     # down a long corridor and back: the way back drifted 0.12 m across
     # it and 0.3 m along it
