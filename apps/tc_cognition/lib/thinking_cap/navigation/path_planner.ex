@@ -123,6 +123,11 @@ defmodule ThinkingCap.Navigation.PathPlanner do
     unless is_integer(band_cost) and band_cost in 2..255,
       do: raise(ArgumentError, "band_cost: an integer from 2 to 255, got #{inspect(band_cost)}")
 
+    band = Keyword.get(opts, :band, 0.0)
+
+    unless is_number(band) and band >= 0,
+      do: raise(ArgumentError, "band: a number of metres >= 0, got #{inspect(band)}")
+
     struct!(
       __MODULE__,
       Keyword.take(opts, [

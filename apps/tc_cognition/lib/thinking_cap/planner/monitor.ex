@@ -641,14 +641,9 @@ defmodule ThinkingCap.Planner.Monitor do
   defp wary(%{wary: nil, source: :sensed} = state) do
     band = state.params[:wary_band]
 
-    if band > 0 do
-      radius = state.planner.radius - state.params[:margin]
-      planner = new_planner(state.params, radius, band, 255)
-      planner = if state.map, do: PathPlanner.set_map(planner, state.map), else: planner
-      %{state | planner: planner, wary: state.target}
-    else
-      state
-    end
+    if band > 0,
+      do: %{replanner(state, band, 255) | wary: state.target},
+      else: state
   end
 
   defp wary(state), do: state
@@ -657,11 +652,14 @@ defmodule ThinkingCap.Planner.Monitor do
   defp unwary(%{wary: nil} = state), do: state
   defp unwary(%{wary: target, target: target} = state), do: state
 
-  defp unwary(state) do
+  defp unwary(state),
+    do: %{replanner(state, state.params[:band], state.params[:band_cost]) | wary: nil}
+
+  # the state with a planner of this cost band on the map planned on
+  defp replanner(state, band, band_cost) do
     radius = state.planner.radius - state.params[:margin]
-    planner = new_planner(state.params, radius, state.params[:band], state.params[:band_cost])
-    planner = if state.map, do: PathPlanner.set_map(planner, state.map), else: planner
-    %{state | planner: planner, wary: nil}
+    planner = new_planner(state.params, radius, band, band_cost)
+    %{state | planner: if(state.map, do: PathPlanner.set_map(planner, state.map), else: planner)}
   end
 
   defp new_planner(params, radius, band, band_cost) do

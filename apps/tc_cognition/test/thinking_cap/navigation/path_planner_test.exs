@@ -71,6 +71,7 @@ defmodule ThinkingCap.Navigation.PathPlannerTest do
     assert cost.(banded, 0.3) == 1 and cost.(plain, 0.3) == 1
     assert cost.(plain, 0.38) == 0
     assert_raise ArgumentError, ~r/band_cost/, fn -> PathPlanner.new(band_cost: 300) end
+    assert_raise ArgumentError, ~r/band/, fn -> PathPlanner.new(band: -0.1) end
   end
 
   test "a box that appears on the path is planned around by repair, as A* from scratch would" do

@@ -13,6 +13,15 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
 
   defp wheels(<<145, right::16-signed, left::16-signed>>), do: {left, right}
 
+  # the driver opened on an emulated Create 2 at dir/create2, closed at exit
+  defp open_on_emulator(d, dir) do
+    link = Path.join(dir, "create2")
+    start_supervised!({ThinkingCap.Testing.Create2Emulator, link: link})
+    assert {:ok, state} = Create2.open(d, %{robot: :c, params: [device: link]})
+    on_exit(fn -> Create2.close(:normal, state) end)
+    {link, state}
+  end
+
   describe "encode_command/2" do
     test "velocities through the RDF's kinematics, in mm/s a wheel", %{description: d} do
       assert Create2.encode_command({:velocity, 0.2, 0.0}, d) == Protocol.drive_direct(200, 200)
@@ -59,10 +68,7 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
       description: d,
       tmp_dir: dir
     } do
-      link = Path.join(dir, "create2")
-      start_supervised!({ThinkingCap.Testing.Create2Emulator, link: link})
-      assert {:ok, state} = Create2.open(d, %{robot: :c, params: [device: link]})
-      on_exit(fn -> Create2.close(:normal, state) end)
+      {link, state} = open_on_emulator(d, dir)
 
       # the driver's UART reports to this process: a frame handed to the
       # driver 200 ms after it was read keeps the moment it was read
@@ -82,10 +88,7 @@ defmodule ThinkingCap.Robot.Create2DriverTest do
       description: d,
       tmp_dir: dir
     } do
-      link = Path.join(dir, "create2")
-      start_supervised!({ThinkingCap.Testing.Create2Emulator, link: link})
-      assert {:ok, state} = Create2.open(d, %{robot: :c, params: [device: link]})
-      on_exit(fn -> Create2.close(:normal, state) end)
+      {link, state} = open_on_emulator(d, dir)
 
       frame = fn counts ->
         Protocol.stream_frame(
