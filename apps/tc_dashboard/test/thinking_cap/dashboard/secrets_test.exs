@@ -91,6 +91,24 @@ defmodule ThinkingCap.Dashboard.SecretsTest do
     refute File.exists?(dir)
   end
 
+  test "a dashboard removes the runtime files a halted VM left", %{tmp_dir: base} do
+    # a process that has exited: its PID is free
+    port = Port.open({:spawn, "true"}, [:exit_status])
+    {:os_pid, dead} = Port.info(port, :os_pid)
+    assert_receive {^port, {:exit_status, 0}}
+
+    stale = Path.join(base, "thinkingcap-#{dead}-AbC_d-9")
+    live = Path.join(base, "thinkingcap-#{System.pid()}-XyZ")
+    other = Path.join(base, "thinkingcap-#{dead}-not.this")
+    for dir <- [stale, live, other], do: File.mkdir_p!(dir)
+    File.write!(Path.join(stale, "report.log"), "left")
+
+    assert RuntimeDir.sweep(base) == [stale]
+    refute File.exists?(stale)
+    assert File.dir?(live)
+    assert File.dir?(other)
+  end
+
   test "the token may come from a file its owner alone can read", %{tmp_dir: dir} do
     Dashboard.stop()
     file = Path.join(dir, "token")
