@@ -4,9 +4,10 @@ defmodule ThinkingCap.Bench.NavUnknown do
   @moduledoc """
   `mix tc.bench nav_unknown [--map PATH.yaml ...] [--runs N] [--seed S] [--trace]`:
   as `mix tc.bench nav` (the robot is given the map), but the true world
-  also holds 8 boxes the robot was not told about, three of them on the
-  shortest path from start to goal (one 0.4 to 0.7 m square at 30, 50 and
-  70 % of its length) and five elsewhere in free space, and a person
+  also holds 8 boxes the robot was not told about, up to three of them on
+  the shortest path from start to goal (one 0.4 to 0.7 m square at 30, 50
+  and 70 % of its length, where that is at least 1 m from the start and
+  the goal, as every box) and the rest elsewhere in free space, and a person
   walking back and forth across the path's middle (`ThinkingCap.Sim`'s
   walkers), seen by every sensor. The stack adds the map
   builder (`ThinkingCap.Navigation.Mapper`, seeded with the given map) and
@@ -40,8 +41,8 @@ defmodule ThinkingCap.Bench.NavUnknown do
   alias ThinkingCap.Robot.Description
   alias ThinkingCap.Sim
 
+  @boxes 8
   @boxes_on_path [0.3, 0.5, 0.7]
-  @boxes_elsewhere 5
 
   def run(args) do
     opts = NavRun.options(args, 20)
@@ -141,8 +142,9 @@ defmodule ThinkingCap.Bench.NavUnknown do
     end
   end
 
-  # three boxes on the path, five elsewhere: squares of 0.4 to 0.7 m, at
-  # least 1 m from the start and the goal
+  # eight boxes, squares of 0.4 to 0.7 m, at least 1 m from the start and
+  # the goal: one at each of 30, 50 and 70 % of the path's length that is
+  # that far, the rest elsewhere in free space
   defp boxes(grid, pair, rng) do
     path = List.to_tuple(pair.path)
     n = tuple_size(path)
@@ -156,15 +158,23 @@ defmodule ThinkingCap.Bench.NavUnknown do
         {if(far?.({x, y}), do: square({x, y}, size)), rng}
       end)
 
-    {elsewhere, rng} =
-      Enum.map_reduce(1..@boxes_elsewhere, rng, fn _, rng ->
-        {cell, rng} = NavRun.free_cell(grid, rng)
-        {size, rng} = size(rng)
-        centre = Grid.centre(grid, cell)
-        {if(far?.(centre), do: square(centre, size)), rng}
-      end)
+    on_path = Enum.reject(on_path, &is_nil/1)
+    elsewhere(grid, far?, @boxes - length(on_path), rng, on_path, 10_000)
+  end
 
-    {Enum.reject(on_path ++ elsewhere, &is_nil/1), rng}
+  defp elsewhere(_grid, _far?, 0, rng, boxes, _tries), do: {boxes, rng}
+
+  defp elsewhere(_grid, _far?, _left, _rng, _boxes, 0),
+    do: raise("nav_unknown: no free cell 1 m from both the start and the goal for a box")
+
+  defp elsewhere(grid, far?, left, rng, boxes, tries) do
+    {cell, rng} = NavRun.free_cell(grid, rng)
+    {size, rng} = size(rng)
+    centre = Grid.centre(grid, cell)
+
+    if far?.(centre),
+      do: elsewhere(grid, far?, left - 1, rng, boxes ++ [square(centre, size)], tries - 1),
+      else: elsewhere(grid, far?, left, rng, boxes, tries - 1)
   end
 
   defp size(rng) do
