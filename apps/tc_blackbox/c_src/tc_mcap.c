@@ -9,12 +9,14 @@
  * comes from files, so nothing in it may crash the VM or allocate more
  * than the size asked for.
  *
- * A chunk stream (chunk_new/2, chunk_add/2, chunk_finish/1) compresses a
- * chunk as its records come, a few KB at a time, and keeps the CRC-32 of
- * what it was given: the records never pile up on the writer's heap, are
- * never flattened into one big binary, and the writer does not go to a
- * dirty scheduler at each chunk. chunk_add runs on a normal scheduler
- * (the writer gives it tens of KB at most; it has a dirty twin for more).
+ * A chunk stream (chunk_new/2, chunk_add/2, chunk_finish/1) takes a chunk's
+ * records as they come, a few KB at a time, so that they never pile up on
+ * the writer's heap nor are flattened into one big binary. zstd keeps them
+ * in a plain buffer and compresses the chunk once, at its end, on a dirty
+ * scheduler (a few hundred KB: about a millisecond); lz4 compresses them
+ * as they come. The CRC-32 of the records is kept too. chunk_add runs on
+ * a normal scheduler (the writer gives it tens of KB at most; it has a
+ * dirty twin for more).
  */
 #include <erl_nif.h>
 #include <lz4frame.h>
@@ -156,15 +158,18 @@ static ERL_NIF_TERM nif_lz4_decompress(ErlNifEnv *env, int argc, const ERL_NIF_T
 
 enum { ALG_NONE = 0, ALG_ZSTD = 1, ALG_LZ4 = 2 };
 
-/* zstd's window for a stream: chunks are a few hundred KB; 128 KB keeps a
- * recorder's context under 1 MB, and a block (as long as the window)
- * compresses in well under a millisecond on a normal scheduler */
-#define STREAM_WINDOW_LOG 17
-
+/* A zstd chunk is kept whole in a plain buffer (`raw`, reused chunk after
+ * chunk) and compressed once, when it ends, on a dirty scheduler with
+ * that thread's context (zstd_cctx): a stream's own context (tables,
+ * window and buffers, near 1 MB) for each of a hundred recorders was
+ * evicted from the caches between their wake-ups, and its tables were
+ * sized for any input, not for the chunk. */
 typedef struct {
     ErlNifMutex *lock;
     int algorithm;
-    ZSTD_CCtx *zstd;
+    int level;
+    unsigned char *raw;  /* zstd: the chunk's bytes so far */
+    size_t raw_len, raw_cap;
     LZ4F_cctx *lz4;
     LZ4F_preferences_t lz4_prefs;
     int begun;           /* a frame begun (lz4: its header written) */
@@ -181,7 +186,7 @@ static void chunk_stream_free(ErlNifEnv *env, void *obj)
 {
     (void)env;
     chunk_stream *c = obj;
-    if (c->zstd) ZSTD_freeCCtx(c->zstd);
+    if (c->raw) enif_free(c->raw);
     if (c->lz4) LZ4F_freeCompressionContext(c->lz4);
     if (c->has_out) enif_release_binary(&c->out);
     if (c->lock) enif_mutex_destroy(c->lock);
@@ -220,21 +225,47 @@ static ERL_NIF_TERM nif_chunk_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     if (c == NULL) return raise(env, "chunk stream: no memory");
     memset(c, 0, sizeof(*c));
     c->algorithm = algorithm;
+    c->level = level;
     c->crc = crc32(0L, Z_NULL, 0);
     ERL_NIF_TERM term = enif_make_resource(env, c);
     enif_release_resource(c);
     if ((c->lock = enif_mutex_create("tc_mcap_chunk")) == NULL) return raise(env, "chunk stream: no memory");
-    if (algorithm == ALG_ZSTD) {
-        if ((c->zstd = ZSTD_createCCtx()) == NULL) return raise(env, "zstd: no memory");
-        if (ZSTD_isError(ZSTD_CCtx_setParameter(c->zstd, ZSTD_c_compressionLevel, level)) ||
-            ZSTD_isError(ZSTD_CCtx_setParameter(c->zstd, ZSTD_c_windowLog, STREAM_WINDOW_LOG)))
-            return raise(env, "zstd: bad parameters");
-    } else if (algorithm == ALG_LZ4) {
+    if (algorithm == ALG_LZ4) {
         if (LZ4F_isError(LZ4F_createCompressionContext(&c->lz4, LZ4F_VERSION)))
             return raise(env, "lz4: no memory");
         memset(&c->lz4_prefs, 0, sizeof(c->lz4_prefs));
     }
     return term;
+}
+
+/* zstd: `n` more bytes of the chunk, kept */
+static const char *keep_raw(chunk_stream *c, const unsigned char *data, size_t n)
+{
+    if (c->raw_len + n > c->raw_cap) {
+        size_t cap = c->raw_cap < 65536 ? 65536 : c->raw_cap * 2;
+        while (cap < c->raw_len + n) cap *= 2;
+        unsigned char *raw = enif_realloc(c->raw, cap);
+        if (raw == NULL) return "no memory";
+        c->raw = raw;
+        c->raw_cap = cap;
+    }
+    if (n > 0) memcpy(c->raw + c->raw_len, data, n);
+    c->raw_len += n;
+    return NULL;
+}
+
+/* zstd: the chunk compressed in one frame (its size in its header), with
+ * the calling thread's context; the chunk's buffer is kept for the next */
+static const char *zstd_end(chunk_stream *c)
+{
+    if (zstd_cctx == NULL && (zstd_cctx = ZSTD_createCCtx()) == NULL) return "zstd: no memory";
+    if (!reserve(c, ZSTD_compressBound(c->raw_len))) return "no memory";
+    size_t n = ZSTD_compressCCtx(zstd_cctx, c->out.data + c->out_len, c->out.size - c->out_len,
+                                 c->raw, c->raw_len, c->level);
+    if (ZSTD_isError(n)) return ZSTD_getErrorName(n);
+    c->out_len += n;
+    c->raw_len = 0;
+    return NULL;
 }
 
 /* compresses `n` bytes at `data` into the stream (end: and ends the frame) */
@@ -246,20 +277,7 @@ static const char *stream_in(chunk_stream *c, const unsigned char *data, size_t 
         c->out_len += n;
         return NULL;
     }
-    if (c->algorithm == ALG_ZSTD) {
-        ZSTD_inBuffer in = {data, n, 0};
-        for (;;) {
-            if (!reserve(c, ZSTD_CStreamOutSize())) return "no memory";
-            ZSTD_outBuffer out = {c->out.data, c->out.size, c->out_len};
-            size_t left = ZSTD_compressStream2(c->zstd, &out, &in, end ? ZSTD_e_end : ZSTD_e_continue);
-            c->out_len = out.pos;
-            if (ZSTD_isError(left)) {
-                ZSTD_CCtx_reset(c->zstd, ZSTD_reset_session_only);
-                return ZSTD_getErrorName(left);
-            }
-            if (end ? left == 0 : in.pos == in.size) return NULL;
-        }
-    }
+    if (c->algorithm == ALG_ZSTD) return end ? zstd_end(c) : keep_raw(c, data, n);
     /* lz4 */
     if (!c->begun) {
         if (!reserve(c, LZ4F_HEADER_SIZE_MAX)) return "no memory";
@@ -300,7 +318,8 @@ static ERL_NIF_TERM nif_chunk_add(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     if (!get_stream(env, argv[0], &c) || !enif_inspect_iolist_as_binary(env, argv[1], &in))
         return enif_make_badarg(env);
     enif_mutex_lock(c->lock);
-    c->crc = crc32(c->crc, in.data, (uInt)in.size);
+    /* zstd's CRC is taken at the chunk's end, with its compression */
+    if (c->algorithm != ALG_ZSTD) c->crc = crc32(c->crc, in.data, (uInt)in.size);
     c->size += in.size;
     const char *failed = stream_in(c, in.data, in.size, 0);
     enif_mutex_unlock(c->lock);
@@ -316,6 +335,7 @@ static ERL_NIF_TERM nif_chunk_finish(ErlNifEnv *env, int argc, const ERL_NIF_TER
     chunk_stream *c;
     if (!get_stream(env, argv[0], &c)) return enif_make_badarg(env);
     enif_mutex_lock(c->lock);
+    if (c->algorithm == ALG_ZSTD && c->raw_len > 0) c->crc = crc32(c->crc, c->raw, (uInt)c->raw_len);
     const char *failed = stream_in(c, NULL, 0, 1);
     if (failed) {
         enif_mutex_unlock(c->lock);
@@ -369,7 +389,7 @@ static ErlNifFunc funcs[] = {
     {"chunk_new", 2, nif_chunk_new, 0},
     {"chunk_add", 2, nif_chunk_add, 0},
     {"chunk_add_dirty", 2, nif_chunk_add, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"chunk_finish", 1, nif_chunk_finish, 0},
+    {"chunk_finish", 1, nif_chunk_finish, ERL_NIF_DIRTY_JOB_CPU_BOUND},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.MCAP.Compression, funcs, load, NULL, upgrade, NULL)
