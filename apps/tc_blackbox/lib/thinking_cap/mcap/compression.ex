@@ -5,8 +5,10 @@ defmodule ThinkingCap.MCAP.Compression do
   built by the app's `Mix.Tasks.Compile.TcMcap` into
   `priv/lib/tc_mcap.so`), and `""`, none.
 
-  Every call runs on a dirty CPU scheduler (a 1 MB chunk takes a few
-  milliseconds). Decompression is given the exact size the chunk says it
+  A whole buffer's compression and decompression, and a chunk stream's
+  end, run on a dirty CPU scheduler (a 1 MB chunk takes a few
+  milliseconds); a chunk stream takes its records on a normal one.
+  Decompression is given the exact size the chunk says it
   holds and never makes more: a corrupt or lying input gives
   `{:error, reason}`.
   """
