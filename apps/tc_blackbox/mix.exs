@@ -3,23 +3,39 @@ Code.require_file("../../mix/c_build.exs", __DIR__)
 defmodule Mix.Tasks.Compile.TcMcap do
   @moduledoc false
   # Builds the MCAP compression NIF (c_src/tc_mcap.c -> priv/lib/tc_mcap.so),
-  # linked to Debian's libzstd, liblz4 and zlib (its CRC-32).
+  # linked to Debian's libzstd, liblz4 and zlib (its CRC-32), and the
+  # recorder's JSON NIF (c_src/tc_json.c -> priv/lib/tc_json.so).
   use Mix.Task.Compiler
 
   # run inside the app's project (cwd), not the umbrella's
   @recursive true
   @target "priv/lib/tc_mcap.so"
+  # the recorder's JSON in C (c_src/tc_json.c)
+  @json_target "priv/lib/tc_json.so"
 
   @impl true
   def run(_args) do
-    ThinkingCap.Build.C.compile("tc_mcap", __DIR__, ["c_src/tc_mcap.c"], @target,
-      nif: true,
-      ldflags: ["-lzstd", "-llz4", "-lz"]
-    )
+    with {status, _} = result when status != :error <-
+           ThinkingCap.Build.C.compile("tc_mcap", __DIR__, ["c_src/tc_mcap.c"], @target,
+             nif: true,
+             ldflags: ["-lzstd", "-llz4", "-lz"]
+           ),
+         {json, _} when json != :error <-
+           ThinkingCap.Build.C.compile("tc_json", __DIR__, ["c_src/tc_json.c"], @json_target,
+             nif: true,
+             ldflags: ["-lm"]
+           ) do
+      if status == :ok or json == :ok, do: {:ok, []}, else: result
+    else
+      error -> error
+    end
   end
 
   @impl true
-  def clean, do: File.rm(Path.join(__DIR__, @target))
+  def clean do
+    File.rm(Path.join(__DIR__, @target))
+    File.rm(Path.join(__DIR__, @json_target))
+  end
 end
 
 defmodule ThinkingCap.BlackBox.MixProject do

@@ -9,15 +9,19 @@
  * comes from files, so nothing in it may crash the VM or allocate more
  * than the size asked for.
  *
- * A chunk stream (chunk_new/2, chunk_add/2, chunk_finish/1) compresses a
- * chunk as its records come, a few KB at a time, and keeps the CRC-32 of
- * what it was given: the records never pile up on the writer's heap, are
- * never flattened into one big binary, and the writer does not go to a
- * dirty scheduler at each chunk. chunk_add runs on a normal scheduler
- * (the writer gives it tens of KB at most; it has a dirty twin for more).
+ * A chunk stream (chunk_new/2, chunk_add/2, chunk_message/6,
+ * chunk_finish/1) takes a chunk's records as they come and keeps them in
+ * a plain buffer, off the writer's heap; it writes the Message records
+ * itself (header, sequence, index entry) and compresses the chunk once,
+ * at its end, on a dirty scheduler (a few hundred KB: about a
+ * millisecond), with its CRC-32 and its Message Index records. chunk_add
+ * and chunk_message run on a normal scheduler (the writer gives them tens
+ * of KB at most; each has a dirty twin for more).
  */
 #include <erl_nif.h>
 #include <lz4frame.h>
+#include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 #include <zlib.h>
 #include <zstd.h>
@@ -156,23 +160,31 @@ static ERL_NIF_TERM nif_lz4_decompress(ErlNifEnv *env, int argc, const ERL_NIF_T
 
 enum { ALG_NONE = 0, ALG_ZSTD = 1, ALG_LZ4 = 2 };
 
-/* zstd's window for a stream: chunks are a few hundred KB; 128 KB keeps a
- * recorder's context under 1 MB, and a block (as long as the window)
- * compresses in well under a millisecond on a normal scheduler */
-#define STREAM_WINDOW_LOG 17
+/* A chunk's records are kept whole in a plain buffer (`raw`, reused chunk
+ * after chunk), off the writer's heap, and compressed once, when the
+ * chunk ends, on a dirty scheduler: zstd with that thread's context
+ * (zstd_cctx). A stream's own zstd context (tables, window and buffers,
+ * near 1 MB) for each of a hundred recorders was evicted from the caches
+ * between their wake-ups. Message records are written here whole
+ * (chunk_message/6): their header, their sequence (per channel, when not
+ * given) and their entry in the chunk's message indexes, which
+ * chunk_finish/1 writes. */
+typedef struct {
+    ErlNifUInt64 time, offset;
+    unsigned channel;
+} index_entry;
 
 typedef struct {
     ErlNifMutex *lock;
     int algorithm;
-    ZSTD_CCtx *zstd;
-    LZ4F_cctx *lz4;
-    LZ4F_preferences_t lz4_prefs;
-    int begun;           /* a frame begun (lz4: its header written) */
-    ErlNifBinary out;    /* the compressed chunk so far */
-    int has_out;
-    size_t out_len;
-    unsigned long crc;   /* of the uncompressed records */
-    ErlNifUInt64 size;   /* uncompressed bytes given */
+    int level;
+    unsigned char *raw;      /* the chunk's records so far */
+    size_t raw_len, raw_cap;
+    index_entry *index;      /* the chunk's messages */
+    size_t index_len, index_cap;
+    ErlNifUInt64 start, end; /* their log times' span */
+    uint32_t *sequence;  /* the last sequence by channel (the file's) */
+    size_t sequence_cap;
 } chunk_stream;
 
 static ErlNifResourceType *CHUNK_STREAM;
@@ -181,31 +193,41 @@ static void chunk_stream_free(ErlNifEnv *env, void *obj)
 {
     (void)env;
     chunk_stream *c = obj;
-    if (c->zstd) ZSTD_freeCCtx(c->zstd);
-    if (c->lz4) LZ4F_freeCompressionContext(c->lz4);
-    if (c->has_out) enif_release_binary(&c->out);
+    if (c->raw) enif_free(c->raw);
+    if (c->index) enif_free(c->index);
+    if (c->sequence) enif_free(c->sequence);
     if (c->lock) enif_mutex_destroy(c->lock);
-}
-
-/* room for `more` bytes after out_len */
-static int reserve(chunk_stream *c, size_t more)
-{
-    size_t want = c->out_len + more;
-    if (!c->has_out) {
-        size_t cap = want < 65536 ? 65536 : want;
-        if (!enif_alloc_binary(cap, &c->out)) return 0;
-        c->has_out = 1;
-        return 1;
-    }
-    if (want <= c->out.size) return 1;
-    size_t cap = c->out.size * 2;
-    if (cap < want) cap = want;
-    return enif_realloc_binary(&c->out, cap);
 }
 
 static ERL_NIF_TERM raise(ErlNifEnv *env, const char *what)
 {
     return enif_raise_exception(env, enif_make_string(env, what, ERL_NIF_LATIN1));
+}
+
+/* room for `more` bytes in the chunk's buffer */
+static int raw_room(chunk_stream *c, size_t more)
+{
+    if (c->raw_len + more <= c->raw_cap) return 1;
+    size_t cap = c->raw_cap < 65536 ? 65536 : c->raw_cap * 2;
+    while (cap < c->raw_len + more) cap *= 2;
+    unsigned char *raw = enif_realloc(c->raw, cap);
+    if (raw == NULL) return 0;
+    c->raw = raw;
+    c->raw_cap = cap;
+    return 1;
+}
+
+static int keep_raw(chunk_stream *c, const unsigned char *data, size_t n)
+{
+    if (!raw_room(c, n)) return 0;
+    if (n > 0) memcpy(c->raw + c->raw_len, data, n);
+    c->raw_len += n;
+    return 1;
+}
+
+static void put_le(unsigned char *p, ErlNifUInt64 v, int bytes)
+{
+    for (int i = 0; i < bytes; i++) p[i] = (unsigned char)(v >> (8 * i));
 }
 
 /* chunk_new(Algorithm, Level) -> Stream; Algorithm 0 none, 1 zstd, 2 lz4 */
@@ -220,70 +242,11 @@ static ERL_NIF_TERM nif_chunk_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     if (c == NULL) return raise(env, "chunk stream: no memory");
     memset(c, 0, sizeof(*c));
     c->algorithm = algorithm;
-    c->crc = crc32(0L, Z_NULL, 0);
+    c->level = level;
     ERL_NIF_TERM term = enif_make_resource(env, c);
     enif_release_resource(c);
     if ((c->lock = enif_mutex_create("tc_mcap_chunk")) == NULL) return raise(env, "chunk stream: no memory");
-    if (algorithm == ALG_ZSTD) {
-        if ((c->zstd = ZSTD_createCCtx()) == NULL) return raise(env, "zstd: no memory");
-        if (ZSTD_isError(ZSTD_CCtx_setParameter(c->zstd, ZSTD_c_compressionLevel, level)) ||
-            ZSTD_isError(ZSTD_CCtx_setParameter(c->zstd, ZSTD_c_windowLog, STREAM_WINDOW_LOG)))
-            return raise(env, "zstd: bad parameters");
-    } else if (algorithm == ALG_LZ4) {
-        if (LZ4F_isError(LZ4F_createCompressionContext(&c->lz4, LZ4F_VERSION)))
-            return raise(env, "lz4: no memory");
-        memset(&c->lz4_prefs, 0, sizeof(c->lz4_prefs));
-    }
     return term;
-}
-
-/* compresses `n` bytes at `data` into the stream (end: and ends the frame) */
-static const char *stream_in(chunk_stream *c, const unsigned char *data, size_t n, int end)
-{
-    if (c->algorithm == ALG_NONE) {
-        if (!reserve(c, n)) return "no memory";
-        memcpy(c->out.data + c->out_len, data, n);
-        c->out_len += n;
-        return NULL;
-    }
-    if (c->algorithm == ALG_ZSTD) {
-        ZSTD_inBuffer in = {data, n, 0};
-        for (;;) {
-            if (!reserve(c, ZSTD_CStreamOutSize())) return "no memory";
-            ZSTD_outBuffer out = {c->out.data, c->out.size, c->out_len};
-            size_t left = ZSTD_compressStream2(c->zstd, &out, &in, end ? ZSTD_e_end : ZSTD_e_continue);
-            c->out_len = out.pos;
-            if (ZSTD_isError(left)) {
-                ZSTD_CCtx_reset(c->zstd, ZSTD_reset_session_only);
-                return ZSTD_getErrorName(left);
-            }
-            if (end ? left == 0 : in.pos == in.size) return NULL;
-        }
-    }
-    /* lz4 */
-    if (!c->begun) {
-        if (!reserve(c, LZ4F_HEADER_SIZE_MAX)) return "no memory";
-        size_t h = LZ4F_compressBegin(c->lz4, c->out.data + c->out_len, c->out.size - c->out_len,
-                                      &c->lz4_prefs);
-        if (LZ4F_isError(h)) return LZ4F_getErrorName(h);
-        c->out_len += h;
-        c->begun = 1;
-    }
-    if (n > 0) {
-        if (!reserve(c, LZ4F_compressBound(n, &c->lz4_prefs))) return "no memory";
-        size_t k = LZ4F_compressUpdate(c->lz4, c->out.data + c->out_len, c->out.size - c->out_len,
-                                       data, n, NULL);
-        if (LZ4F_isError(k)) return LZ4F_getErrorName(k);
-        c->out_len += k;
-    }
-    if (end) {
-        if (!reserve(c, LZ4F_compressBound(0, &c->lz4_prefs))) return "no memory";
-        size_t k = LZ4F_compressEnd(c->lz4, c->out.data + c->out_len, c->out.size - c->out_len, NULL);
-        if (LZ4F_isError(k)) return LZ4F_getErrorName(k);
-        c->out_len += k;
-        c->begun = 0;
-    }
-    return NULL;
 }
 
 static int get_stream(ErlNifEnv *env, ERL_NIF_TERM t, chunk_stream **c)
@@ -291,7 +254,7 @@ static int get_stream(ErlNifEnv *env, ERL_NIF_TERM t, chunk_stream **c)
     return enif_get_resource(env, t, CHUNK_STREAM, (void **)c);
 }
 
-/* chunk_add(Stream, IoData) -> ok */
+/* chunk_add(Stream, IoData) -> ok: records, as they are */
 static ERL_NIF_TERM nif_chunk_add(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
@@ -300,45 +263,190 @@ static ERL_NIF_TERM nif_chunk_add(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     if (!get_stream(env, argv[0], &c) || !enif_inspect_iolist_as_binary(env, argv[1], &in))
         return enif_make_badarg(env);
     enif_mutex_lock(c->lock);
-    c->crc = crc32(c->crc, in.data, (uInt)in.size);
-    c->size += in.size;
-    const char *failed = stream_in(c, in.data, in.size, 0);
+    int ok = keep_raw(c, in.data, in.size);
     enif_mutex_unlock(c->lock);
-    if (failed) return raise(env, failed);
+    if (!ok) return raise(env, "no memory");
     return enif_make_atom(env, "ok");
 }
 
-/* chunk_finish(Stream) -> {Compressed, Crc32, UncompressedSize}; the
- * stream is then empty, ready for the next chunk */
+/* chunk_message(Stream, Channel, Sequence, LogTime, PublishTime, Data) ->
+ * ChunkSize: a Message record, its sequence the channel's next when
+ * Sequence is -1; answers the chunk's size so far */
+static ERL_NIF_TERM nif_chunk_message(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    chunk_stream *c;
+    unsigned channel;
+    ErlNifSInt64 sequence;
+    ErlNifUInt64 log_time, publish_time;
+    ErlNifBinary data;
+    if (!get_stream(env, argv[0], &c) || !enif_get_uint(env, argv[1], &channel) || channel > 65535 ||
+        !enif_get_int64(env, argv[2], &sequence) || sequence < -1 || sequence > 0xFFFFFFFFLL ||
+        !enif_get_uint64(env, argv[3], &log_time) || !enif_get_uint64(env, argv[4], &publish_time))
+        return enif_make_badarg(env);
+    if (!(enif_is_binary(env, argv[5]) ? enif_inspect_binary(env, argv[5], &data)
+                                       : enif_inspect_iolist_as_binary(env, argv[5], &data)))
+        return enif_make_badarg(env);
+
+    enif_mutex_lock(c->lock);
+    const char *failed = NULL;
+    if (sequence < 0) {
+        if (channel >= c->sequence_cap) {
+            size_t cap = c->sequence_cap ? c->sequence_cap : 64;
+            while (cap <= channel) cap *= 2;
+            uint32_t *seq = enif_realloc(c->sequence, cap * sizeof(*seq));
+            if (seq == NULL) failed = "no memory";
+            else {
+                memset(seq + c->sequence_cap, 0, (cap - c->sequence_cap) * sizeof(*seq));
+                c->sequence = seq;
+                c->sequence_cap = cap;
+            }
+        }
+        if (!failed) sequence = ++c->sequence[channel];
+    }
+    if (!failed && c->index_len == c->index_cap) {
+        size_t cap = c->index_cap ? c->index_cap * 2 : 512;
+        index_entry *index = enif_realloc(c->index, cap * sizeof(*index));
+        if (index == NULL) failed = "no memory";
+        else {
+            c->index = index;
+            c->index_cap = cap;
+        }
+    }
+    if (!failed && !raw_room(c, 31 + data.size)) failed = "no memory";
+    if (failed) {
+        enif_mutex_unlock(c->lock);
+        return raise(env, failed);
+    }
+    index_entry *e = &c->index[c->index_len++];
+    e->channel = channel;
+    e->time = log_time;
+    e->offset = c->raw_len;
+    if (c->index_len == 1 || log_time < c->start) c->start = log_time;
+    if (c->index_len == 1 || log_time > c->end) c->end = log_time;
+    /* opcode, length, channel, sequence, log time, publish time, data */
+    unsigned char *p = c->raw + c->raw_len;
+    p[0] = 0x05;
+    put_le(p + 1, 22 + (ErlNifUInt64)data.size, 8);
+    put_le(p + 9, channel, 2);
+    put_le(p + 11, (ErlNifUInt64)sequence, 4);
+    put_le(p + 15, log_time, 8);
+    put_le(p + 23, publish_time, 8);
+    if (data.size) memcpy(p + 31, data.data, data.size);
+    c->raw_len += 31 + data.size;
+    ErlNifUInt64 size = c->raw_len;
+    enif_mutex_unlock(c->lock);
+    return enif_make_uint64(env, size);
+}
+
+/* chunk_size(Stream) -> {Bytes, Messages}: the open chunk's */
+static ERL_NIF_TERM nif_chunk_size(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    chunk_stream *c;
+    if (!get_stream(env, argv[0], &c)) return enif_make_badarg(env);
+    enif_mutex_lock(c->lock);
+    ERL_NIF_TERM r = enif_make_tuple2(env, enif_make_uint64(env, c->raw_len), enif_make_uint64(env, c->index_len));
+    enif_mutex_unlock(c->lock);
+    return r;
+}
+
+static int by_channel_time(const void *a, const void *b)
+{
+    const index_entry *x = a, *y = b;
+    if (x->channel != y->channel) return x->channel < y->channel ? -1 : 1;
+    if (x->time != y->time) return x->time < y->time ? -1 : 1;
+    return x->offset < y->offset ? -1 : (x->offset > y->offset);
+}
+
+/* the chunk's records compressed into `out` (allocated here) */
+static const char *compress_raw(chunk_stream *c, ErlNifBinary *out)
+{
+    size_t n;
+    if (c->algorithm == ALG_ZSTD) {
+        if (zstd_cctx == NULL && (zstd_cctx = ZSTD_createCCtx()) == NULL) return "zstd: no memory";
+        if (!enif_alloc_binary(ZSTD_compressBound(c->raw_len), out)) return "no memory";
+        n = ZSTD_compressCCtx(zstd_cctx, out->data, out->size, c->raw, c->raw_len, c->level);
+        if (ZSTD_isError(n)) {
+            enif_release_binary(out);
+            return ZSTD_getErrorName(n);
+        }
+    } else if (c->algorithm == ALG_LZ4) {
+        LZ4F_preferences_t prefs;
+        memset(&prefs, 0, sizeof(prefs));
+        if (!enif_alloc_binary(LZ4F_compressFrameBound(c->raw_len, &prefs), out)) return "no memory";
+        n = LZ4F_compressFrame(out->data, out->size, c->raw, c->raw_len, &prefs);
+        if (LZ4F_isError(n)) {
+            enif_release_binary(out);
+            return LZ4F_getErrorName(n);
+        }
+    } else {
+        if (!enif_alloc_binary(c->raw_len, out)) return "no memory";
+        if (c->raw_len) memcpy(out->data, c->raw, c->raw_len);
+        n = c->raw_len;
+    }
+    if (!enif_realloc_binary(out, n)) {
+        enif_release_binary(out);
+        return "no memory";
+    }
+    return NULL;
+}
+
+/* chunk_finish(Stream) -> {Compressed, Crc32, UncompressedSize, StartTime,
+ * EndTime, MessageIndexes, [{Channel, Count, IndexOffset}]}: the chunk,
+ * and its Message Index records (one per channel, by channel, entries in
+ * log time order), IndexOffset where each begins in MessageIndexes. The
+ * stream is then empty, ready for the next chunk (sequences go on). */
 static ERL_NIF_TERM nif_chunk_finish(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
     chunk_stream *c;
     if (!get_stream(env, argv[0], &c)) return enif_make_badarg(env);
     enif_mutex_lock(c->lock);
-    const char *failed = stream_in(c, NULL, 0, 1);
+    ErlNifBinary out;
+    const char *failed = compress_raw(c, &out);
     if (failed) {
         enif_mutex_unlock(c->lock);
         return raise(env, failed);
     }
-    ERL_NIF_TERM bin;
-    if (c->has_out) {
-        if (!enif_realloc_binary(&c->out, c->out_len)) {
-            enif_mutex_unlock(c->lock);
-            return raise(env, "no memory");
+    unsigned long crc = crc32(0L, Z_NULL, 0);
+    if (c->raw_len) crc = crc32(crc, c->raw, (uInt)c->raw_len);
+
+    /* the message indexes: 15 bytes a channel, 16 an entry */
+    qsort(c->index, c->index_len, sizeof(index_entry), by_channel_time);
+    size_t channels = 0;
+    for (size_t i = 0; i < c->index_len; i++)
+        if (i == 0 || c->index[i].channel != c->index[i - 1].channel) channels++;
+    ERL_NIF_TERM indexes, list = enif_make_list(env, 0);
+    unsigned char *p = enif_make_new_binary(env, channels * 15 + c->index_len * 16, &indexes);
+    ERL_NIF_TERM *groups = enif_alloc(sizeof(ERL_NIF_TERM) * (channels ? channels : 1));
+    size_t at = 0, g = 0;
+    for (size_t i = 0; i < c->index_len;) {
+        size_t j = i;
+        while (j < c->index_len && c->index[j].channel == c->index[i].channel) j++;
+        size_t k = j - i;
+        groups[g++] = enif_make_tuple3(env, enif_make_uint(env, c->index[i].channel),
+                                       enif_make_uint64(env, k), enif_make_uint64(env, at));
+        p[at] = 0x07;
+        put_le(p + at + 1, 6 + 16 * (ErlNifUInt64)k, 8);
+        put_le(p + at + 9, c->index[i].channel, 2);
+        put_le(p + at + 11, 16 * (ErlNifUInt64)k, 4);
+        at += 15;
+        for (; i < j; i++) {
+            put_le(p + at, c->index[i].time, 8);
+            put_le(p + at + 8, c->index[i].offset, 8);
+            at += 16;
         }
-        bin = enif_make_binary(env, &c->out);
-        c->has_out = 0;
-    } else {
-        enif_make_new_binary(env, 0, &bin);
     }
-    ERL_NIF_TERM result =
-        enif_make_tuple3(env, bin, enif_make_uint(env, (unsigned)c->crc), enif_make_uint64(env, c->size));
-    c->out_len = 0;
-    c->crc = crc32(0L, Z_NULL, 0);
-    c->size = 0;
+    list = enif_make_list_from_array(env, groups, (unsigned)g);
+    enif_free(groups);
+    ERL_NIF_TERM items[7] = {enif_make_binary(env, &out), enif_make_uint(env, (unsigned)crc),
+                             enif_make_uint64(env, c->raw_len), enif_make_uint64(env, c->index_len ? c->start : 0),
+                             enif_make_uint64(env, c->index_len ? c->end : 0), indexes, list};
+    c->raw_len = 0;
+    c->index_len = 0;
     enif_mutex_unlock(c->lock);
-    return result;
+    return enif_make_tuple_from_array(env, items, 7);
 }
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
@@ -369,7 +477,10 @@ static ErlNifFunc funcs[] = {
     {"chunk_new", 2, nif_chunk_new, 0},
     {"chunk_add", 2, nif_chunk_add, 0},
     {"chunk_add_dirty", 2, nif_chunk_add, ERL_NIF_DIRTY_JOB_CPU_BOUND},
-    {"chunk_finish", 1, nif_chunk_finish, 0},
+    {"chunk_message", 6, nif_chunk_message, 0},
+    {"chunk_message_dirty", 6, nif_chunk_message, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"chunk_size", 1, nif_chunk_size, 0},
+    {"chunk_finish", 1, nif_chunk_finish, ERL_NIF_DIRTY_JOB_CPU_BOUND},
 };
 
 ERL_NIF_INIT(Elixir.ThinkingCap.MCAP.Compression, funcs, load, NULL, upgrade, NULL)

@@ -101,14 +101,72 @@ defmodule ThinkingCap.MCAPTest do
               do: :ok = Compression.add(stream, piece, IO.iodata_length(piece))
 
           data = IO.iodata_to_binary(pieces)
-          {compressed, crc, size} = Compression.finish(stream)
+          %{compressed: compressed, crc: crc, size: size} = Compression.finish(stream)
           assert size == byte_size(data) and crc == :erlang.crc32(data)
           assert {:ok, ^data} = Compression.decompress(algorithm, compressed, size)
         end
 
         # a chunk with nothing in it
-        {compressed, crc, 0} = Compression.finish(stream)
+        %{compressed: compressed, crc: crc, size: 0} = Compression.finish(stream)
         assert crc == 0 and {:ok, ""} == Compression.decompress(algorithm, compressed, 0)
+      end
+    end
+
+    test "a chunk stream makes message records, their sequences and message indexes" do
+      for algorithm <- @algorithms do
+        stream = Compression.stream(algorithm)
+        head = "a schema record, as given"
+        :ok = Compression.add(stream, head, byte_size(head))
+        t = 1_800_000_000_000_000_000
+        # channel, sequence, log time, publish time, data (log times out of order)
+        sent = [
+          {3, :next, t + 20, 5, "json"},
+          {1, :next, t + 10, 6, ["{", "iodata", ?}]},
+          {3, 77, t + 5, 7, "etf"},
+          {3, :next, t + 30, 8, :binary.copy("x", 70_000)}
+        ]
+
+        sizes = for {c, s, l, p, d} <- sent, do: Compression.message(stream, c, s, l, p, d)
+        assert Compression.size(stream) == {List.last(sizes), 4}
+
+        chunk = Compression.finish(stream)
+        {:ok, records} = Compression.decompress(algorithm, chunk.compressed, chunk.size)
+        assert chunk.crc == :erlang.crc32(records) and byte_size(records) == List.last(sizes)
+        assert {chunk.start_time, chunk.end_time} == {t + 5, t + 30}
+
+        # the records: the head, then each message with its offset
+        <<^head::binary-size(byte_size(head)), rest::binary>> = records
+        {messages, ""} = read_messages(rest, byte_size(head), [])
+
+        assert Enum.map(messages, fn {_at, m} -> m end) == [
+                 {3, 1, t + 20, 5, "json"},
+                 {1, 1, t + 10, 6, "{iodata}"},
+                 {3, 77, t + 5, 7, "etf"},
+                 {3, 2, t + 30, 8, :binary.copy("x", 70_000)}
+               ]
+
+        [at1, at2, at3, at4] = Enum.map(messages, &elem(&1, 0))
+
+        # one Message Index a channel, by channel, entries by log time
+        index3 =
+          <<3::little-16, 48::little-32, t + 5::little-64, at3::little-64, t + 20::little-64,
+            at1::little-64, t + 30::little-64, at4::little-64>>
+
+        index1 = <<1::little-16, 16::little-32, t + 10::little-64, at2::little-64>>
+
+        assert chunk.indexes ==
+                 <<7, byte_size(index1)::little-64, index1::binary, 7,
+                   byte_size(index3)::little-64, index3::binary>>
+
+        assert chunk.channels == [{1, 1, 0}, {3, 3, 9 + byte_size(index1)}]
+
+        # the next chunk: sequences go on, the rest starts again
+        Compression.message(stream, 1, :next, t, t, "")
+        assert %{size: 31, channels: [{1, 1, 0}]} = Compression.finish(stream)
+        Compression.message(stream, 1, :next, t, t, "again")
+        chunk = Compression.finish(stream)
+        {:ok, records} = Compression.decompress(algorithm, chunk.compressed, chunk.size)
+        assert {[{0, {1, 3, ^t, ^t, "again"}}], ""} = read_messages(records, 0, [])
       end
     end
 
@@ -273,4 +331,14 @@ defmodule ThinkingCap.MCAPTest do
           :binary.copy(<<0xFF>>, n) <> binary_part(bin, at + n, size - at - n)
     end
   end
+
+  # Message records: [{offset, {channel, sequence, log_time, publish_time, data}}]
+  defp read_messages(<<5, len::little-64, body::binary-size(len), rest::binary>>, at, acc) do
+    <<channel::little-16, sequence::little-32, log::little-64, publish::little-64, data::binary>> =
+      body
+
+    read_messages(rest, at + 9 + len, [{at, {channel, sequence, log, publish, data}} | acc])
+  end
+
+  defp read_messages(rest, _at, acc), do: {Enum.reverse(acc), rest}
 end

@@ -70,8 +70,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Cost
 
-  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass)
-  and two record headers; per traced callback, a small term. The
+  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass;
+  the payloads and a scan's ranges in C, `Core.JSON.Native`, into one
+  binary) and two records; per traced callback, a small term. The
   tuple's `term_to_binary/1` is made by its writer, in place of the
   copy it makes of the tuple for the recorder's list
   (`Core.Channels.held/1`, the subscription's `hold:`): the recorder
@@ -79,10 +80,11 @@ defmodule ThinkingCap.BlackBox.Recorder do
   tuple out of the blackboard's table, and decodes it only for its
   Foxglove message, once a second. The tuples and callbacks come in lists, so that the
   recorder is woken once a list rather than once a tuple, and are
-  written 32 at a time (or at the chunk's end). The writer compresses
-  the chunk as its records come (`ThinkingCap.MCAP.Compression.stream/1`),
-  so that they are not kept on the heap; the file gets one write per
-  chunk. The process's heap stays small enough (46,422 words) that the
+  written 32 at a time (or at the chunk's end). The writer's chunk
+  stream (`ThinkingCap.MCAP.Compression.stream/1`) makes each message's
+  record and index entry in C and keeps the chunk there, off the heap,
+  until it closes and is compressed, on a dirty scheduler; the file gets
+  one write per chunk. The process's heap stays small enough (46,422 words) that the
   VM collects it where it runs, not on a dirty scheduler. The
   subscription drops tuples when 1000
   are held for the recorder; `info/1` counts them.

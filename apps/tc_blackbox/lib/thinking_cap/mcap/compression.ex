@@ -5,8 +5,10 @@ defmodule ThinkingCap.MCAP.Compression do
   built by the app's `Mix.Tasks.Compile.TcMcap` into
   `priv/lib/tc_mcap.so`), and `""`, none.
 
-  Every call runs on a dirty CPU scheduler (a 1 MB chunk takes a few
-  milliseconds). Decompression is given the exact size the chunk says it
+  A whole buffer's compression and decompression, and a chunk stream's
+  end, run on a dirty CPU scheduler (a 1 MB chunk takes a few
+  milliseconds); a chunk stream takes its records on a normal one.
+  Decompression is given the exact size the chunk says it
   holds and never makes more: a corrupt or lying input gives
   `{:error, reason}`.
   """
@@ -60,27 +62,82 @@ defmodule ThinkingCap.MCAP.Compression do
   @normal_max 65_536
 
   @doc """
-  A stream that compresses a chunk as its records come (`add/3`), in
-  pieces of a few KB, and keeps the CRC-32 of what it was given; `finish/1`
-  ends the chunk. The records need not be kept until the chunk closes,
-  and no call takes long.
+  A stream that takes a chunk's records as they come (`add/3`,
+  `message/6`) and keeps them off the heap, in C; `finish/1` compresses
+  the chunk, once, and ends it. The records need not be kept until the
+  chunk closes, and no call on a normal scheduler takes long.
   """
   @spec stream(algorithm()) :: stream()
   def stream(""), do: chunk_new(0, @zstd_level)
   def stream("zstd"), do: chunk_new(1, @zstd_level)
   def stream("lz4"), do: chunk_new(2, @zstd_level)
 
-  @doc "Adds `data` (`size` bytes) to the chunk being compressed."
+  @doc "Adds records, `data` (`size` bytes), to the chunk."
   @spec add(stream(), iodata(), non_neg_integer()) :: :ok
   def add(stream, data, size) when size <= @normal_max, do: chunk_add(stream, data)
   def add(stream, data, _size), do: chunk_add_dirty(stream, data)
 
   @doc """
-  Ends the chunk: its compressed bytes, the CRC-32 and the size of what
-  was added. The stream is then empty, for the next chunk.
+  Adds a Message record to the chunk: its header made here, its sequence
+  `sequence`, or with `:next` the channel's next (1, 2, ... in the
+  stream), and its entry in the chunk's message indexes. Returns the
+  chunk's size so far (uncompressed).
   """
-  @spec finish(stream()) :: {binary(), non_neg_integer(), non_neg_integer()}
-  def finish(stream), do: chunk_finish(stream)
+  @spec message(
+          stream(),
+          non_neg_integer(),
+          non_neg_integer() | :next,
+          non_neg_integer(),
+          non_neg_integer(),
+          iodata()
+        ) :: non_neg_integer()
+  def message(stream, channel, sequence, log_time, publish_time, data) do
+    sequence = if sequence == :next, do: -1, else: sequence
+
+    if is_binary(data) and byte_size(data) > @normal_max,
+      do: chunk_message_dirty(stream, channel, sequence, log_time, publish_time, data),
+      else: chunk_message(stream, channel, sequence, log_time, publish_time, data)
+  end
+
+  @doc "The open chunk's size (uncompressed) and its messages."
+  @spec size(stream()) :: {non_neg_integer(), non_neg_integer()}
+  def size(stream), do: chunk_size(stream)
+
+  @typedoc """
+  An ended chunk: its compressed bytes, the CRC-32 and size of its
+  records, its messages' first and last log times (0 when none), its
+  Message Index records (one per channel, by channel, entries in log
+  time order) and, by channel, its messages and where its Message Index
+  begins in them.
+  """
+  @type chunk :: %{
+          compressed: binary(),
+          crc: non_neg_integer(),
+          size: non_neg_integer(),
+          start_time: non_neg_integer(),
+          end_time: non_neg_integer(),
+          indexes: binary(),
+          channels: [{non_neg_integer(), pos_integer(), non_neg_integer()}]
+        }
+
+  @doc """
+  Ends the chunk (compresses it, on a dirty scheduler). The stream is
+  then empty, for the next chunk; the channels' sequences go on.
+  """
+  @spec finish(stream()) :: chunk()
+  def finish(stream) do
+    {compressed, crc, size, start_time, end_time, indexes, channels} = chunk_finish(stream)
+
+    %{
+      compressed: compressed,
+      crc: crc,
+      size: size,
+      start_time: start_time,
+      end_time: end_time,
+      indexes: indexes,
+      channels: channels
+    }
+  end
 
   # the NIF's functions (exported: a NIF replaces them)
   @doc false
@@ -97,6 +154,16 @@ defmodule ThinkingCap.MCAP.Compression do
   def chunk_add(_stream, _data), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def chunk_add_dirty(_stream, _data), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_message(_stream, _channel, _sequence, _log, _publish, _data),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc false
+  def chunk_message_dirty(_stream, _channel, _sequence, _log, _publish, _data),
+    do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc false
+  def chunk_size(_stream), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def chunk_finish(_stream), do: :erlang.nif_error(:nif_not_loaded)
 end

@@ -10,9 +10,10 @@ defmodule ThinkingCap.MCAP.Writer do
       {:ok, w} = Writer.add_message(w, channel, log_time, publish_time, json)
       {:ok, _bytes} = Writer.close(w)
 
-  Schema, Channel and Message records go into the open chunk, compressed
-  as they come (`ThinkingCap.MCAP.Compression.stream/1`, 16 KB at a
-  time), so that a chunk's records are not kept on the heap. A chunk is
+  Schema, Channel and Message records go into the open chunk, kept in C
+  (`ThinkingCap.MCAP.Compression.stream/1`, which makes the Message
+  records and their index entries itself), so that a chunk's records are
+  not kept on the heap; the chunk is compressed once, when it ends. A chunk is
   closed and written, with a Message Index per channel after it, when it
   holds `chunk_bytes` (`add_message/6` says so) or when the caller asks
   (`close_chunk/1`, the recorder's timer): one write per chunk, so the
@@ -30,9 +31,6 @@ defmodule ThinkingCap.MCAP.Writer do
 
   @default_chunk_bytes 1_048_576
 
-  # records given to the compression stream this many bytes at a time
-  @piece_bytes 16_384
-
   defstruct [
     :sink,
     :compression,
@@ -43,17 +41,9 @@ defmodule ThinkingCap.MCAP.Writer do
     channels: [],
     next_schema: 1,
     next_channel: 0,
-    # the open chunk: its compression stream, the records not yet given
-    # to it (reversed) and their size, the chunk's size, its time span,
-    # and its messages' [{channel, log_time, offset}] (reversed; grouped
-    # by channel when the chunk closes)
+    # the open chunk: its stream (Compression.stream/1), which holds its
+    # records, their size and time span and their index entries
     stream: nil,
-    piece: [],
-    piece_size: 0,
-    chunk_size: 0,
-    chunk_start: nil,
-    chunk_end: nil,
-    chunk_messages: [],
     # for the summary
     chunk_indexes: [],
     stats: %Statistics{}
@@ -145,36 +135,26 @@ defmodule ThinkingCap.MCAP.Writer do
 
   @doc """
   Adds a message (`data` is iodata) to the open chunk. When the chunk then
-  holds `chunk_bytes` it is closed and written.
+  holds `chunk_bytes` it is closed and written. `sequence` `:next` is the
+  channel's next in the file (1, 2, ...).
   """
-  @spec add_message(t(), non_neg_integer(), MCAP.time(), MCAP.time(), iodata(), non_neg_integer()) ::
-          {:ok, t()} | {:error, term()}
+  @spec add_message(
+          t(),
+          non_neg_integer(),
+          MCAP.time(),
+          MCAP.time(),
+          iodata(),
+          non_neg_integer() | :next
+        ) :: {:ok, t()} | {:error, term()}
   def add_message(%__MODULE__{} = w, channel_id, log_time, publish_time, data, sequence \\ 0) do
-    data_size = if is_binary(data), do: byte_size(data), else: IO.iodata_length(data)
-
-    {record, size} = Encode.message(channel_id, sequence, log_time, publish_time, data, data_size)
-
-    # the hot path: one update of the struct
-    w = %{
-      w
-      | piece: [record | w.piece],
-        piece_size: w.piece_size + size,
-        chunk_size: w.chunk_size + size,
-        chunk_messages: [{channel_id, log_time, w.chunk_size} | w.chunk_messages],
-        chunk_start: if(w.chunk_start, do: min(w.chunk_start, log_time), else: log_time),
-        chunk_end: if(w.chunk_end, do: max(w.chunk_end, log_time), else: log_time)
-    }
-
-    cond do
-      w.chunk_size >= w.chunk_bytes -> close_chunk(w)
-      w.piece_size >= @piece_bytes -> {:ok, give(w)}
-      true -> {:ok, w}
-    end
+    # the hot path: the record is made and kept in C, the writer unchanged
+    size = Compression.message(w.stream, channel_id, sequence, log_time, publish_time, data)
+    if size >= w.chunk_bytes, do: close_chunk(w), else: {:ok, w}
   end
 
   @doc "Bytes in the open chunk (uncompressed)."
   @spec chunk_size(t()) :: non_neg_integer()
-  def chunk_size(%__MODULE__{chunk_size: size}), do: size
+  def chunk_size(%__MODULE__{stream: stream}), do: elem(Compression.size(stream), 0)
 
   @doc "Bytes written so far (the open chunk not counted)."
   @spec bytes_written(t()) :: non_neg_integer()
@@ -182,34 +162,35 @@ defmodule ThinkingCap.MCAP.Writer do
 
   @doc "Messages added so far."
   @spec message_count(t()) :: non_neg_integer()
-  def message_count(%__MODULE__{stats: stats, chunk_messages: messages}),
-    do: stats.message_count + length(messages)
+  def message_count(%__MODULE__{stats: stats, stream: stream}),
+    do: stats.message_count + elem(Compression.size(stream), 1)
 
   @doc """
   Closes the open chunk, if it holds anything: compresses it and writes it
   with its message indexes in one write.
   """
   @spec close_chunk(t()) :: {:ok, t()} | {:error, term()}
-  def close_chunk(%__MODULE__{chunk_size: 0} = w), do: {:ok, w}
-
   def close_chunk(%__MODULE__{} = w) do
-    by_channel = group_by_channel(w.chunk_messages)
-    {compressed, crc, size} = Compression.finish(give(w).stream)
-    ^size = w.chunk_size
-    {start_time, end_time} = {w.chunk_start || 0, w.chunk_end || 0}
+    if chunk_size(w) == 0, do: {:ok, w}, else: write_chunk(w)
+  end
 
-    {chunk, chunk_length} =
+  defp write_chunk(w) do
+    chunk = Compression.finish(w.stream)
+    %{compressed: compressed, start_time: start_time, end_time: end_time} = chunk
+
+    {record, chunk_length} =
       Encode.chunk(
         start_time,
         end_time,
-        w.chunk_size,
-        crc,
+        chunk.size,
+        chunk.crc,
         w.compression,
         [compressed],
         byte_size(compressed)
       )
 
-    {indexes, offsets, index_length} = message_indexes(by_channel, w.offset + chunk_length)
+    at = w.offset + chunk_length
+    offsets = Map.new(chunk.channels, fn {channel, _n, offset} -> {channel, at + offset} end)
 
     chunk_index = %ChunkIndex{
       message_start_time: start_time,
@@ -217,58 +198,27 @@ defmodule ThinkingCap.MCAP.Writer do
       chunk_start_offset: w.offset,
       chunk_length: chunk_length,
       message_index_offsets: offsets,
-      message_index_length: index_length,
+      message_index_length: byte_size(chunk.indexes),
       compression: w.compression,
       compressed_size: byte_size(compressed),
-      uncompressed_size: w.chunk_size
+      uncompressed_size: chunk.size
     }
 
-    stats = count(w.stats, by_channel, w.chunk_start, w.chunk_end)
+    stats = count(w.stats, chunk.channels, start_time, end_time)
 
     w = %{
       w
-      | piece: [],
-        piece_size: 0,
-        chunk_size: 0,
-        chunk_start: nil,
-        chunk_end: nil,
-        chunk_messages: [],
-        chunk_indexes: [chunk_index | w.chunk_indexes],
+      | chunk_indexes: [chunk_index | w.chunk_indexes],
         stats: %{stats | chunk_count: stats.chunk_count + 1}
     }
 
-    write(w, [chunk | indexes])
+    write(w, [record, chunk.indexes])
   end
 
-  # the messages' [{log_time, offset}] by channel, in the order added
-  defp group_by_channel(messages) do
-    Enum.reduce(messages, %{}, fn {channel, time, offset}, acc ->
-      case acc do
-        %{^channel => entries} -> %{acc | channel => [{time, offset} | entries]}
-        _ -> Map.put(acc, channel, [{time, offset}])
-      end
-    end)
-  end
-
-  # one Message Index per channel, its entries in log time order, from
-  # offset `start`: the records, their offsets by channel, their length
-  defp message_indexes(chunk_index, start) do
-    {records, offsets, at} =
-      chunk_index
-      |> Enum.sort()
-      |> Enum.reduce({[], %{}, start}, fn {channel, entries}, {records, offsets, at} ->
-        {record, size} = Encode.message_index(channel, Enum.sort(entries))
-        {[record | records], Map.put(offsets, channel, at), at + size}
-      end)
-
-    {Enum.reverse(records), offsets, at - start}
-  end
-
-  defp count(stats, chunk_index, start_time, end_time) do
+  # channels: [{channel, messages, _}]
+  defp count(stats, channels, start_time, end_time) do
     {n, counts} =
-      Enum.reduce(chunk_index, {0, stats.channel_message_counts}, fn {channel, entries},
-                                                                     {n, counts} ->
-        k = length(entries)
+      Enum.reduce(channels, {0, stats.channel_message_counts}, fn {channel, k, _}, {n, counts} ->
         {n + k, Map.update(counts, channel, k, &(&1 + k))}
       end)
 
@@ -367,20 +317,9 @@ defmodule ThinkingCap.MCAP.Writer do
   defp finish(%__MODULE__{sink: {:memory, acc}}),
     do: {:ok, acc |> Enum.reverse() |> IO.iodata_to_binary()}
 
-  defp put_record(w, {record, size}),
-    do: %{
-      w
-      | piece: [record | w.piece],
-        piece_size: w.piece_size + size,
-        chunk_size: w.chunk_size + size
-    }
-
-  # the records kept so far, given to the compression stream
-  defp give(%__MODULE__{piece: []} = w), do: w
-
-  defp give(w) do
-    :ok = Compression.add(w.stream, Enum.reverse(w.piece), w.piece_size)
-    %{w | piece: [], piece_size: 0}
+  defp put_record(w, {record, size}) do
+    :ok = Compression.add(w.stream, record, size)
+    w
   end
 
   defp write(%__MODULE__{sink: {:file, fd}} = w, data) do

@@ -21,7 +21,6 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
             terms: true,
             channels: %{},
             schemas: %{},
-            sequence: %{},
             # {tag, id} => the channel of its whole terms
             exact: %{},
             # {tag, id} => log time of its last Foxglove message (big tuples)
@@ -120,9 +119,8 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
 
   defp write_all([{topic, schema, data} | rest], w, chans, time, publish, n) do
     {channel, w, chans} = channel(w, chans, topic, schema, %{})
-    {sequence, chans} = next(chans, channel)
 
-    case Writer.add_message(w, channel, time, publish, data, sequence) do
+    case Writer.add_message(w, channel, time, publish, data, :next) do
       {:ok, w} -> write_all(rest, w, chans, time, publish, n + 1)
       {:error, reason} -> {:error, reason, chans}
     end
@@ -143,10 +141,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
           {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
       end
 
-    {sequence, chans} = next(chans, channel)
     etf = etf || :erlang.term_to_binary(tuple)
 
-    case Writer.add_message(w, channel, time, publish, etf, sequence) do
+    case Writer.add_message(w, channel, time, publish, etf, :next) do
       {:ok, w} -> {:ok, w, chans, n + 1}
       {:error, reason} -> {:error, reason, chans}
     end
@@ -185,13 +182,6 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @doc false
   @spec trace_topic(atom(), atom()) :: String.t()
   def trace_topic(robot, name), do: "/trace" <> Foxglove.topic(robot, name)
-
-  defp next(%{sequence: sequences} = chans, channel) do
-    case sequences do
-      %{^channel => n} -> {n + 1, %{chans | sequence: %{sequences | channel => n + 1}}}
-      _ -> {1, %{chans | sequence: Map.put(sequences, channel, 1)}}
-    end
-  end
 
   # a topic's channel: JSON on its Foxglove schema, or a whole term (no schema)
   defp channel(w, chans, topic, schema, metadata) do

@@ -1,0 +1,401 @@
+/*
+ * tc_json: the recorder's JSON of a term (ThinkingCap.BlackBox.Core.JSON's
+ * rules) written in C, into one binary, for the terms it meets most:
+ * atoms, small integers, floats, ASCII binaries, lists, tuples, maps and
+ * structs. The recorder writes a JSON message for most tuples, and the
+ * same JSON built as iodata in Erlang filled its heap (a few KB a tuple).
+ *
+ * value(Term) -> Binary | false. `false` when the term holds anything
+ * written otherwise, or whose bytes are not sure to be Core.JSON's: a
+ * big integer, a binary or an atom that is not ASCII, an improper list,
+ * a map of more than 32 keys (their order), a struct whose module is
+ * not a plain alias, pids and the like, a term nested too deep. The
+ * caller then writes it in Erlang, so the bytes are always the same
+ * (the tests compare the two on random terms).
+ *
+ * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
+ * three decimals (trailing zeros dropped), each integer as it is; badarg
+ * for anything else.
+ *
+ * Floats to N decimals as Erlang's float_to_binary(F, [{decimals, N},
+ * compact]) writes them: the integer part, and the fraction times 10^N
+ * rounded (half away from zero), carried into the integer part when it
+ * rounds up to 10^N; a sign when the sign bit is set.
+ */
+#include <erl_nif.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_DEPTH 64
+
+typedef struct {
+    unsigned char *data;
+    size_t len, cap;
+    unsigned char local[4096];
+} buf;
+
+static void buf_init(buf *b)
+{
+    b->data = b->local;
+    b->len = 0;
+    b->cap = sizeof(b->local);
+}
+
+static void buf_free(buf *b)
+{
+    if (b->data != b->local) enif_free(b->data);
+}
+
+static int room(buf *b, size_t more)
+{
+    if (b->len + more <= b->cap) return 1;
+    size_t cap = b->cap * 2;
+    while (cap < b->len + more) cap *= 2;
+    unsigned char *d = enif_alloc(cap);
+    if (d == NULL) return 0;
+    memcpy(d, b->data, b->len);
+    buf_free(b);
+    b->data = d;
+    b->cap = cap;
+    return 1;
+}
+
+static int put(buf *b, const char *s, size_t n)
+{
+    if (!room(b, n)) return 0;
+    memcpy(b->data + b->len, s, n);
+    b->len += n;
+    return 1;
+}
+
+static int put_c(buf *b, char c)
+{
+    if (!room(b, 1)) return 0;
+    b->data[b->len++] = (unsigned char)c;
+    return 1;
+}
+
+static const double pow10s[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
+
+/* a float to `decimals` decimals (1..9), trailing zeros dropped but one */
+static int put_fixed(buf *b, double f, int decimals)
+{
+    char tmp[400];
+    int neg = signbit(f) ? 1 : 0;
+    double af = fabs(f);
+    int n;
+    if (af > 9007199254740992.0) {
+        /* past 2^53: printf's digits, as Erlang does there */
+        n = snprintf(tmp, sizeof(tmp), "%.*f", decimals, f);
+        if (n <= 0 || n >= (int)sizeof(tmp)) return 0;
+    } else {
+        double int_f = floor(af);
+        double frac_f = round((af - int_f) * pow10s[decimals]);
+        unsigned long long ip = (unsigned long long)int_f;
+        unsigned long long fp = (unsigned long long)frac_f;
+        if (frac_f >= pow10s[decimals]) {
+            ip++;
+            fp = 0;
+        }
+        char frac[16];
+        for (int i = decimals - 1; i >= 0; i--) {
+            frac[i] = (char)('0' + fp % 10);
+            fp /= 10;
+        }
+        n = snprintf(tmp, sizeof(tmp), "%s%llu.%.*s", neg ? "-" : "", ip, decimals, frac);
+    }
+    /* trailing zeros, keeping one digit after the point */
+    char *dot = strchr(tmp, '.');
+    if (dot != NULL) {
+        while (n > (dot - tmp) + 2 && tmp[n - 1] == '0') n--;
+    }
+    return put(b, tmp, (size_t)n);
+}
+
+/* A float's shortest digits that read back the same, written as
+ * float_to_binary(F, [short]) does: plain (`0.0012`, `120.0`) or with an
+ * exponent (`1.2e-5`, `1.0e15`), whichever is shorter, plain on a tie;
+ * from 2^53 always with its exponent. */
+static int put_short(buf *b, double f)
+{
+    char sci[40], digits[24], out[400];
+    int prec, n = 0, e = 0;
+    for (prec = 0; prec < 17; prec++) {
+        snprintf(sci, sizeof(sci), "%.*e", prec, f);
+        if (strtod(sci, NULL) == f) break;
+    }
+    /* sci: [-]d[.ddd]e[+-]xx */
+    const char *p = sci;
+    int neg = 0;
+    if (*p == '-') {
+        neg = 1;
+        p++;
+    }
+    for (; *p && *p != 'e'; p++)
+        if (*p != '.') digits[n++] = *p;
+    if (*p == 'e') e = atoi(p + 1);
+    while (n > 1 && digits[n - 1] == '0') n--;
+    digits[n] = '\0';
+
+    /* with an exponent */
+    char expo[64];
+    int el = snprintf(expo, sizeof(expo), "%s%c.%se%d", neg ? "-" : "", digits[0], n > 1 ? digits + 1 : "0", e);
+    /* plain */
+    int ol = 0;
+    if (neg) out[ol++] = '-';
+    if (e >= 0) {
+        if (e > 300) return put(b, expo, (size_t)el);
+        for (int i = 0; i <= e; i++) out[ol++] = i < n ? digits[i] : '0';
+        out[ol++] = '.';
+        if (n > e + 1)
+            for (int i = e + 1; i < n; i++) out[ol++] = digits[i];
+        else
+            out[ol++] = '0';
+    } else {
+        if (-e > 300) return put(b, expo, (size_t)el);
+        out[ol++] = '0';
+        out[ol++] = '.';
+        for (int i = 0; i < -e - 1; i++) out[ol++] = '0';
+        for (int i = 0; i < n; i++) out[ol++] = digits[i];
+    }
+    /* from 2^53 (integers a double may skip), Erlang writes the exponent */
+    if (fabs(f) >= 9007199254740992.0) return put(b, expo, (size_t)el);
+    return ol <= el ? put(b, out, (size_t)ol) : put(b, expo, (size_t)el);
+}
+
+/* Core.JSON's number for a float: to the millionth from 0.01 up (below
+ * 1e15), else its shortest form */
+static int put_float(buf *b, double f)
+{
+    double af = fabs(f);
+    if (af >= 0.01 && af < 1.0e15) return put_fixed(b, f, 6);
+    if (f == 0.0) return signbit(f) ? put(b, "-0.0", 4) : put(b, "0.0", 3);
+    return put_short(b, f);
+}
+
+static int put_int(buf *b, ErlNifSInt64 i)
+{
+    char tmp[32];
+    int n = snprintf(tmp, sizeof(tmp), "%lld", (long long)i);
+    return put(b, tmp, (size_t)n);
+}
+
+/* a quoted string of ASCII bytes, escaped where JSON needs it (as
+ * Core.JSON.string/1); 0 for a byte from 0x80 */
+static int put_string(buf *b, const unsigned char *s, size_t n)
+{
+    if (!room(b, n + 2) || !put_c(b, '"')) return 0;
+    for (size_t i = 0; i < n; i++) {
+        unsigned char c = s[i];
+        if (c >= 0x80) return 0;
+        if (c >= 0x20 && c != '"' && c != '\\') {
+            if (!put_c(b, (char)c)) return 0;
+            continue;
+        }
+        switch (c) {
+        case '"': if (!put(b, "\\\"", 2)) return 0; break;
+        case '\\': if (!put(b, "\\\\", 2)) return 0; break;
+        case '\n': if (!put(b, "\\n", 2)) return 0; break;
+        case '\r': if (!put(b, "\\r", 2)) return 0; break;
+        case '\t': if (!put(b, "\\t", 2)) return 0; break;
+        default: {
+            char tmp[8];
+            snprintf(tmp, sizeof(tmp), "\\u00%02X", c);
+            if (!put(b, tmp, 6)) return 0;
+        }
+        }
+    }
+    return put_c(b, '"');
+}
+
+static int put_atom_string(ErlNifEnv *env, buf *b, ERL_NIF_TERM t)
+{
+    char name[256];
+    int n = enif_get_atom(env, t, name, sizeof(name), ERL_NIF_LATIN1);
+    if (n <= 0) return 0;
+    return put_string(b, (unsigned char *)name, (size_t)(n - 1));
+}
+
+static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth);
+
+/* a module's name after "Elixir." that inspect/1 prints as it is:
+ * segments of a capital letter then letters, digits or _, joined by dots */
+static int alias(const char *s)
+{
+    int start = 1;
+    for (; *s; s++) {
+        char c = *s;
+        if (start) {
+            if (c < 'A' || c > 'Z') return 0;
+            start = 0;
+        } else if (c == '.') {
+            start = 1;
+        } else if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_')) {
+            return 0;
+        }
+    }
+    return !start;
+}
+
+/* a map's members in the order Core.JSON writes them (the reverse of
+ * :maps.fold's), after `first` (a struct's name) if any */
+static int object(ErlNifEnv *env, buf *b, ERL_NIF_TERM map, ERL_NIF_TERM skip, int has_first,
+                  int depth)
+{
+    size_t n;
+    if (!enif_get_map_size(env, map, &n) || n > 32) return 0;
+    ErlNifMapIterator it;
+    if (!enif_map_iterator_create(env, map, &it, ERL_NIF_MAP_ITERATOR_LAST)) return 0;
+    int ok = 1, members = has_first;
+    ERL_NIF_TERM k, v;
+    while (ok && enif_map_iterator_get_pair(env, &it, &k, &v)) {
+        if (!(has_first && enif_is_identical(k, skip))) {
+            if (members++ > 0) ok = put_c(b, ',');
+            if (ok) {
+                ErlNifSInt64 i;
+                double f;
+                ErlNifBinary bin;
+                if (enif_is_atom(env, k)) ok = put_atom_string(env, b, k);
+                else if (enif_get_int64(env, k, &i)) ok = put_c(b, '"') && put_int(b, i) && put_c(b, '"');
+                else if (enif_get_double(env, k, &f)) ok = put_c(b, '"') && put_float(b, f) && put_c(b, '"');
+                else if (enif_is_binary(env, k) && enif_inspect_binary(env, k, &bin))
+                    ok = put_string(b, bin.data, bin.size);
+                else ok = 0;
+            }
+            ok = ok && put_c(b, ':') && value(env, b, v, depth + 1);
+        }
+        enif_map_iterator_prev(env, &it);
+    }
+    enif_map_iterator_destroy(env, &it);
+    return ok && put_c(b, '}');
+}
+
+static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth)
+{
+    if (depth > MAX_DEPTH) return 0;
+    ErlNifSInt64 i;
+    double f;
+    ErlNifBinary bin;
+    unsigned len;
+    int arity;
+    const ERL_NIF_TERM *elems;
+
+    if (enif_is_atom(env, t)) {
+        char name[256];
+        int n = enif_get_atom(env, t, name, sizeof(name), ERL_NIF_LATIN1);
+        if (n <= 0) return 0;
+        if (strcmp(name, "nil") == 0) return put(b, "null", 4);
+        if (strcmp(name, "true") == 0) return put(b, "true", 4);
+        if (strcmp(name, "false") == 0) return put(b, "false", 5);
+        return put_string(b, (unsigned char *)name, (size_t)(n - 1));
+    }
+    if (enif_get_double(env, t, &f)) return put_float(b, f);
+    if (enif_is_number(env, t)) return enif_get_int64(env, t, &i) && put_int(b, i);
+    if (enif_is_binary(env, t)) return enif_inspect_binary(env, t, &bin) && put_string(b, bin.data, bin.size);
+    if (enif_get_list_length(env, t, &len)) {
+        if (len == 0) return put(b, "[]", 2);
+        ERL_NIF_TERM head, tail = t;
+        if (!put_c(b, '[')) return 0;
+        for (unsigned k = 0; k < len; k++) {
+            enif_get_list_cell(env, tail, &head, &tail);
+            if ((k > 0 && !put_c(b, ',')) || !value(env, b, head, depth + 1)) return 0;
+        }
+        return put_c(b, ']');
+    }
+    if (enif_get_tuple(env, t, &arity, &elems)) {
+        if (arity == 0) return put(b, "[]", 2);
+        if (!put_c(b, '[')) return 0;
+        for (int k = 0; k < arity; k++) {
+            if ((k > 0 && !put_c(b, ',')) || !value(env, b, elems[k], depth + 1)) return 0;
+        }
+        return put_c(b, ']');
+    }
+    if (enif_is_map(env, t)) {
+        ERL_NIF_TERM key = enif_make_atom(env, "__struct__"), module;
+        if (enif_get_map_value(env, t, key, &module) && enif_is_atom(env, module)) {
+            /* a struct: its module as inspect/1 prints an Elixir module */
+            char name[256];
+            int n = enif_get_atom(env, module, name, sizeof(name), ERL_NIF_LATIN1);
+            if (n <= 7 || strncmp(name, "Elixir.", 7) != 0 || !alias(name + 7)) return 0;
+            return put(b, "{\"__struct__\":", 14) && put_string(b, (unsigned char *)name + 7, (size_t)(n - 8)) &&
+                   object(env, b, t, key, 1, depth);
+        }
+        return put_c(b, '{') && object(env, b, t, 0, 0, depth);
+    }
+    return 0;
+}
+
+static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b)
+{
+    ERL_NIF_TERM out;
+    unsigned char *d = enif_make_new_binary(env, b->len, &out);
+    if (b->len) memcpy(d, b->data, b->len);
+    buf_free(b);
+    return out;
+}
+
+/* value(Term) -> Binary | false */
+static ERL_NIF_TERM nif_value(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    buf b;
+    buf_init(&b);
+    if (!value(env, &b, argv[0], 0)) {
+        buf_free(&b);
+        return enif_make_atom(env, "false");
+    }
+    return to_binary(env, &b);
+}
+
+/* millimetres(List) -> Binary */
+static ERL_NIF_TERM nif_millimetres(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    unsigned len;
+    if (!enif_get_list_length(env, argv[0], &len)) return enif_make_badarg(env);
+    buf b;
+    buf_init(&b);
+    ERL_NIF_TERM head, tail = argv[0];
+    int ok = put_c(&b, '[');
+    for (unsigned k = 0; ok && k < len; k++) {
+        double f;
+        ErlNifSInt64 i;
+        enif_get_list_cell(env, tail, &head, &tail);
+        if (k > 0) ok = put_c(&b, ',');
+        if (!ok) break;
+        if (enif_get_double(env, head, &f)) ok = put_fixed(&b, f, 3);
+        else if (enif_get_int64(env, head, &i)) ok = put_int(&b, i);
+        else ok = 0;
+    }
+    if (!ok || !put_c(&b, ']')) {
+        buf_free(&b);
+        return enif_make_badarg(env);
+    }
+    return to_binary(env, &b);
+}
+
+static ErlNifFunc funcs[] = {
+    {"nif_value", 1, nif_value, 0},
+    {"nif_millimetres", 1, nif_millimetres, 0},
+};
+
+static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
+{
+    (void)env;
+    (void)priv;
+    (void)info;
+    return 0;
+}
+
+static int upgrade(ErlNifEnv *env, void **priv, void **old_priv, ERL_NIF_TERM info)
+{
+    (void)env;
+    (void)priv;
+    (void)old_priv;
+    (void)info;
+    return 0;
+}
+
+ERL_NIF_INIT(Elixir.ThinkingCap.BlackBox.Core.JSON.Native, funcs, load, NULL, upgrade, NULL)

@@ -1,0 +1,28 @@
+defmodule ThinkingCap.BlackBox.Core.JSON.Native do
+  @moduledoc false
+  # Core.JSON's rules in C (c_src/tc_json.c, built into
+  # priv/lib/tc_json.so): a term's JSON as one binary, for the terms the
+  # recorder meets most, so that their JSON does not fill its heap.
+  # `value/1` answers false for a term it leaves to Core.JSON (see the C
+  # file); `millimetres/1` writes a scan's ranges.
+
+  @on_load :load_nif
+
+  defp load_nif do
+    path = :filename.join(:code.priv_dir(:tc_blackbox), ~c"lib/tc_json")
+    :erlang.load_nif(path, 0)
+  end
+
+  # a term's JSON, or false when Core.JSON must write it
+  @spec value(term()) :: binary() | false
+  def value(term), do: nif_value(term)
+
+  # a list of numbers: floats to three decimals, integers as they are
+  @spec millimetres(list()) :: binary()
+  def millimetres(ranges), do: nif_millimetres(ranges)
+
+  @doc false
+  def nif_value(_term), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def nif_millimetres(_ranges), do: :erlang.nif_error(:nif_not_loaded)
+end
