@@ -71,15 +71,18 @@ defmodule ThinkingCap.Navigation.Frontiers do
     k = Keyword.get(opts, :area_radius, 3.0) / res
     cell_area = (step * res) ** 2
     cap = ceil(Keyword.get(opts, :area_cap, 6.0) / cell_area)
-    {c0, r0} = centre = OccupancyGrid.cell_of(map, point)
-
+    {c0, r0} = OccupancyGrid.cell_of(map, point)
     near? = fn {c, r} -> (c - c0) ** 2 + (r - r0) ** 2 <= k * k end
 
-    seeds = for dc <- -1..1, dr <- -1..1, cell = {c0 + dc, r0 + dr}, unknown?(map, cell), do: cell
-
-    seeds = if unknown?(map, centre), do: [centre | seeds], else: seeds
-    seen = MapSet.new(seeds)
-    flood(map, seeds, [], seen, step, near?, cap) * cell_area
+    # one seed, the point's cell or its nearest unknown neighbour: seeds
+    # on different lattices would count the same space twice
+    [{0, 0}, {1, 0}, {-1, 0}, {0, 1}, {0, -1}, {1, 1}, {-1, 1}, {1, -1}, {-1, -1}]
+    |> Enum.map(fn {dc, dr} -> {c0 + dc, r0 + dr} end)
+    |> Enum.find(&unknown?(map, &1))
+    |> case do
+      nil -> 0.0
+      seed -> flood(map, [seed], [], MapSet.new([seed]), step, near?, cap) * cell_area
+    end
   end
 
   # breadth-first over unknown cells, `step` cells at a time (the cells
