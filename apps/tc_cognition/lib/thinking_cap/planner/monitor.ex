@@ -35,7 +35,11 @@ defmodule ThinkingCap.Planner.Monitor do
   **Exploring** (`:explore`, on the map the map builder builds; without
   one the task fails after `map_timeout` seconds, saying so): the robot
   visits frontiers between known free and unknown space
-  (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first), a
+  (`ThinkingCap.Navigation.Frontiers`: the nearest, longest and opening
+  onto the most unknown area first, `area_gain` metres of way for each
+  square metre, so that a pocket behind a chair waits until the rooms are
+  seen; on the way, every 5 s, a frontier cheaper by `hysteresis` metres
+  than the one aimed at is taken instead), a
   frontier seen from afar (no free cell near its point borders unknown
   space any more) is dropped for the next, one out of reach is
   given up (not chosen again in that round; see `explore_rounds`). A
@@ -113,7 +117,10 @@ defmodule ThinkingCap.Planner.Monitor do
   `compare` (time A* beside each plan, for benchmarks; default false),
   `map_timeout` (10 s), `save_to` (where an exploration's map is saved),
   `explore_rounds` (2: when no frontier is left but some were given up,
-  they are tried again this many times in all, on the map as it is then).
+  they are tried again this many times in all, on the map as it is then),
+  `area_gain` (2 m of way a square metre of unknown area within 3 m of a
+  frontier is worth, counted up to 6 m²; 0: the area does not count) and
+  `hysteresis` (2 m).
   """
   use ThinkingCap.Module
   require Logger
@@ -172,8 +179,6 @@ defmodule ThinkingCap.Planner.Monitor do
     area_gain:
       {:non_neg_number,
        default: 2.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
-    min_area:
-      {:non_neg_number, default: 0.1, doc: "m² of unknown area under which a frontier is dropped"},
     hysteresis:
       {:non_neg_number,
        default: 2.0, doc: "m by which another frontier must be cheaper to be taken on the way"}
@@ -189,7 +194,7 @@ defmodule ThinkingCap.Planner.Monitor do
   A live change of a param read as the task runs (`tolerance`,
   `stuck_after`, `max_replans`, `retry_after`, `replan_every`, `reach`,
   `map_timeout`, `save_to`, `explore_rounds`, `wary_band`, `area_gain`,
-  `min_area`, `hysteresis`): the next
+  `hysteresis`): the next
   cycle uses it.
   Those that made the planner (`margin`, `band`, `band_cost`, `clearance`, `radius`,
   `resolution`, `compare`) and the first `task` are read-only.
@@ -662,8 +667,7 @@ defmodule ThinkingCap.Planner.Monitor do
     end
   end
 
-  defp frontier_opts(state),
-    do: [area_gain: state.params[:area_gain], min_area: state.params[:min_area]]
+  defp frontier_opts(state), do: [area_gain: state.params[:area_gain]]
 
   defp fmt(nil), do: "?"
   defp fmt(v), do: :erlang.float_to_binary(v * 1.0, decimals: 2)
