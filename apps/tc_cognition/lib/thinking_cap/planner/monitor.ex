@@ -232,6 +232,7 @@ defmodule ThinkingCap.Planner.Monitor do
       looking: nil,
       faced: nil,
       chosen_at: nil,
+      frontier: nil,
       map_at: nil,
       plan: nil,
       status: :idle,
@@ -519,7 +520,8 @@ defmodule ThinkingCap.Planner.Monitor do
              replans: 0,
              looking: nil,
              faced: nil,
-             chosen_at: state.time
+             chosen_at: state.time,
+             frontier: f
          })}
     end
   end
@@ -623,8 +625,9 @@ defmodule ThinkingCap.Planner.Monitor do
   # the frontiers are weighed again from where the robot is, and one
   # cheaper than the target by more than `hysteresis` metres is taken
   # instead (a room passed on the way, a frontier the new map shows
-  # nearer). The target's cost is that of the frontier now found at its
-  # point, else the way there alone. Not while looking at a frontier.
+  # nearer). The target's cost is that of the frontier now found within
+  # a metre of its point (a frontier's point moves as it is seen), else
+  # that of the frontier as chosen. Not while looking at a frontier.
   @rechoose_every 5.0
 
   defp better_frontier(%{task: :explore, looking: nil, faced: nil} = state, distance) do
@@ -641,7 +644,7 @@ defmodule ThinkingCap.Planner.Monitor do
     opts = frontier_opts(state)
     frontiers = Frontiers.find(state.map, opts)
     {distances, state} = frontier_distances(frontiers, state, [target])
-    others = Enum.reject(frontiers, &(dist(&1.point, target) < 0.75))
+    {near, others} = Enum.split_with(frontiers, &(dist(&1.point, target) < 1.0))
 
     best =
       Frontiers.choose(
@@ -652,7 +655,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
     with %{point: point} = f <- best,
          here when here != nil <- distances && distances[target],
-         current = Enum.find(frontiers, &(dist(&1.point, target) < state_radius())),
+         current = Enum.min_by(near, &dist(&1.point, target), fn -> state.frontier end),
          now = if(current, do: Frontiers.cost(current, here, opts), else: here),
          better = Frontiers.cost(f, distances[point], opts),
          true <- better < now - state.params[:hysteresis] do
@@ -661,7 +664,7 @@ defmodule ThinkingCap.Planner.Monitor do
           "cost #{fmt(better)} against #{fmt(now)}"
       )
 
-      {:switch, plan(%{state | target: point, replans: 0, looking: nil, faced: nil})}
+      {:switch, plan(%{state | target: point, frontier: f, replans: 0, looking: nil, faced: nil})}
     else
       _ -> {:keep, state}
     end
