@@ -35,11 +35,10 @@ defmodule ThinkingCap.Planner.Monitor do
   **Exploring** (`:explore`, on the map the map builder builds; without
   one the task fails after `map_timeout` seconds, saying so): the robot
   visits frontiers between known free and unknown space
-  (`ThinkingCap.Navigation.Frontiers`: the nearest, longest and opening
-  onto the most unknown area first, `area_gain` metres of way for each
-  square metre, so that a pocket behind a chair waits until the rooms are
-  seen; on the way, every 5 s, a frontier cheaper by `hysteresis` metres
-  than the one aimed at is taken instead), a
+  (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first,
+  and with `area_gain` those opening onto the most unknown area; on the
+  way, every 5 s, a frontier cheaper by `hysteresis` metres than the one
+  aimed at is taken instead), a
   frontier seen from afar (no free cell near its point borders unknown
   space any more) is dropped for the next, one out of reach is
   given up (not chosen again in that round; see `explore_rounds`). A
@@ -118,9 +117,13 @@ defmodule ThinkingCap.Planner.Monitor do
   `map_timeout` (10 s), `save_to` (where an exploration's map is saved),
   `explore_rounds` (2: when no frontier is left but some were given up,
   they are tried again this many times in all, on the map as it is then),
-  `area_gain` (2 m of way a square metre of unknown area within 3 m of a
-  frontier is worth, counted up to 6 m²; 0: the area does not count) and
-  `hysteresis` (2 m).
+  `area_gain` (m of way a square metre of unknown area within 3 m of a
+  frontier is worth, counted up to 6 m²; default 0: the area does not
+  count. At 2, on generated buildings 5 and 1 (seed 1) 8 and 10 points
+  more coverage at 1,000 s, on building 21 17 points less: frontiers
+  beyond the south wall, where a bent map drew free cells, open onto the
+  unknown outside and looked rich; the office's second run 94.3 % against
+  97.2) and `hysteresis` (2 m).
   """
   use ThinkingCap.Module
   require Logger
@@ -178,7 +181,7 @@ defmodule ThinkingCap.Planner.Monitor do
     explore_rounds: {:pos_integer, default: 2, doc: "rounds over the frontiers given up"},
     area_gain:
       {:non_neg_number,
-       default: 2.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
+       default: 0.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
     hysteresis:
       {:non_neg_number,
        default: 2.0, doc: "m by which another frontier must be cheaper to be taken on the way"}

@@ -202,7 +202,9 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
-  test "exploring: a nearer pocket of unknown space loses to a door into a room", %{tmp_dir: dir} do
+  test "exploring: with area_gain, a nearer pocket of unknown space loses to a door", %{
+    tmp_dir: dir
+  } do
     # the robot by a 0.4 x 0.4 m pocket of unknown space in the north-west
     # corner, 4.7 m from the door
     cell = fn c, r ->
@@ -210,14 +212,19 @@ defmodule ThinkingCap.Planner.MonitorTest do
       if x < 0.5 and y > 3.5 and x > 0.05 and y < 3.95, do: -1, else: door_east(false).(c, r)
     end
 
-    {plan, _actions, state} = on_sensed_map(dir, :explore, {160, 80}, cell, {1.0, 3.0, 0.0})
-    assert plan.state == :moving
-    assert elem(state.target, 0) > 5.5
-
-    # without the area's gain, the nearer one
-    {_, state} = Monitor.handle_param(:area_gain, 0.0, %{state | target: nil})
-    {_plan, _, state} = cycle(state, 2.0)
-    assert elem(state.target, 0) < 0.6
+    # with the area's gain, the door; without it (the default), the nearer one
+    for {gain, door?} <- [{2.0, true}, {0.0, false}] do
+      empty = Path.join(dir, "empty.wdf")
+      File.write!(empty, "[name: \"nothing known\"]")
+      data = for r <- 0..79, c <- 0..159, into: <<>>, do: <<cell.(c, r)::signed-8>>
+      grid = ThinkingCap.Navigation.OccupancyGrid.new(160, 80, resolution: 0.05)
+      {_, state} = Monitor.handle_param(:area_gain, gain, start(empty, :explore))
+      {_, state} = Monitor.handle_tuple({:map, :r, %{grid | data: data, version: 1}}, state)
+      {plan, _, state} = cycle(pose(state, {1.0, 3.0, 0.0}), 1.0)
+      assert plan.state == :moving
+      assert door? == elem(state.target, 0) > 5.5
+      if not door?, do: assert(elem(state.target, 0) < 0.6)
+    end
   end
 
   @tag :tmp_dir
