@@ -36,9 +36,9 @@ defmodule ThinkingCap.Planner.Monitor do
   one the task fails after `map_timeout` seconds, saying so): the robot
   visits frontiers between known free and unknown space
   (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first,
-  and with `area_gain` those opening onto the most unknown area; on the
-  way, every 5 s, a frontier cheaper by `hysteresis` metres than the one
-  aimed at is taken instead), a
+  and with `area_gain` those opening onto the most unknown area; with
+  `hysteresis`, on the way, every 5 s, a frontier cheaper by that many
+  metres than the one aimed at is taken instead), a
   frontier seen from afar (no free cell near its point borders unknown
   space any more) is dropped for the next, one out of reach is
   given up (not chosen again in that round; see `explore_rounds`). A
@@ -123,7 +123,10 @@ defmodule ThinkingCap.Planner.Monitor do
   more coverage at 1,000 s, on building 21 17 points less: frontiers
   beyond the south wall, where a bent map drew free cells, open onto the
   unknown outside and looked rich; the office's second run 94.3 % against
-  97.2) and `hysteresis` (2 m).
+  97.2) and `hysteresis` (m, default nil: the target is kept until seen
+  or given up. At 2, without the area's gain, the same three buildings
+  had 2 to 15 points less coverage at 600 s, the office and
+  turtlebot3_world the same figures as without).
   """
   use ThinkingCap.Module
   require Logger
@@ -184,7 +187,8 @@ defmodule ThinkingCap.Planner.Monitor do
        default: 0.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
     hysteresis:
       {:non_neg_number,
-       default: 2.0, doc: "m by which another frontier must be cheaper to be taken on the way"}
+       default: nil,
+       doc: "m by which another frontier must be cheaper to be taken on the way (nil: never)"}
   ]
   @defaults ThinkingCap.Config.Schema.defaults(@params)
 
@@ -634,7 +638,8 @@ defmodule ThinkingCap.Planner.Monitor do
   @rechoose_every 5.0
 
   defp better_frontier(%{task: :explore, looking: nil, faced: nil} = state, distance) do
-    if reached?(state, distance) or state.time - (state.chosen_at || state.time) < @rechoose_every do
+    if state.params[:hysteresis] == nil or reached?(state, distance) or
+         state.time - (state.chosen_at || state.time) < @rechoose_every do
       {:keep, state}
     else
       switch_frontier(%{state | chosen_at: state.time})

@@ -177,13 +177,20 @@ defmodule ThinkingCap.Planner.MonitorTest do
   end
 
   @tag :tmp_dir
-  test "exploring: on the way, a frontier much cheaper than the target is taken instead", %{
-    tmp_dir: dir
-  } do
+  test "exploring: with a hysteresis, a frontier much cheaper than the target is taken on the way",
+       %{
+         tmp_dir: dir
+       } do
     # a map showing unknown space 0.6 m north of the robot, opening onto
-    # more than the door: taken, but only when weighed again (5 s on), and
-    # not by less than the hysteresis
-    for {hysteresis, t, north?} <- [{2.0, 3.0, false}, {2.0, 7.0, true}, {100.0, 7.0, false}] do
+    # more than the door: with a hysteresis, taken, but only when weighed
+    # again (5 s on), and not by less than the hysteresis; without (the
+    # default), not taken
+    for {hysteresis, t, north?} <- [
+          {2.0, 3.0, false},
+          {2.0, 7.0, true},
+          {100.0, 7.0, false},
+          {nil, 7.0, false}
+        ] do
       {plan, _actions, state} =
         on_sensed_map(dir, :explore, {160, 80}, door_east(false), {1.0, 2.0, 0.0})
 
