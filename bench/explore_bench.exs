@@ -26,9 +26,9 @@ defmodule ThinkingCap.Bench.Explore do
   coverage of the map built so far; and at the end the map builder's pose
   graph against where the robot truly was (the nodes' mean error, 25
   at a time, and what remains after the best rigid fit); `TC_LIMIT` cuts runs short (s);
-  `TC_MCL` and `TC_MAPPER` hold keyword
-  lists (Elixir terms) added to the localizer's and the map builder's
-  params; `TC_KEEP=1` keeps the saved maps; `TC_DUMP=path` (with
+  `TC_MCL`, `TC_MAPPER` and `TC_PLANNER` hold keyword
+  lists (Elixir terms) added to the localizer's, the map builder's and
+  the planner's params (`TC_PLANNER='[area_gain: 0.0]'`); `TC_KEEP=1` keeps the saved maps; `TC_DUMP=path` (with
   `TC_TRACE`) writes the final pose graph and where its nodes truly were
   (`:erlang.term_to_binary/1` of `%{nodes:, truth:, edges:, along:}`);
   `TC_IDEAL_ODOM=1` takes the systematic odometry errors (wheel
@@ -149,7 +149,8 @@ defmodule ThinkingCap.Bench.Explore do
          [initial: {sx, sy}, size: {size, size}] ++ NavRun.env_params("TC_MAPPER")},
       control: {ThinkingCap.Control.Blender, [], period: 0.1},
       planner:
-        {ThinkingCap.Planner.Monitor, [task: :explore, save_to: saved, clearance: 0.35],
+        {ThinkingCap.Planner.Monitor,
+         [task: :explore, save_to: saved, clearance: 0.35] ++ NavRun.env_params("TC_PLANNER"),
          period: 0.5}
     ]
 

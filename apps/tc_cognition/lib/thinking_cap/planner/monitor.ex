@@ -35,7 +35,10 @@ defmodule ThinkingCap.Planner.Monitor do
   **Exploring** (`:explore`, on the map the map builder builds; without
   one the task fails after `map_timeout` seconds, saying so): the robot
   visits frontiers between known free and unknown space
-  (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first), a
+  (`ThinkingCap.Navigation.Frontiers`: the nearest and longest first,
+  and with `area_gain` those opening onto the most unknown area; with
+  `hysteresis`, on the way, every 5 s, a frontier cheaper by that many
+  metres than the one aimed at is taken instead), a
   frontier seen from afar (no free cell near its point borders unknown
   space any more) is dropped for the next, one out of reach is
   given up (not chosen again in that round; see `explore_rounds`). A
@@ -113,7 +116,17 @@ defmodule ThinkingCap.Planner.Monitor do
   `compare` (time A* beside each plan, for benchmarks; default false),
   `map_timeout` (10 s), `save_to` (where an exploration's map is saved),
   `explore_rounds` (2: when no frontier is left but some were given up,
-  they are tried again this many times in all, on the map as it is then).
+  they are tried again this many times in all, on the map as it is then),
+  `area_gain` (m of way a square metre of unknown area within 3 m of a
+  frontier is worth, counted up to 6 m²; default 0: the area does not
+  count. At 2, on generated buildings 5 and 1 (seed 1) 8 and 10 points
+  more coverage at 1,000 s, on building 21 17 points less: frontiers
+  beyond the south wall, where a bent map drew free cells, open onto the
+  unknown outside and looked rich; the office's second run 94.3 % against
+  97.2) and `hysteresis` (m, default nil: the target is kept until seen
+  or given up. At 2, without the area's gain, the same three buildings
+  had 2 to 15 points less coverage at 600 s, the office and
+  turtlebot3_world the same figures as without).
   """
   use ThinkingCap.Module
   require Logger
@@ -168,7 +181,14 @@ defmodule ThinkingCap.Planner.Monitor do
     compare: {:boolean, default: false, read_only: true, doc: "time A* beside each plan"},
     map_timeout: {:pos_number, default: 10.0, doc: "s an exploration waits for a map"},
     save_to: {:string, default: nil, doc: "where an exploration's map is saved"},
-    explore_rounds: {:pos_integer, default: 2, doc: "rounds over the frontiers given up"}
+    explore_rounds: {:pos_integer, default: 2, doc: "rounds over the frontiers given up"},
+    area_gain:
+      {:non_neg_number,
+       default: 0.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
+    hysteresis:
+      {:non_neg_number,
+       default: nil,
+       doc: "m by which another frontier must be cheaper to be taken on the way (nil: never)"}
   ]
   @defaults ThinkingCap.Config.Schema.defaults(@params)
 
@@ -180,7 +200,8 @@ defmodule ThinkingCap.Planner.Monitor do
   @doc """
   A live change of a param read as the task runs (`tolerance`,
   `stuck_after`, `max_replans`, `retry_after`, `replan_every`, `reach`,
-  `map_timeout`, `save_to`, `explore_rounds`, `wary_band`): the next
+  `map_timeout`, `save_to`, `explore_rounds`, `wary_band`, `area_gain`,
+  `hysteresis`): the next
   cycle uses it.
   Those that made the planner (`margin`, `band`, `band_cost`, `clearance`, `radius`,
   `resolution`, `compare`) and the first `task` are read-only.
@@ -217,6 +238,8 @@ defmodule ThinkingCap.Planner.Monitor do
       wary: nil,
       looking: nil,
       faced: nil,
+      chosen_at: nil,
+      frontier: nil,
       map_at: nil,
       plan: nil,
       status: :idle,
@@ -453,7 +476,7 @@ defmodule ThinkingCap.Planner.Monitor do
 
   defp step(%{task: :explore, target: nil} = state) do
     {x, y, _} = state.pose
-    frontiers = Frontiers.find(state.map)
+    frontiers = Frontiers.find(state.map, frontier_opts(state))
 
     # the robot's own cell free, and more than its footprint seen free:
     # the first maps may hold only the ground under the robot and a few
@@ -464,7 +487,14 @@ defmodule ThinkingCap.Planner.Monitor do
     end
 
     {distances, state} = frontier_distances(frontiers, state)
-    choice = Frontiers.choose(frontiers, {x, y}, blacklist: state.given_up, distances: distances)
+
+    choice =
+      Frontiers.choose(
+        frontiers,
+        {x, y},
+        [blacklist: state.given_up, distances: distances] ++ frontier_opts(state)
+      )
+
     again? = state.given_up != [] and state.rounds < state.params[:explore_rounds]
 
     case if(choice == nil and not seen_around?.(), do: :unseen, else: choice) do
@@ -484,8 +514,22 @@ defmodule ThinkingCap.Planner.Monitor do
       nil ->
         {[], %{state | status: :done, reason: "explored: no frontier left"}}
 
-      %{point: point} ->
-        {[], plan(%{state | target: point, replans: 0, looking: nil, faced: nil})}
+      %{point: point} = f ->
+        Logger.debug(
+          "#{inspect(state.robot)}: frontier #{inspect(point)} of #{length(frontiers)}: " <>
+            "#{fmt(distances && distances[point])} m away, #{fmt(f.area)} m² unknown"
+        )
+
+        {[],
+         plan(%{
+           state
+           | target: point,
+             replans: 0,
+             looking: nil,
+             faced: nil,
+             chosen_at: state.time,
+             frontier: f
+         })}
     end
   end
 
@@ -524,6 +568,13 @@ defmodule ThinkingCap.Planner.Monitor do
   end
 
   defp monitor(state, distance, to_go) do
+    case better_frontier(state, distance) do
+      {:switch, state} -> {[], state}
+      {:keep, state} -> keep_on(state, distance, to_go)
+    end
+  end
+
+  defp keep_on(state, distance, to_go) do
     cond do
       # within reach of a frontier not yet seen, not facing it (one just
       # beside or behind the robot, where the laser does not look): the
@@ -577,12 +628,67 @@ defmodule ThinkingCap.Planner.Monitor do
     end
   end
 
+  # Exploring, on the way to a frontier: every @rechoose_every seconds
+  # the frontiers are weighed again from where the robot is, and one
+  # cheaper than the target by more than `hysteresis` metres is taken
+  # instead (a room passed on the way, a frontier the new map shows
+  # nearer). The target's cost is that of the frontier now found within
+  # a metre of its point (a frontier's point moves as it is seen), else
+  # that of the frontier as chosen. Not while looking at a frontier.
+  @rechoose_every 5.0
+
+  defp better_frontier(%{task: :explore, looking: nil, faced: nil} = state, distance) do
+    if state.params[:hysteresis] == nil or reached?(state, distance) or
+         state.time - (state.chosen_at || state.time) < @rechoose_every do
+      {:keep, state}
+    else
+      switch_frontier(%{state | chosen_at: state.time})
+    end
+  end
+
+  defp better_frontier(state, _distance), do: {:keep, state}
+
+  defp switch_frontier(%{pose: {x, y, _}, target: target} = state) do
+    opts = frontier_opts(state)
+    frontiers = Frontiers.find(state.map, opts)
+    {distances, state} = frontier_distances(frontiers, state, [target])
+    {near, others} = Enum.split_with(frontiers, &(dist(&1.point, target) < 1.0))
+
+    best =
+      Frontiers.choose(
+        others,
+        {x, y},
+        [blacklist: state.given_up, distances: distances] ++ opts
+      )
+
+    with %{point: point} = f <- best,
+         here when here != nil <- distances && distances[target],
+         current = Enum.min_by(near, &dist(&1.point, target), fn -> state.frontier end),
+         now = if(current, do: Frontiers.cost(current, here, opts), else: here),
+         better = Frontiers.cost(f, distances[point], opts),
+         true <- better < now - state.params[:hysteresis] do
+      Logger.debug(
+        "#{inspect(state.robot)}: frontier #{inspect(point)} instead of #{inspect(target)}: " <>
+          "cost #{fmt(better)} against #{fmt(now)}"
+      )
+
+      {:switch, plan(%{state | target: point, frontier: f, replans: 0, looking: nil, faced: nil})}
+    else
+      _ -> {:keep, state}
+    end
+  end
+
+  defp frontier_opts(state), do: [area_gain: state.params[:area_gain]]
+
+  defp fmt(nil), do: "?"
+  defp fmt(v), do: :erlang.float_to_binary(v * 1.0, decimals: 2)
+
   # the length of the way to each frontier on the map as planned on: one
   # search from the robot (nil when the robot's cell is blocked: then the
   # straight line)
-  defp frontier_distances(frontiers, %{pose: {x, y, _}} = state) do
+  defp frontier_distances(frontiers, %{pose: {x, y, _}} = state, extra \\ []) do
     planner = PathPlanner.set_map(state.planner, state.map)
-    points = Enum.map(frontiers, & &1.point)
+    points = Enum.map(frontiers, & &1.point) ++ extra
     lengths = PathPlanner.distances(planner, {x, y}, points)
     state = %{state | planner: planner}
 

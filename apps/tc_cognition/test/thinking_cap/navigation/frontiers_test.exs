@@ -94,4 +94,57 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
     # too short a piece of frontier within the radius is none
     refute Frontiers.remains?(map, {9.3, 1.0}, 0.5, min_length: 1.2)
   end
+
+  # A 10 x 6 m frame at 5 cm, walled around, seen free west of x = 5 m.
+  # A wall along x = 5 m with a door (y 2.5 to 3.5 m) into unknown space;
+  # in the south-west corner, 0.6 x 0.6 m unknown behind a box's corner:
+  # a pocket bounded by the outer walls.
+  defp door_and_pocket do
+    {w, h} = {200, 120}
+
+    data =
+      for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
+        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+        cond do
+          c == 0 or r == 0 or c == w - 1 or r == h - 1 -> <<100>>
+          x >= 5.0 and x < 5.1 and (y < 2.5 or y > 3.5) -> <<100>>
+          x >= 5.0 -> <<-1::signed-8>>
+          x < 0.65 and y < 0.65 -> <<-1::signed-8>>
+          true -> <<0>>
+        end
+      end
+
+    %OccupancyGrid{width: w, height: h, data: data, resolution: 0.05, version: 1}
+  end
+
+  test "the unknown area a frontier opens onto: a door's room up to the cap, a pocket its own" do
+    map = door_and_pocket()
+    [door, pocket] = Enum.sort_by(Frontiers.find(map), fn %{point: {x, _}} -> -x end)
+    assert_in_delta elem(door.point, 0), 4.95, 0.1
+    assert door.area == Frontiers.unknown_area(map, door.point)
+    # beyond the door: a half disc of 3 m, counted up to 6 m²
+    assert_in_delta door.area, 6.0, 0.1
+    assert_in_delta Frontiers.unknown_area(map, door.point, area_cap: 100.0), 14.1, 1.5
+    # the pocket: 0.6 x 0.6 m, none of it leaking past the outer walls
+    assert_in_delta pocket.area, 0.36, 0.08
+    # a point in seen free space opens onto nothing
+    assert Frontiers.unknown_area(map, {2.5, 3.0}) == 0.0
+  end
+
+  test "a pocket under min_area is dropped" do
+    assert length(Frontiers.find(door_and_pocket())) == 2
+    assert [%{point: {x, _}}] = Frontiers.find(door_and_pocket(), min_area: 0.5)
+    assert x > 4.5
+  end
+
+  test "with area_gain, the door into unknown space wins over a nearer pocket" do
+    frontiers = Frontiers.find(door_and_pocket())
+    robot = {1.5, 1.0}
+    assert %{point: {x, _}} = Frontiers.choose(frontiers, robot)
+    assert x < 1.0
+    assert %{point: {x, _}} = Frontiers.choose(frontiers, robot, area_gain: 2.0)
+    assert x > 4.5
+    assert Frontiers.cost(%{length: 1.0, area: 3.0}, 10.0, area_gain: 2.0) == 3.0
+  end
 end

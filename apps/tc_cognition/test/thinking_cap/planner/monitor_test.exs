@@ -152,6 +152,88 @@ defmodule ThinkingCap.Planner.MonitorTest do
     assert plan.state == :done
   end
 
+  # 8 x 4 m walled round, known free but for what lies beyond a wall
+  # along x = 6 with a 0.8 m door at y = 2 (unknown), and with `north`,
+  # unknown space north of y = 2.6 west of x = 4
+  defp door_east(north) do
+    fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+
+      cond do
+        x < 0.1 or y < 0.1 or x > 7.9 or y > 3.9 -> 100
+        x >= 6.0 and x < 6.1 and abs(y - 2.0) > 0.4 -> 100
+        x >= 6.0 -> -1
+        north and x < 4.0 and y > 2.6 -> -1
+        true -> 0
+      end
+    end
+  end
+
+  defp next_map(state, cell) do
+    %{width: w, height: h} = state.map
+    data = for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>>, do: <<cell.(c, r)::signed-8>>
+    map = %{state.map | data: data, version: state.map.version + 1}
+    elem(Monitor.handle_tuple({:map, :r, map}, state), 1)
+  end
+
+  @tag :tmp_dir
+  test "exploring: with a hysteresis, a frontier much cheaper than the target is taken on the way",
+       %{
+         tmp_dir: dir
+       } do
+    # a map showing unknown space 0.6 m north of the robot, opening onto
+    # more than the door: with a hysteresis, taken, but only when weighed
+    # again (5 s on), and not by less than the hysteresis; without (the
+    # default), not taken
+    for {hysteresis, t, north?} <- [
+          {2.0, 3.0, false},
+          {2.0, 7.0, true},
+          {100.0, 7.0, false},
+          {nil, 7.0, false}
+        ] do
+      {plan, _actions, state} =
+        on_sensed_map(dir, :explore, {160, 80}, door_east(false), {1.0, 2.0, 0.0})
+
+      assert plan.state == :moving
+      assert {fx, _} = state.target
+      assert fx > 5.5
+
+      {_, state} = Monitor.handle_param(:hysteresis, hysteresis, state)
+      state = next_map(state, door_east(true))
+      {plan, _, state} = cycle(state, t)
+      assert plan.state == :moving
+      {nx, ny} = state.target
+      assert north? == (nx < 4.0 and ny > 2.4)
+      if not north?, do: assert(nx > 5.5)
+    end
+  end
+
+  @tag :tmp_dir
+  test "exploring: with area_gain, a nearer pocket of unknown space loses to a door", %{
+    tmp_dir: dir
+  } do
+    # the robot by a 0.4 x 0.4 m pocket of unknown space in the north-west
+    # corner, 4.7 m from the door
+    cell = fn c, r ->
+      {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
+      if x < 0.5 and y > 3.5 and x > 0.05 and y < 3.95, do: -1, else: door_east(false).(c, r)
+    end
+
+    # with the area's gain, the door; without it (the default), the nearer one
+    for {gain, door?} <- [{2.0, true}, {0.0, false}] do
+      empty = Path.join(dir, "empty.wdf")
+      File.write!(empty, "[name: \"nothing known\"]")
+      data = for r <- 0..79, c <- 0..159, into: <<>>, do: <<cell.(c, r)::signed-8>>
+      grid = ThinkingCap.Navigation.OccupancyGrid.new(160, 80, resolution: 0.05)
+      {_, state} = Monitor.handle_param(:area_gain, gain, start(empty, :explore))
+      {_, state} = Monitor.handle_tuple({:map, :r, %{grid | data: data, version: 1}}, state)
+      {plan, _, state} = cycle(pose(state, {1.0, 3.0, 0.0}), 1.0)
+      assert plan.state == :moving
+      assert door? == elem(state.target, 0) > 5.5
+      if not door?, do: assert(elem(state.target, 0) < 0.6)
+    end
+  end
+
   @tag :tmp_dir
   test "exploring on the sensed map gives no door to cross; going to a point does", %{
     tmp_dir: dir
