@@ -33,6 +33,8 @@ defmodule ThinkingCap.Navigation.Frontiers do
   the `point` of its cell nearest its centroid (world) and the unknown
   `area` (m²) it opens onto (`unknown_area/3`, options `area_radius` and
   `area_cap`). Those under `min_length` m or `min_area` m² are left out.
+  The areas are counted only when asked for (`area: true`) or when
+  `min_area` is above 0; else each `area` is 0.0.
   """
   @spec find(OccupancyGrid.t(), keyword()) :: [frontier()]
   def find(%OccupancyGrid{} = map, opts \\ []) do
@@ -40,6 +42,7 @@ defmodule ThinkingCap.Navigation.Frontiers do
     min_cells = max(1, round(Keyword.get(opts, :min_length, 0.4) / res))
     free_below = Keyword.get(opts, :free_below, 20)
     min_area = Keyword.get(opts, :min_area, 0.0)
+    area? = Keyword.get(opts, :area, false) or min_area > 0
 
     grid = %Grid{
       width: map.width,
@@ -51,7 +54,8 @@ defmodule ThinkingCap.Navigation.Frontiers do
 
     for {n, cell} <- GridNif.frontiers(map.data, map.width, map.height, free_below, min_cells) do
       point = Grid.centre(grid, cell)
-      %{cells: n, length: n * res, point: point, area: unknown_area(map, point, opts)}
+      area = if area?, do: unknown_area(map, point, opts), else: 0.0
+      %{cells: n, length: n * res, point: point, area: area}
     end
     |> Enum.reject(&(&1.area < min_area))
     |> Enum.sort_by(&{-&1.cells, &1.point})

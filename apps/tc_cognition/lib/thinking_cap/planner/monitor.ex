@@ -678,7 +678,11 @@ defmodule ThinkingCap.Planner.Monitor do
     end
   end
 
-  defp frontier_opts(state), do: [area_gain: state.params[:area_gain]]
+  # the frontiers' unknown areas are counted only when they weigh
+  defp frontier_opts(state) do
+    gain = state.params[:area_gain]
+    [area_gain: gain, area: is_number(gain) and gain > 0]
+  end
 
   defp fmt(nil), do: "?"
   defp fmt(v), do: :erlang.float_to_binary(v * 1.0, decimals: 2)

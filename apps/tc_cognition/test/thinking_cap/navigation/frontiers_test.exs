@@ -120,7 +120,7 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
 
   test "the unknown area a frontier opens onto: a door's room up to the cap, a pocket its own" do
     map = door_and_pocket()
-    [door, pocket] = Enum.sort_by(Frontiers.find(map), fn %{point: {x, _}} -> -x end)
+    [door, pocket] = Enum.sort_by(Frontiers.find(map, area: true), fn %{point: {x, _}} -> -x end)
     assert_in_delta elem(door.point, 0), 4.95, 0.1
     assert door.area == Frontiers.unknown_area(map, door.point)
     # beyond the door: a half disc of 3 m, counted up to 6 m²
@@ -130,6 +130,8 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
     assert_in_delta pocket.area, 0.36, 0.08
     # a point in seen free space opens onto nothing
     assert Frontiers.unknown_area(map, {2.5, 3.0}) == 0.0
+    # not asked for, the areas are not counted
+    assert Enum.map(Frontiers.find(map), & &1.area) == [0.0, 0.0]
   end
 
   test "a pocket under min_area is dropped" do
@@ -139,7 +141,7 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
   end
 
   test "with area_gain, the door into unknown space wins over a nearer pocket" do
-    frontiers = Frontiers.find(door_and_pocket())
+    frontiers = Frontiers.find(door_and_pocket(), area: true)
     robot = {1.5, 1.0}
     assert %{point: {x, _}} = Frontiers.choose(frontiers, robot)
     assert x < 1.0
