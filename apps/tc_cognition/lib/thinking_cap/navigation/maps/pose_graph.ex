@@ -7,16 +7,19 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   `node_angle` radians the robot moves: its estimated pose, its odometry
   and its laser scan as points in the robot's frame. Each node is tied to
   the one before by an **edge**: where it lies seen from there (the
-  localizer's estimate; the odometry's where the two disagree, a jump),
-  with an information matrix that grows looser with the distance. Where
-  the node's scan matches the scans of the `local_nodes` nodes before it
-  sharply (searched within 0.3 m and 0.06 rad of the estimate; not in a
-  corridor, where it fixes the place only across), the edge says where
-  the match puts it instead, with the match's spread: the localizer's
-  estimate jitters from scan to scan (a hundredth of a radian between
-  two nodes, in a simulated building), while the scan against the few
-  before it is held by every wall they share. Loop closures then find
-  a chain truer to itself, and submaps to match against that are too.
+  localizer's step; the odometry's where the two disagree, a jump),
+  with an information matrix that grows looser with the distance. The
+  node is placed at the node before moved by that step; then, where its
+  scan matches the scans of the `local_nodes` nodes before it, at their
+  places in the graph and drawn as walls (`dense_points/3`), sharply
+  (searched within 0.3 m and 0.06 rad; not in a corridor, where it fixes
+  the place only across), the node goes where the match puts it and the
+  edge says so, with the match's spread. The chain of nodes is then a
+  scan matcher's against a submap of the last few metres: on generated
+  buildings it drifts 0.06–0.10 m and 0.012–0.022 rad over 10 m, the
+  localizer against the map it draws 0.09–0.16 m and 0.018–0.025 rad.
+  `estimate/2` keeps the localizer's estimate of each node, the frame
+  the map builder's scans are kept in.
 
   Then the new node's scan is matched (`ThinkingCap.Navigation.Core.GridNif`'s
   correlative `slam_match`) against the scans of the old nodes near it:
