@@ -86,8 +86,11 @@ defmodule ThinkingCap.Navigation.Mapper do
   `ThinkingCap.Navigation.Maps.PoseGraph`); when the robot comes back
   where it was and its scan matches the old ones sharply, the graph is
   optimized and the map drawn again from the scans at their corrected
-  poses (sonar readings are not kept: they are not drawn again). It then
-  publishes, with the new map,
+  poses (sonar readings are not kept: they are not drawn again). The
+  graph's chain of scan matches drifts less than the localizer: when it
+  parts from the localizer's estimate by 5 cm or 0.015 rad, the map is
+  drawn again at the graph's poses too (`Loops.new/1`'s `follow_distance`,
+  `follow_angle`). It then publishes, with the new map,
 
     * `{:map_correction, robot, %{from: pose, to: pose, frame: n, map: map, stamp: t}}`
       (key `{:map_correction, robot}`): the map's frame moved so that

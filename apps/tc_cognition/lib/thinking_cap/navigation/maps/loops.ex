@@ -48,7 +48,9 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
     point_step: 2,
     loop_every: 1,
     redraw_distance: 0.03,
-    redraw_angle: 0.01
+    redraw_angle: 0.01,
+    follow_distance: 0.05,
+    follow_angle: 0.015
   }
 
   @doc """
@@ -57,7 +59,11 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
   point for matching), `loop_every` [1] (every how many nodes a loop is
   sought), `redraw_distance` [0.03] and `redraw_angle` [0.01] (how far a
   closed loop must move some node for the map to be drawn again: a
-  smaller correction stays in the graph until the next), and the
+  smaller correction stays in the graph until the next),
+  `follow_distance` [0.05] and `follow_angle` [0.015] (how far the
+  newest node of the graph's chain of scan matches may lie from the
+  localizer's estimate of it before the map is drawn again at the
+  graph's poses and the localizer moved onto it; 0: never), and the
   graph's (`PoseGraph.new/1`).
   """
   @spec new(keyword()) :: t()
@@ -90,18 +96,15 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
         with true <- rem(id, loops.params.loop_every) == 0,
              {:closed, closed, from, to} <- PoseGraph.close_loop(graph, id) do
           if shifted?(graph, closed, loops.params) do
-            frame = loops.frame + 1
-            # only the last move is carried (carry/3): older frames are too old
-            moves = %{frame => {from, to}}
-            {%{loops | graph: closed, frame: frame, moves: moves}, {:closed, from, to}}
+            move_frame(loops, closed, id, from, to)
           else
             # a correction too small to draw the map again for: the graph
             # keeps it, the map and the localizer catch up at the next
-            {%{loops | graph: closed}, :none}
+            {%{loops | graph: PoseGraph.follow(closed, id, from)}, :none}
           end
         else
-          {:none, graph} -> {%{loops | graph: graph}, :none}
-          false -> {%{loops | graph: graph}, :none}
+          {:none, graph} -> follow(loops, graph, id)
+          false -> follow(loops, graph, id)
         end
       else
         {loops, :none}
@@ -111,6 +114,31 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
     # the frame the graph is in now
     pose = carry_to(loops, pose, result)
     {keep(loops, tag, scan, pose), result}
+  end
+
+  # the map's frame moved: the localizer's estimate `from` of node `id`
+  # is `to` now
+  defp move_frame(loops, graph, id, from, to) do
+    frame = loops.frame + 1
+    # only the last move is carried (carry/3): older frames are too old
+    moves = %{frame => {from, to}}
+    graph = PoseGraph.follow(graph, id, to)
+    {%{loops | graph: graph, frame: frame, moves: moves}, {:closed, from, to}}
+  end
+
+  # The graph's chain of scan matches drifts less than the localizer
+  # against the map it draws: when the newest node lies `follow_distance`
+  # m or `follow_angle` rad from the localizer's estimate of it, the map
+  # is drawn again at the graph's poses and the localizer moved onto it.
+  defp follow(%{params: p} = loops, graph, id) do
+    {x, y, th} = to = PoseGraph.pose(graph, id)
+    {ex, ey, eth} = from = PoseGraph.estimate(graph, id)
+
+    if p.follow_distance > 0 and
+         (:math.sqrt((x - ex) ** 2 + (y - ey) ** 2) >= p.follow_distance or
+            abs(normalize_angle(th - eth)) >= p.follow_angle),
+       do: move_frame(loops, graph, id, from, to),
+       else: {%{loops | graph: graph}, :none}
   end
 
   # whether a node moved far enough for the map to be drawn again
@@ -135,7 +163,7 @@ defmodule ThinkingCap.Navigation.Maps.Loops do
     if length(scan.ranges) == loops.meta[tag].beams and
          (loops.kept == nil or moved?(loops.kept, pose, loops.params)) do
       node = PoseGraph.last(loops.graph)
-      rel = EKF.relative(PoseGraph.pose(loops.graph, node), pose)
+      rel = EKF.relative(PoseGraph.estimate(loops.graph, node), pose)
       ranges = for r <- scan.ranges, into: <<>>, do: <<range(r)::float-32-native>>
 
       %{

@@ -93,8 +93,11 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
     {near / max(length(cells), 1), length(cells)}
   end
 
+  # the graph's nodes at the estimates, the map moved only by loops
+  @estimates_only [local_nodes: 0, follow_distance: 0.0]
+
   test "closing loops draws the walls where they are; without, the drift smears them" do
-    {closing, closed} = drive(Loops.new(loop_gap: 15))
+    {closing, closed} = drive(Loops.new([loop_gap: 15] ++ @estimates_only))
     assert closed > 0
     assert Loops.frame(closing) == closed
 
@@ -102,9 +105,18 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
     assert share > 0.97 and count > 300
 
     # the same scans never matched: drawn where the drifting estimate put them
-    {open, 0} = drive(Loops.new(loop_gap: 10_000))
+    {open, 0} = drive(Loops.new([loop_gap: 10_000] ++ @estimates_only))
     {smeared, _} = on_walls(Loops.redraw(open, grid(), %{laser: {0.0, 0.0, 0.0}}, []))
     assert smeared < share - 0.3
+  end
+
+  test "without loops, the chain of scan matches keeps the walls where they are" do
+    # each scan matched against the last few: the map follows the chain,
+    # moved under the drifting estimate whenever the two part
+    {open, moves} = drive(Loops.new(loop_gap: 10_000))
+    assert moves > 0
+    {share, count} = on_walls(Loops.redraw(open, grid(), %{laser: {0.0, 0.0, 0.0}}, []))
+    assert share > 0.97 and count > 300
   end
 
   test "SensedGrid.replay_lasers/5 draws kept scans as add_laser/3 does one by one" do

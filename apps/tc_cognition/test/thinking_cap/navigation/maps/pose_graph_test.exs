@@ -4,7 +4,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
   alias ThinkingCap.Navigation.Core.GridNif
   alias ThinkingCap.Navigation.EKF
   alias ThinkingCap.Navigation.Maps.PoseGraph
-  alias ThinkingCap.Test.DriftingCircle
+  alias ThinkingCap.Test.{DriftingCircle, LaserRoom}
 
   # the walls of a room, x in 0..w, y in 0..h, with a pillar so that no
   # symmetry makes two poses fit alike, as points every 5 cm
@@ -349,7 +349,8 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
 
     test "grows with the way driven: a loop drifted beyond the least window closes" do
       walls = room(8.0, 6.0)
-      common = [loop_gap: 15, window_angle_growth: 0.0, max_window: 1.5]
+      # the nodes at the estimates: the scans matched only in loops
+      common = [loop_gap: 15, window_angle_growth: 0.0, max_window: 1.5, local_nodes: 0]
 
       # beyond the least window, a match may fix the place across a
       # wall seen alone, but never undoes the drift along it
@@ -413,6 +414,89 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       {%{z: {_, _, zth}}, {_, _, tth}} = jittered(local_nodes: 0)
       assert_in_delta zth - tth, 0.03, 1.0e-6
     end
+  end
+
+  describe "add_node/4, the chain of scan matches" do
+    # rooms in a row along a hall, with a pillar and a box
+    @hall [
+      {{0.0, 0.0}, {12.0, 0.0}},
+      {{12.0, 0.0}, {12.0, 5.0}},
+      {{12.0, 5.0}, {0.0, 5.0}},
+      {{0.0, 5.0}, {0.0, 0.0}},
+      {{3.0, 0.0}, {3.0, 1.8}},
+      {{3.0, 3.2}, {3.0, 5.0}},
+      {{7.0, 0.0}, {7.0, 2.0}},
+      {{7.0, 3.0}, {7.0, 5.0}},
+      {{5.0, 4.2}, {5.6, 4.2}},
+      {{9.5, 0.8}, {10.0, 0.8}},
+      {{10.0, 0.8}, {10.0, 1.3}}
+    ]
+
+    # 11 m through the rooms, 0.3 m a node, a 181-beam laser 5 cm ahead
+    # of the centre; the estimates jitter (±1 cm, ±5 mrad) round the
+    # truth, as the localizer's do
+    defp chain(opts, seed) do
+      rng = :rand.seed_s(:exsss, {seed, 2, 3})
+
+      truth =
+        for k <- 0..36, do: {1.0 + 0.3 * k, 2.5 + 0.4 * :math.sin(k / 6), 0.13 * :math.cos(k / 6)}
+
+      {g, _} =
+        Enum.reduce(truth, {PoseGraph.new(opts), rng}, fn {x, y, th} = t, {g, rng} ->
+          {[u, v, w], rng} = Enum.map_reduce(1..3, rng, fn _, r -> :rand.uniform_s(r) end)
+
+          est =
+            if g.next == 0,
+              do: t,
+              else: {x + 0.02 * (u - 0.5), y + 0.02 * (v - 0.5), th + 0.01 * (w - 0.5)}
+
+          laser = {x + 0.05 * :math.cos(th), y + 0.05 * :math.sin(th), th}
+          scan = LaserRoom.scan(@hall, laser)
+
+          {_id, g} =
+            PoseGraph.add_node(g, est, nil, PoseGraph.scan_points(scan, {0.05, 0.0, 0.0}, 2))
+
+          {g, rng}
+        end)
+
+      # where the chain of edges from the first node puts the last
+      end_pose =
+        g.edges
+        |> Enum.filter(&(&1.to == &1.from + 1))
+        |> Enum.sort_by(& &1.to)
+        |> Enum.reduce(hd(truth), fn e, p -> EKF.motion(p, e.z) end)
+
+      {end_pose, List.last(truth)}
+    end
+
+    test "its edges drift a few centimetres over 11 m where the estimates jitter" do
+      for seed <- 1..5 do
+        {{x, y, th}, {tx, ty, tth}} = chain([], seed)
+        assert :math.sqrt((x - tx) ** 2 + (y - ty) ** 2) < 0.05
+        assert abs(th - tth) < 0.01
+      end
+    end
+  end
+
+  test "dense_points/3 joins neighbours no farther apart than the gap" do
+    points = bin([{0.0, 0.0}, {0.1, 0.0}, {0.5, 0.0}])
+
+    dense =
+      for <<x::float-native, y::float-native <- PoseGraph.dense_points(points, 0.025, 0.3)>>,
+        do: {x, y}
+
+    # 0 to 0.1 every 2.5 cm; 0.1 to 0.5 is a gap: its far end alone
+    assert Enum.map(dense, fn {x, _} -> Float.round(x, 4) end) == [
+             0.0,
+             0.025,
+             0.05,
+             0.075,
+             0.1,
+             0.5
+           ]
+
+    assert Enum.all?(dense, fn {_, y} -> y == 0.0 end)
+    assert PoseGraph.dense_points(<<>>, 0.025, 0.3) == <<>>
   end
 
   test "scan_points/3: the endpoints with an echo, in the robot's frame" do
