@@ -6,6 +6,9 @@ defmodule ThinkingCap.Test.LaserRoom do
 
   @beams 181
 
+  @doc "The laser's number of beams."
+  def beams, do: @beams
+
   def scan(walls, {x, y, th}) do
     inc = :math.pi() / (@beams - 1)
 

@@ -17,46 +17,8 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
     {{2.0, 1.8}, {1.5, 1.8}},
     {{1.5, 1.8}, {1.5, 1.0}}
   ]
-  @beams 181
-
   # a 180-degree laser scan from a pose, by casting rays at the walls
-  defp scan({x, y, th}) do
-    inc = :math.pi() / (@beams - 1)
-
-    ranges =
-      for i <- 0..(@beams - 1) do
-        a = th - :math.pi() / 2 + i * inc
-        {dx, dy} = {:math.cos(a), :math.sin(a)}
-
-        @walls
-        |> Enum.map(fn {{x1, y1}, {x2, y2}} ->
-          hit({x, y}, {dx, dy}, {x1, y1}, {x2 - x1, y2 - y1})
-        end)
-        |> Enum.reject(&is_nil/1)
-        |> Enum.min(fn -> 8.0 end)
-        |> min(8.0)
-      end
-
-    %{
-      ranges: ranges,
-      angle_min: -:math.pi() / 2,
-      angle_increment: inc,
-      range_max: 8.0,
-      range_min: 0.1
-    }
-  end
-
-  defp hit({px, py}, {dx, dy}, {qx, qy}, {ex, ey}) do
-    den = dx * ey - dy * ex
-
-    if abs(den) < 1.0e-12 do
-      nil
-    else
-      t = ((qx - px) * ey - (qy - py) * ex) / den
-      u = ((qx - px) * dy - (qy - py) * dx) / den
-      if t > 0 and u >= 0 and u <= 1, do: t, else: nil
-    end
-  end
+  defp scan(pose), do: ThinkingCap.Test.LaserRoom.scan(@walls, pose)
 
   # twice round the room's centre, the estimate turning 0.3 degrees a
   # step too far (10 degrees a turn)
@@ -132,7 +94,14 @@ defmodule ThinkingCap.Navigation.Maps.LoopsTest do
           do: <<x::float-native, y::float-native, th::float-native>>
 
     ranges = for p <- poses, r <- scan(p).ranges, into: <<>>, do: <<r::float-32-native>>
-    SensedGrid.replay_lasers(at_once, pose_bin, ranges, @beams, scan({0.0, 0.0, 0.0}))
+
+    SensedGrid.replay_lasers(
+      at_once,
+      pose_bin,
+      ranges,
+      ThinkingCap.Test.LaserRoom.beams(),
+      scan({0.0, 0.0, 0.0})
+    )
 
     a = SensedGrid.occupancy(one_by_one)
     b = SensedGrid.occupancy(at_once)
