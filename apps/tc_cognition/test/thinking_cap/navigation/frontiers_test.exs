@@ -9,19 +9,26 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
   # x = 6 m; the rest is unknown. Two frontiers: the upper half's at
   # x = 6 m, reached only round the wall, and the lower half's at 9.5 m.
   defp map do
+    framed(fn x, y ->
+      cond do
+        y >= 3.0 and y < 3.1 and x >= 2.0 -> <<100>>
+        y < 3.0 and x > 9.5 -> <<-1::signed-8>>
+        y >= 3.1 and x > 6.0 -> <<-1::signed-8>>
+        true -> <<0>>
+      end
+    end)
+  end
+
+  # a 10 x 6 m frame at 5 cm, walled around, each cell inside as
+  # `inside.(x, y)` of its centre says
+  defp framed(inside) do
     {w, h} = {200, 120}
 
     data =
       for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
-        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
-
-        cond do
-          c == 0 or r == 0 or c == w - 1 or r == h - 1 -> <<100>>
-          y >= 3.0 and y < 3.1 and x >= 2.0 -> <<100>>
-          y < 3.0 and x > 9.5 -> <<-1::signed-8>>
-          y >= 3.1 and x > 6.0 -> <<-1::signed-8>>
-          true -> <<0>>
-        end
+        if c == 0 or r == 0 or c == w - 1 or r == h - 1,
+          do: <<100>>,
+          else: inside.((c + 0.5) * 0.05, (r + 0.5) * 0.05)
       end
 
     %OccupancyGrid{width: w, height: h, data: data, resolution: 0.05, version: 1}
@@ -100,22 +107,14 @@ defmodule ThinkingCap.Navigation.FrontiersTest do
   # in the south-west corner, 0.6 x 0.6 m unknown behind a box's corner:
   # a pocket bounded by the outer walls.
   defp door_and_pocket do
-    {w, h} = {200, 120}
-
-    data =
-      for r <- 0..(h - 1), c <- 0..(w - 1), into: <<>> do
-        {x, y} = {(c + 0.5) * 0.05, (r + 0.5) * 0.05}
-
-        cond do
-          c == 0 or r == 0 or c == w - 1 or r == h - 1 -> <<100>>
-          x >= 5.0 and x < 5.1 and (y < 2.5 or y > 3.5) -> <<100>>
-          x >= 5.0 -> <<-1::signed-8>>
-          x < 0.65 and y < 0.65 -> <<-1::signed-8>>
-          true -> <<0>>
-        end
+    framed(fn x, y ->
+      cond do
+        x >= 5.0 and x < 5.1 and (y < 2.5 or y > 3.5) -> <<100>>
+        x >= 5.0 -> <<-1::signed-8>>
+        x < 0.65 and y < 0.65 -> <<-1::signed-8>>
+        true -> <<0>>
       end
-
-    %OccupancyGrid{width: w, height: h, data: data, resolution: 0.05, version: 1}
+    end)
   end
 
   test "the unknown area a frontier opens onto: a door's room up to the cap, a pocket its own" do
