@@ -184,7 +184,10 @@ defmodule ThinkingCap.Bench.Explore do
     mapper = Lockstep.state(c.lock, :mapper)
 
     :ok =
-      ThinkingCap.Navigation.Maps.SensedGrid.occupancy(mapper.grid) |> OccupancyGrid.save(path)
+      mapper.grid
+      |> ThinkingCap.Navigation.Maps.SensedGrid.occupancy()
+      |> OccupancyGrid.crisp()
+      |> OccupancyGrid.save(path)
   end
 
   # 10 s at a time until the exploration is done (or gave up) or time is up

@@ -21,8 +21,9 @@
  *  - Pure functions on byte grids (row-major from the bottom row): the
  *    exact Euclidean distance transform (Felzenszwalb & Huttenlocher),
  *    inflation, thresholds, downsampling, patches and the difference of
- *    two grids, the room segmentation of the topological map, and the
- *    frontiers between known free and unknown space.
+ *    two grids, the room segmentation of the topological map, the
+ *    frontiers between known free and unknown space, and a map drawn
+ *    crisp for saving.
  *
  * Every function checks its arguments and returns badarg, never crashes.
  * Work proportional to a whole map runs on a dirty CPU scheduler.
@@ -827,6 +828,66 @@ static ERL_NIF_TERM nif_rooms(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     return enif_make_tuple2(env, regions, contacts);
 }
 
+/* crisp(occupancy, w, h) -> occupancy: the map as map_saver's trinary
+ * thresholds read it (free at most 19, occupied from 65, else unknown),
+ * drawn to the surfaces the sensors saw. First, an occupied cell facing a
+ * free 4-neighbour, with an occupied cell behind it and no free cell
+ * behind that, is free: noise on the echoes grows a wall by a cell
+ * towards free space, and the wall keeps at least one cell (two cells
+ * between free space on both sides are left alone). Then an unknown cell
+ * with a free 4-neighbour and an occupied 8-neighbour is free: the band
+ * before a wall that the beams crossed but the map's margin left
+ * unknown. Values out: 0, 100 or -1. */
+static ERL_NIF_TERM nif_crisp(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary b;
+    int w, h;
+    if (!get_grid(env, argv, &b, &w, &h)) return enif_make_badarg(env);
+    size_t n = (size_t)w * h;
+    const int8_t *v = (const int8_t *)b.data;
+    int8_t *t = malloc(n), *e = malloc(n);
+    if (!t || !e) {
+        free(t);
+        free(e);
+        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+    }
+    for (size_t i = 0; i < n; i++) t[i] = v[i] < 0 ? -1 : v[i] <= 19 ? 0 : v[i] >= 65 ? 100 : -1;
+#define AT(g, c, r) (((c) < 0 || (r) < 0 || (c) >= w || (r) >= h) ? -1 : (g)[(size_t)(r) * w + (c)])
+    static const int d4[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            size_t i = (size_t)r * w + c;
+            e[i] = t[i];
+            if (t[i] != 100) continue;
+            for (int k = 0; k < 4; k++) {
+                int dc = d4[k][0], dr = d4[k][1];
+                if (AT(t, c + dc, r + dr) == 0 && AT(t, c - dc, r - dr) == 100 &&
+                    AT(t, c - 2 * dc, r - 2 * dr) != 0) {
+                    e[i] = 0;
+                    break;
+                }
+            }
+        }
+    ERL_NIF_TERM out;
+    int8_t *o = (int8_t *)enif_make_new_binary(env, n, &out);
+    for (int r = 0; r < h; r++)
+        for (int c = 0; c < w; c++) {
+            size_t i = (size_t)r * w + c;
+            o[i] = e[i];
+            if (e[i] != -1) continue;
+            int free4 = 0, occupied8 = 0;
+            for (int k = 0; k < 4; k++) free4 |= AT(e, c + d4[k][0], r + d4[k][1]) == 0;
+            for (int dr = -1; dr <= 1; dr++)
+                for (int dc = -1; dc <= 1; dc++) occupied8 |= AT(e, c + dc, r + dr) == 100;
+            if (free4 && occupied8) o[i] = 0;
+        }
+#undef AT
+    free(t);
+    free(e);
+    return out;
+}
+
 /* frontiers(occupancy, w, h, free_below, min_size) -> [{size, {c, r}}]:
  * the frontiers between known free space (0 <= v < free_below) and
  * unknown space (-1): free cells with an unknown 4-neighbour, grouped
@@ -944,6 +1005,7 @@ static ErlNifFunc funcs[] = {
     {"patch", 2, nif_patch, 0},
     {"rooms", 6, nif_rooms, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"frontiers", 5, nif_frontiers, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"crisp", 3, nif_crisp, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"shrink", 4, nif_shrink, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar", 5, tc_nif_astar, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"astar_cpu", 5, tc_nif_astar_cpu, ERL_NIF_DIRTY_JOB_CPU_BOUND},

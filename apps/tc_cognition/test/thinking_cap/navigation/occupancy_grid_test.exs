@@ -45,6 +45,44 @@ defmodule ThinkingCap.Navigation.OccupancyGridTest do
     end
   end
 
+  # rows drawn top first: . free, # occupied, ? unknown, o 40, f 15, w 80
+  defp drawn(rows) do
+    cells = for row <- Enum.reverse(rows), <<ch <- row>>, into: <<>>, do: <<cell(ch)::signed-8>>
+    %{OccupancyGrid.new(byte_size(hd(rows)), length(rows)) | data: cells}
+  end
+
+  defp cell(?.), do: 0
+  defp cell(?#), do: 100
+  defp cell(??), do: -1
+  defp cell(?o), do: 40
+  defp cell(?f), do: 15
+  defp cell(?w), do: 80
+
+  test "a map drawn crisp for saving: walls thinned to the surfaces seen, the margin filled" do
+    # a wall three cells thick before unknown space: its face towards the
+    # free room is taken off, two cells stay
+    assert OccupancyGrid.crisp(drawn(["...###??", "...###??"])) ==
+             drawn(["....##??", "....##??"])
+
+    # two cells between free space on both sides, and a wall of one cell,
+    # stay whole
+    assert OccupancyGrid.crisp(drawn(["..##..#..", "..##..#.."])) ==
+             drawn(["..##..#..", "..##..#.."])
+
+    # three cells between free space on both sides: the middle one stays
+    assert OccupancyGrid.crisp(drawn(["..###..", "..###.."])) ==
+             drawn(["...#...", "...#..."])
+
+    # the unknown band the map builder's margin leaves before a wall is
+    # free; unknown space with no wall beside it (a frontier) stays unknown
+    assert OccupancyGrid.crisp(drawn(["..?#", "..??", "..??"])) ==
+             drawn(["...#", "...?", "..??"])
+
+    # values between the trinary thresholds are unknown, the others
+    # rounded to free and occupied
+    assert OccupancyGrid.crisp(drawn(["f?o?w"])) == drawn([".???#"])
+  end
+
   test "a map shrunk for display keeps its obstacles and its frame" do
     # 4 x 2: an obstacle in the second block, the third block unknown
     data = <<0, 0, 0, 100, -1::signed-8, -1::signed-8, 0, 0, 0, 0, -1::signed-8, -1::signed-8>>

@@ -41,6 +41,8 @@ defmodule ThinkingCap.Navigation.Core.GridNif do
   def frontiers(_occupancy, _w, _h, _free_below, _min_size),
     do: :erlang.nif_error(:nif_not_loaded)
 
+  def crisp(_occupancy, _w, _h), do: :erlang.nif_error(:nif_not_loaded)
+
   def rooms(_occupancy, _w, _h, _free_below, _half_door, _min_core),
     do: :erlang.nif_error(:nif_not_loaded)
 
