@@ -29,7 +29,8 @@ defmodule ThinkingCap.Bench.NavUnknown do
   orange, the shortest path before the boxes in blue, the true shortest
   one in teal, the path driven in red) and a frame each time the plan's
   length jumps by 0.9 m or more (the plan before in purple, after in
-  green). `TC_REPLANS=FILE` appends every replan's
+  green); `TC_DRAW_WINDOW=x0,x1,y0,y1` (metres, floats) draws only that
+  window, at 0.5 cm a pixel. `TC_REPLANS=FILE` appends every replan's
   record (`ThinkingCap.Navigation.PathPlanner`'s `last`) to FILE.
 
   Ends with

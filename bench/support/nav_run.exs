@@ -310,9 +310,12 @@ defmodule ThinkingCap.Bench.NavRun do
     {xs, ys} = Enum.unzip(track ++ pair.path)
 
     {x0, x1, y0, y1} =
-      {Enum.min(xs) - 1.5, Enum.max(xs) + 1.5, Enum.min(ys) - 1.5, Enum.max(ys) + 1.5}
+      case System.get_env("TC_DRAW_WINDOW") do
+        nil -> {Enum.min(xs) - 1.5, Enum.max(xs) + 1.5, Enum.min(ys) - 1.5, Enum.max(ys) + 1.5}
+        w -> w |> String.split(",") |> Enum.map(&String.to_float/1) |> List.to_tuple()
+      end
 
-    res = 0.01
+    res = if System.get_env("TC_DRAW_WINDOW"), do: 0.005, else: 0.01
     {cols, rows} = {ceil((x1 - x0) / res), ceil((y1 - y0) / res)}
     px = fn {x, y} -> {floor((x - x0) / res), rows - 1 - floor((y - y0) / res)} end
 

@@ -117,6 +117,8 @@ defmodule ThinkingCap.Planner.Monitor do
   `map_timeout` (10 s), `save_to` (where an exploration's map is saved),
   `explore_rounds` (2: when no frontier is left but some were given up,
   they are tried again this many times in all, on the map as it is then),
+  `frontier_gain` (1.0: m of way a metre of a frontier's length is
+  worth, `ThinkingCap.Navigation.Frontiers.cost/3`'s `gain`),
   `area_gain` (m of way a square metre of unknown area within 3 m of a
   frontier is worth, counted up to 6 m²; default 0: the area does not
   count. At 2, on generated buildings 5 and 1 (seed 1) 8 and 10 points
@@ -182,6 +184,8 @@ defmodule ThinkingCap.Planner.Monitor do
     map_timeout: {:pos_number, default: 10.0, doc: "s an exploration waits for a map"},
     save_to: {:string, default: nil, doc: "where an exploration's map is saved"},
     explore_rounds: {:pos_integer, default: 2, doc: "rounds over the frontiers given up"},
+    frontier_gain:
+      {:non_neg_number, default: 1.0, doc: "m of way a metre of a frontier's length is worth"},
     area_gain:
       {:non_neg_number,
        default: 0.0, doc: "m of way a m² of unknown area a frontier opens onto is worth"},
@@ -681,7 +685,7 @@ defmodule ThinkingCap.Planner.Monitor do
   # the frontiers' unknown areas are counted only when they weigh
   defp frontier_opts(state) do
     gain = state.params[:area_gain]
-    [area_gain: gain, area: is_number(gain) and gain > 0]
+    [gain: state.params[:frontier_gain], area_gain: gain, area: is_number(gain) and gain > 0]
   end
 
   defp fmt(nil), do: "?"

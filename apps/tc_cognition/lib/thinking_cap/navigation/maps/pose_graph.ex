@@ -117,15 +117,14 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     submap_nodes: 5,
     local_nodes: 10,
     loop_heading_scale: 1.0,
-    wall_gap: 0.3
+    wall_gap: 0.3,
+    local_sigma: 0.03,
+    local_sigma_angle: 0.01
   }
 
   # the window of the match of a node against the nodes before it: the
   # localizer's estimate is seldom further off from them
   @local_window {0.3, 0.06}
-  # that match makes the edge only when it fixes the pose this sharply (m, rad)
-  @local_sigma 0.03
-  @local_sigma_angle 0.01
 
   @doc """
   An empty graph. Options (defaults in brackets): `node_distance` [0.3],
@@ -141,7 +140,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   many of the nearest; a short stretch of the chain is true to itself,
   a long one is not), `local_nodes` [10] (how many nodes before a new
   one its scan is matched against for the edge from the node before; 0:
-  the estimate alone makes the edge), `loop_heading_scale` [1.0] (how
+  the estimate alone makes the edge), `local_sigma` [0.03 m] and
+  `local_sigma_angle` [0.01 rad] (how sharply that match must fix the
+  node for its edge; else the estimate makes it), `loop_heading_scale` [1.0] (how
   many times its match's standard deviation a loop edge's heading is
   given).
   """
@@ -278,7 +279,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
              g.params.resolution
            ),
          {big, _small, _} = principal(cxx, cxy, cyy),
-         true <- :math.sqrt(big) <= @local_sigma and :math.sqrt(ctt) <= @local_sigma_angle,
+         true <-
+           :math.sqrt(big) <= g.params.local_sigma and
+             :math.sqrt(ctt) <= g.params.local_sigma_angle,
          {:ok, local} <- loop_edge(g, i, j, matched, cov, 1.0) do
       %{local | kind: :sequence}
     else
