@@ -44,7 +44,10 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   Params: `stop: 0.15`, `slow: 0.45`, `near: 0.5` (m of clearance; tuned on
   `mix tc.bench nav`: wider margins keep a robot out of the gaps its
   planned path goes through),
-  `margin: 0.05` (m), `tie: 0.05` (m), `keep_turn: 0.5` (rad/s).
+  `margin: 0.02` (m: the corridor 2 cm wider than the robot on each
+  side; with 0.05, on `mix tc.bench nav_unknown` the robot turned back
+  at gaps among boxes its planned path went through, 0.6 to 0.7 m wide
+  for a robot of 0.4), `tie: 0.05` (m), `keep_turn: 0.5` (rad/s).
   """
   use ThinkingCap.Control.Behaviour
 
@@ -53,7 +56,7 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   # clearance (m) a side needs for the path's side to be chosen
   @passable 0.1
 
-  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.05, tie: 0.05, keep_turn: 0.5
+  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.02, tie: 0.05, keep_turn: 0.5
 
   @type t :: %__MODULE__{}
 

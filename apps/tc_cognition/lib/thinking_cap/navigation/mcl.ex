@@ -109,8 +109,13 @@ defmodule ThinkingCap.Navigation.MCL do
     * `particles` (default 500), `beams` (default 40 on a given map; in
       simultaneous localization and mapping, every beam), `seed` (default 1);
     * `sigma_hit`, `z_hit`, `z_rand` - the sensor model (defaults 0.1,
-      0.9, 0.1; in simultaneous localization and mapping `sigma_hit` is
-      0.05); `alphas` - the motion model (default from the RDF's
+      0.5, 0.5; in simultaneous localization and mapping 0.05, 0.9,
+      0.1). On a given map, as much noise as hits (nav2's example
+      parameters too): beams ending on boxes the map lacks then pull
+      the estimate less. Among eight boxes on turtlebot3_world
+      (`mix tc.bench nav_unknown`, seed 3, run 4) the mean error fell
+      from 0.082 m to 0.037 and the largest from 0.25 to 0.07, with
+      0.9 and 0.1 before; `alphas` - the motion model (default from the RDF's
       `odometry_error`: generous multiples of its slips). A map being
       built is drawn at this module's own estimates: a scan weighed
       loosely fits, a few degrees off, the walls the scans before drew,
@@ -171,8 +176,12 @@ defmodule ThinkingCap.Navigation.MCL do
     seed: {:integer, default: 1, read_only: true, doc: "random seed"},
     sigma_hit:
       {:pos_number, default: nil, read_only: true, doc: "sensor model σ, m (0.1; in SLAM 0.05)"},
-    z_hit: {:probability, default: 0.9, read_only: true, doc: "sensor model: share of hits"},
-    z_rand: {:probability, default: 0.1, read_only: true, doc: "sensor model: share of noise"},
+    z_hit:
+      {:probability,
+       default: nil, read_only: true, doc: "sensor model: share of hits (0.5; in SLAM 0.9)"},
+    z_rand:
+      {:probability,
+       default: nil, read_only: true, doc: "sensor model: share of noise (0.5; in SLAM 0.1)"},
     alphas:
       {{:tuple, List.duplicate(:non_neg_number, 4)},
        default: nil,
@@ -314,14 +323,17 @@ defmodule ThinkingCap.Navigation.MCL do
     {subscriptions, resume(state, Map.get(context, :handoff))}
   end
 
-  # beams and sigma_hit not given: every beam, weighed sharply, where the
-  # map is being built (see the moduledoc), else 40 and 0.1
+  # beams, sigma_hit, z_hit and z_rand not given: every beam, weighed
+  # sharply, where the map is being built (see the moduledoc), else 40,
+  # 0.1 and as much noise as hits
   defp slam_defaults(params, slam) do
-    {beams, sigma} = if slam, do: {4096, 0.05}, else: {40, 0.1}
+    {beams, sigma, z_hit, z_rand} = if slam, do: {4096, 0.05, 0.9, 0.1}, else: {40, 0.1, 0.5, 0.5}
 
     params
     |> Keyword.update(:beams, beams, &(&1 || beams))
     |> Keyword.update(:sigma_hit, sigma, &(&1 || sigma))
+    |> Keyword.update(:z_hit, z_hit, &(&1 || z_hit))
+    |> Keyword.update(:z_rand, z_rand, &(&1 || z_rand))
   end
 
   @doc """
