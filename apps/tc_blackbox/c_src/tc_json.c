@@ -13,6 +13,9 @@
  * caller then writes it in Erlang, so the bytes are always the same
  * (the tests compare the two on random terms).
  *
+ * tuple(Tag, Id, Payload) -> Binary | false: the JSON of a
+ * thinkingcap.Tuple message, the three written as value/1 writes them.
+ *
  * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
  * three decimals (trailing zeros dropped), each integer as it is; badarg
  * for anything else.
@@ -79,6 +82,20 @@ static int put_c(buf *b, char c)
 
 static const double pow10s[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
 
+/* an unsigned integer's decimal digits into `out` (20 bytes at most);
+ * their count */
+static int utoa(char *out, unsigned long long v)
+{
+    char tmp[20];
+    int n = 0;
+    do {
+        tmp[n++] = (char)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    for (int i = 0; i < n; i++) out[i] = tmp[n - 1 - i];
+    return n;
+}
+
 /* a float to `decimals` decimals (1..9), trailing zeros dropped but one */
 static int put_fixed(buf *b, double f, int decimals)
 {
@@ -90,27 +107,39 @@ static int put_fixed(buf *b, double f, int decimals)
         /* past 2^53: printf's digits, as Erlang does there */
         n = snprintf(tmp, sizeof(tmp), "%.*f", decimals, f);
         if (n <= 0 || n >= (int)sizeof(tmp)) return 0;
-    } else {
-        double int_f = floor(af);
-        double frac_f = round((af - int_f) * pow10s[decimals]);
-        unsigned long long ip = (unsigned long long)int_f;
-        unsigned long long fp = (unsigned long long)frac_f;
-        if (frac_f >= pow10s[decimals]) {
-            ip++;
-            fp = 0;
+        /* trailing zeros, keeping one digit after the point */
+        char *dot = strchr(tmp, '.');
+        if (dot != NULL) {
+            while (n > (dot - tmp) + 2 && tmp[n - 1] == '0') n--;
         }
-        char frac[16];
-        for (int i = decimals - 1; i >= 0; i--) {
-            frac[i] = (char)('0' + fp % 10);
-            fp /= 10;
-        }
-        n = snprintf(tmp, sizeof(tmp), "%s%llu.%.*s", neg ? "-" : "", ip, decimals, frac);
+        return put(b, tmp, (size_t)n);
     }
-    /* trailing zeros, keeping one digit after the point */
-    char *dot = strchr(tmp, '.');
-    if (dot != NULL) {
-        while (n > (dot - tmp) + 2 && tmp[n - 1] == '0') n--;
+    /* the integer part, and the fraction times 10^decimals rounded, carried
+     * into the integer part when it rounds up to 10^decimals; written by
+     * hand (snprintf cost a scan's ranges most of their time) */
+    double int_f = floor(af);
+    double frac_f = round((af - int_f) * pow10s[decimals]);
+    unsigned long long ip = (unsigned long long)int_f;
+    unsigned long long fp = (unsigned long long)frac_f;
+    if (frac_f >= pow10s[decimals]) {
+        ip++;
+        fp = 0;
     }
+    n = 0;
+    if (neg) tmp[n++] = '-';
+    n += utoa(tmp + n, ip);
+    tmp[n++] = '.';
+    /* the fraction's digits less its trailing zeros, one digit at least */
+    int digits = decimals;
+    while (digits > 1 && fp % 10 == 0) {
+        fp /= 10;
+        digits--;
+    }
+    for (int i = digits - 1; i >= 0; i--) {
+        tmp[n + i] = (char)('0' + fp % 10);
+        fp /= 10;
+    }
+    n += digits;
     return put(b, tmp, (size_t)n);
 }
 
@@ -177,8 +206,14 @@ static int put_float(buf *b, double f)
 
 static int put_int(buf *b, ErlNifSInt64 i)
 {
-    char tmp[32];
-    int n = snprintf(tmp, sizeof(tmp), "%lld", (long long)i);
+    char tmp[24];
+    int n = 0;
+    unsigned long long u = (unsigned long long)i;
+    if (i < 0) {
+        tmp[n++] = '-';
+        u = 0ULL - u;
+    }
+    n += utoa(tmp + n, u);
     return put(b, tmp, (size_t)n);
 }
 
@@ -349,6 +384,22 @@ static ERL_NIF_TERM nif_value(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     return to_binary(env, &b);
 }
 
+/* tuple(Tag, Id, Payload) -> Binary | false: a thinkingcap.Tuple
+ * message, `{"tag":T,"robot":I,"payload":P}`, each as value/1 writes it */
+static ERL_NIF_TERM nif_tuple(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    buf b;
+    buf_init(&b);
+    if (!(put(&b, "{\"tag\":", 7) && value(env, &b, argv[0], 0) && put(&b, ",\"robot\":", 9) &&
+          value(env, &b, argv[1], 0) && put(&b, ",\"payload\":", 11) && value(env, &b, argv[2], 0) &&
+          put_c(&b, '}'))) {
+        buf_free(&b);
+        return enif_make_atom(env, "false");
+    }
+    return to_binary(env, &b);
+}
+
 /* millimetres(List) -> Binary */
 static ERL_NIF_TERM nif_millimetres(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -379,6 +430,7 @@ static ERL_NIF_TERM nif_millimetres(ErlNifEnv *env, int argc, const ERL_NIF_TERM
 static ErlNifFunc funcs[] = {
     {"nif_value", 1, nif_value, 0},
     {"nif_millimetres", 1, nif_millimetres, 0},
+    {"nif_tuple", 3, nif_tuple, 0},
 };
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)

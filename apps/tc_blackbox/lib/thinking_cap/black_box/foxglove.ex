@@ -250,7 +250,27 @@ defmodule ThinkingCap.BlackBox.Foxglove do
   defp convert(tuple, _time_ns), do: generic(tuple)
 
   defp generic({tag, id, payload}) do
-    json = [
+    # in C, into one binary, when it can (the same bytes)
+    json =
+      case JSON.Native.tuple(tag, id, payload) do
+        false -> generic_json(tag, id, payload)
+        json -> json
+      end
+
+    [{topic(id, tag), "thinkingcap.Tuple", json}]
+  end
+
+  defp generic(other) do
+    json = ["{\"tag\":null,\"robot\":null,\"payload\":", JSON.value(other), ?}]
+    [{"/tuple/#{tuple_size(other)}", "thinkingcap.Tuple", json}]
+  end
+
+  @doc false
+  # a thinkingcap.Tuple message's JSON written in Erlang (`generic/1`
+  # writes it in C when it can; the tests compare the two)
+  @spec generic_json(term(), term(), term()) :: iodata()
+  def generic_json(tag, id, payload) do
+    [
       "{\"tag\":",
       JSON.value(tag),
       ",\"robot\":",
@@ -259,13 +279,6 @@ defmodule ThinkingCap.BlackBox.Foxglove do
       JSON.fast(payload),
       ?}
     ]
-
-    [{topic(id, tag), "thinkingcap.Tuple", json}]
-  end
-
-  defp generic(other) do
-    json = ["{\"tag\":null,\"robot\":null,\"payload\":", JSON.value(other), ?}]
-    [{"/tuple/#{tuple_size(other)}", "thinkingcap.Tuple", json}]
   end
 
   defp frame(robot), do: Atom.to_string(robot) <> "/base_link"
