@@ -12,7 +12,8 @@
  * A chunk stream (chunk_new/2, chunk_add/2, chunk_message/6,
  * chunk_finish/1) takes a chunk's records as they come and keeps them in
  * a plain buffer, off the writer's heap; it writes the Message records
- * itself (header, sequence, index entry) and compresses the chunk once,
+ * itself (header, sequence, index entry; chunk_messages/2 a list of them
+ * in one call) and compresses the chunk once,
  * at its end, on a dirty scheduler (a few hundred KB: about a
  * millisecond), with its CRC-32 and its Message Index records. chunk_add
  * and chunk_message run on a normal scheduler (the writer gives them tens
@@ -30,7 +31,7 @@
 /* an upper bound on any size asked for, whatever the caller checks */
 #define MAX_SIZE ((ErlNifUInt64)1 << 32)
 
-static ERL_NIF_TERM A_OK, A_ERROR, A_CORRUPT, A_SIZE_MISMATCH, A_NO_MEMORY;
+static ERL_NIF_TERM A_OK, A_ERROR, A_CORRUPT, A_SIZE_MISMATCH, A_NO_MEMORY, A_NEXT;
 
 static ERL_NIF_TERM ok(ErlNifEnv *env, ERL_NIF_TERM t) { return enif_make_tuple2(env, A_OK, t); }
 
@@ -269,6 +270,66 @@ static ERL_NIF_TERM nif_chunk_add(ErlNifEnv *env, int argc, const ERL_NIF_TERM a
     return enif_make_atom(env, "ok");
 }
 
+/* A Message record into the chunk (its lock held): its sequence the
+ * channel's next when `sequence` is -1; NULL, or what failed */
+static const char *put_message(chunk_stream *c, unsigned channel, ErlNifSInt64 sequence,
+                               ErlNifUInt64 log_time, ErlNifUInt64 publish_time,
+                               const unsigned char *data, size_t size)
+{
+    if (sequence < 0) {
+        if (channel >= c->sequence_cap) {
+            size_t cap = c->sequence_cap ? c->sequence_cap : 64;
+            while (cap <= channel) cap *= 2;
+            uint32_t *seq = enif_realloc(c->sequence, cap * sizeof(*seq));
+            if (seq == NULL) return "no memory";
+            memset(seq + c->sequence_cap, 0, (cap - c->sequence_cap) * sizeof(*seq));
+            c->sequence = seq;
+            c->sequence_cap = cap;
+        }
+        sequence = ++c->sequence[channel];
+    }
+    if (c->index_len == c->index_cap) {
+        size_t cap = c->index_cap ? c->index_cap * 2 : 512;
+        index_entry *index = enif_realloc(c->index, cap * sizeof(*index));
+        if (index == NULL) return "no memory";
+        c->index = index;
+        c->index_cap = cap;
+    }
+    if (!raw_room(c, 31 + size)) return "no memory";
+    index_entry *e = &c->index[c->index_len++];
+    e->channel = channel;
+    e->time = log_time;
+    e->offset = c->raw_len;
+    if (c->index_len == 1 || log_time < c->start) c->start = log_time;
+    if (c->index_len == 1 || log_time > c->end) c->end = log_time;
+    /* opcode, length, channel, sequence, log time, publish time, data */
+    unsigned char *p = c->raw + c->raw_len;
+    p[0] = 0x05;
+    put_le(p + 1, 22 + (ErlNifUInt64)size, 8);
+    put_le(p + 9, channel, 2);
+    put_le(p + 11, (ErlNifUInt64)sequence, 4);
+    put_le(p + 15, log_time, 8);
+    put_le(p + 23, publish_time, 8);
+    if (size) memcpy(p + 31, data, size);
+    c->raw_len += 31 + size;
+    return NULL;
+}
+
+/* a message's arguments, checked; the sequence `next` is -1 */
+static int get_message(ErlNifEnv *env, const ERL_NIF_TERM *argv, unsigned *channel,
+                       ErlNifSInt64 *sequence, ErlNifUInt64 *log_time,
+                       ErlNifUInt64 *publish_time, ErlNifBinary *data)
+{
+    if (enif_is_identical(argv[1], A_NEXT)) *sequence = -1;
+    else if (!enif_get_int64(env, argv[1], sequence) || *sequence < -1 || *sequence > 0xFFFFFFFFLL)
+        return 0;
+    if (!enif_get_uint(env, argv[0], channel) || *channel > 65535 ||
+        !enif_get_uint64(env, argv[2], log_time) || !enif_get_uint64(env, argv[3], publish_time))
+        return 0;
+    return enif_is_binary(env, argv[4]) ? enif_inspect_binary(env, argv[4], data)
+                                        : enif_inspect_iolist_as_binary(env, argv[4], data);
+}
+
 /* chunk_message(Stream, Channel, Sequence, LogTime, PublishTime, Data) ->
  * ChunkSize: a Message record, its sequence the channel's next when
  * Sequence is -1; answers the chunk's size so far */
@@ -280,63 +341,65 @@ static ERL_NIF_TERM nif_chunk_message(ErlNifEnv *env, int argc, const ERL_NIF_TE
     ErlNifSInt64 sequence;
     ErlNifUInt64 log_time, publish_time;
     ErlNifBinary data;
-    if (!get_stream(env, argv[0], &c) || !enif_get_uint(env, argv[1], &channel) || channel > 65535 ||
-        !enif_get_int64(env, argv[2], &sequence) || sequence < -1 || sequence > 0xFFFFFFFFLL ||
-        !enif_get_uint64(env, argv[3], &log_time) || !enif_get_uint64(env, argv[4], &publish_time))
+    if (!get_stream(env, argv[0], &c) ||
+        !get_message(env, argv + 1, &channel, &sequence, &log_time, &publish_time, &data))
         return enif_make_badarg(env);
-    if (!(enif_is_binary(env, argv[5]) ? enif_inspect_binary(env, argv[5], &data)
-                                       : enif_inspect_iolist_as_binary(env, argv[5], &data)))
-        return enif_make_badarg(env);
-
     enif_mutex_lock(c->lock);
-    const char *failed = NULL;
-    if (sequence < 0) {
-        if (channel >= c->sequence_cap) {
-            size_t cap = c->sequence_cap ? c->sequence_cap : 64;
-            while (cap <= channel) cap *= 2;
-            uint32_t *seq = enif_realloc(c->sequence, cap * sizeof(*seq));
-            if (seq == NULL) failed = "no memory";
-            else {
-                memset(seq + c->sequence_cap, 0, (cap - c->sequence_cap) * sizeof(*seq));
-                c->sequence = seq;
-                c->sequence_cap = cap;
-            }
-        }
-        if (!failed) sequence = ++c->sequence[channel];
-    }
-    if (!failed && c->index_len == c->index_cap) {
-        size_t cap = c->index_cap ? c->index_cap * 2 : 512;
-        index_entry *index = enif_realloc(c->index, cap * sizeof(*index));
-        if (index == NULL) failed = "no memory";
-        else {
-            c->index = index;
-            c->index_cap = cap;
-        }
-    }
-    if (!failed && !raw_room(c, 31 + data.size)) failed = "no memory";
-    if (failed) {
-        enif_mutex_unlock(c->lock);
-        return raise(env, failed);
-    }
-    index_entry *e = &c->index[c->index_len++];
-    e->channel = channel;
-    e->time = log_time;
-    e->offset = c->raw_len;
-    if (c->index_len == 1 || log_time < c->start) c->start = log_time;
-    if (c->index_len == 1 || log_time > c->end) c->end = log_time;
-    /* opcode, length, channel, sequence, log time, publish time, data */
-    unsigned char *p = c->raw + c->raw_len;
-    p[0] = 0x05;
-    put_le(p + 1, 22 + (ErlNifUInt64)data.size, 8);
-    put_le(p + 9, channel, 2);
-    put_le(p + 11, (ErlNifUInt64)sequence, 4);
-    put_le(p + 15, log_time, 8);
-    put_le(p + 23, publish_time, 8);
-    if (data.size) memcpy(p + 31, data.data, data.size);
-    c->raw_len += 31 + data.size;
+    const char *failed = put_message(c, channel, sequence, log_time, publish_time, data.data, data.size);
     ErlNifUInt64 size = c->raw_len;
     enif_mutex_unlock(c->lock);
+    if (failed) return raise(env, failed);
     return enif_make_uint64(env, size);
+}
+
+/* chunk_messages(Stream, [{Channel, Sequence, LogTime, PublishTime, Data}],
+ * Limit) -> {ChunkSize, Written}: chunk_message/6 for each (Sequence may be
+ * `next` too), in the list's order, in one call, until the chunk holds
+ * Limit bytes (the one that reaches it written); every one is checked
+ * before any is written */
+static ERL_NIF_TERM nif_chunk_messages(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    chunk_stream *c;
+    unsigned len;
+    ErlNifUInt64 limit;
+    if (!get_stream(env, argv[0], &c) || !enif_get_list_length(env, argv[1], &len) ||
+        !enif_get_uint64(env, argv[2], &limit))
+        return enif_make_badarg(env);
+    typedef struct {
+        unsigned channel;
+        ErlNifSInt64 sequence;
+        ErlNifUInt64 log_time, publish_time;
+        ErlNifBinary data;
+    } message;
+    message local[64];
+    message *m = len <= 64 ? local : enif_alloc(len * sizeof(message));
+    if (m == NULL) return raise(env, "no memory");
+    ERL_NIF_TERM head, tail = argv[1];
+    for (unsigned k = 0; k < len; k++) {
+        int arity;
+        const ERL_NIF_TERM *t;
+        enif_get_list_cell(env, tail, &head, &tail);
+        if (!enif_get_tuple(env, head, &arity, &t) || arity != 5 ||
+            !get_message(env, t, &m[k].channel, &m[k].sequence, &m[k].log_time,
+                         &m[k].publish_time, &m[k].data)) {
+            if (m != local) enif_free(m);
+            return enif_make_badarg(env);
+        }
+    }
+    enif_mutex_lock(c->lock);
+    const char *failed = NULL;
+    unsigned written = 0;
+    while (written < len && !failed && c->raw_len < limit) {
+        message *k = &m[written++];
+        failed = put_message(c, k->channel, k->sequence, k->log_time, k->publish_time,
+                             k->data.data, k->data.size);
+    }
+    ErlNifUInt64 size = c->raw_len;
+    enif_mutex_unlock(c->lock);
+    if (m != local) enif_free(m);
+    if (failed) return raise(env, failed);
+    return enif_make_tuple2(env, enif_make_uint64(env, size), enif_make_uint(env, written));
 }
 
 /* chunk_size(Stream) -> {Bytes, Messages}: the open chunk's */
@@ -458,6 +521,7 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     A_CORRUPT = enif_make_atom(env, "corrupt");
     A_SIZE_MISMATCH = enif_make_atom(env, "size_mismatch");
     A_NO_MEMORY = enif_make_atom(env, "no_memory");
+    A_NEXT = enif_make_atom(env, "next");
     CHUNK_STREAM = enif_open_resource_type(env, NULL, "tc_mcap_chunk_stream", chunk_stream_free,
                                            ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
     return CHUNK_STREAM == NULL ? 1 : 0;
@@ -479,6 +543,8 @@ static ErlNifFunc funcs[] = {
     {"chunk_add_dirty", 2, nif_chunk_add, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"chunk_message", 6, nif_chunk_message, 0},
     {"chunk_message_dirty", 6, nif_chunk_message, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"chunk_messages", 3, nif_chunk_messages, 0},
+    {"chunk_messages_dirty", 3, nif_chunk_messages, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"chunk_size", 1, nif_chunk_size, 0},
     {"chunk_finish", 1, nif_chunk_finish, ERL_NIF_DIRTY_JOB_CPU_BOUND},
 };

@@ -363,15 +363,29 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp drain(state) do
     items = Enum.reverse(state.pending)
     state = %{state | pending: [], pending_n: 0}
-    state = Enum.reduce(items, state, &write_item/2)
+    state = write_items(items, [], 0, state)
     maybe_rotate_by_size(state)
   end
 
-  # no file (a write failed): dropped until one is begun again
-  defp write_item(_item, %{writer: nil} = state), do: state
+  # in order: each run of tuples (`@pending_max` at most: a file is
+  # closed past `file_bytes` after a run) written in one call, their
+  # records made in one NIF call; each callback as it comes
+  defp write_items([{:tuple, now, tuple} | rest], run, n, state) when n < @pending_max,
+    do: write_items(rest, [{tuple, now} | run], n + 1, state)
 
-  defp write_item({:tuple, now, tuple}, state) do
-    case Channels.write_held(state.writer, state.chans, tuple, now) do
+  defp write_items(rest, [_ | _] = run, _n, state),
+    do: write_items(rest, [], 0, write_tuples(:lists.reverse(run), state))
+
+  defp write_items([item | rest], [], 0, state),
+    do: write_items(rest, [], 0, write_item(item, state))
+
+  defp write_items([], [], 0, state), do: state
+
+  # no file (a write failed): dropped until one is begun again
+  defp write_tuples(_entries, %{writer: nil} = state), do: state
+
+  defp write_tuples(entries, state) do
+    case Channels.write_held_all(state.writer, state.chans, entries) do
       {:ok, w, chans, n} ->
         maybe_rotate_by_size(%{state | writer: w, chans: chans, messages: state.messages + n})
 
@@ -379,6 +393,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
         failed(%{state | chans: chans}, reason)
     end
   end
+
+  defp write_item(_item, %{writer: nil} = state), do: state
 
   # kept a moment, and written `@batch` at a time (or at the chunk's
   # end): one message per callback would cost more in record headers

@@ -99,6 +99,32 @@ defmodule ThinkingCap.MCAP.Compression do
       else: chunk_message(stream, channel, sequence, log_time, publish_time, data)
   end
 
+  @typedoc "A message for `messages/4`: channel, sequence, log time, publish time, data."
+  @type message ::
+          {non_neg_integer(), non_neg_integer() | :next, non_neg_integer(), non_neg_integer(),
+           iodata()}
+
+  # what one call of messages/3 copies on a normal scheduler (about
+  # 100 µs); a dirty one's switch costs tens of µs, more than copying
+  # a list of tuples' records
+  @messages_normal_max 1_048_576
+
+  @doc """
+  Adds Message records to the chunk, in the list's order, as `message/6`
+  does each, in one call, until the chunk holds `limit` bytes (the
+  message that reaches it is written); `bytes` is about as many bytes
+  as they hold (more than 1 MB: the call runs on a dirty scheduler).
+  Returns the chunk's size so far (uncompressed) and how many were
+  written.
+  """
+  @spec messages(stream(), [message()], non_neg_integer(), non_neg_integer()) ::
+          {non_neg_integer(), non_neg_integer()}
+  def messages(stream, messages, limit, bytes) when bytes <= @messages_normal_max,
+    do: chunk_messages(stream, messages, limit)
+
+  def messages(stream, messages, limit, _bytes),
+    do: chunk_messages_dirty(stream, messages, limit)
+
   @doc "The open chunk's size (uncompressed) and its messages."
   @spec size(stream()) :: {non_neg_integer(), non_neg_integer()}
   def size(stream), do: chunk_size(stream)
@@ -161,6 +187,11 @@ defmodule ThinkingCap.MCAP.Compression do
   @doc false
   def chunk_message_dirty(_stream, _channel, _sequence, _log, _publish, _data),
     do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc false
+  def chunk_messages(_stream, _messages, _limit), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def chunk_messages_dirty(_stream, _messages, _limit), do: :erlang.nif_error(:nif_not_loaded)
 
   @doc false
   def chunk_size(_stream), do: :erlang.nif_error(:nif_not_loaded)

@@ -152,6 +152,28 @@ defmodule ThinkingCap.MCAP.Writer do
     if size >= w.chunk_bytes, do: close_chunk(w), else: {:ok, w}
   end
 
+  @doc """
+  Adds messages, `[{channel_id, sequence, log_time, publish_time, data}]`
+  (as `add_message/6`'s, in order), their records made in one call; the
+  chunk is closed and written whenever it holds `chunk_bytes`, as with
+  `add_message/6`. `bytes` is about as many bytes as their data (a hint:
+  more than 1 MB go on a dirty scheduler).
+  """
+  @spec add_messages(t(), [Compression.message()], non_neg_integer()) ::
+          {:ok, t()} | {:error, term()}
+  def add_messages(%__MODULE__{} = w, [], _bytes), do: {:ok, w}
+
+  def add_messages(%__MODULE__{} = w, messages, bytes) do
+    case Compression.messages(w.stream, messages, w.chunk_bytes, bytes) do
+      {size, _written} when size < w.chunk_bytes ->
+        {:ok, w}
+
+      {_size, written} ->
+        with {:ok, w} <- close_chunk(w),
+             do: add_messages(w, Enum.drop(messages, written), bytes)
+    end
+  end
+
   @doc "Bytes in the open chunk (uncompressed)."
   @spec chunk_size(t()) :: non_neg_integer()
   def chunk_size(%__MODULE__{stream: stream}), do: elem(Compression.size(stream), 0)

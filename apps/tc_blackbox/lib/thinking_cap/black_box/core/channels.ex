@@ -65,38 +65,60 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # Writes what `held/1` made of a tuple (or a tuple, as `write_tuple/4`).
   @spec write_held(Writer.t(), t(), tuple(), non_neg_integer()) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
-  def write_held(w, chans, {__MODULE__, :big, tag, id, stamp, etf}, time) do
-    publish = stamp || time
-    decoded = fn -> Foxglove.messages(:erlang.binary_to_term(etf), time) end
-    {messages, chans} = thinned(chans, {tag, id}, publish, decoded)
-    # its channel is its tag's and id's (`{tag, id, nil}` stands for the tuple)
-    write(w, chans, messages, {tag, id, nil}, etf, time, publish)
+  def write_held(w, chans, held, time), do: write_held_all(w, chans, [{held, time}])
+
+  # Writes what `held/1` made of tuples (or tuples), `[{held, time}]`
+  # oldest first, as `write_held/4` each: their channels found (and
+  # declared) one by one, their records made in one call
+  # (`Writer.add_messages/3`). The count of messages written.
+  @spec write_held_all(Writer.t(), t(), [{tuple(), non_neg_integer()}]) ::
+          {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
+  def write_held_all(w, chans, entries) do
+    {w, chans, messages, bytes, n} = held_all(entries, {w, chans, [], 0, 0})
+
+    case Writer.add_messages(w, :lists.reverse(messages), bytes) do
+      {:ok, w} -> {:ok, w, chans, n}
+      {:error, reason} -> {:error, reason, chans}
+    end
   end
-
-  def write_held(w, chans, {__MODULE__, tuple, etf}, time),
-    do: write_tuple(w, chans, tuple, etf, time)
-
-  def write_held(w, chans, tuple, time), do: write_tuple(w, chans, tuple, nil, time)
 
   # Writes `tuple`, received at `time` (ns since the epoch): its Foxglove
   # messages, then the whole term. The count of messages written.
   @spec write_tuple(Writer.t(), t(), tuple(), non_neg_integer()) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
-  def write_tuple(w, chans, tuple, time), do: write_tuple(w, chans, tuple, nil, time)
+  def write_tuple(w, chans, tuple, time), do: write_held_all(w, chans, [{tuple, time}])
 
-  # `etf`: the tuple's external term, or nil to make it here
-  defp write_tuple(w, chans, tuple, etf, time) do
-    publish = Foxglove.stamp_ns(tuple) || time
-    {messages, chans} = foxglove(chans, tuple, time, publish)
-    write(w, chans, messages, tuple, etf, time, publish)
+  # The messages to write, newest first, with the writer and channels
+  # (channels are declared as they are first used) and the bytes of the
+  # messages' binaries, and their count: {w, chans, messages, bytes, n}
+  defp held_all([], acc), do: acc
+  defp held_all([{held, time} | rest], acc), do: held_all(rest, held(held, time, acc))
+
+  defp held({__MODULE__, :big, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
+    publish = stamp || time
+    decoded = fn -> Foxglove.messages(:erlang.binary_to_term(etf), time) end
+    {messages, chans} = thinned(chans, {tag, id}, publish, decoded)
+    # its channel is its tag's and id's (`{tag, id, nil}` stands for the tuple)
+    queue(messages, {tag, id, nil}, etf, time, publish, {w, chans, ms, bytes, n})
   end
 
-  defp write(w, chans, messages, tuple, etf, time, publish) do
-    with {:ok, w, chans, n} <- write_all(messages, w, chans, time, publish, 0) do
-      if chans.terms,
-        do: write_term(w, chans, tuple, etf, time, publish, n),
-        else: {:ok, w, chans, n}
-    end
+  defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
+  defp held(tuple, time, acc), do: tuple(tuple, nil, time, acc)
+
+  # `etf`: the tuple's external term, or nil to make it here
+  defp tuple(tuple, etf, time, {w, chans, ms, bytes, n}) do
+    publish = Foxglove.stamp_ns(tuple) || time
+    {messages, chans} = foxglove(chans, tuple, time, publish)
+    queue(messages, tuple, etf, time, publish, {w, chans, ms, bytes, n})
+  end
+
+  # its Foxglove messages, then its whole term
+  defp queue(messages, tuple, etf, time, publish, acc) do
+    {w, chans, ms, bytes, n} = queue_json(messages, time, publish, acc)
+
+    if chans.terms,
+      do: queue_term(tuple, etf, time, publish, {w, chans, ms, bytes, n}),
+      else: {w, chans, ms, bytes, n}
   end
 
   # thinned on the publish time (the robot's clock: a simulation's, which
@@ -115,20 +137,17 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     end
   end
 
-  defp write_all([], w, chans, _time, _publish, n), do: {:ok, w, chans, n}
+  defp queue_json([], _time, _publish, acc), do: acc
 
-  defp write_all([{topic, schema, data} | rest], w, chans, time, publish, n) do
+  defp queue_json([{topic, schema, data} | rest], time, publish, {w, chans, ms, bytes, n}) do
     {channel, w, chans} = channel(w, chans, topic, schema, %{})
-
-    case Writer.add_message(w, channel, time, publish, data, :next) do
-      {:ok, w} -> write_all(rest, w, chans, time, publish, n + 1)
-      {:error, reason} -> {:error, reason, chans}
-    end
+    ms = [{channel, :next, time, publish, data} | ms]
+    queue_json(rest, time, publish, {w, chans, ms, bytes + binary_bytes(data), n + 1})
   end
 
   # the whole term on `/etf/ID/TAG`, its channel found by `{tag, id}`
   # (`etf`, its term, made already or made here)
-  defp write_term(w, chans, tuple, etf, time, publish, n) do
+  defp queue_term(tuple, etf, time, publish, {w, chans, ms, bytes, n}) do
     key = exact_key(tuple)
 
     {channel, w, chans} =
@@ -142,12 +161,14 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
       end
 
     etf = etf || :erlang.term_to_binary(tuple)
-
-    case Writer.add_message(w, channel, time, publish, etf, :next) do
-      {:ok, w} -> {:ok, w, chans, n + 1}
-      {:error, reason} -> {:error, reason, chans}
-    end
+    {w, chans, [{channel, :next, time, publish, etf} | ms], bytes + byte_size(etf), n + 1}
   end
+
+  # what decides a call's scheduler (Compression.messages/3): a binary's
+  # bytes; iodata (a few small JSON messages) counts as none, as it did
+  # for Compression.message/6
+  defp binary_bytes(data) when is_binary(data), do: byte_size(data)
+  defp binary_bytes(_iodata), do: 0
 
   defp exact_key({tag, id, _payload}), do: {tag, id}
   defp exact_key(other), do: {:tuple, tuple_size(other)}
