@@ -170,6 +170,47 @@ defmodule ThinkingCap.MCAPTest do
       end
     end
 
+    test "messages given in lists make the file they make one at a time" do
+      for algorithm <- @algorithms do
+        opts = [compression: algorithm, chunk_bytes: 4_096]
+        {:ok, a} = Writer.new(opts)
+        {:ok, b} = Writer.new(opts)
+        {:ok, ca, a} = Writer.add_channel(a, 0, "/r1/raw", "etf")
+        {:ok, cb, b} = Writer.add_channel(b, 0, "/r1/raw", "etf")
+        assert ca == cb
+
+        # lists of 1 to 40 messages, some larger than a chunk, so that
+        # chunks close inside a list; sequences given and :next
+        messages =
+          for i <- 1..900 do
+            data = if rem(i, 97) == 0, do: :binary.copy("y", 5_000), else: [<<i::32>>, "x"]
+            {ca, if(rem(i, 7) == 0, do: i, else: :next), 1_000 + i, 2_000 + i, data}
+          end
+
+        a =
+          Enum.reduce(messages, a, fn {c, s, l, p, d}, w ->
+            {:ok, w} = Writer.add_message(w, c, l, p, d, s)
+            w
+          end)
+
+        b =
+          messages
+          |> Enum.chunk_every(40)
+          |> Enum.with_index()
+          |> Enum.reduce(b, fn {list, k}, w ->
+            {:ok, w} = Writer.add_messages(w, Enum.take(list, rem(k, 40) + 1), 0)
+            {:ok, w} = Writer.add_messages(w, Enum.drop(list, rem(k, 40) + 1), 0)
+            w
+          end)
+
+        {:ok, bin_a} = Writer.close(a)
+        {:ok, bin_b} = Writer.close(b)
+        assert bin_b == bin_a
+        {:ok, file} = Reader.read_binary(bin_b)
+        assert length(file.messages) == 900 and length(file.chunk_indexes) >= 10
+      end
+    end
+
     test "an empty file has a header, a summary and a footer" do
       {:ok, w} = Writer.new()
       {:ok, bin} = Writer.close(w)

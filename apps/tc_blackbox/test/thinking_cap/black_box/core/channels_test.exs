@@ -47,6 +47,43 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert topics["/r1/odom"] == 25
   end
 
+  test "tuples written in runs (write_held_all/3) are recorded as one at a time" do
+    one_by_one =
+      file(fn w, chans, t, time -> Channels.write_held(w, chans, Channels.held(t), time) end)
+
+    entries =
+      tuples()
+      |> Enum.with_index(1)
+      |> Enum.map(fn {t, n} -> {Channels.held(t), n * 1_000_000} end)
+
+    {:ok, w} = Writer.new(compression: "")
+
+    {w, _chans, count} =
+      entries
+      |> Enum.chunk_every(7)
+      |> Enum.reduce({w, Channels.new(:r1), 0}, fn run, {w, chans, count} ->
+        {:ok, w, chans, n} = Channels.write_held_all(w, chans, run)
+        {w, chans, count + n}
+      end)
+
+    {:ok, in_runs} = Writer.close(w)
+    {:ok, a} = Reader.read_binary(one_by_one)
+    {:ok, b} = Reader.read_binary(in_runs)
+    assert count == length(b.messages)
+
+    # the same messages on the same channels (a run's channels are
+    # declared before its messages, so the records' order may differ)
+    messages = fn file ->
+      for m <- file.messages do
+        channel = file.channels[m.channel_id]
+        {channel.topic, channel.schema_id, m.sequence, m.log_time, m.publish_time, m.data}
+      end
+    end
+
+    assert messages.(b) == messages.(a)
+    assert b.statistics.channel_message_counts == a.statistics.channel_message_counts
+  end
+
   test "held/1 keeps a large tuple's term, not the tuple" do
     lps = {:lps, :r1, %{stamp: 1.5, bins: [1.0, 2.0]}}
     assert {Channels, :big, :lps, :r1, 1_500_000_000, etf} = Channels.held(lps)

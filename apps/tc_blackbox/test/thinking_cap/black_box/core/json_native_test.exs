@@ -74,6 +74,32 @@ defmodule ThinkingCap.BlackBox.Core.JSON.NativeTest do
     end
   end
 
+  test "a thinkingcap.Tuple message whole, as Core.JSON writes it" do
+    erlang = fn tag, id, payload ->
+      ["{\"tag\":", JSON.value(tag), ",\"robot\":", JSON.value(id), ",\"payload\":"]
+      |> Kernel.++([JSON.value(payload), ?}])
+      |> IO.iodata_to_binary()
+    end
+
+    for _ <- 1..2_000 do
+      {tag, id, payload} = {random_leaf(), random_leaf(), random_term(3)}
+      assert Native.tuple(tag, id, payload) == erlang.(tag, id, payload)
+    end
+
+    assert Native.tuple(:odom, :r1, %{stamp: 1.5}) ==
+             ~s({"tag":"odom","robot":"r1","payload":{"stamp":1.5}})
+
+    assert Native.tuple(:odom, :rö, 1) == false
+    assert Native.tuple(:odom, :r1, [1 | 2]) == false
+  end
+
+  test "integers at int64's ends" do
+    for i <- [-9_223_372_036_854_775_808, 9_223_372_036_854_775_807, -1, 0, 10, -10] do
+      assert Native.value(i) == Integer.to_string(i)
+      assert Native.millimetres([i]) == "[#{i}]"
+    end
+  end
+
   test "what C is not sure of is left to Core.JSON" do
     for term <- [
           123_456_789_012_345_678_901_234_567_890,
