@@ -209,6 +209,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
       path: nil,
       started: nil,
       epoch: System.os_time(:nanosecond) - System.monotonic_time(:nanosecond),
+      native_ns?: System.convert_time_unit(1, :second, :native) == 1_000_000_000,
       replay: config.replay,
       batches: %{},
       # noted, not yet written: [{:tuple, time, tuple} | {:callback, time, name, n, event}], newest first
@@ -347,7 +348,16 @@ defmodule ThinkingCap.BlackBox.Recorder do
     end
   end
 
-  defp add_all(state, items, item), do: Enum.reduce(items, state, &add(&2, item.(&1, &2)))
+  # noted newest first, the state updated once
+  defp add_all(state, items, item) do
+    {pending, n} = note_all(items, item, state, state.pending, state.pending_n)
+    %{state | pending: pending, pending_n: n}
+  end
+
+  defp note_all([], _item, _state, pending, n), do: {pending, n}
+
+  defp note_all([x | rest], item, state, pending, n),
+    do: note_all(rest, item, state, [item.(x, state) | pending], n + 1)
 
   ## Noted messages
 
@@ -533,5 +543,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
   defp now(state), do: state.epoch + System.monotonic_time(:nanosecond)
 
   # the log time of a tuple or callback held for a list: when it was held
+  # (the native unit is the nanosecond on Linux: nothing to convert)
+  defp log_time(%{native_ns?: true, epoch: epoch}, at), do: epoch + at
   defp log_time(state, at), do: state.epoch + System.convert_time_unit(at, :native, :nanosecond)
 end
