@@ -212,7 +212,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
       native_ns?: System.convert_time_unit(1, :second, :native) == 1_000_000_000,
       replay: config.replay,
       batches: %{},
-      # noted, not yet written: [{:tuple, time, tuple} | {:callback, time, name, n, event}], newest first
+      # noted, not yet written: [{:tuple, time, tuple} | {:callback, time, name, n, event}],
+      # newest first (callbacks that come in lists go straight to `batches`)
       pending: [],
       pending_n: 0,
       chans: Channels.new(config.robot, terms: config.replay),
@@ -253,14 +254,8 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   # a module's callbacks (ThinkingCap.Runtime.Trace), in a list
   def handle_info({:tc_trace_batch, robot, name, events}, %{robot: robot} = state)
-      when is_list(events) do
-    state =
-      add_all(state, events, fn {n, at, event}, s ->
-        {:callback, log_time(s, at), name, n, event}
-      end)
-
-    {:noreply, drained(state)}
-  end
+      when is_list(events),
+      do: {:noreply, add_callbacks(state, name, events)}
 
   # one at a time: a subscription or a trace not in lists
   def handle_info({:blackboard, _ref, tuple}, state) when is_tuple(tuple),
@@ -338,11 +333,7 @@ defmodule ThinkingCap.BlackBox.Recorder do
         state |> take_held(ref) |> take_lists()
 
       {:tc_trace_batch, ^robot, name, events} when is_list(events) ->
-        state
-        |> add_all(events, fn {n, at, event}, s ->
-          {:callback, log_time(s, at), name, n, event}
-        end)
-        |> take_lists()
+        state |> add_callbacks(name, events) |> take_lists()
     after
       0 -> state
     end
@@ -421,6 +412,41 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
     state = %{state | batches: batches, callbacks: state.callbacks + 1}
     if count + 1 >= @batch, do: maybe_rotate_by_size(write_batch(state, name)), else: state
+  end
+
+  # A module's list of callbacks, `[{n, at, event}]`, straight into its
+  # batch (as `write_item/2` adds one), the state updated once a list
+  # rather than once a callback; a batch is written when it holds `@batch`.
+  defp add_callbacks(%{writer: nil} = state, _name, _events), do: state
+
+  defp add_callbacks(state, name, events) do
+    {time, acc, count} = Map.get(state.batches, name, {nil, [], 0})
+    add_callbacks(state, name, events, time, acc, count, 0)
+  end
+
+  defp add_callbacks(state, _name, [], _time, _acc, 0, k),
+    do: %{state | callbacks: state.callbacks + k}
+
+  defp add_callbacks(state, name, [], time, acc, count, k),
+    do: %{
+      state
+      | batches: Map.put(state.batches, name, {time, acc, count}),
+        callbacks: state.callbacks + k
+    }
+
+  defp add_callbacks(state, name, [{n, at, event} | rest], time, acc, count, k) do
+    now = log_time(state, at)
+    # the batch's time is its first callback's; each one's in µs after it
+    time = time || now
+    acc = [{n, div(now - time, 1000), event} | acc]
+
+    if count + 1 >= @batch do
+      batches = Map.put(state.batches, name, {time, acc, count + 1})
+      state = %{state | batches: batches, callbacks: state.callbacks + k + 1}
+      state |> write_batch(name) |> maybe_rotate_by_size() |> add_callbacks(name, rest)
+    else
+      add_callbacks(state, name, rest, time, acc, count + 1, k + 1)
+    end
   end
 
   ## Files

@@ -161,6 +161,39 @@ defmodule ThinkingCap.BlackBox.RecorderTest do
     end
   end
 
+  test "a module's callbacks in lists are written 64 a message, in order", %{tmp_dir: dir} do
+    robot = robot()
+    {:ok, pid} = BlackBox.record(robot, dir: dir)
+    t0 = System.monotonic_time()
+    us = System.convert_time_unit(1, :microsecond, :native)
+    events = for n <- 0..149, do: {n, t0 + n * 10 * us, {{:tick, n}, []}}
+    {first, rest} = Enum.split(events, 100)
+    send(pid, {:tc_trace_batch, robot, :m1, first})
+    send(pid, {:tc_trace_batch, robot, :m1, rest})
+    {:ok, _} = Recorder.rotate(pid)
+    assert Recorder.info(pid).callbacks == 150
+    :ok = BlackBox.stop(robot)
+
+    messages =
+      for file <- Path.wildcard(Path.join(dir, "*.mcap")),
+          {:ok, mcap} = Reader.read(file),
+          m <- mcap.messages,
+          mcap.channels[m.channel_id].topic == "/trace/#{robot}/m1",
+          do: m
+
+    assert Enum.map(messages, & &1.sequence) == [0, 64, 128]
+    decoded = Enum.map(messages, &:erlang.binary_to_term(&1.data))
+    assert Enum.map(decoded, &length/1) == [64, 64, 22]
+
+    # each callback n, 10 µs after the one before, its µs after its message's log time
+    for {m, list} <- Enum.zip(messages, decoded), {n, offset, event} <- list do
+      assert event == {{:tick, n}, []}
+      [{first_n, 0, _} | _] = list
+      assert offset == (n - first_n) * 10
+      assert m.log_time == m.publish_time
+    end
+  end
+
   test "tuples and callbacks come in lists, each logged when it was delivered",
        %{tmp_dir: dir} do
     robot = robot()
