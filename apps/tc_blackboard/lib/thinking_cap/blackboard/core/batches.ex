@@ -15,8 +15,9 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   # writer inserts before it takes its next: so `take/1` takes only the
   # positions that follow the last one taken without a gap, in order,
   # and the tuples of one writer come in the order written, whichever
-  # tuples of other writers they race with (a select that a racing insert
-  # slips behind shows a gap, and the rest waits for the next notice).
+  # tuples of other writers they race with (a position taken but not yet
+  # inserted shows a gap, and the rest waits for the next notice); each
+  # position is taken out of the table by its key, one at a time.
   # Only the subscriber takes, so takes never race each other.
   #
   # The writer that holds the first tuple after the last take tells this
@@ -104,19 +105,8 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
   def take(ref) do
     case :ets.lookup(Tables.batches(), ref) do
       [{^ref, next, taken, pid, _, _, _, _, gap}] when pid == self() ->
-        rows =
-          :ets.select(Tables.batched(), [
-            {{{ref, :"$1"}, :"$2", :"$3"}, [{:>, :"$1", taken}], [{{:"$1", :"$2", :"$3"}}]}
-          ])
-
-        {entries, last, gap} = take_run(rows, taken, next, gap, [])
+        {entries, last, gap} = take_run(ref, taken + 1, next, gap, [])
         :ets.update_element(Tables.batches(), ref, [{3, last}, {8, 0}, {9, gap}])
-
-        if last > taken do
-          :ets.select_delete(Tables.batched(), [
-            {{{ref, :"$1"}, :_, :_}, [{:"=<", :"$1", last}], [true]}
-          ])
-        end
 
         # more taken meanwhile, or a gap: a timer for them
         if :ets.lookup_element(Tables.batches(), ref, 2) > last, do: notify({:pending, ref})
@@ -130,26 +120,36 @@ defmodule ThinkingCap.Blackboard.Core.Batches do
     ArgumentError -> []
   end
 
-  # the held tuples that follow `last` without a gap, oldest first, the
-  # last position taken, and the gap left (a position taken before `next`,
-  # or before a row, and not inserted), passed over @gap_ms after it was
-  # first seen
-  defp take_run([{position, tuple, at} | rest], last, next, gap, acc)
-       when position == last + 1 do
-    acc = if tuple == :dropped, do: acc, else: [{tuple, at} | acc]
-    take_run(rest, position, next, gap, acc)
-  end
+  # The held tuples from `position` to `next` (the positions taken when
+  # the take began) that follow each other without a gap, oldest first,
+  # each taken out of the table (`:ets.take/2`: one key, where a select
+  # and a select_delete went through the table); the last position taken,
+  # and the gap left (a position taken and not inserted), passed over
+  # @gap_ms after it was first seen
+  defp take_run(_ref, position, next, _gap, acc) when position > next,
+    do: {Enum.reverse(acc), position - 1, nil}
 
-  defp take_run([], last, next, _gap, acc) when last >= next, do: {Enum.reverse(acc), last, nil}
+  defp take_run(ref, position, next, gap, acc) do
+    case :ets.take(Tables.batched(), {ref, position}) do
+      [{_, :dropped, _}] ->
+        take_run(ref, position + 1, next, gap, acc)
 
-  defp take_run(rows, last, next, gap, acc) do
-    missing = last + 1
-    now = System.monotonic_time(:millisecond)
+      [{_, tuple, at}] ->
+        take_run(ref, position + 1, next, gap, [{tuple, at} | acc])
 
-    case gap do
-      {^missing, seen} when now - seen >= @gap_ms -> take_run(rows, missing, next, nil, acc)
-      {^missing, _seen} -> {Enum.reverse(acc), last, gap}
-      _ -> {Enum.reverse(acc), last, {missing, now}}
+      [] ->
+        now = System.monotonic_time(:millisecond)
+
+        case gap do
+          {^position, seen} when now - seen >= @gap_ms ->
+            take_run(ref, position + 1, next, nil, acc)
+
+          {^position, _seen} ->
+            {Enum.reverse(acc), position - 1, gap}
+
+          _ ->
+            {Enum.reverse(acc), position - 1, {position, now}}
+        end
     end
   end
 
