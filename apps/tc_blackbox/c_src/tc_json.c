@@ -33,6 +33,10 @@
 
 #define MAX_DEPTH 64
 
+/* made once, at load: an atom's term is the same in every environment,
+ * and an immediate, so that == compares it */
+static ERL_NIF_TERM A_NIL, A_TRUE, A_FALSE, A_STRUCT;
+
 typedef struct {
     unsigned char *data;
     size_t len, cap;
@@ -318,12 +322,12 @@ static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth)
     const ERL_NIF_TERM *elems;
 
     if (enif_is_atom(env, t)) {
+        if (t == A_NIL) return put(b, "null", 4);
+        if (t == A_TRUE) return put(b, "true", 4);
+        if (t == A_FALSE) return put(b, "false", 5);
         char name[256];
         int n = enif_get_atom(env, t, name, sizeof(name), ERL_NIF_LATIN1);
         if (n <= 0) return 0;
-        if (strcmp(name, "nil") == 0) return put(b, "null", 4);
-        if (strcmp(name, "true") == 0) return put(b, "true", 4);
-        if (strcmp(name, "false") == 0) return put(b, "false", 5);
         return put_string(b, (unsigned char *)name, (size_t)(n - 1));
     }
     if (enif_get_double(env, t, &f)) return put_float(b, f);
@@ -348,7 +352,7 @@ static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth)
         return put_c(b, ']');
     }
     if (enif_is_map(env, t)) {
-        ERL_NIF_TERM key = enif_make_atom(env, "__struct__"), module;
+        ERL_NIF_TERM key = A_STRUCT, module;
         if (enif_get_map_value(env, t, key, &module) && enif_is_atom(env, module)) {
             /* a struct: its module as inspect/1 prints an Elixir module */
             char name[256];
@@ -379,7 +383,7 @@ static ERL_NIF_TERM nif_value(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     buf_init(&b);
     if (!value(env, &b, argv[0], 0)) {
         buf_free(&b);
-        return enif_make_atom(env, "false");
+        return A_FALSE;
     }
     return to_binary(env, &b);
 }
@@ -395,7 +399,7 @@ static ERL_NIF_TERM nif_tuple(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
           value(env, &b, argv[1], 0) && put(&b, ",\"payload\":", 11) && value(env, &b, argv[2], 0) &&
           put_c(&b, '}'))) {
         buf_free(&b);
-        return enif_make_atom(env, "false");
+        return A_FALSE;
     }
     return to_binary(env, &b);
 }
@@ -435,19 +439,19 @@ static ErlNifFunc funcs[] = {
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
 {
-    (void)env;
     (void)priv;
     (void)info;
+    A_NIL = enif_make_atom(env, "nil");
+    A_TRUE = enif_make_atom(env, "true");
+    A_FALSE = enif_make_atom(env, "false");
+    A_STRUCT = enif_make_atom(env, "__struct__");
     return 0;
 }
 
 static int upgrade(ErlNifEnv *env, void **priv, void **old_priv, ERL_NIF_TERM info)
 {
-    (void)env;
-    (void)priv;
     (void)old_priv;
-    (void)info;
-    return 0;
+    return load(env, priv, info);
 }
 
 ERL_NIF_INIT(Elixir.ThinkingCap.BlackBox.Core.JSON.Native, funcs, load, NULL, upgrade, NULL)
