@@ -25,8 +25,9 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   `DIR/ROBOT_YYYYMMDDTHHMMSS.mmmZ.mcap`, named by the UTC time the file
   was begun. A file is closed (summary and footer written) and the next
-  begun when it holds `file_bytes` or is `file_seconds` old, and when the
-  recorder stops. A chunk is written when it holds `chunk_bytes` or is
+  begun when it holds `file_bytes` (checked after each run of up to 32
+  tuples, so a file may hold a run's more) or is `file_seconds` old, and
+  when the recorder stops. A chunk is written when it holds `chunk_bytes` or is
   `chunk_seconds` old: if the VM dies, the file is valid up to its last
   chunk and `ThinkingCap.MCAP.Reader` reads it so.
 
@@ -71,16 +72,20 @@ defmodule ThinkingCap.BlackBox.Recorder do
   ## Cost
 
   Per tuple: the conversion to JSON (`Core.JSON`, written in one pass;
-  the payloads and a scan's ranges in C, `Core.JSON.Native`, into one
-  binary) and two records; per traced callback, a small term. The
+  a `thinkingcap.Tuple` message whole and a scan's ranges in C,
+  `Core.JSON.Native`, into one binary) and two records; per traced
+  callback, a small term. The
   tuple's `term_to_binary/1` is made by its writer, in place of the
   copy it makes of the tuple for the recorder's list
   (`Core.Channels.held/1`, the subscription's `hold:`): the recorder
   takes a large tuple (the LPS) as that binary, without copying the
   tuple out of the blackboard's table, and decodes it only for its
   Foxglove message, once a second. The tuples and callbacks come in lists, so that the
-  recorder is woken once a list rather than once a tuple, and are
-  written 32 at a time (or at the chunk's end). The writer's chunk
+  recorder is woken once a list rather than once a tuple. The tuples
+  are written 32 at a time (or at the chunk's end): their channels found
+  in Erlang, all their records made in one NIF call
+  (`Core.Channels.write_held_all/3`, `ThinkingCap.MCAP.Writer.add_messages/3`);
+  a module's callbacks go into its batch a list at a time. The writer's chunk
   stream (`ThinkingCap.MCAP.Compression.stream/1`) makes each message's
   record and index entry in C and keeps the chunk there, off the heap,
   until it closes and is compressed, on a dirty scheduler; the file gets

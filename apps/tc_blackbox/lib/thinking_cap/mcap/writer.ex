@@ -12,8 +12,8 @@ defmodule ThinkingCap.MCAP.Writer do
 
   Schema, Channel and Message records go into the open chunk, kept in C
   (`ThinkingCap.MCAP.Compression.stream/1`, which makes the Message
-  records and their index entries itself), so that a chunk's records are
-  not kept on the heap; the chunk is compressed once, when it ends. A chunk is
+  records and their index entries itself; `add_messages/3` a list of
+  them in one call), so that a chunk's records are not kept on the heap; the chunk is compressed once, when it ends. A chunk is
   closed and written, with a Message Index per channel after it, when it
   holds `chunk_bytes` (`add_message/6` says so) or when the caller asks
   (`close_chunk/1`, the recorder's timer): one write per chunk, so the
