@@ -215,10 +215,27 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       for n <- 0..length(per_reading) do
         active = Enum.take(per_reading, n)
         start = if n == 0, do: 0.0, else: List.last(active).after * 1.0
-        {start, Raycast.pack_groups(Enum.map(groups, &apply_faults(&1, active)))}
+        {start, shared_pack(Enum.map(groups, &apply_faults(&1, active)))}
       end
 
     Enum.reverse(prefixes)
+  end
+
+  # Robots of one description pack the same groups: they share one binary
+  # per process (a shard), so a scan reads groups that are in the caches
+  # and not one copy per robot (32 KB for a 180-beam laser).
+  defp shared_pack(groups) do
+    key = {__MODULE__, :packed, :erlang.phash2(groups)}
+
+    case Process.get(key) do
+      {^groups, packed} ->
+        packed
+
+      _ ->
+        packed = Raycast.pack_groups(groups)
+        Process.put(key, {groups, packed})
+        packed
+    end
   end
 
   defp packed_groups(sensor, time) do
