@@ -521,8 +521,22 @@ static int slab(double u, double v, double iv, int n, int id, double *t0, double
     return 1;
 }
 
-static int grid_march(const World *w, double ux, double uy, double vx, double vy, double tmax,
-                      double *t_out, Hit *h)
+/* One ray's march through the grid, between two steps. A run of skips
+ * moves the position in 32.32 fixed point (X, Y; direction VX, VY): the
+ * cell is then a shift of an integer sum, where doubles took a chain of
+ * conversions per step (the loop waits on that chain). */
+typedef struct {
+    double ux, uy, vx, vy, ivx, ivy, tdx, tdy;
+    double t, t1, tmx, tmy;
+    int64_t X, Y, VX, VY;
+    int cx, cy, stepx, stepy, face, dda, fixed;
+} March;
+
+#define FIXED_ONE 4294967296.0
+
+/* Starts the march of u + t v up to tmax; 0 when the ray misses the grid. */
+static inline int march_start(const World *w, March *m, double ux, double uy, double vx,
+                              double vy, double tmax)
 {
     const int W = w->gw, H = w->gh;
     const double ivx = vx != 0 ? 1.0 / vx : INFINITY, ivy = vy != 0 ? 1.0 / vy : INFINITY;
@@ -531,69 +545,118 @@ static int grid_march(const World *w, double ux, double uy, double vx, double vy
     if (!slab(ux, vx, ivx, W, 1, &t0, &t1, &face) || !slab(uy, vy, ivy, H, 2, &t0, &t1, &face))
         return 0;
     if (!(t0 <= t1)) return 0;
-
-    const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
-    const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
-    const double tdx = fabs(ivx), tdy = fabs(ivy);
-    const uint8_t *g = w->code, *coarse = w->coarse;
-    const int tw = w->gtw;
+    m->ux = ux;
+    m->uy = uy;
+    m->vx = vx;
+    m->vy = vy;
+    m->ivx = ivx;
+    m->ivy = ivy;
+    m->stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
+    m->stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
+    m->tdx = fabs(ivx);
+    m->tdy = fabs(ivy);
     /* inside the grid up to rounding: truncation is floor, then clamp */
-    int cx = clampi((int)(ux + t0 * vx), 0, W - 1);
-    int cy = clampi((int)(uy + t0 * vy), 0, H - 1);
-    double t = t0, tmx = INFINITY, tmy = INFINITY;
-    int dda = 0;
+    m->cx = clampi((int)(ux + t0 * vx), 0, W - 1);
+    m->cy = clampi((int)(uy + t0 * vy), 0, H - 1);
+    m->t = t0;
+    m->t1 = t1;
+    m->tmx = m->tmy = INFINITY;
+    m->dda = 0;
+    m->face = face;
+    m->VX = (int64_t)(vx * FIXED_ONE);
+    m->VY = (int64_t)(vy * FIXED_ONE);
+    m->fixed = 0;
+    return 1;
+}
 
-    for (;;) {
-        /* cells known empty round here: the tile's skip, else the cell's */
-        unsigned skip = coarse[(cy >> 3) * tw + (cx >> 3)];
-        if (skip < COARSE_SKIP_MIN) {
-            unsigned c = g[cell_index(tw, cx, cy)];
-            if (c == CODE_OBST) break;
-            skip = c >= SKIP_MIN ? c : 0;
-        }
-        if (skip) {
-            t += (double)skip;
-            if (t >= t1) return 0;
-            cx = clampi((int)(ux + t * vx), 0, W - 1);
-            cy = clampi((int)(uy + t * vy), 0, H - 1);
-            dda = 0;
-            face = 0;
-            continue;
-        }
-        if (!dda) {
-            tmx = vx > 0 ? (cx + 1 - ux) * ivx : (vx < 0 ? (cx - ux) * ivx : INFINITY);
-            tmy = vy > 0 ? (cy + 1 - uy) * ivy : (vy < 0 ? (cy - uy) * ivy : INFINITY);
-            dda = 1;
-        }
-        if (tmx < tmy) {
-            if (tmx > t1) return 0;
-            t = tmx;
-            cx += stepx;
-            if ((unsigned)cx >= (unsigned)W) return 0;
-            tmx += tdx;
-            face = 1;
-        } else {
-            if (tmy > t1) return 0;
-            t = tmy;
-            cy += stepy;
-            if ((unsigned)cy >= (unsigned)H) return 0;
-            tmy += tdy;
-            face = 2;
-        }
+/* One step of a march: 0 to go on, 1 on an obstacle cell (m->cx, m->cy
+ * entered through m->face), -1 past the end. */
+static inline int march_step(const World *w, March *m)
+{
+    const int W = w->gw, H = w->gh, tw = w->gtw;
+    int cx = m->cx, cy = m->cy;
+    /* cells known empty round here: the tile's skip, else the cell's */
+    unsigned skip = w->coarse[(cy >> 3) * tw + (cx >> 3)];
+    if (skip < COARSE_SKIP_MIN) {
+        unsigned c = w->code[cell_index(tw, cx, cy)];
+        if (c == CODE_OBST) return 1;
+        skip = c >= SKIP_MIN ? c : 0;
     }
-    /* exact entry parameter (the incremental one carries rounding) */
-    if (face == 1)
-        t = ((stepx > 0 ? cx : cx + 1) - ux) / vx;
-    else if (face == 2)
-        t = ((stepy > 0 ? cy : cy + 1) - uy) / vy;
+    if (skip) {
+        double t = m->t + (double)skip;
+        if (t >= m->t1) return -1;
+        /* the landing point is more than 0.08 cells from every obstacle
+         * cell, so rounding (below 1e-7 cells) never lands in one */
+        if (!m->fixed) {
+            m->X = (int64_t)((m->ux + m->t * m->vx) * FIXED_ONE);
+            m->Y = (int64_t)((m->uy + m->t * m->vy) * FIXED_ONE);
+            m->fixed = 1;
+        }
+        m->X += (int64_t)skip * m->VX;
+        m->Y += (int64_t)skip * m->VY;
+        m->t = t;
+        m->cx = clampi((int)(m->X >> 32), 0, W - 1);
+        m->cy = clampi((int)(m->Y >> 32), 0, H - 1);
+        m->dda = 0;
+        m->face = 0;
+        return 0;
+    }
+    m->fixed = 0;
+    if (!m->dda) {
+        const double vx = m->vx, vy = m->vy;
+        m->tmx = vx > 0 ? (cx + 1 - m->ux) * m->ivx : (vx < 0 ? (cx - m->ux) * m->ivx : INFINITY);
+        m->tmy = vy > 0 ? (cy + 1 - m->uy) * m->ivy : (vy < 0 ? (cy - m->uy) * m->ivy : INFINITY);
+        m->dda = 1;
+    }
+    if (m->tmx < m->tmy) {
+        if (m->tmx > m->t1) return -1;
+        m->t = m->tmx;
+        m->cx = cx += m->stepx;
+        if ((unsigned)cx >= (unsigned)W) return -1;
+        m->tmx += m->tdx;
+        m->face = 1;
+    } else {
+        if (m->tmy > m->t1) return -1;
+        m->t = m->tmy;
+        m->cy = cy += m->stepy;
+        if ((unsigned)cy >= (unsigned)H) return -1;
+        m->tmy += m->tdy;
+        m->face = 2;
+    }
+    return 0;
+}
+
+/* The hit of a march that stopped on an obstacle cell: its exact entry
+ * parameter (the incremental one carries rounding) into *t_out. */
+static inline void march_hit(const March *m, double *t_out, Hit *h)
+{
+    double t = m->t;
+    if (m->face == 1)
+        t = ((m->stepx > 0 ? m->cx : m->cx + 1) - m->ux) / m->vx;
+    else if (m->face == 2)
+        t = ((m->stepy > 0 ? m->cy : m->cy + 1) - m->uy) / m->vy;
     *t_out = t;
-    h->cx = cx;
-    h->cy = cy;
-    h->face = face;
-    h->stepx = stepx;
-    h->stepy = stepy;
-    h->vx = vx;
-    h->vy = vy;
+    h->cx = m->cx;
+    h->cy = m->cy;
+    h->face = m->face;
+    h->stepx = m->stepx;
+    h->stepy = m->stepy;
+    h->vx = m->vx;
+    h->vy = m->vy;
+}
+
+/* Marches the ray u + t v (grid frame, cell units, |v| = 1) up to tmax.
+ * On a hit stores the exact entry parameter of the first obstacle cell. */
+static int grid_march(const World *w, double ux, double uy, double vx, double vy, double tmax,
+                      double *t_out, Hit *h)
+{
+    March m;
+    if (!march_start(w, &m, ux, uy, vx, vy, tmax)) return 0;
+    int r;
+    while (!(r = march_step(w, &m)))
+        ;
+    if (r < 0) return 0;
+    march_hit(&m, t_out, h);
     return 1;
 }
 
@@ -667,6 +730,17 @@ static void seg_trace(const World *w, double px, double py, double dx, double dy
     }
 }
 
+/* the ray p + t d in the grid's frame (cell units) */
+static inline void grid_frame(const World *w, double px, double py, double dx, double dy,
+                              double *ux, double *uy, double *vx, double *vy)
+{
+    double rx = px - w->gox, ry = py - w->goy;
+    *ux = (rx * w->gc + ry * w->gs) * w->inv_res;
+    *uy = (-rx * w->gs + ry * w->gc) * w->inv_res;
+    *vx = dx * w->gc + dy * w->gs;
+    *vy = -dx * w->gs + dy * w->gc;
+}
+
 /* nearest hit along p + t d (|d| = 1), 0 <= t <= tmax */
 static void trace(const Ctx *c, double px, double py, double dx, double dy, double tmax, Hit *h)
 {
@@ -679,11 +753,8 @@ static void trace(const Ctx *c, double px, double py, double dx, double dy, doub
     h->vx = dx;
     h->vy = dy;
     if (w->has_grid) {
-        double rx = px - w->gox, ry = py - w->goy;
-        double ux = (rx * w->gc + ry * w->gs) * w->inv_res;
-        double uy = (-rx * w->gs + ry * w->gc) * w->inv_res;
-        double vx = dx * w->gc + dy * w->gs, vy = -dx * w->gs + dy * w->gc;
-        double tc;
+        double ux, uy, vx, vy, tc;
+        grid_frame(w, px, py, dx, dy, &ux, &uy, &vx, &vy);
         if (grid_march(w, ux, uy, vx, vy, tmax * w->inv_res, &tc, h)) {
             h->t = tc * w->res;
             h->kind = HIT_GRID;
@@ -1572,41 +1643,21 @@ static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget
     return (int)ng;
 }
 
-/* the readings as a binary of float64s (as_list 0) or a list of floats */
-static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[], int as_list)
+/* Casts the rays of the ng groups at `groups` (validated) from a robot at
+ * (X, Y, TH), not seeing body `exclude`: sets each group's state in gs
+ * (its position, heading, nearest echo) and appends the bounced echoes
+ * to ev (room for every ray). The caller holds the world's read lock.
+ * Returns 0 when out of memory. */
+static int scan_cast(const World *w, double X, double Y, double TH, const unsigned char *groups,
+                     int ng, int exclude, GroupState *gs, Event *ev, int *nev_out)
 {
-    World *w;
-    ErlNifBinary gb;
-    int arity, exclude;
-    const ERL_NIF_TERM *pose;
-    double X, Y, TH;
-    ErlNifUInt64 seed;
-    unsigned nr;
-    (void)argc;
-    if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
-        arity != 3 || !tc_number(env, pose[0], &X) || !tc_number(env, pose[1], &Y) ||
-        !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
-        !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
-        return enif_make_badarg(env);
-    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
-     * only the counts are read again here */
-    uint32_t ng32, nr32;
-    memcpy(&ng32, gb.data + 4, 4);
-    memcpy(&nr32, gb.data + 8, 4);
-    int ng = (int)ng32;
-    nr = nr32;
-
     const double ct = cos(TH), st = sin(TH);
-    const unsigned char *rays = gb.data + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
-    size_t scratch = (size_t)ng * sizeof(GroupState) + (size_t)nr * sizeof(Event);
-    GroupState *gs = enif_alloc(scratch > 0 ? scratch : 1);
-    if (!gs) return enif_make_badarg(env);
-    Event *ev = (Event *)(gs + ng);
+    const unsigned char *rays = groups + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
     int nev = 0;
     double reach = 0, offset = 0;
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
-        memcpy(s->g, gb.data + GROUPS_HEADER + (size_t)i * GROUP_BYTES, GROUP_BYTES);
+        memcpy(s->g, groups + GROUPS_HEADER + (size_t)i * GROUP_BYTES, GROUP_BYTES);
         s->px = X + ct * s->g[G_X] - st * s->g[G_Y];
         s->py = Y + st * s->g[G_X] + ct * s->g[G_Y];
         s->hx = ct * s->g[G_HC] - st * s->g[G_HS];
@@ -1618,7 +1669,6 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         if (o > offset) offset = o;
     }
 
-    enif_rwlock_rlock(w->lock);
     /* the bodies within reach of the scan (a ray never gets farther than its
      * max range from its sensor) for the legs after a reflection, and by
      * sector for the first legs */
@@ -1633,10 +1683,8 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
             nscan = bodies_near(bi, exclude, X - reach, Y - reach, X + reach, Y + reach, 1, X, Y,
                                 reach, bodies);
         if (!bodies || (nscan > 0 && !build_sectors(&sectors, bodies, nscan, X, Y, offset))) {
-            enif_rwlock_runlock(w->lock);
             if (bodies) enif_free(bodies);
-            enif_free(gs);
-            return enif_make_badarg(env);
+            return 0;
         }
     }
     Ctx c = {w, bodies, nscan};
@@ -1670,9 +1718,48 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
             }
         }
     }
-    enif_rwlock_runlock(w->lock);
     if (bodies) enif_free(bodies);
     if (sectors.b) enif_free(sectors.b);
+    *nev_out = nev;
+    return 1;
+}
+
+/* the readings as a binary of float64s (as_list 0) or a list of floats */
+static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[], int as_list)
+{
+    World *w;
+    ErlNifBinary gb;
+    int arity, exclude;
+    const ERL_NIF_TERM *pose;
+    double X, Y, TH;
+    ErlNifUInt64 seed;
+    unsigned nr;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
+        arity != 3 || !tc_number(env, pose[0], &X) || !tc_number(env, pose[1], &Y) ||
+        !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
+        !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
+        return enif_make_badarg(env);
+    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
+     * only the counts are read again here */
+    uint32_t ng32, nr32;
+    memcpy(&ng32, gb.data + 4, 4);
+    memcpy(&nr32, gb.data + 8, 4);
+    int ng = (int)ng32;
+    nr = nr32;
+
+    size_t scratch = (size_t)ng * sizeof(GroupState) + (size_t)nr * sizeof(Event);
+    GroupState *gs = enif_alloc(scratch > 0 ? scratch : 1);
+    if (!gs) return enif_make_badarg(env);
+    Event *ev = (Event *)(gs + ng);
+    int nev = 0;
+    enif_rwlock_rlock(w->lock);
+    int ok = scan_cast(w, X, Y, TH, gb.data, ng, exclude, gs, ev, &nev);
+    enif_rwlock_runlock(w->lock);
+    if (!ok) {
+        enif_free(gs);
+        return enif_make_badarg(env);
+    }
 
     /* crosstalk: a bounced echo from P reaches every other transducer of the
      * ring whose cone contains P (no line-of-sight check on the return) */
