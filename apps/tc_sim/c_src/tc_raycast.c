@@ -1935,6 +1935,25 @@ static double grid_clearance(const World *w, double x, double y, double best)
     return lim * w->res;
 }
 
+/* ranges_min(readings, first, count): the least of count float64s of a
+ * scan/5 binary from index first (count >= 1, within the binary) */
+static ERL_NIF_TERM nif_ranges_min(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    ErlNifBinary b;
+    unsigned long first, count;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &b) || !enif_get_ulong(env, argv[1], &first) ||
+        !enif_get_ulong(env, argv[2], &count) || count == 0 || b.size % 8 != 0 ||
+        first >= b.size / 8 || count > b.size / 8 - first)
+        return enif_make_badarg(env);
+    double least = ld(b.data + 8 * first);
+    for (unsigned long i = 1; i < count; i++) {
+        double r = ld(b.data + 8 * (first + i));
+        if (r < least) least = r;
+    }
+    return enif_make_double(env, least);
+}
+
 static ERL_NIF_TERM nif_clearance(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     World *w;
@@ -2038,6 +2057,7 @@ static ErlNifFunc funcs[] = {
     {"nif_cast_rays", 5, nif_cast_rays, 0},
     {"scan", 5, nif_scan, 0},
     {"scan_list", 5, nif_scan_list, 0},
+    {"ranges_min", 3, nif_ranges_min, 0},
     {"clearance", 5, nif_clearance, 0},
 };
 

@@ -16,4 +16,23 @@ defmodule ThinkingCap.Sim.Controller do
   @doc "The next command, from fresh readings."
   @callback control(readings :: %{atom() => map()}, state :: term()) ::
               {ThinkingCap.Robot.command(), term()}
+
+  @doc """
+  Optional: true when `control/2` takes the `ranges` of sonar and laser
+  payloads as a binary, one little-endian float64 a reading, in place of
+  a list (no list of floats built and collected each step; for
+  controllers that only scan them, such as `ThinkingCap.Sim.Wander`).
+  A sensor's ranges stay a list when its readings also go to the
+  blackboard.
+  """
+  @callback packed_ranges?() :: boolean()
+
+  @optional_callbacks packed_ranges?: 0
+
+  @doc "Whether `module` takes packed ranges (`c:packed_ranges?/0`)."
+  @spec packed_ranges?(module()) :: boolean()
+  def packed_ranges?(module) do
+    Code.ensure_loaded?(module) and function_exported?(module, :packed_ranges?, 0) and
+      module.packed_ranges?() == true
+  end
 end

@@ -304,6 +304,14 @@ defmodule ThinkingCap.Sim.Raycast do
   def scan_list(_world, _pose, _groups, _exclude, _seed), do: :erlang.nif_error(:nif_not_loaded)
 
   @doc """
+  The least of `count` readings of a `scan/5` binary from index `first`
+  (0-based; `count` ≥ 1, all within the binary): no float is made for
+  the others.
+  """
+  @spec ranges_min(binary(), non_neg_integer(), pos_integer()) :: float()
+  def ranges_min(_readings, _first, _count), do: :erlang.nif_error(:nif_not_loaded)
+
+  @doc """
   Packs sensor groups for `scan/5`. Each group is a map; missing keys take
   the defaults shown:
 

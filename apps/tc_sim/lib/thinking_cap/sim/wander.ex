@@ -12,6 +12,7 @@ defmodule ThinkingCap.Sim.Wander do
   """
 
   import ThinkingCap.Geometry, only: [normalize_angle: 1]
+  alias ThinkingCap.Sim.Raycast
 
   @behaviour ThinkingCap.Sim.Controller
 
@@ -36,6 +37,9 @@ defmodule ThinkingCap.Sim.Wander do
   end
 
   @impl true
+  def packed_ranges?, do: true
+
+  @impl true
   def control(readings, %{sensor: nil} = state) when is_map(readings), do: {:stop, state}
 
   def control(readings, %{sensor: sensor} = state) do
@@ -55,16 +59,20 @@ defmodule ThinkingCap.Sim.Wander do
   # nearest obstacle to the front, left and right: the sectors' beam
   # indexes are worked out once per scan layout
   defp sectors(%{ranges: ranges} = payload, state) do
-    key = layout_key(payload, length(ranges))
+    n = count(ranges)
+    key = layout_key(payload, n)
 
     layout =
       case state.layout do
         {^key, layout} -> layout
-        _ -> layout(payload, length(ranges))
+        _ -> layout(payload, n)
       end
 
     {nearest(ranges, layout), %{state | layout: {key, layout}}}
   end
+
+  defp count(ranges) when is_binary(ranges), do: div(byte_size(ranges), 8)
+  defp count(ranges), do: length(ranges)
 
   defp layout_key(%{angle_min: a0, angle_increment: inc}, n), do: {:scan, a0, inc, n}
   defp layout_key(%{headings: headings}, _n), do: {:ring, headings}
@@ -103,22 +111,22 @@ defmodule ThinkingCap.Sim.Wander do
 
   defp slice_min(_ranges, {_first, 0}), do: 100.0
 
+  defp slice_min(ranges, {first, count}) when is_binary(ranges),
+    do: Raycast.ranges_min(ranges, first, count)
+
   defp slice_min(ranges, {first, count}),
     do: ranges |> :lists.sublist(first + 1, count) |> :lists.min()
 
-  defp ring_min([r | rs], [s | ss], {f, l, ri}) do
-    acc =
-      case s do
-        :front -> {min(f, r), l, ri}
-        :left -> {f, min(l, r), ri}
-        :right -> {f, l, min(ri, r)}
-        nil -> {f, l, ri}
-      end
+  defp ring_min(<<r::float-little-64, rs::binary>>, [s | ss], acc),
+    do: ring_min(rs, ss, sector_min(s, r, acc))
 
-    ring_min(rs, ss, acc)
-  end
-
+  defp ring_min([r | rs], [s | ss], acc), do: ring_min(rs, ss, sector_min(s, r, acc))
   defp ring_min(_, _, acc), do: acc
+
+  defp sector_min(:front, r, {f, l, ri}), do: {min(f, r), l, ri}
+  defp sector_min(:left, r, {f, l, ri}), do: {f, min(l, r), ri}
+  defp sector_min(:right, r, {f, l, ri}), do: {f, l, min(ri, r)}
+  defp sector_min(nil, _r, acc), do: acc
 
   defp steer({front, left, right}, state) do
     cond do

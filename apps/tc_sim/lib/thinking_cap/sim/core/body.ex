@@ -26,6 +26,12 @@ defmodule ThinkingCap.Sim.Core.Body do
           {other, nil}
       end
 
+    packed =
+      case sink do
+        {:controller, module} -> ThinkingCap.Sim.Controller.packed_ranges?(module)
+        _ -> false
+      end
+
     %{
       id: spec.id,
       index: spec.index,
@@ -48,6 +54,8 @@ defmodule ThinkingCap.Sim.Core.Body do
       # publish: option (a fleet shown on the dashboard by its poses)
       publish: Map.get(spec, :publish, MapSet.new()),
       cstate: cstate,
+      # the controller takes ranges as binaries (Sim.Controller)
+      packed: packed,
       rays: 0
     }
   end
@@ -111,16 +119,21 @@ defmodule ThinkingCap.Sim.Core.Body do
 
   @doc """
   Reads the sensors due at `step`; returns `{readings, body}` with readings
-  a list of `{sensor, payload}`.
+  a list of `{sensor, payload}`. `publish` tells whether every reading
+  goes to the blackboard (those of `body.publish` always do): their
+  ranges are lists, whatever the controller takes.
   """
-  def sense(body, world, step, time, seed) do
+  def sense(body, world, step, time, seed, publish \\ false) do
+    packed = body.packed and match?({:controller, _}, body.sink) and not publish
+
     {sensors, {readings, rays, rng}} =
       Enum.map_reduce(body.sensors, {[], 0, body.rng}, fn sensor, {acc, rays, rng} ->
         if Sensors.due?(sensor, step) do
           scan_seed = :erlang.phash2({seed, body.index, step, sensor.index}, 4_294_967_296)
+          packed = packed and not MapSet.member?(body.publish, sensor.name)
 
           {payload, sensor, rng} =
-            Sensors.read(sensor, %{body | rng: rng}, world, time, scan_seed)
+            Sensors.read(sensor, %{body | rng: rng}, world, time, scan_seed, packed)
 
           acc = if payload, do: [{sensor.name, payload} | acc], else: acc
           {sensor, {acc, rays + if(payload, do: sensor.rays, else: 0), rng}}

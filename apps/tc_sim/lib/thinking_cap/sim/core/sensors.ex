@@ -157,24 +157,26 @@ defmodule ThinkingCap.Sim.Core.Sensors do
   @doc """
   Reads one sensor of a robot. `robot` holds `:index`, `:pose`, `:odom`,
   `:odom_twist`, `:bumped`, `:rng`. Returns `{payload | nil, sensor,
-  rng}` (nil: a dead sensor says nothing).
+  rng}` (nil: a dead sensor says nothing). With `packed`, a sonar's or
+  laser's ranges are a binary (one little-endian float64 a reading).
   """
-  def read(sensor, robot, world, time, seed) do
+  def read(sensor, robot, world, time, seed, packed \\ false) do
     if dead?(sensor, time) do
       {nil, sensor, robot.rng}
     else
-      do_read(sensor, robot, world, time, seed)
+      do_read(sensor, robot, world, time, seed, packed)
     end
   end
 
-  defp do_read(%{type: type} = sensor, robot, world, time, seed) when type in @ranged do
-    packed = packed_groups(sensor, time)
+  defp do_read(%{type: type} = sensor, robot, world, time, seed, packed) when type in @ranged do
+    groups = packed_groups(sensor, time)
 
-    {ranges, sensor} =
-      world.raycast
-      |> Raycast.scan_list(robot.pose, packed, robot.index, seed)
-      |> drift(sensor, time)
-      |> stuck(sensor, time)
+    ranges =
+      if packed,
+        do: Raycast.scan(world.raycast, robot.pose, groups, robot.index, seed),
+        else: Raycast.scan_list(world.raycast, robot.pose, groups, robot.index, seed)
+
+    {ranges, sensor} = faults(ranges, sensor, time)
 
     payload =
       Map.merge(sensor.static, %{
@@ -187,15 +189,15 @@ defmodule ThinkingCap.Sim.Core.Sensors do
     {payload, sensor, robot.rng}
   end
 
-  defp do_read(%{type: :beacon_laser} = sensor, robot, world, time, _seed) do
+  defp do_read(%{type: :beacon_laser} = sensor, robot, world, time, _seed, _packed) do
     {detections, rng} = beacons(sensor, robot, world, time)
     {%{detections: detections, stamp: time}, sensor, rng}
   end
 
-  defp do_read(%{type: :bumper} = sensor, robot, _world, time, _seed),
+  defp do_read(%{type: :bumper} = sensor, robot, _world, time, _seed, _packed),
     do: {%{pressed: robot.bumped, stamp: time}, sensor, robot.rng}
 
-  defp do_read(%{type: :odometry} = sensor, robot, _world, time, _seed),
+  defp do_read(%{type: :odometry} = sensor, robot, _world, time, _seed, _packed),
     do: {%{pose: robot.odom, twist: robot.odom_twist, stamp: time}, sensor, robot.rng}
 
   defp dead?(sensor, time),
@@ -252,6 +254,25 @@ defmodule ThinkingCap.Sim.Core.Sensors do
         %{g | spike: p, spike_magnitude: abs(m)}
     end)
   end
+
+  # The stateful faults, on a list of ranges; packed ranges are unpacked
+  # for them only while one holds.
+  defp faults(ranges, sensor, time) when is_list(ranges),
+    do: ranges |> drift(sensor, time) |> stuck(sensor, time)
+
+  defp faults(ranges, sensor, time) do
+    if Enum.any?(sensor.faults, &stateful?(&1, time)) do
+      list = for <<r::float-little-64 <- ranges>>, do: r
+      {list, sensor} = faults(list, sensor, time)
+      {for(r <- list, into: <<>>, do: <<r::float-little-64>>), sensor}
+    else
+      {ranges, sensor}
+    end
+  end
+
+  defp stateful?(%{type: :drift, holds: true} = f, time), do: time >= f.after
+  defp stateful?(%{type: :stuck, groups: [_ | _]} = f, time), do: time >= f.after
+  defp stateful?(_fault, _time), do: false
 
   defp drift(ranges, sensor, time) do
     bias =

@@ -163,7 +163,7 @@ defmodule ThinkingCap.Sim.Core.Shard do
   end
 
   defp sense_body(body, step, time, state) do
-    {readings, body} = Body.sense(body, state.world, step, time, state.seed)
+    {readings, body} = Body.sense(body, state.world, step, time, state.seed, state.publish)
 
     readings =
       if rem(step, state.truth_every) == 0,
