@@ -61,6 +61,12 @@ defmodule ThinkingCap.Sim do
     * odometry: `%{pose: {x, y, theta}, twist: {v, omega}, stamp:}` (the
       odometry frame starts at the robot's start pose, as `{0, 0, 0}`).
 
+  An in-process controller that takes packed ranges
+  (`c:ThinkingCap.Sim.Controller.packed_ranges?/0`, as
+  `ThinkingCap.Sim.Wander` does) gets a sonar's or laser's `ranges` as a
+  binary of little-endian float64s, the same values, unless that sensor's
+  readings also go to the blackboard.
+
   ## Determinism
 
   With in-process controllers (or none), a run in `:fast` mode is
