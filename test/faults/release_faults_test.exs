@@ -54,8 +54,11 @@ defmodule ThinkingCap.FaultSuite.ReleaseFaultsTest do
     # whatever happens, no daemon outlives the test
     on_exit(fn -> System.cmd("pkill", ["-9", "-f", "tc_(base|brain)_#{id}@"]) end)
     observe(cookie, [base, brain])
-    daemon(rel, base, Path.join(dir, "base_tmp"), env)
+    # the brain first: a base that finds no brain within the ADF's
+    # settle (5 s; a loaded machine takes longer to start a release)
+    # rightly fails the brain's modules over to itself
     daemon(rel, brain, Path.join(dir, "brain_tmp"), env)
+    daemon(rel, base, Path.join(dir, "base_tmp"), env)
 
     # every module where the ADF puts it, and the robot driving itself
     await("the ADF's placement", 60_000, fn ->
