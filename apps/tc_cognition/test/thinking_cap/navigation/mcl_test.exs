@@ -241,6 +241,21 @@ defmodule ThinkingCap.Navigation.MCLTest do
     opts = [beams: 60, sigma_hit: 0.2]
     {_, own} = MCL.init(opts, %{name: :localization, robot: :r, rdf: @rdf, wdf: empty})
     assert own.params[:beams] == 60 and elem(own.filter.model, 0) == 0.2
+
+    # the model's hits and noise: a given map's as many noise as hits
+    # (boxes it lacks), a map being built's mostly hits; the ADF's stand
+    assert {_, 0.9, 0.1, _} = slam.filter.model
+    assert {_, 0.5, 0.5, _} = given.filter.model
+
+    {_, mine} =
+      MCL.init([z_hit: 0.8, z_rand: 0.2], %{
+        name: :localization,
+        robot: :r,
+        rdf: @rdf,
+        wdf: @office
+      })
+
+    assert {_, 0.8, 0.2, _} = mine.filter.model
   end
 
   test "with no map it dead-reckons, and takes up a map builder's map when one comes", %{
