@@ -20,7 +20,7 @@ defmodule ThinkingCap.Config.ADF do
        doc:
          "record the robot's tuples into MCAP files (`ThinkingCap.BlackBox.Recorder`, started by the node that starts the ADF)"},
     dir:
-      {:string,
+      {:path,
        default: "recordings",
        doc: "the directory of the files; a relative one is taken from the working directory"},
     compression:
@@ -65,7 +65,7 @@ defmodule ThinkingCap.Config.ADF do
       {{:number_range, 0, 600},
        default: 5.0, doc: "the seconds a dump goes on after its (last) trigger"},
     dir:
-      {:string,
+      {:path,
        default: "black_box",
        doc: "the directory of the dumps; a relative one is taken from the working directory"},
     max_bytes:
@@ -141,8 +141,8 @@ defmodule ThinkingCap.Config.ADF do
     robot:
       {:atom,
        required: true, doc: "the robot's id in blackboard tuples (`{tag, robot, payload}`)"},
-    rdf: {:string, doc: "the robot description file, relative to this file"},
-    wdf: {:string, doc: "the world description file, relative to this file"},
+    rdf: {:path, doc: "the robot description file, relative to this file"},
+    wdf: {:path, doc: "the world description file, relative to this file"},
     nodes:
       {{:keyword_of, :atom},
        default: [], doc: "`logical_name: :\"name@host\"`; empty: everything on one node"},

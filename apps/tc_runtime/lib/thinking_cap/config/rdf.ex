@@ -88,8 +88,7 @@ defmodule ThinkingCap.Config.RDF do
 
   @fields [
     name: {:string, required: true, doc: "the robot model"},
-    urdf:
-      {:string, doc: "a URDF file for sensor poses and wheel geometry, relative to this file"},
+    urdf: {:path, doc: "a URDF file for sensor poses and wheel geometry, relative to this file"},
     footprint:
       {{:keyword, @footprint_fields}, required: true, doc: "give `radius` or `polygon` (below)"},
     kinematics: {{:keyword, @kinematics_fields}, required: true, doc: "drive and limits (below)"},

@@ -10,7 +10,9 @@ defmodule ThinkingCap.Config.Schema do
   may add `read_only: true`: it is set in the ADF and read when the module
   starts, never changed while it runs (live parameters refuse it). Types:
 
-    * scalars: `:atom`, `:string`, `:boolean`, `:module`, `:number`,
+    * scalars: `:atom`, `:string`, `:path` (a file name: a non-empty
+      string of at most 4096 bytes without a NUL byte), `:boolean`,
+      `:module`, `:number`,
       `:pos_number`, `:non_neg_number`, `:probability` (0..1), `:integer`,
       `:pos_integer`, `:non_neg_integer`, `:port`, `{:int_range, min, max}`,
       `{:number_range, min, max}`, `{:one_of, values}`, `:any`;
@@ -342,6 +344,12 @@ defmodule ThinkingCap.Config.Schema do
     do: {is_atom(v) and v not in [nil, true, false], "an atom like :name"}
 
   defp scalar_check(:string, v), do: {is_binary(v), "a string"}
+
+  defp scalar_check(:path, v) do
+    {is_binary(v) and v != "" and byte_size(v) <= 4096 and not String.contains?(v, <<0>>),
+     "a file name (a non-empty string of at most 4096 bytes, without a NUL byte)"}
+  end
+
   defp scalar_check(:boolean, v), do: {is_boolean(v), "true or false"}
 
   defp scalar_check(:module, v),

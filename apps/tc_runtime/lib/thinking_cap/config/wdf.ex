@@ -40,7 +40,7 @@ defmodule ThinkingCap.Config.WDF do
   ]
 
   @map_fields [
-    yaml: {:string, required: true, doc: "a ROS map_server YAML file, relative to this file"}
+    yaml: {:path, required: true, doc: "a ROS map_server YAML file, relative to this file"}
   ]
 
   @fields [
@@ -223,6 +223,13 @@ defmodule ThinkingCap.Config.WDF do
   defp load_map(st, %{yaml: nil}), do: {nil, st}
 
   defp load_map(st, %{yaml: yaml}) do
+    # a name the schema refused (reported already) is not opened
+    if match?({_, %{errors: []}}, Schema.check_at(%{st | errors: []}, :path, yaml, [])),
+      do: read_map(st, yaml),
+      else: {nil, st}
+  end
+
+  defp read_map(st, yaml) do
     case RosMap.load(Path.expand(yaml, Path.dirname(st.file))) do
       {:ok, grid} ->
         {grid, st}

@@ -30,6 +30,17 @@ defmodule ThinkingCap.Config.HostileFilesTest do
     assert message =~ "not UTF-8"
   end
 
+  test "a file name with a NUL byte is refused at its line, not opened", %{tmp_dir: dir} do
+    wdf = "[\n  name: \"x\",\n  map: [yaml: \"map.yaml\\0\"]\n]\n"
+    assert [%Error{line: 3, message: message}] = refused!(write!(dir, "nul.wdf", wdf))
+    assert message =~ "map.yaml: expected a file name"
+    assert message =~ "without a NUL byte"
+
+    adf = "[\n  robot: :r,\n  rdf: \"\",\n  modules: []\n]\n"
+    assert [%Error{line: 3, message: message} | _] = refused!(write!(dir, "empty.adf", adf))
+    assert message =~ "rdf: expected a file name"
+  end
+
   test "unbalanced brackets and code are refused at their line", %{tmp_dir: dir} do
     assert [%Error{line: 3, message: "syntax error" <> message}] =
              refused!(write!(dir, "open.wdf", "[\n  name: \"x\", walls: [[{0, 0}, {1, 0}]\n"))
