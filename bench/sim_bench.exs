@@ -27,7 +27,10 @@ defmodule ThinkingCap.Bench.Sim do
   `:nodes`; this VM, made a node, coordinates), for U simulated seconds
   (default 20), then the same on the first of them alone (`rtf_1`):
   `equal` is 1 when every robot's pose at U / 2 and U is the same in
-  both runs. The peers' schedulers run at normal priority, the reference
+  both runs. `cpu_ms_step` is the CPU time of a step on every node (the
+  coordinator and the regions), `cpu_ms_step_1` that of the node alone:
+  what the split costs, whatever share of the cores the runs get on a
+  shared machine. The peers' schedulers run at normal priority, the reference
   too: this VM's may run at real-time priority, and would take the CPU
   from them on a shared machine.
   `--only nodes` runs this part alone.
@@ -147,8 +150,11 @@ defmodule ThinkingCap.Bench.Sim do
     )
 
     # the coordinator here, the regions on the peers
-    spread = ThinkingCap.Testing.FleetRun.run(opts ++ [sim: [nodes: nodes]])
+    spread = ThinkingCap.Testing.FleetRun.run(opts ++ [sim: [nodes: nodes], cpu_nodes: nodes])
     s = spread.status
+    # CPU a step, every node's: the coordinator's and the regions'
+    peers_ms = spread.node_cpu |> Map.values() |> Enum.sum() |> Kernel.*(1000 / s.steps)
+    cpu_step = spread.cpu * 1000 / s.steps + peers_ms
     per_node = spread.placements |> List.last() |> Map.values() |> Enum.frequencies()
 
     IO.puts(
@@ -156,7 +162,8 @@ defmodule ThinkingCap.Bench.Sim do
         "#{fmt(s.rays / spread.wall / 1.0e6)} M rays/s, robots per node " <>
         "#{Enum.map_join(nodes, "/", &Map.get(per_node, &1, 0))}, " <>
         "#{s.node_handovers} handed over between nodes, #{s.ghosts} ghosts at the last step, " <>
-        "coordinator CPU #{fmt(spread.cpu * 1000 / s.steps)} ms a step"
+        "coordinator CPU #{fmt(spread.cpu * 1000 / s.steps)} ms a step, the regions' " <>
+        "#{fmt(peers_ms)} ms (#{Enum.map_join(nodes, "/", &fmt(spread.node_cpu[&1] * 1000 / s.steps))})"
     )
 
     # the reference on the first peer alone: the same priority as the
@@ -172,16 +179,19 @@ defmodule ThinkingCap.Bench.Sim do
 
     ThinkingCap.Testing.Cluster.stop(peers)
 
+    cpu_step_1 = alone.cpu * 1000 / alone.status.steps
+
     IO.puts(
       "  1 node: #{fmt(alone.wall)} s wall, rtf #{fmt(seconds / alone.wall)}, " <>
-        "#{fmt(alone.status.rays / alone.wall / 1.0e6)} M rays/s"
+        "#{fmt(alone.status.rays / alone.wall / 1.0e6)} M rays/s, CPU #{fmt(cpu_step_1)} ms a step"
     )
 
     equal = if spread.samples == alone.samples, do: 1, else: 0
 
     IO.puts(
       "sim_nodes: nodes=#{k} robots=#{robots} rtf=#{fmt(seconds / spread.wall)} " <>
-        "equal=#{equal} rtf_1=#{fmt(seconds / alone.wall)} walkers=#{4 * n}"
+        "equal=#{equal} rtf_1=#{fmt(seconds / alone.wall)} walkers=#{4 * n} " <>
+        "cpu_ms_step=#{fmt(cpu_step)} cpu_ms_step_1=#{fmt(cpu_step_1)}"
     )
   end
 

@@ -18,20 +18,23 @@ defmodule ThinkingCap.Testing.FleetRun do
   runs `seconds` of simulated time, samples every robot's true pose
   every `sample_every` simulated seconds, and stops. Returns
   `%{samples: [%{id => pose}], wall: seconds, cpu: seconds, status:
-  Sim.status/1, placements: [%{id => node}]}` (the placement after each
-  sample; `wall` the time spent stepping, samples not counted, and `cpu`
-  this node's CPU time meanwhile, every scheduler's).
+  Sim.status/1, placements: [%{id => node}], node_cpu: %{node => seconds}}`
+  (the placement after each sample; `wall` the time spent stepping,
+  samples not counted, `cpu` this node's CPU time meanwhile, every
+  scheduler's, and `node_cpu` that of each node of `:cpu_nodes`).
   Options: `:world` (a WDF path or `ThinkingCap.Config.WDF`),
   `:description`, `:robots`, `:seconds`, `:sample_every` (default: only
   at the end), `:step` (default 0.1), `:seed` (default 1), `:walkers`
-  (default `[]`), `:clearance` around a start place (default 0.3), `:sim`.
+  (default `[]`), `:clearance` around a start place (default 0.3), `:sim`,
+  `:cpu_nodes` (default `[]`).
   """
   @spec run(keyword()) :: %{
           samples: [%{atom() => tuple()}],
           wall: float(),
           cpu: float(),
           status: map(),
-          placements: [%{atom() => node()}]
+          placements: [%{atom() => node()}],
+          node_cpu: %{node() => float()}
         }
   def run(opts) do
     d = Keyword.fetch!(opts, :description)
@@ -56,14 +59,12 @@ defmodule ThinkingCap.Testing.FleetRun do
       rng = :rand.seed_s(:exsss, {seed, 77, 5})
       :ok = place(sim, world, d, Keyword.fetch!(opts, :robots), opts, rng)
 
-      {samples, placements, wall, cpu} =
-        Enum.reduce(1..max(round(seconds / every), 1), {[], [], 0, 0}, fn _, {s, p, wall, cpu} ->
-          t0 = System.monotonic_time()
-          {c0, _} = :erlang.statistics(:runtime)
-          :ok = Sim.run_for(sim, every)
-          {c1, _} = :erlang.statistics(:runtime)
-          wall = wall + System.monotonic_time() - t0
-          {[Sim.robots(sim) | s], [Sim.placement(sim) | p], wall, cpu + c1 - c0}
+      cpu_nodes = Keyword.get(opts, :cpu_nodes, [])
+      zero = Map.new(cpu_nodes, &{&1, 0})
+
+      {samples, placements, wall, cpu, node_cpu} =
+        Enum.reduce(1..max(round(seconds / every), 1), {[], [], 0, 0, zero}, fn _, acc ->
+          stretch(sim, every, cpu_nodes, acc)
         end)
 
       %{
@@ -71,12 +72,31 @@ defmodule ThinkingCap.Testing.FleetRun do
         placements: Enum.reverse(placements),
         wall: System.convert_time_unit(wall, :native, :microsecond) / 1.0e6,
         cpu: cpu / 1000,
-        status: Sim.status(sim)
+        status: Sim.status(sim),
+        node_cpu: Map.new(node_cpu, fn {n, ms} -> {n, ms / 1000} end)
       }
     after
       GenServer.stop(sim, :normal, 60_000)
     end
   end
+
+  # `every` simulated seconds, then a sample
+  defp stretch(sim, every, cpu_nodes, {samples, placements, wall, cpu, node_cpu}) do
+    n0 = runtimes(cpu_nodes)
+    t0 = System.monotonic_time()
+    {c0, _} = :erlang.statistics(:runtime)
+    :ok = Sim.run_for(sim, every)
+    {c1, _} = :erlang.statistics(:runtime)
+    wall = wall + System.monotonic_time() - t0
+    node_cpu = Map.merge(node_cpu, runtimes(cpu_nodes), fn n, acc, c -> acc + c - n0[n] end)
+
+    {[Sim.robots(sim) | samples], [Sim.placement(sim) | placements], wall, cpu + c1 - c0,
+     node_cpu}
+  end
+
+  # each node's CPU time so far (ms), every scheduler's
+  defp runtimes(nodes),
+    do: Map.new(nodes, &{&1, elem(:erpc.call(&1, :erlang, :statistics, [:runtime]), 0)})
 
   defp place(_sim, _world, _d, 0, _opts, _rng), do: :ok
 

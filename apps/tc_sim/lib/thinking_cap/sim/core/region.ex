@@ -80,6 +80,16 @@ defmodule ThinkingCap.Sim.Core.Region do
     {:reply, Enum.drop(grown.shards, length(state.shards)), grown}
   end
 
+  # handovers between this node's shards (Server's regrouping), in
+  # order: `[{handover, {from_records, to_records}}]`
+  def handle_call({:hand_over, handovers}, _from, state) do
+    done =
+      for {from, to, ids} = handover <- handovers,
+          do: {handover, GenServer.call(from, {:give, ids, to}, 60_000)}
+
+    {:reply, done, state}
+  end
+
   def handle_call(:counters, _from, state),
     do: {:reply, {:counters.get(state.counters, 1), :counters.get(state.counters, 2)}, state}
 

@@ -448,17 +448,21 @@ defmodule ThinkingCap.Sim.Core.Server do
     current = Map.new(state.robots, fn {id, {_index, shard}} -> {id, shard} end)
     shards = Tuple.to_list(state.shards)
 
-    for(
-      {_shard, bin} <- state.records,
-      <<i::float-native-64, x::float-native-64, y::float-native-64, _::float-native-64 <- bin>>,
-      do: {Map.fetch!(by_index, trunc(i)), trunc(i), x, y}
-    )
-    |> Enum.group_by(fn {_id, _i, x, _y} -> region_node(state, x) end)
-    |> Enum.sort()
-    |> Enum.flat_map(fn {node, robots} ->
-      Regions.plan(robots, Enum.filter(shards, &(node(&1) == node)), current)
-    end)
-    |> Enum.reduce(state, &hand_over/2)
+    {within, across} =
+      for(
+        {_shard, bin} <- state.records,
+        <<i::float-native-64, x::float-native-64, y::float-native-64, _::float-native-64 <- bin>>,
+        do: {Map.fetch!(by_index, trunc(i)), trunc(i), x, y}
+      )
+      |> Enum.group_by(fn {_id, _i, x, _y} -> region_node(state, x) end)
+      |> Enum.sort()
+      |> Enum.flat_map(fn {node, robots} ->
+        Regions.plan(robots, Enum.filter(shards, &(node(&1) == node)), current)
+      end)
+      |> Enum.split_with(fn {from, to, _ids} -> node(from) == node(to) end)
+
+    # the robots that cross a border, after the handovers within nodes
+    Enum.reduce(across, hand_over_within(state, within), &hand_over/2)
   end
 
   defp regroup(state) when tuple_size(state.shards) < 2, do: state
@@ -478,8 +482,34 @@ defmodule ThinkingCap.Sim.Core.Server do
     |> Enum.reduce(state, &hand_over/2)
   end
 
-  defp hand_over({from, to, ids}, state) do
-    {from_records, to_records} = GenServer.call(from, {:give, ids, to}, 60_000)
+  # The handovers between shards of one node: each region makes its own,
+  # the regions at once (one call from here per handover took a round
+  # trip between nodes each: seconds for a fleet's first regrouping).
+  # Each region's answers come in the order it made them, so the records
+  # of a shard are those of its last handover.
+  defp hand_over_within(state, []), do: state
+
+  defp hand_over_within(state, handovers) do
+    handovers
+    |> Enum.group_by(fn {from, _to, _ids} -> node(from) end)
+    |> Enum.map(fn {node, list} ->
+      {^node, region} = List.keyfind(state.regions, node, 0)
+      :gen_server.send_request(region, {:hand_over, list})
+    end)
+    |> Enum.flat_map(fn request ->
+      {:reply, done} = :gen_server.wait_response(request, 60_000)
+      done
+    end)
+    |> Enum.reduce(state, fn {handover, records}, state ->
+      handed_over(handover, records, state)
+    end)
+  end
+
+  defp hand_over({from, to, ids} = handover, state) do
+    handed_over(handover, GenServer.call(from, {:give, ids, to}, 60_000), state)
+  end
+
+  defp handed_over({from, to, ids}, {from_records, to_records}, state) do
     n = length(ids)
 
     robots =
@@ -566,17 +596,18 @@ defmodule ThinkingCap.Sim.Core.Server do
   # where the robots stand after this step's moves: {x, y, radius}
   defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: <<>>
 
-  # the robots where they stand after the moves, as Walkers.step/3 takes them
+  # the robots where they stand after the moves, as Walkers.step/3 takes
+  # them (gathered as iodata: built by appending, the binary took 5x as
+  # long, 1 ms a step for 2,000 robots)
   defp standing(moves, taken_back, _walkers) do
-    for bin <- moves,
-        <<i::float-native-64, x0::binary-size(16), x1::binary-size(16),
-          r::binary-size(8) <-
-            bin>>,
-        into: <<>> do
-      if MapSet.member?(taken_back, trunc(i)),
-        do: <<x0::binary, r::binary>>,
-        else: <<x1::binary, r::binary>>
-    end
+    moves
+    |> Enum.map(fn bin ->
+      for <<i::float-native-64, x0::binary-size(16), x1::binary-size(16),
+            r::binary-size(8) <- bin>> do
+        if MapSet.member?(taken_back, trunc(i)), do: [x0 | r], else: [x1 | r]
+      end
+    end)
+    |> IO.iodata_to_binary()
   end
 
   defp collect_moves(_ref, 0, moves), do: moves
