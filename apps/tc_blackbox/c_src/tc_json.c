@@ -16,6 +16,10 @@
  * tuple(Tag, Id, Payload) -> Binary | false: the JSON of a
  * thinkingcap.Tuple message, the three written as value/1 writes them.
  *
+ * tuple_etf(Binary) -> Binary | false: the same message, of a tuple
+ * given as its external term (term_to_binary/1), read without decoding
+ * it (the recorder holds the tuples so).
+ *
  * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
  * three decimals (trailing zeros dropped), each integer as it is; badarg
  * for anything else.
@@ -27,6 +31,7 @@
  */
 #include <erl_nif.h>
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -366,6 +371,319 @@ static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth)
     return 0;
 }
 
+/* ---- the same JSON from a term's external format ----
+ *
+ * Erlang's external term format (`term_to_binary/1`) read with the rules
+ * of value/1, so that a tuple held as its external term (the recorder's)
+ * need not be decoded: the same bytes, or 0 for anything value/1 would
+ * not write (or a binary that is not such a term). Maps come in the
+ * order value/1 iterates them (a map's internal order), written in
+ * reverse, as value/1 writes them. */
+
+typedef struct {
+    const unsigned char *p, *end;
+} etf;
+
+static int etf_u8(etf *e, unsigned *v)
+{
+    if (e->p >= e->end) return 0;
+    *v = *e->p++;
+    return 1;
+}
+
+/* passes over `n` bytes, if there are */
+static int etf_pass(etf *e, unsigned long long n)
+{
+    if ((unsigned long long)(e->end - e->p) < n) return 0;
+    e->p += n;
+    return 1;
+}
+
+static int etf_be(etf *e, int bytes, unsigned long long *v)
+{
+    if (e->end - e->p < bytes) return 0;
+    unsigned long long x = 0;
+    for (int i = 0; i < bytes; i++) x = (x << 8) | e->p[i];
+    e->p += bytes;
+    *v = x;
+    return 1;
+}
+
+/* an integer of the format (small, 32-bit, or a small big that fits int64) */
+static int etf_int(etf *e, unsigned tag, ErlNifSInt64 *out)
+{
+    unsigned long long v;
+    if (tag == 97) {
+        if (!etf_be(e, 1, &v)) return 0;
+        *out = (ErlNifSInt64)v;
+        return 1;
+    }
+    if (tag == 98) {
+        if (!etf_be(e, 4, &v)) return 0;
+        *out = (ErlNifSInt64)(int32_t)(uint32_t)v;
+        return 1;
+    }
+    /* SMALL_BIG_EXT: n, sign, n bytes little-endian */
+    unsigned n, sign;
+    if (!etf_u8(e, &n) || !etf_u8(e, &sign) || n > 8 || e->end - e->p < (long)n) return 0;
+    unsigned long long m = 0;
+    for (unsigned i = 0; i < n; i++) m |= (unsigned long long)e->p[i] << (8 * i);
+    e->p += n;
+    if (sign == 0) {
+        if (m > 9223372036854775807ULL) return 0;
+        *out = (ErlNifSInt64)m;
+    } else {
+        if (m > 9223372036854775808ULL) return 0;
+        *out = (ErlNifSInt64)(0ULL - m);
+    }
+    return 1;
+}
+
+static int etf_float(etf *e, double *f)
+{
+    unsigned long long v;
+    if (!etf_be(e, 8, &v)) return 0;
+    memcpy(f, &v, sizeof(*f));
+    return 1;
+}
+
+/* an atom's name (its length after the tag) */
+static int etf_atom(etf *e, unsigned tag, const unsigned char **name, size_t *n)
+{
+    unsigned long long len;
+    if (!etf_be(e, (tag == 100 || tag == 118) ? 2 : 1, &len) || (unsigned long long)(e->end - e->p) < len)
+        return 0;
+    *name = e->p;
+    *n = (size_t)len;
+    e->p += len;
+    return 1;
+}
+
+static int is_atom_tag(unsigned tag) { return tag == 100 || tag == 115 || tag == 118 || tag == 119; }
+
+static int same(const unsigned char *a, size_t n, const char *b)
+{
+    return n == strlen(b) && memcmp(a, b, n) == 0;
+}
+
+static int etf_value(etf *e, buf *b, int depth);
+
+/* passes over one term, checking only its structure; 0 when it is not
+ * one value/1 writes */
+static int etf_skip(etf *e, int depth)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (depth > MAX_DEPTH || !etf_u8(e, &tag)) return 0;
+    switch (tag) {
+    case 97: return etf_pass(e, 1);
+    case 98: return etf_pass(e, 4);
+    case 70: return etf_pass(e, 8);
+    case 106: return 1;
+    case 110: {
+        unsigned k;
+        return etf_u8(e, &k) && etf_pass(e, 1 + (unsigned long long)k);
+    }
+    case 100: case 118: case 115: case 119: {
+        const unsigned char *name;
+        size_t len;
+        return etf_atom(e, tag, &name, &len);
+    }
+    case 107: return etf_be(e, 2, &n) && etf_pass(e, n);
+    case 109: return etf_be(e, 4, &n) && etf_pass(e, n);
+    case 104: case 105:
+        if (!etf_be(e, tag == 104 ? 1 : 4, &n)) return 0;
+        for (unsigned long long i = 0; i < n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    case 108:
+        if (!etf_be(e, 4, &n)) return 0;
+        for (unsigned long long i = 0; i <= n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    case 116:
+        if (!etf_be(e, 4, &n)) return 0;
+        for (unsigned long long i = 0; i < 2 * n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    default: return 0;
+    }
+}
+
+/* a map's key, as object() writes it */
+static int etf_key(etf *e, buf *b)
+{
+    unsigned tag;
+    if (!etf_u8(e, &tag)) return 0;
+    if (is_atom_tag(tag)) {
+        const unsigned char *name;
+        size_t n;
+        return etf_atom(e, tag, &name, &n) && put_string(b, name, n);
+    }
+    if (tag == 97 || tag == 98 || tag == 110) {
+        ErlNifSInt64 i;
+        return etf_int(e, tag, &i) && put_c(b, '"') && put_int(b, i) && put_c(b, '"');
+    }
+    if (tag == 70) {
+        double f;
+        return etf_float(e, &f) && put_c(b, '"') && put_float(b, f) && put_c(b, '"');
+    }
+    if (tag == 109) {
+        unsigned long long n;
+        if (!etf_be(e, 4, &n) || (unsigned long long)(e->end - e->p) < n) return 0;
+        int ok = put_string(b, e->p, (size_t)n);
+        e->p += n;
+        return ok;
+    }
+    return 0;
+}
+
+#define MAX_MEMBERS 32
+
+/* a map (after its tag): its members in the reverse of their order here,
+ * a struct's name first */
+static int etf_map(etf *e, buf *b, int depth)
+{
+    unsigned long long n;
+    if (!etf_be(e, 4, &n) || n > MAX_MEMBERS) return 0;
+    const unsigned char *keys[MAX_MEMBERS], *values[MAX_MEMBERS];
+    int skip = -1;
+    const unsigned char *module = NULL;
+    size_t module_len = 0;
+    for (unsigned long long i = 0; i < n; i++) {
+        keys[i] = e->p;
+        unsigned tag;
+        if (!etf_u8(e, &tag)) return 0;
+        const unsigned char *name;
+        size_t len;
+        if (is_atom_tag(tag)) {
+            if (!etf_atom(e, tag, &name, &len)) return 0;
+            if (same(name, len, "__struct__")) {
+                /* a struct when its module is an atom */
+                etf v = *e;
+                unsigned vtag;
+                if (etf_u8(&v, &vtag) && is_atom_tag(vtag)) {
+                    if (!etf_atom(&v, vtag, &module, &module_len)) return 0;
+                    skip = (int)i;
+                }
+            }
+        } else {
+            e->p = keys[i];
+            if (!etf_skip(e, depth + 1)) return 0;
+        }
+        values[i] = e->p;
+        if (!etf_skip(e, depth + 1)) return 0;
+    }
+    const unsigned char *after = e->p;
+    int members = 0;
+    if (skip >= 0) {
+        /* as inspect/1 prints an Elixir module's name */
+        char name[256];
+        if (module_len <= 7 || module_len >= sizeof(name) || memcmp(module, "Elixir.", 7) != 0) return 0;
+        memcpy(name, module + 7, module_len - 7);
+        name[module_len - 7] = '\0';
+        if (!alias(name)) return 0;
+        if (!put(b, "{\"__struct__\":", 14) || !put_string(b, module + 7, module_len - 7)) return 0;
+        members = 1;
+    } else if (!put_c(b, '{')) {
+        return 0;
+    }
+    for (long long i = (long long)n - 1; i >= 0; i--) {
+        if (i == skip) continue;
+        if (members++ > 0 && !put_c(b, ',')) return 0;
+        etf k = {keys[i], values[i]};
+        etf v = {values[i], after};
+        if (!etf_key(&k, b) || k.p != values[i] || !put_c(b, ':') || !etf_value(&v, b, depth + 1))
+            return 0;
+    }
+    e->p = after;
+    return put_c(b, '}');
+}
+
+static int etf_value(etf *e, buf *b, int depth)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (depth > MAX_DEPTH || !etf_u8(e, &tag)) return 0;
+    switch (tag) {
+    case 100: case 115: case 118: case 119: {
+        const unsigned char *name;
+        size_t len;
+        if (!etf_atom(e, tag, &name, &len)) return 0;
+        if (same(name, len, "nil")) return put(b, "null", 4);
+        if (same(name, len, "true")) return put(b, "true", 4);
+        if (same(name, len, "false")) return put(b, "false", 5);
+        return put_string(b, name, len);
+    }
+    case 70: {
+        double f;
+        return etf_float(e, &f) && put_float(b, f);
+    }
+    case 97: case 98: case 110: {
+        ErlNifSInt64 i;
+        return etf_int(e, tag, &i) && put_int(b, i);
+    }
+    case 109: {
+        if (!etf_be(e, 4, &n) || (unsigned long long)(e->end - e->p) < n) return 0;
+        int ok = put_string(b, e->p, (size_t)n);
+        e->p += n;
+        return ok;
+    }
+    case 106: return put(b, "[]", 2);
+    case 107: {
+        /* a list of bytes */
+        if (!etf_be(e, 2, &n) || (unsigned long long)(e->end - e->p) < n || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !put_int(b, e->p[k])) return 0;
+        e->p += n;
+        return put_c(b, ']');
+    }
+    case 108: {
+        unsigned t;
+        if (!etf_be(e, 4, &n) || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !etf_value(e, b, depth + 1)) return 0;
+        /* a proper list's tail */
+        return etf_u8(e, &t) && t == 106 && put_c(b, ']');
+    }
+    case 104: case 105: {
+        if (!etf_be(e, tag == 104 ? 1 : 4, &n)) return 0;
+        if (n == 0) return put(b, "[]", 2);
+        if (!put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !etf_value(e, b, depth + 1)) return 0;
+        return put_c(b, ']');
+    }
+    case 116: return etf_map(e, b, depth);
+    default: return 0;
+    }
+}
+
+static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b);
+
+/* tuple_etf(Binary) -> Binary | false: the thinkingcap.Tuple message of
+ * `{Tag, Id, Payload}` given as its external term, as tuple/3 writes it */
+static ERL_NIF_TERM nif_tuple_etf(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary in;
+    if (!enif_inspect_binary(env, argv[0], &in)) return enif_make_badarg(env);
+    etf e = {in.data, in.data + in.size};
+    unsigned version, tag, arity;
+    if (!etf_u8(&e, &version) || version != 131 || !etf_u8(&e, &tag) || tag != 104 || !etf_u8(&e, &arity) ||
+        arity != 3)
+        return A_FALSE;
+    buf b;
+    buf_init(&b);
+    if (!(put(&b, "{\"tag\":", 7) && etf_value(&e, &b, 0) && put(&b, ",\"robot\":", 9) &&
+          etf_value(&e, &b, 0) && put(&b, ",\"payload\":", 11) && etf_value(&e, &b, 0) && put_c(&b, '}') &&
+          e.p == e.end)) {
+        buf_free(&b);
+        return A_FALSE;
+    }
+    return to_binary(env, &b);
+}
+
 static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b)
 {
     ERL_NIF_TERM out;
@@ -435,6 +753,7 @@ static ErlNifFunc funcs[] = {
     {"nif_value", 1, nif_value, 0},
     {"nif_millimetres", 1, nif_millimetres, 0},
     {"nif_tuple", 3, nif_tuple, 0},
+    {"nif_tuple_etf", 1, nif_tuple_etf, 0},
 };
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)

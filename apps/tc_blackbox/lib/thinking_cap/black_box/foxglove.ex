@@ -148,6 +148,15 @@ defmodule ThinkingCap.BlackBox.Foxglove do
     _kind, _reason -> generic(tuple)
   end
 
+  @doc false
+  # True when `tuple`'s message is surely a `thinkingcap.Tuple`: none of
+  # the tags and payloads the other schemas take.
+  @spec generic?(tuple()) :: boolean()
+  def generic?({tag, _id, _payload}) when tag in [:map, :pose, :sim_pose], do: false
+  def generic?({_tag, _id, %{ranges: _}}), do: false
+  def generic?({_tag, _id, _payload}), do: true
+  def generic?(_other), do: false
+
   defp convert(
          Tuples.reading(sensor, robot, %{ranges: ranges, angle_min: a0, angle_max: a1} = scan),
          time_ns

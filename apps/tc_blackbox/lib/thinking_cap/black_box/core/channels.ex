@@ -14,6 +14,7 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # first's `n`, `us` each one's time after the message's. A
   # channel (and its schema) is declared in the file on first use.
 
+  alias ThinkingCap.BlackBox.Core.JSON.Native
   alias ThinkingCap.BlackBox.Foxglove
   alias ThinkingCap.MCAP.Writer
 
@@ -24,7 +25,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
             # {tag, id} => the channel of its whole terms
             exact: %{},
             # {tag, id} => log time of its last Foxglove message (big tuples)
-            json_at: %{}
+            json_at: %{},
+            # {tag, id} => {its thinkingcap.Tuple channel, its terms' channel}
+            pairs: %{}
 
   @type t :: %__MODULE__{}
 
@@ -54,11 +57,20 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # neither copies a large tuple out of the held table nor encodes it.
   # A large, thinned tuple is held without the tuple (its tag, id and
   # stamp say where and when; its term is decoded for its Foxglove
-  # message, once a second); any other with it (its Foxglove message is
-  # written every time). `write_held/4` writes it.
+  # message, once a second); so is a tuple whose Foxglove message is a
+  # thinkingcap.Tuple (its JSON is read from its term, in C); any other
+  # with it (its Foxglove message is written every time). `write_held/4`
+  # writes it.
   @spec held(tuple()) :: tuple()
   def held({tag, id, _payload} = tuple) when tag in @big,
     do: {__MODULE__, :big, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
+
+  def held({tag, id, _payload} = tuple) do
+    if Foxglove.generic?(tuple),
+      do:
+        {__MODULE__, :generic, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)},
+      else: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
+  end
 
   def held(tuple), do: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
 
@@ -92,6 +104,7 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # (channels are declared as they are first used) and the bytes of the
   # messages' binaries, and their count: {w, chans, messages, bytes, n}
   defp held_all([], acc), do: acc
+
   defp held_all([{held, time} | rest], acc), do: held_all(rest, held(held, time, acc))
 
   defp held({__MODULE__, :big, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
@@ -100,6 +113,28 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     {messages, chans} = thinned(chans, {tag, id}, publish, decoded)
     # its channel is its tag's and id's (`{tag, id, nil}` stands for the tuple)
     queue(messages, {tag, id, nil}, etf, time, publish, {w, chans, ms, bytes, n})
+  end
+
+  # its thinkingcap.Tuple message's JSON read from its term (in C, or
+  # decoded and written in Erlang when C leaves it), then the term
+  defp held({__MODULE__, :generic, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
+    publish = stamp || time
+    {json_channel, term_channel, w, chans} = pair(w, chans, tag, id)
+
+    json =
+      case Native.tuple_etf(etf) do
+        false -> Foxglove.generic_json(tag, id, elem(:erlang.binary_to_term(etf), 2))
+        json -> json
+      end
+
+    ms = [{json_channel, :next, time, publish, json} | ms]
+    bytes = bytes + binary_bytes(json)
+
+    if chans.terms,
+      do:
+        {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
+         n + 2},
+      else: {w, chans, ms, bytes, n + 1}
   end
 
   defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
@@ -148,20 +183,43 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # the whole term on `/etf/ID/TAG`, its channel found by `{tag, id}`
   # (`etf`, its term, made already or made here)
   defp queue_term(tuple, etf, time, publish, {w, chans, ms, bytes, n}) do
-    key = exact_key(tuple)
-
-    {channel, w, chans} =
-      case chans.exact do
-        %{^key => channel} ->
-          {channel, w, chans}
-
-        _ ->
-          {channel, w, chans} = channel(w, chans, exact_topic(tuple), nil, %{})
-          {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
-      end
-
+    {channel, w, chans} = exact_channel(w, chans, tuple)
     etf = etf || :erlang.term_to_binary(tuple)
     {w, chans, [{channel, :next, time, publish, etf} | ms], bytes + byte_size(etf), n + 1}
+  end
+
+  defp exact_channel(w, chans, tuple) do
+    key = exact_key(tuple)
+
+    case chans.exact do
+      %{^key => channel} ->
+        {channel, w, chans}
+
+      _ ->
+        {channel, w, chans} = channel(w, chans, exact_topic(tuple), nil, %{})
+        {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
+    end
+  end
+
+  # a generic tuple's two channels, found by its tag and id (declared, the
+  # JSON's first, on first use, as `queue/6` would)
+  defp pair(w, chans, tag, id) do
+    key = {tag, id}
+
+    case chans.pairs do
+      %{^key => {json_channel, term_channel}} ->
+        {json_channel, term_channel, w, chans}
+
+      _ ->
+        topic = Foxglove.topic(id, tag)
+        {json_channel, w, chans} = channel(w, chans, topic, "thinkingcap.Tuple", %{})
+
+        {term_channel, w, chans} =
+          if chans.terms, do: exact_channel(w, chans, {tag, id, nil}), else: {nil, w, chans}
+
+        pairs = Map.put(chans.pairs, key, {json_channel, term_channel})
+        {json_channel, term_channel, w, %{chans | pairs: pairs}}
+    end
   end
 
   # what decides a call's scheduler (Compression.messages/3): a binary's

@@ -3,7 +3,7 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   # Core.JSON's rules in C (c_src/tc_json.c, built into
   # priv/lib/tc_json.so): a term's JSON as one binary, for the terms the
   # recorder meets most, so that their JSON does not fill its heap.
-  # `value/1` and `tuple/3` answer false for a term it leaves to Core.JSON (see the C
+  # `value/1`, `tuple/3` and `tuple_etf/1` answer false for a term it leaves to Core.JSON (see the C
   # file); `millimetres/1` writes a scan's ranges.
 
   @on_load :load_nif
@@ -22,6 +22,11 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   @spec tuple(term(), term(), term()) :: binary() | false
   def tuple(tag, id, payload), do: nif_tuple(tag, id, payload)
 
+  # tuple/3's JSON of `{tag, id, payload}` given as its external term
+  # (`term_to_binary/1`), read without decoding it; false as tuple/3
+  @spec tuple_etf(binary()) :: binary() | false
+  def tuple_etf(etf), do: nif_tuple_etf(etf)
+
   # a list of numbers: floats to three decimals, integers as they are
   @spec millimetres(list()) :: binary()
   def millimetres(ranges), do: nif_millimetres(ranges)
@@ -30,6 +35,8 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   def nif_value(_term), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_tuple(_tag, _id, _payload), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def nif_tuple_etf(_etf), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_millimetres(_ranges), do: :erlang.nif_error(:nif_not_loaded)
 end
