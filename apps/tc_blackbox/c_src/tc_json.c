@@ -16,9 +16,11 @@
  * tuple(Tag, Id, Payload) -> Binary | false: the JSON of a
  * thinkingcap.Tuple message, the three written as value/1 writes them.
  *
- * tuple_etf(Binary) -> Binary | false: the same message, of a tuple
- * given as its external term (term_to_binary/1), read without decoding
- * it (the recorder holds the tuples so).
+ * messages_etf(Kind, Binary, Ns) -> [Binary] | false: a tuple's Foxglove
+ * messages (Kind generic: its thinkingcap.Tuple message, as tuple/3;
+ * scan, pose, sim_pose: BlackBox.Foxglove's), from the tuple's external
+ * term (term_to_binary/1), read without decoding it (the recorder holds
+ * the tuples so).
  *
  * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
  * three decimals (trailing zeros dropped), each integer as it is; badarg
@@ -661,27 +663,248 @@ static int etf_value(etf *e, buf *b, int depth)
 
 static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b);
 
-/* tuple_etf(Binary) -> Binary | false: the thinkingcap.Tuple message of
- * `{Tag, Id, Payload}` given as its external term, as tuple/3 writes it */
-static ERL_NIF_TERM nif_tuple_etf(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+/* ---- Foxglove's own messages from the external term ----
+ *
+ * A scan (foxglove.LaserScan), a pose estimate (foxglove.PoseInFrame and
+ * foxglove.FrameTransform) and the simulator's pose (PoseInFrame), as
+ * BlackBox.Foxglove writes them, from the tuple's external term; 0 when
+ * the tuple is not of the shape Foxglove's clause for it takes. */
+
+/* a string literal */
+#define PUTS(b, lit) put((b), (lit), sizeof(lit) - 1)
+
+/* a map's value for an atom key (the map's tag at e->p) */
+static int etf_map_get(const etf *map, const char *key, etf *value)
+{
+    etf e = *map;
+    unsigned tag;
+    unsigned long long n;
+    if (!etf_u8(&e, &tag) || tag != 116 || !etf_be(&e, 4, &n)) return 0;
+    for (unsigned long long i = 0; i < n; i++) {
+        unsigned ktag;
+        const unsigned char *name;
+        size_t len;
+        etf k = e;
+        int found = 0;
+        if (etf_u8(&k, &ktag) && is_atom_tag(ktag) && etf_atom(&k, ktag, &name, &len)) found = same(name, len, key);
+        if (!etf_skip(&e, 0)) return 0;
+        if (found) {
+            *value = e;
+            return 1;
+        }
+        if (!etf_skip(&e, 0)) return 0;
+    }
+    return 0;
+}
+
+typedef struct {
+    int is_int;
+    ErlNifSInt64 i;
+    double f;
+} number;
+
+/* a number (an integer of int64, or a float) */
+static int etf_number(etf *e, number *x)
+{
+    unsigned tag;
+    if (!etf_u8(e, &tag)) return 0;
+    if (tag == 70) {
+        x->is_int = 0;
+        return etf_float(e, &x->f);
+    }
+    if (tag == 97 || tag == 98 || tag == 110) {
+        x->is_int = 1;
+        return etf_int(e, tag, &x->i);
+    }
+    return 0;
+}
+
+static double as_double(const number *x) { return x->is_int ? (double)x->i : x->f; }
+
+/* Core.JSON.number/1 */
+static int put_number(buf *b, const number *x) { return x->is_int ? put_int(b, x->i) : put_float(b, x->f); }
+
+/* {"sec":S,"nsec":N} */
+static int put_time(buf *b, ErlNifUInt64 ns)
+{
+    return PUTS(b, "{\"sec\":") && put_int(b, (ErlNifSInt64)(ns / 1000000000ULL)) && PUTS(b, ",\"nsec\":") &&
+           put_int(b, (ErlNifSInt64)(ns % 1000000000ULL)) && put_c(b, '}');
+}
+
+/* "ROBOT/base_link" */
+static int put_frame(buf *b, const unsigned char *robot, size_t n)
+{
+    char frame[300];
+    if (n + 10 > sizeof(frame)) return 0;
+    memcpy(frame, robot, n);
+    memcpy(frame + n, "/base_link", 10);
+    return put_string(b, (unsigned char *)frame, n + 10);
+}
+
+/* the tuple's elements: tag (passed over), the robot (an atom's name, or
+ * NULL when it is not an atom), the payload (its start) */
+static int etf_triple(etf *e, const unsigned char **robot, size_t *robot_len, etf *payload)
+{
+    unsigned version, tag, arity, rtag;
+    if (!etf_u8(e, &version) || version != 131 || !etf_u8(e, &tag) || tag != 104 || !etf_u8(e, &arity) ||
+        arity != 3 || !etf_skip(e, 0))
+        return 0;
+    *robot = NULL;
+    etf r = *e;
+    if (etf_u8(&r, &rtag) && is_atom_tag(rtag) && !etf_atom(&r, rtag, robot, robot_len)) return 0;
+    if (!etf_skip(e, 0)) return 0;
+    *payload = *e;
+    return etf_skip(e, 0) && e->p == e->end;
+}
+
+/* a scan's ranges: floats to the millimetre, integers as they are */
+static int etf_ranges(etf *e, buf *b)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (!etf_u8(e, &tag)) return 0;
+    if (tag == 106) return PUTS(b, "[]");
+    if (tag == 107) {
+        if (!etf_be(e, 2, &n) || (unsigned long long)(e->end - e->p) < n || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !put_int(b, e->p[k])) return 0;
+        return put_c(b, ']');
+    }
+    if (tag != 108 || !etf_be(e, 4, &n) || !put_c(b, '[')) return 0;
+    for (unsigned long long k = 0; k < n; k++) {
+        number x;
+        if ((k > 0 && !put_c(b, ',')) || !etf_number(e, &x)) return 0;
+        if (!(x.is_int ? put_int(b, x.i) : put_fixed(b, x.f, 3))) return 0;
+    }
+    unsigned t;
+    return etf_u8(e, &t) && t == 106 && put_c(b, ']');
+}
+
+#define IDENTITY "{\"position\":{\"x\":0.0,\"y\":0.0,\"z\":0.0},\"orientation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}}"
+
+static int scan_json(etf *e, ErlNifUInt64 ns, buf *b)
+{
+    const unsigned char *robot;
+    size_t robot_len;
+    etf payload, ranges, a0e, a1e;
+    number a0, a1;
+    if (!etf_triple(e, &robot, &robot_len, &payload) || robot == NULL ||
+        !etf_map_get(&payload, "ranges", &ranges) || !etf_map_get(&payload, "angle_min", &a0e) ||
+        !etf_map_get(&payload, "angle_max", &a1e) || !etf_number(&a0e, &a0) || !etf_number(&a1e, &a1))
+        return 0;
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) && PUTS(b, ",\"frame_id\":") &&
+           put_frame(b, robot, robot_len) && PUTS(b, ",\"pose\":") && PUTS(b, IDENTITY) &&
+           PUTS(b, ",\"start_angle\":") && put_number(b, &a0) && PUTS(b, ",\"end_angle\":") &&
+           put_number(b, &a1) && PUTS(b, ",\"ranges\":") && etf_ranges(&ranges, b) &&
+           PUTS(b, ",\"intensities\":[]}");
+}
+
+/* the payload's `pose: {x, y, theta}`, numbers */
+static int etf_pose(const etf *payload, number *x, number *y, number *theta)
+{
+    etf p;
+    unsigned tag, arity;
+    return etf_map_get(payload, "pose", &p) && etf_u8(&p, &tag) && tag == 104 && etf_u8(&p, &arity) &&
+           arity == 3 && etf_number(&p, x) && etf_number(&p, y) && etf_number(&p, theta);
+}
+
+/* {"x":X,"y":Y,"z":0.0} */
+static int put_point(buf *b, const number *x, const number *y)
+{
+    return PUTS(b, "{\"x\":") && put_number(b, x) && PUTS(b, ",\"y\":") && put_number(b, y) &&
+           PUTS(b, ",\"z\":0.0}");
+}
+
+/* a rotation by theta about z */
+static int put_yaw(buf *b, const number *theta)
+{
+    double half = as_double(theta) / 2;
+    return PUTS(b, "{\"x\":0.0,\"y\":0.0,\"z\":") && put_float(b, sin(half)) && PUTS(b, ",\"w\":") &&
+           put_float(b, cos(half)) && put_c(b, '}');
+}
+
+/* a PoseInFrame in map */
+static int pose_json(ErlNifUInt64 ns, const number *x, const number *y, const number *theta, buf *b)
+{
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) &&
+           PUTS(b, ",\"frame_id\":\"map\",\"pose\":{\"position\":") && put_point(b, x, y) &&
+           PUTS(b, ",\"orientation\":") && put_yaw(b, theta) && PUTS(b, "}}");
+}
+
+/* a FrameTransform from map to the robot's frame */
+static int transform_json(ErlNifUInt64 ns, const unsigned char *robot, size_t robot_len, const number *x,
+                          const number *y, const number *theta, buf *b)
+{
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) &&
+           PUTS(b, ",\"parent_frame_id\":\"map\",\"child_frame_id\":") && put_frame(b, robot, robot_len) &&
+           PUTS(b, ",\"translation\":") && put_point(b, x, y) && PUTS(b, ",\"rotation\":") &&
+           put_yaw(b, theta) && put_c(b, '}');
+}
+
+/* a thinkingcap.Tuple message, as tuple/3 writes it */
+static int tuple_json(etf *e, buf *b)
+{
+    unsigned version, tag, arity;
+    return etf_u8(e, &version) && version == 131 && etf_u8(e, &tag) && tag == 104 && etf_u8(e, &arity) &&
+           arity == 3 && PUTS(b, "{\"tag\":") && etf_value(e, b, 0) && PUTS(b, ",\"robot\":") &&
+           etf_value(e, b, 0) && PUTS(b, ",\"payload\":") && etf_value(e, b, 0) && put_c(b, '}') &&
+           e->p == e->end;
+}
+
+static ERL_NIF_TERM A_GENERIC, A_SCAN, A_POSE, A_SIM_POSE;
+
+/* messages_etf(Kind, Binary, Ns) -> [Binary] | false: the Foxglove
+ * messages of a tuple given as its external term, Kind generic, scan,
+ * pose or sim_pose (Ns the time of a message: the payload's stamp, else
+ * the log time); false when the tuple is not of that kind's shape or
+ * holds what value/1 leaves to Erlang */
+static ERL_NIF_TERM nif_messages_etf(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
     (void)argc;
     ErlNifBinary in;
-    if (!enif_inspect_binary(env, argv[0], &in)) return enif_make_badarg(env);
+    ErlNifUInt64 ns;
+    ERL_NIF_TERM kind = argv[0];
+    if (!enif_inspect_binary(env, argv[1], &in)) return enif_make_badarg(env);
+    if (!enif_get_uint64(env, argv[2], &ns)) return A_FALSE;
     etf e = {in.data, in.data + in.size};
-    unsigned version, tag, arity;
-    if (!etf_u8(&e, &version) || version != 131 || !etf_u8(&e, &tag) || tag != 104 || !etf_u8(&e, &arity) ||
-        arity != 3)
-        return A_FALSE;
-    buf b;
+    buf b, b2;
     buf_init(&b);
-    if (!(put(&b, "{\"tag\":", 7) && etf_value(&e, &b, 0) && put(&b, ",\"robot\":", 9) &&
-          etf_value(&e, &b, 0) && put(&b, ",\"payload\":", 11) && etf_value(&e, &b, 0) && put_c(&b, '}') &&
-          e.p == e.end)) {
-        buf_free(&b);
-        return A_FALSE;
+    if (kind == A_GENERIC) {
+        if (!tuple_json(&e, &b)) {
+            buf_free(&b);
+            return A_FALSE;
+        }
+        return enif_make_list1(env, to_binary(env, &b));
     }
-    return to_binary(env, &b);
+    if (kind == A_SCAN) {
+        if (!scan_json(&e, ns, &b)) {
+            buf_free(&b);
+            return A_FALSE;
+        }
+        return enif_make_list1(env, to_binary(env, &b));
+    }
+    if (kind == A_POSE || kind == A_SIM_POSE) {
+        const unsigned char *robot;
+        size_t robot_len;
+        etf payload;
+        number x, y, theta;
+        int ok = etf_triple(&e, &robot, &robot_len, &payload) && etf_pose(&payload, &x, &y, &theta) &&
+                 (kind == A_SIM_POSE || robot != NULL) && pose_json(ns, &x, &y, &theta, &b);
+        if (!ok) {
+            buf_free(&b);
+            return A_FALSE;
+        }
+        ERL_NIF_TERM pose = to_binary(env, &b);
+        if (kind == A_SIM_POSE) return enif_make_list1(env, pose);
+        buf_init(&b2);
+        if (!transform_json(ns, robot, robot_len, &x, &y, &theta, &b2)) {
+            buf_free(&b2);
+            return A_FALSE;
+        }
+        return enif_make_list2(env, pose, to_binary(env, &b2));
+    }
+    buf_free(&b);
+    return enif_make_badarg(env);
 }
 
 static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b)
@@ -753,7 +976,7 @@ static ErlNifFunc funcs[] = {
     {"nif_value", 1, nif_value, 0},
     {"nif_millimetres", 1, nif_millimetres, 0},
     {"nif_tuple", 3, nif_tuple, 0},
-    {"nif_tuple_etf", 1, nif_tuple_etf, 0},
+    {"nif_messages_etf", 3, nif_messages_etf, 0},
 };
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
@@ -764,6 +987,10 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     A_TRUE = enif_make_atom(env, "true");
     A_FALSE = enif_make_atom(env, "false");
     A_STRUCT = enif_make_atom(env, "__struct__");
+    A_GENERIC = enif_make_atom(env, "generic");
+    A_SCAN = enif_make_atom(env, "scan");
+    A_POSE = enif_make_atom(env, "pose");
+    A_SIM_POSE = enif_make_atom(env, "sim_pose");
     return 0;
 }
 

@@ -26,8 +26,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
             exact: %{},
             # {tag, id} => log time of its last Foxglove message (big tuples)
             json_at: %{},
-            # {tag, id} => {its thinkingcap.Tuple channel, its terms' channel}
-            pairs: %{}
+            # {kind, tag, id} => {its Foxglove messages' channels, its terms'}
+            # (Foxglove.kind/1: the tuples held as their terms)
+            kinds: %{}
 
   @type t :: %__MODULE__{}
 
@@ -57,19 +58,19 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # neither copies a large tuple out of the held table nor encodes it.
   # A large, thinned tuple is held without the tuple (its tag, id and
   # stamp say where and when; its term is decoded for its Foxglove
-  # message, once a second); so is a tuple whose Foxglove message is a
-  # thinkingcap.Tuple (its JSON is read from its term, in C); any other
-  # with it (its Foxglove message is written every time). `write_held/4`
+  # message, once a second); so is a tuple whose Foxglove messages are
+  # read from its term, in C (a thinkingcap.Tuple, a scan, a pose: its
+  # kind, Foxglove.kind/1); any other with it (a map). `write_held/4`
   # writes it.
   @spec held(tuple()) :: tuple()
   def held({tag, id, _payload} = tuple) when tag in @big,
     do: {__MODULE__, :big, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
 
   def held({tag, id, _payload} = tuple) do
-    if Foxglove.generic?(tuple),
-      do:
-        {__MODULE__, :generic, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)},
-      else: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
+    case Foxglove.kind(tuple) do
+      nil -> {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
+      kind -> {__MODULE__, kind, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
+    end
   end
 
   def held(tuple), do: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
@@ -115,26 +116,26 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     queue(messages, {tag, id, nil}, etf, time, publish, {w, chans, ms, bytes, n})
   end
 
-  # its thinkingcap.Tuple message's JSON read from its term (in C, or
-  # decoded and written in Erlang when C leaves it), then the term
-  defp held({__MODULE__, :generic, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
+  # its Foxglove messages' JSON read from its term (in C; when C leaves
+  # it, the term decoded and written as a tuple), then the term
+  defp held({__MODULE__, kind, tag, id, stamp, etf}, time, acc) do
     publish = stamp || time
-    {json_channel, term_channel, w, chans} = pair(w, chans, tag, id)
 
-    json =
-      case Native.tuple_etf(etf) do
-        false -> Foxglove.generic_json(tag, id, elem(:erlang.binary_to_term(etf), 2))
-        json -> json
-      end
+    case Native.messages_etf(kind, etf, publish) do
+      false ->
+        tuple(:erlang.binary_to_term(etf), etf, time, acc)
 
-    ms = [{json_channel, :next, time, publish, json} | ms]
-    bytes = bytes + binary_bytes(json)
+      jsons ->
+        {w, chans, ms, bytes, n} = acc
+        {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
+        {ms, bytes, n} = queue_jsons(jsons, channels, time, publish, ms, bytes, n)
 
-    if chans.terms,
-      do:
-        {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
-         n + 2},
-      else: {w, chans, ms, bytes, n + 1}
+        if chans.terms,
+          do:
+            {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
+             n + 1},
+          else: {w, chans, ms, bytes, n}
+    end
   end
 
   defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
@@ -201,26 +202,38 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     end
   end
 
-  # a generic tuple's two channels, found by its tag and id (declared, the
-  # JSON's first, on first use, as `queue/6` would)
-  defp pair(w, chans, tag, id) do
-    key = {tag, id}
+  # the channels of a tuple of `kind` (Foxglove.kind/1): its Foxglove
+  # messages' and its term's, found by its kind, tag and id (declared in
+  # order on first use, as `queue/6` would)
+  defp kind_channels(w, chans, kind, tag, id) do
+    key = {kind, tag, id}
 
-    case chans.pairs do
-      %{^key => {json_channel, term_channel}} ->
-        {json_channel, term_channel, w, chans}
+    case chans.kinds do
+      %{^key => {channels, term_channel}} ->
+        {channels, term_channel, w, chans}
 
       _ ->
-        topic = Foxglove.topic(id, tag)
-        {json_channel, w, chans} = channel(w, chans, topic, "thinkingcap.Tuple", %{})
+        {channels, {w, chans}} =
+          Enum.map_reduce(Foxglove.topics(kind, tag, id), {w, chans}, fn {topic, schema},
+                                                                         {w, chans} ->
+            {channel, w, chans} = channel(w, chans, topic, schema, %{})
+            {channel, {w, chans}}
+          end)
 
         {term_channel, w, chans} =
           if chans.terms, do: exact_channel(w, chans, {tag, id, nil}), else: {nil, w, chans}
 
-        pairs = Map.put(chans.pairs, key, {json_channel, term_channel})
-        {json_channel, term_channel, w, %{chans | pairs: pairs}}
+        kinds = Map.put(chans.kinds, key, {channels, term_channel})
+        {channels, term_channel, w, %{chans | kinds: kinds}}
     end
   end
+
+  defp queue_jsons([json | jsons], [channel | channels], time, publish, ms, bytes, n) do
+    ms = [{channel, :next, time, publish, json} | ms]
+    queue_jsons(jsons, channels, time, publish, ms, bytes + byte_size(json), n + 1)
+  end
+
+  defp queue_jsons([], [], _time, _publish, ms, bytes, n), do: {ms, bytes, n}
 
   # what decides a call's scheduler (Compression.messages/3): a binary's
   # bytes; iodata (a few small JSON messages) counts as none, as it did

@@ -18,6 +18,8 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
       {:pose, :r1, %{stamp: 2.5, pose: {1.0, 2.0, 0.5}}},
       {:laser, :r1, %{stamp: 2.6, ranges: [1.0, 2.5], angle_min: -1.0, angle_max: 1.0}},
       {:note, :r1, %{stamp: 2.7, text: "héllo", from: self()}},
+      {:pose, :r1, %{stamp: 2.75, pose: :lost}},
+      {:sim_pose, :r1, %{stamp: 2.76, pose: {1, 2, 3}}},
       {:odom, :r1, %{stamp: 2.8, pose: {1.0, 0.0, 0.0}}}
     ])
   end
@@ -92,7 +94,7 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert b.statistics.channel_message_counts == a.statistics.channel_message_counts
   end
 
-  test "held/1 keeps a large tuple's or a generic one's term, not the tuple" do
+  test "held/1 keeps a tuple's term and kind, not the tuple, but for a map" do
     lps = {:lps, :r1, %{stamp: 1.5, bins: [1.0, 2.0]}}
     assert {Channels, :big, :lps, :r1, 1_500_000_000, etf} = Channels.held(lps)
     assert :erlang.binary_to_term(etf) == lps
@@ -100,11 +102,12 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert {Channels, :generic, :odom, :r1, 1_500_000_000, etf} = Channels.held(odom)
     assert etf == :erlang.term_to_binary(odom)
     assert {Channels, :generic, :plan, :r1, nil, _} = Channels.held({:plan, :r1, %{goal: 1}})
-    # Foxglove's own schemas: the tuple kept
     pose = {:pose, :r1, %{stamp: 1.5, pose: {1.0, 2.0, 0.5}}}
-    assert {Channels, ^pose, etf} = Channels.held(pose)
-    assert etf == :erlang.term_to_binary(pose)
+    assert {Channels, :pose, :pose, :r1, 1_500_000_000, _} = Channels.held(pose)
     scan = {:laser, :r1, %{ranges: [1.0], angle_min: 0.0, angle_max: 0.0}}
-    assert {Channels, ^scan, _etf} = Channels.held(scan)
+    assert {Channels, :scan, :laser, :r1, nil, _} = Channels.held(scan)
+    map = {:map, :r1, %{width: 1}}
+    assert {Channels, ^map, etf} = Channels.held(map)
+    assert etf == :erlang.term_to_binary(map)
   end
 end
