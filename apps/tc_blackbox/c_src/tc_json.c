@@ -20,7 +20,9 @@
  * messages (Kind generic: its thinkingcap.Tuple message, as tuple/3;
  * scan, pose, sim_pose: BlackBox.Foxglove's), from the tuple's external
  * term (term_to_binary/1), read without decoding it (the recorder holds
- * the tuples so).
+ * the tuples so). messages_etf_all([{Kind, Binary, Ns}]) -> [[Binary] |
+ * false]: the same for a run of tuples, their messages parts of one
+ * binary.
  *
  * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
  * three decimals (trailing zeros dropped), each integer as it is; badarg
@@ -853,6 +855,58 @@ static int tuple_json(etf *e, buf *b)
 
 static ERL_NIF_TERM A_GENERIC, A_SCAN, A_POSE, A_SIM_POSE;
 
+/* A tuple's Foxglove messages (Kind generic, scan, pose or sim_pose) from
+ * its external term into `b`, one after the other, each one's end in
+ * `ends`; their count (2 at most), or 0 when the tuple is not of that
+ * kind's shape or holds what value/1 leaves to Erlang (`b` then as it
+ * was), or -1 for an unknown kind */
+static int messages_into(ERL_NIF_TERM kind, const ErlNifBinary *in, ErlNifUInt64 ns, buf *b, size_t ends[2])
+{
+    etf e = {in->data, in->data + in->size};
+    size_t start = b->len;
+    int count = 0;
+    if (kind == A_GENERIC) {
+        if (tuple_json(&e, b)) ends[count++] = b->len;
+    } else if (kind == A_SCAN) {
+        if (scan_json(&e, ns, b)) ends[count++] = b->len;
+    } else if (kind == A_POSE || kind == A_SIM_POSE) {
+        const unsigned char *robot;
+        size_t robot_len;
+        etf payload;
+        number x, y, theta;
+        if (etf_triple(&e, &robot, &robot_len, &payload) && etf_pose(&payload, &x, &y, &theta) &&
+            (kind == A_SIM_POSE || robot != NULL) && pose_json(ns, &x, &y, &theta, b)) {
+            ends[count++] = b->len;
+            if (kind == A_POSE) {
+                if (transform_json(ns, robot, robot_len, &x, &y, &theta, b)) ends[count++] = b->len;
+                else count = 0;
+            }
+        }
+    } else {
+        return -1;
+    }
+    if (count == 0) b->len = start;
+    return count;
+}
+
+/* the messages of each item as parts of one binary */
+typedef struct {
+    int count;
+    size_t start, ends[2];
+} parts;
+
+static ERL_NIF_TERM parts_list(ErlNifEnv *env, ERL_NIF_TERM whole, const parts *p)
+{
+    if (p->count == 0) return A_FALSE;
+    ERL_NIF_TERM items[2];
+    size_t at = p->start;
+    for (int k = 0; k < p->count; k++) {
+        items[k] = enif_make_sub_binary(env, whole, at, p->ends[k] - at);
+        at = p->ends[k];
+    }
+    return enif_make_list_from_array(env, items, (unsigned)p->count);
+}
+
 /* messages_etf(Kind, Binary, Ns) -> [Binary] | false: the Foxglove
  * messages of a tuple given as its external term, Kind generic, scan,
  * pose or sim_pose (Ns the time of a message: the payload's stamp, else
@@ -863,48 +917,53 @@ static ERL_NIF_TERM nif_messages_etf(ErlNifEnv *env, int argc, const ERL_NIF_TER
     (void)argc;
     ErlNifBinary in;
     ErlNifUInt64 ns;
-    ERL_NIF_TERM kind = argv[0];
     if (!enif_inspect_binary(env, argv[1], &in)) return enif_make_badarg(env);
     if (!enif_get_uint64(env, argv[2], &ns)) return A_FALSE;
-    etf e = {in.data, in.data + in.size};
-    buf b, b2;
+    buf b;
     buf_init(&b);
-    if (kind == A_GENERIC) {
-        if (!tuple_json(&e, &b)) {
-            buf_free(&b);
-            return A_FALSE;
-        }
-        return enif_make_list1(env, to_binary(env, &b));
+    parts p = {0, 0, {0, 0}};
+    p.count = messages_into(argv[0], &in, ns, &b, p.ends);
+    if (p.count < 0) {
+        buf_free(&b);
+        return enif_make_badarg(env);
     }
-    if (kind == A_SCAN) {
-        if (!scan_json(&e, ns, &b)) {
+    return parts_list(env, to_binary(env, &b), &p);
+}
+
+#define MAX_ITEMS 256
+
+/* messages_etf_all([{Kind, Binary, Ns}]) -> [[Binary] | false]:
+ * messages_etf/3 of each, in order, all parts of one binary */
+static ERL_NIF_TERM nif_messages_etf_all(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    unsigned len;
+    if (!enif_get_list_length(env, argv[0], &len) || len > MAX_ITEMS) return enif_make_badarg(env);
+    parts p[MAX_ITEMS];
+    buf b;
+    buf_init(&b);
+    ERL_NIF_TERM head, tail = argv[0];
+    for (unsigned k = 0; k < len; k++) {
+        int arity;
+        const ERL_NIF_TERM *t;
+        ErlNifBinary in;
+        ErlNifUInt64 ns;
+        enif_get_list_cell(env, tail, &head, &tail);
+        if (!enif_get_tuple(env, head, &arity, &t) || arity != 3 || !enif_inspect_binary(env, t[1], &in)) {
             buf_free(&b);
-            return A_FALSE;
+            return enif_make_badarg(env);
         }
-        return enif_make_list1(env, to_binary(env, &b));
-    }
-    if (kind == A_POSE || kind == A_SIM_POSE) {
-        const unsigned char *robot;
-        size_t robot_len;
-        etf payload;
-        number x, y, theta;
-        int ok = etf_triple(&e, &robot, &robot_len, &payload) && etf_pose(&payload, &x, &y, &theta) &&
-                 (kind == A_SIM_POSE || robot != NULL) && pose_json(ns, &x, &y, &theta, &b);
-        if (!ok) {
+        p[k].start = b.len;
+        p[k].count = enif_get_uint64(env, t[2], &ns) ? messages_into(t[0], &in, ns, &b, p[k].ends) : 0;
+        if (p[k].count < 0) {
             buf_free(&b);
-            return A_FALSE;
+            return enif_make_badarg(env);
         }
-        ERL_NIF_TERM pose = to_binary(env, &b);
-        if (kind == A_SIM_POSE) return enif_make_list1(env, pose);
-        buf_init(&b2);
-        if (!transform_json(ns, robot, robot_len, &x, &y, &theta, &b2)) {
-            buf_free(&b2);
-            return A_FALSE;
-        }
-        return enif_make_list2(env, pose, to_binary(env, &b2));
     }
-    buf_free(&b);
-    return enif_make_badarg(env);
+    ERL_NIF_TERM whole = to_binary(env, &b);
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (unsigned k = len; k-- > 0;) list = enif_make_list_cell(env, parts_list(env, whole, &p[k]), list);
+    return list;
 }
 
 static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b)
@@ -977,6 +1036,7 @@ static ErlNifFunc funcs[] = {
     {"nif_millimetres", 1, nif_millimetres, 0},
     {"nif_tuple", 3, nif_tuple, 0},
     {"nif_messages_etf", 3, nif_messages_etf, 0},
+    {"nif_messages_etf_all", 1, nif_messages_etf_all, 0},
 };
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)

@@ -201,6 +201,23 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
     assert written > 1_500
   end
 
+  test "a run of tuples' messages in one call: each as alone, parts of one binary" do
+    items =
+      for _ <- 1..200 do
+        tuple = random_kinded()
+        {Foxglove.kind(tuple), :erlang.term_to_binary(tuple), Foxglove.stamp_ns(tuple) || 5}
+      end
+
+    all = Native.messages_etf_all(items)
+    assert all == Enum.map(items, fn {kind, etf, ns} -> Native.messages_etf(kind, etf, ns) end)
+    parts = all |> Enum.filter(&is_list/1) |> Enum.concat()
+    assert length(parts) > 100
+    whole = parts |> Enum.map(&byte_size/1) |> Enum.sum()
+    assert Enum.all?(parts, &(:binary.referenced_byte_size(&1) == whole))
+    assert Native.messages_etf_all([]) == []
+    assert_raise ArgumentError, fn -> Native.messages_etf_all([{:nope, "", 0}]) end
+  end
+
   test "every schema is a JSON schema titled with its name" do
     for name <- Foxglove.schema_names() do
       schema = decode(Foxglove.schema(name))

@@ -87,7 +87,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @spec write_held_all(Writer.t(), t(), [{tuple(), non_neg_integer()}]) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
   def write_held_all(w, chans, entries) do
-    {w, chans, messages, bytes, n} = held_all(entries, {w, chans, [], 0, 0})
+    # the Foxglove messages of those held as their terms, in one call
+    jsons = Native.messages_etf_all(etf_items(entries, []))
+    {w, chans, messages, bytes, n} = held_all(entries, jsons, {w, chans, [], 0, 0})
 
     case Writer.add_messages(w, :lists.reverse(messages), bytes) do
       {:ok, w} -> {:ok, w, chans, n}
@@ -104,9 +106,23 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # The messages to write, newest first, with the writer and channels
   # (channels are declared as they are first used) and the bytes of the
   # messages' binaries, and their count: {w, chans, messages, bytes, n}
-  defp held_all([], acc), do: acc
+  defp held_all([], [], acc), do: acc
 
-  defp held_all([{held, time} | rest], acc), do: held_all(rest, held(held, time, acc))
+  defp held_all([{{__MODULE__, kind, tag, id, stamp, etf}, time} | rest], [jsons | more], acc)
+       when kind != :big,
+       do: held_all(rest, more, held_kind(kind, tag, id, stamp || time, etf, jsons, time, acc))
+
+  defp held_all([{held, time} | rest], jsons, acc),
+    do: held_all(rest, jsons, held(held, time, acc))
+
+  # `{kind, etf, publish time}` of each entry held as its term, in order
+  defp etf_items([], acc), do: :lists.reverse(acc)
+
+  defp etf_items([{{__MODULE__, kind, _tag, _id, stamp, etf}, time} | rest], acc)
+       when kind != :big,
+       do: etf_items(rest, [{kind, etf, stamp || time} | acc])
+
+  defp etf_items([_ | rest], acc), do: etf_items(rest, acc)
 
   defp held({__MODULE__, :big, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
     publish = stamp || time
@@ -116,30 +132,24 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
     queue(messages, {tag, id, nil}, etf, time, publish, {w, chans, ms, bytes, n})
   end
 
-  # its Foxglove messages' JSON read from its term (in C; when C leaves
-  # it, the term decoded and written as a tuple), then the term
-  defp held({__MODULE__, kind, tag, id, stamp, etf}, time, acc) do
-    publish = stamp || time
-
-    case Native.messages_etf(kind, etf, publish) do
-      false ->
-        tuple(:erlang.binary_to_term(etf), etf, time, acc)
-
-      jsons ->
-        {w, chans, ms, bytes, n} = acc
-        {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
-        {ms, bytes, n} = queue_jsons(jsons, channels, time, publish, ms, bytes, n)
-
-        if chans.terms,
-          do:
-            {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
-             n + 1},
-          else: {w, chans, ms, bytes, n}
-    end
-  end
-
   defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
   defp held(tuple, time, acc), do: tuple(tuple, nil, time, acc)
+
+  # its Foxglove messages' JSON, read from its term in C (false when C
+  # leaves it: the term decoded and written as a tuple), then the term
+  defp held_kind(_kind, _tag, _id, _publish, etf, false, time, acc),
+    do: tuple(:erlang.binary_to_term(etf), etf, time, acc)
+
+  defp held_kind(kind, tag, id, publish, etf, jsons, time, {w, chans, ms, bytes, n}) do
+    {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
+    {ms, bytes, n} = queue_jsons(jsons, channels, time, publish, ms, bytes, n)
+
+    if chans.terms,
+      do:
+        {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
+         n + 1},
+      else: {w, chans, ms, bytes, n}
+  end
 
   # `etf`: the tuple's external term, or nil to make it here
   defp tuple(tuple, etf, time, {w, chans, ms, bytes, n}) do
