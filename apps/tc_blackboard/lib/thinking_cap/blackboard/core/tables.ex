@@ -20,7 +20,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
   #                         {{:watermark, node}, boot, seq}
   #   batches  set          {ref, next, taken, pid, max_batch, max_delay_ms, max_queue,
   #                          notified, gap}  a batched subscription (see Batches)
-  #   batched  set          {{ref, position}, tuple | :dropped, monotonic_time}
+  #   batched  ordered_set  {{ref, position}, tuple | :dropped, monotonic_time}
   #                         the tuples held for batched subscriptions
   #   (and in persistent_term: the tables' ids, two arrays, counters/0 and
   #   send_counts/0, and the index flags, tag_indexed?/2 and wide_indexed/0)
@@ -171,9 +171,7 @@ defmodule ThinkingCap.Blackboard.Core.Tables do
       # every write a batched subscription matches takes a position here
       # and inserts there, from many schedulers
       batches: [:set, :public, :named_table, write_concurrency: true],
-      # (a set: each held position is inserted and taken by its key, a
-      # hash away, not down an ordered_set's tree)
-      batched: [:set, :public, :named_table, write_concurrency: true]
+      batched: [:ordered_set, :public, :named_table, write_concurrency: true]
     ]
 
     ids =
