@@ -16,6 +16,14 @@
  * tuple(Tag, Id, Payload) -> Binary | false: the JSON of a
  * thinkingcap.Tuple message, the three written as value/1 writes them.
  *
+ * messages_etf(Kind, Binary, Ns) -> [Binary] | false: a tuple's Foxglove
+ * messages (Kind generic: its thinkingcap.Tuple message, as tuple/3;
+ * scan, pose, sim_pose: BlackBox.Foxglove's), from the tuple's external
+ * term (term_to_binary/1), read without decoding it (the recorder holds
+ * the tuples so). messages_etf_all([{Kind, Binary, Ns}]) -> [[Binary] |
+ * false]: the same for a run of tuples, their messages parts of one
+ * binary.
+ *
  * millimetres(List) -> Binary: a scan's ranges, `[r,...]`, each float to
  * three decimals (trailing zeros dropped), each integer as it is; badarg
  * for anything else.
@@ -27,6 +35,7 @@
  */
 #include <erl_nif.h>
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -366,6 +375,597 @@ static int value(ErlNifEnv *env, buf *b, ERL_NIF_TERM t, int depth)
     return 0;
 }
 
+/* ---- the same JSON from a term's external format ----
+ *
+ * Erlang's external term format (`term_to_binary/1`) read with the rules
+ * of value/1, so that a tuple held as its external term (the recorder's)
+ * need not be decoded: the same bytes, or 0 for anything value/1 would
+ * not write (or a binary that is not such a term). Maps come in the
+ * order value/1 iterates them (a map's internal order), written in
+ * reverse, as value/1 writes them. */
+
+typedef struct {
+    const unsigned char *p, *end;
+} etf;
+
+static int etf_u8(etf *e, unsigned *v)
+{
+    if (e->p >= e->end) return 0;
+    *v = *e->p++;
+    return 1;
+}
+
+/* passes over `n` bytes, if there are */
+static int etf_pass(etf *e, unsigned long long n)
+{
+    if ((unsigned long long)(e->end - e->p) < n) return 0;
+    e->p += n;
+    return 1;
+}
+
+static int etf_be(etf *e, int bytes, unsigned long long *v)
+{
+    if (e->end - e->p < bytes) return 0;
+    unsigned long long x = 0;
+    for (int i = 0; i < bytes; i++) x = (x << 8) | e->p[i];
+    e->p += bytes;
+    *v = x;
+    return 1;
+}
+
+/* an integer of the format (small, 32-bit, or a small big that fits int64) */
+static int etf_int(etf *e, unsigned tag, ErlNifSInt64 *out)
+{
+    unsigned long long v;
+    if (tag == 97) {
+        if (!etf_be(e, 1, &v)) return 0;
+        *out = (ErlNifSInt64)v;
+        return 1;
+    }
+    if (tag == 98) {
+        if (!etf_be(e, 4, &v)) return 0;
+        *out = (ErlNifSInt64)(int32_t)(uint32_t)v;
+        return 1;
+    }
+    /* SMALL_BIG_EXT: n, sign, n bytes little-endian */
+    unsigned n, sign;
+    if (!etf_u8(e, &n) || !etf_u8(e, &sign) || n > 8 || e->end - e->p < (long)n) return 0;
+    unsigned long long m = 0;
+    for (unsigned i = 0; i < n; i++) m |= (unsigned long long)e->p[i] << (8 * i);
+    e->p += n;
+    if (sign == 0) {
+        if (m > 9223372036854775807ULL) return 0;
+        *out = (ErlNifSInt64)m;
+    } else {
+        if (m > 9223372036854775808ULL) return 0;
+        *out = (ErlNifSInt64)(0ULL - m);
+    }
+    return 1;
+}
+
+static int etf_float(etf *e, double *f)
+{
+    unsigned long long v;
+    if (!etf_be(e, 8, &v)) return 0;
+    memcpy(f, &v, sizeof(*f));
+    return 1;
+}
+
+/* an atom's name (its length after the tag) */
+static int etf_atom(etf *e, unsigned tag, const unsigned char **name, size_t *n)
+{
+    unsigned long long len;
+    if (!etf_be(e, (tag == 100 || tag == 118) ? 2 : 1, &len) || (unsigned long long)(e->end - e->p) < len)
+        return 0;
+    *name = e->p;
+    *n = (size_t)len;
+    e->p += len;
+    return 1;
+}
+
+static int is_atom_tag(unsigned tag) { return tag == 100 || tag == 115 || tag == 118 || tag == 119; }
+
+static int same(const unsigned char *a, size_t n, const char *b)
+{
+    return n == strlen(b) && memcmp(a, b, n) == 0;
+}
+
+static int etf_value(etf *e, buf *b, int depth);
+
+/* passes over one term, checking only its structure; 0 when it is not
+ * one value/1 writes */
+static int etf_skip(etf *e, int depth)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (depth > MAX_DEPTH || !etf_u8(e, &tag)) return 0;
+    switch (tag) {
+    case 97: return etf_pass(e, 1);
+    case 98: return etf_pass(e, 4);
+    case 70: return etf_pass(e, 8);
+    case 106: return 1;
+    case 110: {
+        unsigned k;
+        return etf_u8(e, &k) && etf_pass(e, 1 + (unsigned long long)k);
+    }
+    case 100: case 118: case 115: case 119: {
+        const unsigned char *name;
+        size_t len;
+        return etf_atom(e, tag, &name, &len);
+    }
+    case 107: return etf_be(e, 2, &n) && etf_pass(e, n);
+    case 109: return etf_be(e, 4, &n) && etf_pass(e, n);
+    case 104: case 105:
+        if (!etf_be(e, tag == 104 ? 1 : 4, &n)) return 0;
+        for (unsigned long long i = 0; i < n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    case 108:
+        if (!etf_be(e, 4, &n)) return 0;
+        for (unsigned long long i = 0; i <= n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    case 116:
+        if (!etf_be(e, 4, &n)) return 0;
+        for (unsigned long long i = 0; i < 2 * n; i++)
+            if (!etf_skip(e, depth + 1)) return 0;
+        return 1;
+    default: return 0;
+    }
+}
+
+/* a map's key, as object() writes it */
+static int etf_key(etf *e, buf *b)
+{
+    unsigned tag;
+    if (!etf_u8(e, &tag)) return 0;
+    if (is_atom_tag(tag)) {
+        const unsigned char *name;
+        size_t n;
+        return etf_atom(e, tag, &name, &n) && put_string(b, name, n);
+    }
+    if (tag == 97 || tag == 98 || tag == 110) {
+        ErlNifSInt64 i;
+        return etf_int(e, tag, &i) && put_c(b, '"') && put_int(b, i) && put_c(b, '"');
+    }
+    if (tag == 70) {
+        double f;
+        return etf_float(e, &f) && put_c(b, '"') && put_float(b, f) && put_c(b, '"');
+    }
+    if (tag == 109) {
+        unsigned long long n;
+        if (!etf_be(e, 4, &n) || (unsigned long long)(e->end - e->p) < n) return 0;
+        int ok = put_string(b, e->p, (size_t)n);
+        e->p += n;
+        return ok;
+    }
+    return 0;
+}
+
+#define MAX_MEMBERS 32
+
+/* a map (after its tag): its members in the reverse of their order here,
+ * a struct's name first */
+static int etf_map(etf *e, buf *b, int depth)
+{
+    unsigned long long n;
+    if (!etf_be(e, 4, &n) || n > MAX_MEMBERS) return 0;
+    const unsigned char *keys[MAX_MEMBERS], *values[MAX_MEMBERS];
+    int skip = -1;
+    const unsigned char *module = NULL;
+    size_t module_len = 0;
+    for (unsigned long long i = 0; i < n; i++) {
+        keys[i] = e->p;
+        unsigned tag;
+        if (!etf_u8(e, &tag)) return 0;
+        const unsigned char *name;
+        size_t len;
+        if (is_atom_tag(tag)) {
+            if (!etf_atom(e, tag, &name, &len)) return 0;
+            if (same(name, len, "__struct__")) {
+                /* a struct when its module is an atom */
+                etf v = *e;
+                unsigned vtag;
+                if (etf_u8(&v, &vtag) && is_atom_tag(vtag)) {
+                    if (!etf_atom(&v, vtag, &module, &module_len)) return 0;
+                    skip = (int)i;
+                }
+            }
+        } else {
+            e->p = keys[i];
+            if (!etf_skip(e, depth + 1)) return 0;
+        }
+        values[i] = e->p;
+        if (!etf_skip(e, depth + 1)) return 0;
+    }
+    const unsigned char *after = e->p;
+    int members = 0;
+    if (skip >= 0) {
+        /* as inspect/1 prints an Elixir module's name */
+        char name[256];
+        if (module_len <= 7 || module_len >= sizeof(name) || memcmp(module, "Elixir.", 7) != 0) return 0;
+        memcpy(name, module + 7, module_len - 7);
+        name[module_len - 7] = '\0';
+        if (!alias(name)) return 0;
+        if (!put(b, "{\"__struct__\":", 14) || !put_string(b, module + 7, module_len - 7)) return 0;
+        members = 1;
+    } else if (!put_c(b, '{')) {
+        return 0;
+    }
+    for (long long i = (long long)n - 1; i >= 0; i--) {
+        if (i == skip) continue;
+        if (members++ > 0 && !put_c(b, ',')) return 0;
+        etf k = {keys[i], values[i]};
+        etf v = {values[i], after};
+        if (!etf_key(&k, b) || k.p != values[i] || !put_c(b, ':') || !etf_value(&v, b, depth + 1))
+            return 0;
+    }
+    e->p = after;
+    return put_c(b, '}');
+}
+
+static int etf_value(etf *e, buf *b, int depth)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (depth > MAX_DEPTH || !etf_u8(e, &tag)) return 0;
+    switch (tag) {
+    case 100: case 115: case 118: case 119: {
+        const unsigned char *name;
+        size_t len;
+        if (!etf_atom(e, tag, &name, &len)) return 0;
+        if (same(name, len, "nil")) return put(b, "null", 4);
+        if (same(name, len, "true")) return put(b, "true", 4);
+        if (same(name, len, "false")) return put(b, "false", 5);
+        return put_string(b, name, len);
+    }
+    case 70: {
+        double f;
+        return etf_float(e, &f) && put_float(b, f);
+    }
+    case 97: case 98: case 110: {
+        ErlNifSInt64 i;
+        return etf_int(e, tag, &i) && put_int(b, i);
+    }
+    case 109: {
+        if (!etf_be(e, 4, &n) || (unsigned long long)(e->end - e->p) < n) return 0;
+        int ok = put_string(b, e->p, (size_t)n);
+        e->p += n;
+        return ok;
+    }
+    case 106: return put(b, "[]", 2);
+    case 107: {
+        /* a list of bytes */
+        if (!etf_be(e, 2, &n) || (unsigned long long)(e->end - e->p) < n || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !put_int(b, e->p[k])) return 0;
+        e->p += n;
+        return put_c(b, ']');
+    }
+    case 108: {
+        unsigned t;
+        if (!etf_be(e, 4, &n) || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !etf_value(e, b, depth + 1)) return 0;
+        /* a proper list's tail */
+        return etf_u8(e, &t) && t == 106 && put_c(b, ']');
+    }
+    case 104: case 105: {
+        if (!etf_be(e, tag == 104 ? 1 : 4, &n)) return 0;
+        if (n == 0) return put(b, "[]", 2);
+        if (!put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !etf_value(e, b, depth + 1)) return 0;
+        return put_c(b, ']');
+    }
+    case 116: return etf_map(e, b, depth);
+    default: return 0;
+    }
+}
+
+static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b);
+
+/* ---- Foxglove's own messages from the external term ----
+ *
+ * A scan (foxglove.LaserScan), a pose estimate (foxglove.PoseInFrame and
+ * foxglove.FrameTransform) and the simulator's pose (PoseInFrame), as
+ * BlackBox.Foxglove writes them, from the tuple's external term; 0 when
+ * the tuple is not of the shape Foxglove's clause for it takes. */
+
+/* a string literal */
+#define PUTS(b, lit) put((b), (lit), sizeof(lit) - 1)
+
+/* a map's value for an atom key (the map's tag at e->p) */
+static int etf_map_get(const etf *map, const char *key, etf *value)
+{
+    etf e = *map;
+    unsigned tag;
+    unsigned long long n;
+    if (!etf_u8(&e, &tag) || tag != 116 || !etf_be(&e, 4, &n)) return 0;
+    for (unsigned long long i = 0; i < n; i++) {
+        unsigned ktag;
+        const unsigned char *name;
+        size_t len;
+        etf k = e;
+        int found = 0;
+        if (etf_u8(&k, &ktag) && is_atom_tag(ktag) && etf_atom(&k, ktag, &name, &len)) found = same(name, len, key);
+        if (!etf_skip(&e, 0)) return 0;
+        if (found) {
+            *value = e;
+            return 1;
+        }
+        if (!etf_skip(&e, 0)) return 0;
+    }
+    return 0;
+}
+
+typedef struct {
+    int is_int;
+    ErlNifSInt64 i;
+    double f;
+} number;
+
+/* a number (an integer of int64, or a float) */
+static int etf_number(etf *e, number *x)
+{
+    unsigned tag;
+    if (!etf_u8(e, &tag)) return 0;
+    if (tag == 70) {
+        x->is_int = 0;
+        return etf_float(e, &x->f);
+    }
+    if (tag == 97 || tag == 98 || tag == 110) {
+        x->is_int = 1;
+        return etf_int(e, tag, &x->i);
+    }
+    return 0;
+}
+
+static double as_double(const number *x) { return x->is_int ? (double)x->i : x->f; }
+
+/* Core.JSON.number/1 */
+static int put_number(buf *b, const number *x) { return x->is_int ? put_int(b, x->i) : put_float(b, x->f); }
+
+/* {"sec":S,"nsec":N} */
+static int put_time(buf *b, ErlNifUInt64 ns)
+{
+    return PUTS(b, "{\"sec\":") && put_int(b, (ErlNifSInt64)(ns / 1000000000ULL)) && PUTS(b, ",\"nsec\":") &&
+           put_int(b, (ErlNifSInt64)(ns % 1000000000ULL)) && put_c(b, '}');
+}
+
+/* "ROBOT/base_link" */
+static int put_frame(buf *b, const unsigned char *robot, size_t n)
+{
+    char frame[300];
+    if (n + 10 > sizeof(frame)) return 0;
+    memcpy(frame, robot, n);
+    memcpy(frame + n, "/base_link", 10);
+    return put_string(b, (unsigned char *)frame, n + 10);
+}
+
+/* the tuple's elements: tag (passed over), the robot (an atom's name, or
+ * NULL when it is not an atom), the payload (its start) */
+static int etf_triple(etf *e, const unsigned char **robot, size_t *robot_len, etf *payload)
+{
+    unsigned version, tag, arity, rtag;
+    if (!etf_u8(e, &version) || version != 131 || !etf_u8(e, &tag) || tag != 104 || !etf_u8(e, &arity) ||
+        arity != 3 || !etf_skip(e, 0))
+        return 0;
+    *robot = NULL;
+    etf r = *e;
+    if (etf_u8(&r, &rtag) && is_atom_tag(rtag) && !etf_atom(&r, rtag, robot, robot_len)) return 0;
+    if (!etf_skip(e, 0)) return 0;
+    *payload = *e;
+    return etf_skip(e, 0) && e->p == e->end;
+}
+
+/* a scan's ranges: floats to the millimetre, integers as they are */
+static int etf_ranges(etf *e, buf *b)
+{
+    unsigned tag;
+    unsigned long long n;
+    if (!etf_u8(e, &tag)) return 0;
+    if (tag == 106) return PUTS(b, "[]");
+    if (tag == 107) {
+        if (!etf_be(e, 2, &n) || (unsigned long long)(e->end - e->p) < n || !put_c(b, '[')) return 0;
+        for (unsigned long long k = 0; k < n; k++)
+            if ((k > 0 && !put_c(b, ',')) || !put_int(b, e->p[k])) return 0;
+        return put_c(b, ']');
+    }
+    if (tag != 108 || !etf_be(e, 4, &n) || !put_c(b, '[')) return 0;
+    for (unsigned long long k = 0; k < n; k++) {
+        number x;
+        if ((k > 0 && !put_c(b, ',')) || !etf_number(e, &x)) return 0;
+        if (!(x.is_int ? put_int(b, x.i) : put_fixed(b, x.f, 3))) return 0;
+    }
+    unsigned t;
+    return etf_u8(e, &t) && t == 106 && put_c(b, ']');
+}
+
+#define IDENTITY "{\"position\":{\"x\":0.0,\"y\":0.0,\"z\":0.0},\"orientation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}}"
+
+static int scan_json(etf *e, ErlNifUInt64 ns, buf *b)
+{
+    const unsigned char *robot;
+    size_t robot_len;
+    etf payload, ranges, a0e, a1e;
+    number a0, a1;
+    if (!etf_triple(e, &robot, &robot_len, &payload) || robot == NULL ||
+        !etf_map_get(&payload, "ranges", &ranges) || !etf_map_get(&payload, "angle_min", &a0e) ||
+        !etf_map_get(&payload, "angle_max", &a1e) || !etf_number(&a0e, &a0) || !etf_number(&a1e, &a1))
+        return 0;
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) && PUTS(b, ",\"frame_id\":") &&
+           put_frame(b, robot, robot_len) && PUTS(b, ",\"pose\":") && PUTS(b, IDENTITY) &&
+           PUTS(b, ",\"start_angle\":") && put_number(b, &a0) && PUTS(b, ",\"end_angle\":") &&
+           put_number(b, &a1) && PUTS(b, ",\"ranges\":") && etf_ranges(&ranges, b) &&
+           PUTS(b, ",\"intensities\":[]}");
+}
+
+/* the payload's `pose: {x, y, theta}`, numbers */
+static int etf_pose(const etf *payload, number *x, number *y, number *theta)
+{
+    etf p;
+    unsigned tag, arity;
+    return etf_map_get(payload, "pose", &p) && etf_u8(&p, &tag) && tag == 104 && etf_u8(&p, &arity) &&
+           arity == 3 && etf_number(&p, x) && etf_number(&p, y) && etf_number(&p, theta);
+}
+
+/* {"x":X,"y":Y,"z":0.0} */
+static int put_point(buf *b, const number *x, const number *y)
+{
+    return PUTS(b, "{\"x\":") && put_number(b, x) && PUTS(b, ",\"y\":") && put_number(b, y) &&
+           PUTS(b, ",\"z\":0.0}");
+}
+
+/* a rotation by theta about z */
+static int put_yaw(buf *b, const number *theta)
+{
+    double half = as_double(theta) / 2;
+    return PUTS(b, "{\"x\":0.0,\"y\":0.0,\"z\":") && put_float(b, sin(half)) && PUTS(b, ",\"w\":") &&
+           put_float(b, cos(half)) && put_c(b, '}');
+}
+
+/* a PoseInFrame in map */
+static int pose_json(ErlNifUInt64 ns, const number *x, const number *y, const number *theta, buf *b)
+{
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) &&
+           PUTS(b, ",\"frame_id\":\"map\",\"pose\":{\"position\":") && put_point(b, x, y) &&
+           PUTS(b, ",\"orientation\":") && put_yaw(b, theta) && PUTS(b, "}}");
+}
+
+/* a FrameTransform from map to the robot's frame */
+static int transform_json(ErlNifUInt64 ns, const unsigned char *robot, size_t robot_len, const number *x,
+                          const number *y, const number *theta, buf *b)
+{
+    return PUTS(b, "{\"timestamp\":") && put_time(b, ns) &&
+           PUTS(b, ",\"parent_frame_id\":\"map\",\"child_frame_id\":") && put_frame(b, robot, robot_len) &&
+           PUTS(b, ",\"translation\":") && put_point(b, x, y) && PUTS(b, ",\"rotation\":") &&
+           put_yaw(b, theta) && put_c(b, '}');
+}
+
+/* a thinkingcap.Tuple message, as tuple/3 writes it */
+static int tuple_json(etf *e, buf *b)
+{
+    unsigned version, tag, arity;
+    return etf_u8(e, &version) && version == 131 && etf_u8(e, &tag) && tag == 104 && etf_u8(e, &arity) &&
+           arity == 3 && PUTS(b, "{\"tag\":") && etf_value(e, b, 0) && PUTS(b, ",\"robot\":") &&
+           etf_value(e, b, 0) && PUTS(b, ",\"payload\":") && etf_value(e, b, 0) && put_c(b, '}') &&
+           e->p == e->end;
+}
+
+static ERL_NIF_TERM A_GENERIC, A_SCAN, A_POSE, A_SIM_POSE;
+
+/* A tuple's Foxglove messages (Kind generic, scan, pose or sim_pose) from
+ * its external term into `b`, one after the other, each one's end in
+ * `ends`; their count (2 at most), or 0 when the tuple is not of that
+ * kind's shape or holds what value/1 leaves to Erlang (`b` then as it
+ * was), or -1 for an unknown kind */
+static int messages_into(ERL_NIF_TERM kind, const ErlNifBinary *in, ErlNifUInt64 ns, buf *b, size_t ends[2])
+{
+    etf e = {in->data, in->data + in->size};
+    size_t start = b->len;
+    int count = 0;
+    if (kind == A_GENERIC) {
+        if (tuple_json(&e, b)) ends[count++] = b->len;
+    } else if (kind == A_SCAN) {
+        if (scan_json(&e, ns, b)) ends[count++] = b->len;
+    } else if (kind == A_POSE || kind == A_SIM_POSE) {
+        const unsigned char *robot;
+        size_t robot_len;
+        etf payload;
+        number x, y, theta;
+        if (etf_triple(&e, &robot, &robot_len, &payload) && etf_pose(&payload, &x, &y, &theta) &&
+            (kind == A_SIM_POSE || robot != NULL) && pose_json(ns, &x, &y, &theta, b)) {
+            ends[count++] = b->len;
+            if (kind == A_POSE) {
+                if (transform_json(ns, robot, robot_len, &x, &y, &theta, b)) ends[count++] = b->len;
+                else count = 0;
+            }
+        }
+    } else {
+        return -1;
+    }
+    if (count == 0) b->len = start;
+    return count;
+}
+
+/* the messages of each item as parts of one binary */
+typedef struct {
+    int count;
+    size_t start, ends[2];
+} parts;
+
+static ERL_NIF_TERM parts_list(ErlNifEnv *env, ERL_NIF_TERM whole, const parts *p)
+{
+    if (p->count == 0) return A_FALSE;
+    ERL_NIF_TERM items[2];
+    size_t at = p->start;
+    for (int k = 0; k < p->count; k++) {
+        items[k] = enif_make_sub_binary(env, whole, at, p->ends[k] - at);
+        at = p->ends[k];
+    }
+    return enif_make_list_from_array(env, items, (unsigned)p->count);
+}
+
+/* messages_etf(Kind, Binary, Ns) -> [Binary] | false: the Foxglove
+ * messages of a tuple given as its external term, Kind generic, scan,
+ * pose or sim_pose (Ns the time of a message: the payload's stamp, else
+ * the log time); false when the tuple is not of that kind's shape or
+ * holds what value/1 leaves to Erlang */
+static ERL_NIF_TERM nif_messages_etf(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    ErlNifBinary in;
+    ErlNifUInt64 ns;
+    if (!enif_inspect_binary(env, argv[1], &in)) return enif_make_badarg(env);
+    if (!enif_get_uint64(env, argv[2], &ns)) return A_FALSE;
+    buf b;
+    buf_init(&b);
+    parts p = {0, 0, {0, 0}};
+    p.count = messages_into(argv[0], &in, ns, &b, p.ends);
+    if (p.count < 0) {
+        buf_free(&b);
+        return enif_make_badarg(env);
+    }
+    return parts_list(env, to_binary(env, &b), &p);
+}
+
+#define MAX_ITEMS 256
+
+/* messages_etf_all([{Kind, Binary, Ns}]) -> [[Binary] | false]:
+ * messages_etf/3 of each, in order, all parts of one binary */
+static ERL_NIF_TERM nif_messages_etf_all(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    unsigned len;
+    if (!enif_get_list_length(env, argv[0], &len) || len > MAX_ITEMS) return enif_make_badarg(env);
+    parts p[MAX_ITEMS];
+    buf b;
+    buf_init(&b);
+    ERL_NIF_TERM head, tail = argv[0];
+    for (unsigned k = 0; k < len; k++) {
+        int arity;
+        const ERL_NIF_TERM *t;
+        ErlNifBinary in;
+        ErlNifUInt64 ns;
+        enif_get_list_cell(env, tail, &head, &tail);
+        if (!enif_get_tuple(env, head, &arity, &t) || arity != 3 || !enif_inspect_binary(env, t[1], &in)) {
+            buf_free(&b);
+            return enif_make_badarg(env);
+        }
+        p[k].start = b.len;
+        p[k].count = enif_get_uint64(env, t[2], &ns) ? messages_into(t[0], &in, ns, &b, p[k].ends) : 0;
+        if (p[k].count < 0) {
+            buf_free(&b);
+            return enif_make_badarg(env);
+        }
+    }
+    ERL_NIF_TERM whole = to_binary(env, &b);
+    ERL_NIF_TERM list = enif_make_list(env, 0);
+    for (unsigned k = len; k-- > 0;) list = enif_make_list_cell(env, parts_list(env, whole, &p[k]), list);
+    return list;
+}
+
 static ERL_NIF_TERM to_binary(ErlNifEnv *env, buf *b)
 {
     ERL_NIF_TERM out;
@@ -435,6 +1035,8 @@ static ErlNifFunc funcs[] = {
     {"nif_value", 1, nif_value, 0},
     {"nif_millimetres", 1, nif_millimetres, 0},
     {"nif_tuple", 3, nif_tuple, 0},
+    {"nif_messages_etf", 3, nif_messages_etf, 0},
+    {"nif_messages_etf_all", 1, nif_messages_etf_all, 0},
 };
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
@@ -445,6 +1047,10 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     A_TRUE = enif_make_atom(env, "true");
     A_FALSE = enif_make_atom(env, "false");
     A_STRUCT = enif_make_atom(env, "__struct__");
+    A_GENERIC = enif_make_atom(env, "generic");
+    A_SCAN = enif_make_atom(env, "scan");
+    A_POSE = enif_make_atom(env, "pose");
+    A_SIM_POSE = enif_make_atom(env, "sim_pose");
     return 0;
 }
 

@@ -148,6 +148,31 @@ defmodule ThinkingCap.BlackBox.Foxglove do
     _kind, _reason -> generic(tuple)
   end
 
+  @doc false
+  # Which of messages/2's clauses a tuple is for, as far as its tag and
+  # its payload's keys tell (the clause checks the rest): `:scan`,
+  # `:pose`, `:sim_pose`, `:generic` (surely a `thinkingcap.Tuple`), or
+  # nil (a map, or not a `{tag, id, payload}`).
+  @spec kind(tuple()) :: :scan | :pose | :sim_pose | :generic | nil
+  def kind({:map, _id, _payload}), do: nil
+  def kind({_tag, _id, %{ranges: _}}), do: :scan
+  def kind({:pose, _id, _payload}), do: :pose
+  def kind({:sim_pose, _id, _payload}), do: :sim_pose
+  def kind({_tag, _id, _payload}), do: :generic
+  def kind(_other), do: nil
+
+  @doc false
+  # The topics and schemas of the messages of a tuple of `kind` (as
+  # `kind/1` says, and of the shape its clause takes), in order.
+  @spec topics(:scan | :pose | :sim_pose | :generic, term(), term()) :: [{String.t(), String.t()}]
+  def topics(:scan, tag, id), do: [{topic(id, tag), "foxglove.LaserScan"}]
+
+  def topics(:pose, _tag, id),
+    do: [{topic(id, :pose), "foxglove.PoseInFrame"}, {topic(id, :tf), "foxglove.FrameTransform"}]
+
+  def topics(:sim_pose, _tag, id), do: [{topic(id, :sim_pose), "foxglove.PoseInFrame"}]
+  def topics(:generic, tag, id), do: [{topic(id, tag), "thinkingcap.Tuple"}]
+
   defp convert(
          Tuples.reading(sensor, robot, %{ranges: ranges, angle_min: a0, angle_max: a1} = scan),
          time_ns

@@ -71,16 +71,18 @@ defmodule ThinkingCap.BlackBox.Recorder do
 
   ## Cost
 
-  Per tuple: the conversion to JSON (`Core.JSON`, written in one pass;
-  a `thinkingcap.Tuple` message whole and a scan's ranges in C,
-  `Core.JSON.Native`, into one binary) and two records; per traced
-  callback, a small term. The
-  tuple's `term_to_binary/1` is made by its writer, in place of the
-  copy it makes of the tuple for the recorder's list
-  (`Core.Channels.held/1`, the subscription's `hold:`): the recorder
-  takes a large tuple (the LPS) as that binary, without copying the
-  tuple out of the blackboard's table, and decodes it only for its
-  Foxglove message, once a second. The tuples and callbacks come in lists, so that the
+  Per tuple: its Foxglove messages' JSON and two records; per traced
+  callback, a small term. The tuple's `term_to_binary/1` is made by its
+  writer, in place of the copy it makes of the tuple for the recorder's
+  list (`Core.Channels.held/1`, the subscription's `hold:`), and the
+  recorder takes every tuple but a map as that binary, without copying
+  the tuple out of the blackboard's table: the JSON of a
+  `thinkingcap.Tuple`, a scan or a pose is read from it in C
+  (`Core.JSON.Native.messages_etf_all/1`: a run's messages in one call,
+  parts of one binary), and a large tuple (the LPS) is decoded only for
+  its Foxglove message, once a second; what C leaves (a map, a term
+  `Core.JSON` writes otherwise) is decoded and written in Erlang. The
+  tuples and callbacks come in lists, so that the
   recorder is woken once a list rather than once a tuple. The tuples
   are written 32 at a time (or at the chunk's end): their channels found
   in Erlang, all their records made in one NIF call

@@ -1,6 +1,9 @@
 defmodule ThinkingCap.BlackBox.FoxgloveTest do
   use ExUnit.Case, async: true
 
+  import Bitwise
+
+  alias ThinkingCap.BlackBox.Core.JSON.Native
   alias ThinkingCap.BlackBox.Foxglove
   alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Tuples
@@ -125,6 +128,94 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
     assert {"/r1/map", "thinkingcap.Tuple", _} = one(Tuples.map(:r1, %{bogus: true}))
     # ids that are not robots (an activity's timing) name the topic too
     assert {"/base/timing", "thinkingcap.Tuple", _} = one(Tuples.timing(:base, %{cycles: 1}))
+  end
+
+  # numbers of every kind a payload may hold, and now and then something
+  # else, or a key missing
+  defp some_number do
+    Enum.random([
+      (:rand.uniform() - 0.5) * 20,
+      Float.round(:rand.uniform() * 10, 3) + 0.0005,
+      :rand.uniform(1000) * 1.0e14,
+      1.0e-5,
+      -0.0,
+      :rand.uniform(100) - 50,
+      1 <<< 62
+    ])
+  end
+
+  defp maybe(x), do: if(:rand.uniform(15) == 1, do: Enum.random([:a, "x", nil, [1 | 2]]), else: x)
+
+  defp random_kinded do
+    robot = maybe(Enum.random([:r1, :rb_17, :"r ö"]))
+    stamp = Enum.random([[stamp: :rand.uniform() * 100], [stamp: 3], [stamp: -1.0], []])
+
+    case :rand.uniform(4) do
+      1 ->
+        ranges =
+          Enum.random([
+            Enum.map(1..:rand.uniform(20), fn _ -> maybe(some_number()) end),
+            [],
+            [1, 2, 3]
+          ])
+
+        payload = %{ranges: maybe(ranges), angle_min: maybe(some_number()), angle_max: -1.5}
+        {Enum.random([:laser, :sonar, :pose]), robot, Map.merge(payload, Map.new(stamp))}
+
+      2 ->
+        pose = maybe({some_number(), some_number(), maybe(some_number())})
+        {:pose, robot, Map.merge(%{pose: pose, sigma: [0.1]}, Map.new(stamp))}
+
+      3 ->
+        {:sim_pose, robot,
+         Map.merge(%{pose: {some_number(), 1.5, some_number()}}, Map.new(stamp))}
+
+      4 ->
+        {Enum.random([:odom, :drive]), robot, Map.merge(%{v: some_number()}, Map.new(stamp))}
+    end
+  end
+
+  test "a tuple's messages read from its external term in C are the same" do
+    time = 7_000_000_000
+
+    written =
+      for _ <- 1..3_000, reduce: 0 do
+        n ->
+          {tag, id, _} = tuple = random_kinded()
+          kind = Foxglove.kind(tuple)
+          publish = Foxglove.stamp_ns(tuple) || time
+          expected = Foxglove.messages(tuple, time)
+
+          case Native.messages_etf(kind, :erlang.term_to_binary(tuple), publish) do
+            false ->
+              n
+
+            jsons ->
+              assert jsons == Enum.map(expected, &IO.iodata_to_binary(elem(&1, 2)))
+              assert Foxglove.topics(kind, tag, id) == Enum.map(expected, &Tuple.delete_at(&1, 2))
+              n + 1
+          end
+      end
+
+    # most of them (the rest left to Erlang: bad shapes, a robot not ASCII)
+    assert written > 1_500
+  end
+
+  test "a run of tuples' messages in one call: each as alone, parts of one binary" do
+    items =
+      for _ <- 1..200 do
+        tuple = random_kinded()
+        {Foxglove.kind(tuple), :erlang.term_to_binary(tuple), Foxglove.stamp_ns(tuple) || 5}
+      end
+
+    all = Native.messages_etf_all(items)
+    assert all == Enum.map(items, fn {kind, etf, ns} -> Native.messages_etf(kind, etf, ns) end)
+    parts = all |> Enum.filter(&is_list/1) |> Enum.concat()
+    assert length(parts) > 100
+    whole = parts |> Enum.map(&byte_size/1) |> Enum.sum()
+    assert Enum.all?(parts, &(:binary.referenced_byte_size(&1) == whole))
+    assert Native.messages_etf_all([]) == []
+    assert_raise ArgumentError, fn -> Native.messages_etf_all([{:nope, "", 0}]) end
   end
 
   test "every schema is a JSON schema titled with its name" do

@@ -14,6 +14,7 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # first's `n`, `us` each one's time after the message's. A
   # channel (and its schema) is declared in the file on first use.
 
+  alias ThinkingCap.BlackBox.Core.JSON.Native
   alias ThinkingCap.BlackBox.Foxglove
   alias ThinkingCap.MCAP.Writer
 
@@ -24,7 +25,10 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
             # {tag, id} => the channel of its whole terms
             exact: %{},
             # {tag, id} => log time of its last Foxglove message (big tuples)
-            json_at: %{}
+            json_at: %{},
+            # {kind, tag, id} => {its Foxglove messages' channels, its terms'}
+            # (Foxglove.kind/1: the tuples held as their terms)
+            kinds: %{}
 
   @type t :: %__MODULE__{}
 
@@ -54,11 +58,20 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # neither copies a large tuple out of the held table nor encodes it.
   # A large, thinned tuple is held without the tuple (its tag, id and
   # stamp say where and when; its term is decoded for its Foxglove
-  # message, once a second); any other with it (its Foxglove message is
-  # written every time). `write_held/4` writes it.
+  # message, once a second); so is a tuple whose Foxglove messages are
+  # read from its term, in C (a thinkingcap.Tuple, a scan, a pose: its
+  # kind, Foxglove.kind/1); any other with it (a map). `write_held/4`
+  # writes it.
   @spec held(tuple()) :: tuple()
   def held({tag, id, _payload} = tuple) when tag in @big,
     do: {__MODULE__, :big, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
+
+  def held({tag, id, _payload} = tuple) do
+    case Foxglove.kind(tuple) do
+      nil -> {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
+      kind -> {__MODULE__, kind, tag, id, Foxglove.stamp_ns(tuple), :erlang.term_to_binary(tuple)}
+    end
+  end
 
   def held(tuple), do: {__MODULE__, tuple, :erlang.term_to_binary(tuple)}
 
@@ -74,7 +87,9 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @spec write_held_all(Writer.t(), t(), [{tuple(), non_neg_integer()}]) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
   def write_held_all(w, chans, entries) do
-    {w, chans, messages, bytes, n} = held_all(entries, {w, chans, [], 0, 0})
+    # the Foxglove messages of those held as their terms, in one call
+    jsons = Native.messages_etf_all(etf_items(entries, []))
+    {w, chans, messages, bytes, n} = held_all(entries, jsons, {w, chans, [], 0, 0})
 
     case Writer.add_messages(w, :lists.reverse(messages), bytes) do
       {:ok, w} -> {:ok, w, chans, n}
@@ -91,8 +106,23 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # The messages to write, newest first, with the writer and channels
   # (channels are declared as they are first used) and the bytes of the
   # messages' binaries, and their count: {w, chans, messages, bytes, n}
-  defp held_all([], acc), do: acc
-  defp held_all([{held, time} | rest], acc), do: held_all(rest, held(held, time, acc))
+  defp held_all([], [], acc), do: acc
+
+  defp held_all([{{__MODULE__, kind, tag, id, stamp, etf}, time} | rest], [jsons | more], acc)
+       when kind != :big,
+       do: held_all(rest, more, held_kind(kind, tag, id, stamp || time, etf, jsons, time, acc))
+
+  defp held_all([{held, time} | rest], jsons, acc),
+    do: held_all(rest, jsons, held(held, time, acc))
+
+  # `{kind, etf, publish time}` of each entry held as its term, in order
+  defp etf_items([], acc), do: :lists.reverse(acc)
+
+  defp etf_items([{{__MODULE__, kind, _tag, _id, stamp, etf}, time} | rest], acc)
+       when kind != :big,
+       do: etf_items(rest, [{kind, etf, stamp || time} | acc])
+
+  defp etf_items([_ | rest], acc), do: etf_items(rest, acc)
 
   defp held({__MODULE__, :big, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
     publish = stamp || time
@@ -104,6 +134,22 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
 
   defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
   defp held(tuple, time, acc), do: tuple(tuple, nil, time, acc)
+
+  # its Foxglove messages' JSON, read from its term in C (false when C
+  # leaves it: the term decoded and written as a tuple), then the term
+  defp held_kind(_kind, _tag, _id, _publish, etf, false, time, acc),
+    do: tuple(:erlang.binary_to_term(etf), etf, time, acc)
+
+  defp held_kind(kind, tag, id, publish, etf, jsons, time, {w, chans, ms, bytes, n}) do
+    {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
+    {ms, bytes, n} = queue_jsons(jsons, channels, time, publish, ms, bytes, n)
+
+    if chans.terms,
+      do:
+        {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
+         n + 1},
+      else: {w, chans, ms, bytes, n}
+  end
 
   # `etf`: the tuple's external term, or nil to make it here
   defp tuple(tuple, etf, time, {w, chans, ms, bytes, n}) do
@@ -148,21 +194,56 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # the whole term on `/etf/ID/TAG`, its channel found by `{tag, id}`
   # (`etf`, its term, made already or made here)
   defp queue_term(tuple, etf, time, publish, {w, chans, ms, bytes, n}) do
-    key = exact_key(tuple)
-
-    {channel, w, chans} =
-      case chans.exact do
-        %{^key => channel} ->
-          {channel, w, chans}
-
-        _ ->
-          {channel, w, chans} = channel(w, chans, exact_topic(tuple), nil, %{})
-          {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
-      end
-
+    {channel, w, chans} = exact_channel(w, chans, tuple)
     etf = etf || :erlang.term_to_binary(tuple)
     {w, chans, [{channel, :next, time, publish, etf} | ms], bytes + byte_size(etf), n + 1}
   end
+
+  defp exact_channel(w, chans, tuple) do
+    key = exact_key(tuple)
+
+    case chans.exact do
+      %{^key => channel} ->
+        {channel, w, chans}
+
+      _ ->
+        {channel, w, chans} = channel(w, chans, exact_topic(tuple), nil, %{})
+        {channel, w, %{chans | exact: Map.put(chans.exact, key, channel)}}
+    end
+  end
+
+  # the channels of a tuple of `kind` (Foxglove.kind/1): its Foxglove
+  # messages' and its term's, found by its kind, tag and id (declared in
+  # order on first use, as `queue/6` would)
+  defp kind_channels(w, chans, kind, tag, id) do
+    key = {kind, tag, id}
+
+    case chans.kinds do
+      %{^key => {channels, term_channel}} ->
+        {channels, term_channel, w, chans}
+
+      _ ->
+        {channels, {w, chans}} =
+          Enum.map_reduce(Foxglove.topics(kind, tag, id), {w, chans}, fn {topic, schema},
+                                                                         {w, chans} ->
+            {channel, w, chans} = channel(w, chans, topic, schema, %{})
+            {channel, {w, chans}}
+          end)
+
+        {term_channel, w, chans} =
+          if chans.terms, do: exact_channel(w, chans, {tag, id, nil}), else: {nil, w, chans}
+
+        kinds = Map.put(chans.kinds, key, {channels, term_channel})
+        {channels, term_channel, w, %{chans | kinds: kinds}}
+    end
+  end
+
+  defp queue_jsons([json | jsons], [channel | channels], time, publish, ms, bytes, n) do
+    ms = [{channel, :next, time, publish, json} | ms]
+    queue_jsons(jsons, channels, time, publish, ms, bytes + byte_size(json), n + 1)
+  end
+
+  defp queue_jsons([], [], _time, _publish, ms, bytes, n), do: {ms, bytes, n}
 
   # what decides a call's scheduler (Compression.messages/3): a binary's
   # bytes; iodata (a few small JSON messages) counts as none, as it did

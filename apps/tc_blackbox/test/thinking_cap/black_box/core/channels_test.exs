@@ -5,7 +5,8 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
   alias ThinkingCap.MCAP.{Reader, Writer}
 
   # a robot's tuples: large ones thinned (the LPS, several a second of
-  # its stamps), others not, one without a stamp, one not {tag, id, payload}
+  # its stamps), others not, one without a stamp, one not {tag, id, payload},
+  # ones of Foxglove's own schemas, one whose JSON C leaves to Erlang
   defp tuples do
     lps = for k <- 0..24, do: {:lps, :r1, %{stamp: k * 0.1, bins: Enum.to_list(1..k)}}
     odom = for k <- 0..24, do: {:odom, :r1, %{stamp: k * 0.1, pose: {k * 1.0, 0.0, 0.0}}}
@@ -13,6 +14,14 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     Enum.zip(lps, odom)
     |> Enum.flat_map(&Tuple.to_list/1)
     |> Kernel.++([{:plan, :r1, %{goal: {1.0, 2.0}}}, {:pair, 1}])
+    |> Kernel.++([
+      {:pose, :r1, %{stamp: 2.5, pose: {1.0, 2.0, 0.5}}},
+      {:laser, :r1, %{stamp: 2.6, ranges: [1.0, 2.5], angle_min: -1.0, angle_max: 1.0}},
+      {:note, :r1, %{stamp: 2.7, text: "héllo", from: self()}},
+      {:pose, :r1, %{stamp: 2.75, pose: :lost}},
+      {:sim_pose, :r1, %{stamp: 2.76, pose: {1, 2, 3}}},
+      {:odom, :r1, %{stamp: 2.8, pose: {1.0, 0.0, 0.0}}}
+    ])
   end
 
   defp file(write) do
@@ -43,8 +52,9 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     topics = Enum.frequencies(for m <- read.messages, do: read.channels[m.channel_id].topic)
     assert topics["/etf/r1/lps"] == 25
     assert topics["/r1/lps"] == 3
-    assert topics["/etf/r1/odom"] == 25
-    assert topics["/r1/odom"] == 25
+    assert topics["/etf/r1/odom"] == 26
+    assert topics["/r1/odom"] == 26
+    assert topics["/r1/note"] == 1
   end
 
   test "tuples written in runs (write_held_all/3) are recorded as one at a time" do
@@ -84,12 +94,20 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert b.statistics.channel_message_counts == a.statistics.channel_message_counts
   end
 
-  test "held/1 keeps a large tuple's term, not the tuple" do
+  test "held/1 keeps a tuple's term and kind, not the tuple, but for a map" do
     lps = {:lps, :r1, %{stamp: 1.5, bins: [1.0, 2.0]}}
     assert {Channels, :big, :lps, :r1, 1_500_000_000, etf} = Channels.held(lps)
     assert :erlang.binary_to_term(etf) == lps
     odom = {:odom, :r1, %{stamp: 1.5}}
-    assert {Channels, ^odom, etf} = Channels.held(odom)
+    assert {Channels, :generic, :odom, :r1, 1_500_000_000, etf} = Channels.held(odom)
     assert etf == :erlang.term_to_binary(odom)
+    assert {Channels, :generic, :plan, :r1, nil, _} = Channels.held({:plan, :r1, %{goal: 1}})
+    pose = {:pose, :r1, %{stamp: 1.5, pose: {1.0, 2.0, 0.5}}}
+    assert {Channels, :pose, :pose, :r1, 1_500_000_000, _} = Channels.held(pose)
+    scan = {:laser, :r1, %{ranges: [1.0], angle_min: 0.0, angle_max: 0.0}}
+    assert {Channels, :scan, :laser, :r1, nil, _} = Channels.held(scan)
+    map = {:map, :r1, %{width: 1}}
+    assert {Channels, ^map, etf} = Channels.held(map)
+    assert etf == :erlang.term_to_binary(map)
   end
 end

@@ -1,5 +1,6 @@
 defmodule ThinkingCap.BlackBox.Core.JSON.NativeTest do
   use ExUnit.Case, async: true
+  import Bitwise
 
   alias ThinkingCap.BlackBox.Core.JSON
   alias ThinkingCap.BlackBox.Core.JSON.Native
@@ -91,6 +92,83 @@ defmodule ThinkingCap.BlackBox.Core.JSON.NativeTest do
 
     assert Native.tuple(:odom, :rö, 1) == false
     assert Native.tuple(:odom, :r1, [1 | 2]) == false
+  end
+
+  # terms as term_to_binary writes them in every form value/1 meets:
+  # lists of bytes, big integers, large tuples, maps up to 32 keys and past
+  defp etf_term(0), do: etf_leaf()
+
+  defp etf_term(depth) do
+    case :rand.uniform(9) do
+      1 -> Enum.map(1..:rand.uniform(5), fn _ -> etf_term(depth - 1) end)
+      2 -> List.to_tuple(Enum.map(1..:rand.uniform(4), fn _ -> etf_term(depth - 1) end))
+      3 -> Map.new(1..:rand.uniform(6), fn i -> {random_key(i), etf_term(depth - 1)} end)
+      4 -> %URI{host: "h", port: :rand.uniform(100), path: etf_term(depth - 1)}
+      5 -> Enum.to_list(0..:rand.uniform(300))
+      6 -> Map.new(1..Enum.random([31, 32, 33]), &{random_key(&1), etf_leaf()})
+      7 -> %{__struct__: Enum.random(["s", :"not.an.Alias", :"Elixir", :"Elixir.A.b"]), a: 1}
+      8 -> List.to_tuple(Enum.to_list(1..Enum.random([255, 256, 300])))
+      _ -> etf_leaf()
+    end
+  end
+
+  # now and then one value/1 leaves to Erlang
+  defp etf_leaf do
+    case :rand.uniform(20) do
+      1 -> Enum.random(["héllo", :rö, <<1::3>>, [1 | 2], self(), make_ref(), &Enum.map/2])
+      2 -> Enum.random([255, 256, -256, 2_147_483_647, 2_147_483_648, -2_147_483_649])
+      3 -> Enum.random([1 <<< 59, -9_223_372_036_854_775_808, (1 <<< 63) - 1, 1 <<< 63])
+      _ -> random_leaf()
+    end
+  end
+
+  defp tuple_json(tag, id, payload),
+    do: ThinkingCap.BlackBox.Foxglove.generic_json(tag, id, payload) |> IO.iodata_to_binary()
+
+  test "a thinkingcap.Tuple message from the tuple's external term, as Core.JSON writes it" do
+    written =
+      for _ <- 1..3_000, reduce: 0 do
+        n ->
+          {tag, id, payload} = {etf_leaf(), etf_leaf(), etf_term(3)}
+
+          case Native.tuple_etf(:erlang.term_to_binary({tag, id, payload})) do
+            false ->
+              assert Native.tuple(tag, id, payload) == false
+              n
+
+            json ->
+              assert json == tuple_json(tag, id, payload)
+              n + 1
+          end
+      end
+
+    # most of them in C
+    assert written > 1_000
+
+    etf = :erlang.term_to_binary({:odom, :r1, %{stamp: 1.5, v: [1, 2]}})
+
+    assert Native.tuple_etf(etf) ==
+             ~s({"tag":"odom","robot":"r1","payload":{"v":[1,2],"stamp":1.5}})
+  end
+
+  test "an external term that is not a 3-tuple, or is cut short, is left to Erlang" do
+    assert Native.tuple_etf(:erlang.term_to_binary({:a, :b})) == false
+    assert Native.tuple_etf(:erlang.term_to_binary([:a, :b, :c])) == false
+
+    assert Native.tuple_etf(:erlang.term_to_binary({:a, :b, :c}, [:compressed])) in [
+             false,
+             "{\"tag\":\"a\",\"robot\":\"b\",\"payload\":\"c\"}"
+           ]
+
+    assert Native.tuple_etf("") == false
+    assert_raise ArgumentError, fn -> Native.tuple_etf(:not_a_binary) end
+
+    for _ <- 1..300 do
+      etf = :erlang.term_to_binary({:odom, :r1, etf_term(3)})
+      cut = binary_part(etf, 0, :rand.uniform(byte_size(etf)) - 1)
+      assert Native.tuple_etf(cut) == false
+      assert Native.tuple_etf(etf <> <<0>>) == false
+    end
   end
 
   test "integers at int64's ends" do

@@ -3,7 +3,7 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   # Core.JSON's rules in C (c_src/tc_json.c, built into
   # priv/lib/tc_json.so): a term's JSON as one binary, for the terms the
   # recorder meets most, so that their JSON does not fill its heap.
-  # `value/1` and `tuple/3` answer false for a term it leaves to Core.JSON (see the C
+  # `value/1`, `tuple/3`, `tuple_etf/1` and `messages_etf/3` answer false for a term it leaves to Core.JSON (see the C
   # file); `millimetres/1` writes a scan's ranges.
 
   @on_load :load_nif
@@ -22,6 +22,30 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   @spec tuple(term(), term(), term()) :: binary() | false
   def tuple(tag, id, payload), do: nif_tuple(tag, id, payload)
 
+  # tuple/3's JSON of `{tag, id, payload}` given as its external term
+  # (`term_to_binary/1`), read without decoding it; false as tuple/3
+  @spec tuple_etf(binary()) :: binary() | false
+  def tuple_etf(etf) do
+    case nif_messages_etf(:generic, etf, 0) do
+      [json] -> json
+      false -> false
+    end
+  end
+
+  # A tuple's Foxglove messages' JSON (BlackBox.Foxglove's, `kind` as
+  # Foxglove.kind/1 says, `:generic` a thinkingcap.Tuple) from its external
+  # term, `ns` their time (the payload's stamp, else the log time); false
+  # when it is not of that kind's shape or holds what Core.JSON writes
+  @spec messages_etf(atom(), binary(), non_neg_integer()) :: [binary()] | false
+  def messages_etf(kind, etf, ns), do: nif_messages_etf(kind, etf, ns)
+
+  # messages_etf/3 of each `{kind, etf, ns}`, in order, in one call: their
+  # JSON parts of one binary, so that a run of tuples leaves one binary
+  # to collect, not one a message
+  @spec messages_etf_all([{atom(), binary(), non_neg_integer()}]) :: [[binary()] | false]
+  def messages_etf_all([]), do: []
+  def messages_etf_all(items), do: nif_messages_etf_all(items)
+
   # a list of numbers: floats to three decimals, integers as they are
   @spec millimetres(list()) :: binary()
   def millimetres(ranges), do: nif_millimetres(ranges)
@@ -30,6 +54,10 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   def nif_value(_term), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_tuple(_tag, _id, _payload), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def nif_messages_etf(_kind, _etf, _ns), do: :erlang.nif_error(:nif_not_loaded)
+  @doc false
+  def nif_messages_etf_all(_items), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_millimetres(_ranges), do: :erlang.nif_error(:nif_not_loaded)
 end
