@@ -63,6 +63,13 @@ defmodule ThinkingCap.Config.Schema do
     {value, %{file: file, positions: positions, errors: Enum.reverse(errors)}}
   end
 
+  @doc "Whether `value` is taken as a `:path`: a file name that can be opened."
+  @spec file_name?(term()) :: boolean()
+  def file_name?(value),
+    do:
+      is_binary(value) and value != "" and byte_size(value) <= 4096 and
+        not String.contains?(value, <<0>>)
+
   @doc """
   Validates `value` at `path` of a file being checked (a module's params,
   say) against `type`, adding its errors to the checking state. With
@@ -345,10 +352,10 @@ defmodule ThinkingCap.Config.Schema do
 
   defp scalar_check(:string, v), do: {is_binary(v), "a string"}
 
-  defp scalar_check(:path, v) do
-    {is_binary(v) and v != "" and byte_size(v) <= 4096 and not String.contains?(v, <<0>>),
-     "a file name (a non-empty string of at most 4096 bytes, without a NUL byte)"}
-  end
+  defp scalar_check(:path, v),
+    do:
+      {file_name?(v),
+       "a file name (a non-empty string of at most 4096 bytes, without a NUL byte)"}
 
   defp scalar_check(:boolean, v), do: {is_boolean(v), "true or false"}
 

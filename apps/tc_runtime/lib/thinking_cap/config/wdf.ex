@@ -224,9 +224,7 @@ defmodule ThinkingCap.Config.WDF do
 
   defp load_map(st, %{yaml: yaml}) do
     # a name the schema refused (reported already) is not opened
-    if match?({_, %{errors: []}}, Schema.check_at(%{st | errors: []}, :path, yaml, [])),
-      do: read_map(st, yaml),
-      else: {nil, st}
+    if Schema.file_name?(yaml), do: read_map(st, yaml), else: {nil, st}
   end
 
   defp read_map(st, yaml) do
