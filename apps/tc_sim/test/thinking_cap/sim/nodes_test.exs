@@ -205,7 +205,13 @@ defmodule ThinkingCap.Sim.NodesTest do
           a,
           FleetRun,
           :run,
-          [opts ++ [sim: [nodes: [a.node, b.node], regroup_every: 10, shards: 2]]],
+          [
+            opts ++
+              [
+                sim: [nodes: [a.node, b.node], regroup_every: 10, shards: 2],
+                cpu_nodes: [a.node, b.node]
+              ]
+          ],
           120_000
         )
 
@@ -216,6 +222,10 @@ defmodule ThinkingCap.Sim.NodesTest do
       final = List.last(two.placements)
       assert final |> Map.values() |> Enum.uniq() |> Enum.sort() == Enum.sort([a.node, b.node])
       assert two.status.node_handovers > 0
+      # each node's CPU time while stepping, for the bench's cost a step
+      assert Map.keys(two.node_cpu) |> Enum.sort() == Enum.sort([a.node, b.node])
+      assert Enum.all?(Map.values(two.node_cpu), &(&1 > 0))
+      assert one.node_cpu == %{}
       assert two.status.ghosts > 0
       # the robots moved
       assert Enum.count(List.last(one.samples), fn {id, p} -> p != hd(one.samples)[id] end) > 30
