@@ -393,28 +393,18 @@ defmodule ThinkingCap.Cycle do
     do: {:noreply, handle_frame(Protocol.decode(frame), state)}
 
   def handle_info({port, :eof}, %{port: port} = state) do
-    Logger.error(
-      "timing worker closed its output (it died); restarting it, robot stopped until a fresh command"
-    )
-
+    # with :eof the port outlives its program until closed
     Worker.close(port)
-    {:noreply, restart(state)}
+    {:noreply, restart(state, "closed its output (it died)")}
   end
 
   def handle_info({port, {:exit_status, status}}, %{port: port} = state) do
-    Logger.error(
-      "timing worker exited with status #{status}; restarting it, robot stopped until a fresh command"
-    )
-
-    # with :eof the port outlives its program until closed
     Worker.close(port)
-    {:noreply, restart(state)}
+    {:noreply, restart(state, "exited with status #{status}")}
   end
 
-  def handle_info({:EXIT, port, reason}, %{port: port} = state) do
-    Logger.error("timing worker port closed (#{inspect(reason)}); restarting it")
-    {:noreply, restart(state)}
-  end
+  def handle_info({:EXIT, port, reason}, %{port: port} = state),
+    do: {:noreply, restart(state, "port closed (#{inspect(reason)})")}
 
   def handle_info({:EXIT, _other, _reason}, state), do: {:noreply, state}
 
@@ -477,8 +467,12 @@ defmodule ThinkingCap.Cycle do
     %{state | port: port, status: status, boost: boost}
   end
 
-  defp restart(state) do
+  defp restart(state, why) do
+    # the fallbacks first: the log may block when it is busy
     Fallbacks.worker_died(state)
+
+    Logger.error("timing worker #{why}; restarting it, robot stopped until a fresh command")
+
     # a worker killed during a boost left the BEAM's threads boosted
     Worker.undo_boost(state.boost)
     state = open(%{state | port: nil, restarts: state.restarts + 1})
