@@ -504,12 +504,10 @@ static int build_seg_index(World *w)
 /* ------------------------------------------------------------------ */
 /* tracing                                                              */
 
-/* Marches the ray u + t v (grid frame, cell units, |v| = 1) up to tmax.
- * On a hit stores the exact entry parameter of the first obstacle cell. */
 /* clips the ray's [t0, t1] to the slab 0 <= u + t v < n of one axis; the
  * entry face becomes `id` when the slab's entry is the later one; 0 when the
  * ray misses the slab */
-static int slab(double u, double v, double iv, int n, int id, double *t0, double *t1, int *face)
+static inline int slab(double u, double v, double iv, int n, int id, double *t0, double *t1, int *face)
 {
     if (v == 0) return u >= 0 && u < n;
     double a = (v > 0 ? -u : n - u) * iv, b = (v > 0 ? n - u : -u) * iv;
@@ -521,142 +519,110 @@ static int slab(double u, double v, double iv, int n, int id, double *t0, double
     return 1;
 }
 
-/* One ray's march through the grid, between two steps. A run of skips
- * moves the position in 32.32 fixed point (X, Y; direction VX, VY): the
- * cell is then a shift of an integer sum, where doubles took a chain of
- * conversions per step (the loop waits on that chain). */
-typedef struct {
-    double ux, uy, vx, vy, ivx, ivy, tdx, tdy;
-    double t, t1, tmx, tmy;
-    int64_t X, Y, VX, VY;
-    int cx, cy, stepx, stepy, face, dda, fixed;
-} March;
-
 #define FIXED_ONE 4294967296.0
 
-/* Starts the march of u + t v up to tmax; 0 when the ray misses the grid. */
-static inline int march_start(const World *w, March *m, double ux, double uy, double vx,
-                              double vy, double tmax)
-{
-    const int W = w->gw, H = w->gh;
-    const double ivx = vx != 0 ? 1.0 / vx : INFINITY, ivy = vy != 0 ? 1.0 / vy : INFINITY;
-    double t0 = 0.0, t1 = tmax;
-    int face = 0;
-    if (!slab(ux, vx, ivx, W, 1, &t0, &t1, &face) || !slab(uy, vy, ivy, H, 2, &t0, &t1, &face))
-        return 0;
-    if (!(t0 <= t1)) return 0;
-    m->ux = ux;
-    m->uy = uy;
-    m->vx = vx;
-    m->vy = vy;
-    m->ivx = ivx;
-    m->ivy = ivy;
-    m->stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
-    m->stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
-    m->tdx = fabs(ivx);
-    m->tdy = fabs(ivy);
-    /* inside the grid up to rounding: truncation is floor, then clamp */
-    m->cx = clampi((int)(ux + t0 * vx), 0, W - 1);
-    m->cy = clampi((int)(uy + t0 * vy), 0, H - 1);
-    m->t = t0;
-    m->t1 = t1;
-    m->tmx = m->tmy = INFINITY;
-    m->dda = 0;
-    m->face = face;
-    m->VX = (int64_t)(vx * FIXED_ONE);
-    m->VY = (int64_t)(vy * FIXED_ONE);
-    m->fixed = 0;
-    return 1;
-}
-
-/* One step of a march: 0 to go on, 1 on an obstacle cell (m->cx, m->cy
- * entered through m->face), -1 past the end. */
-static inline int march_step(const World *w, March *m)
-{
-    const int W = w->gw, H = w->gh, tw = w->gtw;
-    int cx = m->cx, cy = m->cy;
-    /* cells known empty round here: the tile's skip, else the cell's */
-    unsigned skip = w->coarse[(cy >> 3) * tw + (cx >> 3)];
-    if (skip < COARSE_SKIP_MIN) {
-        unsigned c = w->code[cell_index(tw, cx, cy)];
-        if (c == CODE_OBST) return 1;
-        skip = c >= SKIP_MIN ? c : 0;
-    }
-    if (skip) {
-        double t = m->t + (double)skip;
-        if (t >= m->t1) return -1;
-        /* the landing point is more than 0.08 cells from every obstacle
-         * cell, so rounding (below 1e-7 cells) never lands in one */
-        if (!m->fixed) {
-            m->X = (int64_t)((m->ux + m->t * m->vx) * FIXED_ONE);
-            m->Y = (int64_t)((m->uy + m->t * m->vy) * FIXED_ONE);
-            m->fixed = 1;
-        }
-        m->X += (int64_t)skip * m->VX;
-        m->Y += (int64_t)skip * m->VY;
-        m->t = t;
-        m->cx = clampi((int)(m->X >> 32), 0, W - 1);
-        m->cy = clampi((int)(m->Y >> 32), 0, H - 1);
-        m->dda = 0;
-        m->face = 0;
-        return 0;
-    }
-    m->fixed = 0;
-    if (!m->dda) {
-        const double vx = m->vx, vy = m->vy;
-        m->tmx = vx > 0 ? (cx + 1 - m->ux) * m->ivx : (vx < 0 ? (cx - m->ux) * m->ivx : INFINITY);
-        m->tmy = vy > 0 ? (cy + 1 - m->uy) * m->ivy : (vy < 0 ? (cy - m->uy) * m->ivy : INFINITY);
-        m->dda = 1;
-    }
-    if (m->tmx < m->tmy) {
-        if (m->tmx > m->t1) return -1;
-        m->t = m->tmx;
-        m->cx = cx += m->stepx;
-        if ((unsigned)cx >= (unsigned)W) return -1;
-        m->tmx += m->tdx;
-        m->face = 1;
-    } else {
-        if (m->tmy > m->t1) return -1;
-        m->t = m->tmy;
-        m->cy = cy += m->stepy;
-        if ((unsigned)cy >= (unsigned)H) return -1;
-        m->tmy += m->tdy;
-        m->face = 2;
-    }
-    return 0;
-}
-
-/* The hit of a march that stopped on an obstacle cell: its exact entry
- * parameter (the incremental one carries rounding) into *t_out. */
-static inline void march_hit(const March *m, double *t_out, Hit *h)
-{
-    double t = m->t;
-    if (m->face == 1)
-        t = ((m->stepx > 0 ? m->cx : m->cx + 1) - m->ux) / m->vx;
-    else if (m->face == 2)
-        t = ((m->stepy > 0 ? m->cy : m->cy + 1) - m->uy) / m->vy;
-    *t_out = t;
-    h->cx = m->cx;
-    h->cy = m->cy;
-    h->face = m->face;
-    h->stepx = m->stepx;
-    h->stepy = m->stepy;
-    h->vx = m->vx;
-    h->vy = m->vy;
-}
-
 /* Marches the ray u + t v (grid frame, cell units, |v| = 1) up to tmax.
- * On a hit stores the exact entry parameter of the first obstacle cell. */
+ * On a hit stores the exact entry parameter of the first obstacle cell.
+ *
+ * Each step reads the skip of the cell's tile (64 times smaller than the
+ * cells, so it stays in the caches), else the cell's own. A skip moves
+ * the ray that many cells at once: a run of skips moves the position in
+ * 32.32 fixed point (X, Y; direction VX, VY), so the cell is a shift of
+ * an integer sum, where doubles took a chain of conversions per step.
+ * Where the skip is 0 the ray steps cell by cell (Amanatides-Woo). One
+ * loop with the state in locals: the compiler keeps it in registers. */
 static int grid_march(const World *w, double ux, double uy, double vx, double vy, double tmax,
                       double *t_out, Hit *h)
 {
-    March m;
-    if (!march_start(w, &m, ux, uy, vx, vy, tmax)) return 0;
-    int r;
-    while (!(r = march_step(w, &m)))
-        ;
-    if (r < 0) return 0;
-    march_hit(&m, t_out, h);
+    const int W = w->gw, H = w->gh, tw = w->gtw;
+    const uint8_t *coarse = w->coarse, *code = w->code;
+    const double ivx = vx != 0 ? 1.0 / vx : INFINITY, ivy = vy != 0 ? 1.0 / vy : INFINITY;
+    double t = 0.0, t1 = tmax;
+    int face = 0;
+    if (!slab(ux, vx, ivx, W, 1, &t, &t1, &face) || !slab(uy, vy, ivy, H, 2, &t, &t1, &face))
+        return 0;
+    if (!(t <= t1)) return 0;
+    const int stepx = vx > 0 ? 1 : (vx < 0 ? -1 : 0);
+    const int stepy = vy > 0 ? 1 : (vy < 0 ? -1 : 0);
+    /* inside the grid up to rounding: truncation is floor, then clamp */
+    int cx = clampi((int)(ux + t * vx), 0, W - 1);
+    int cy = clampi((int)(uy + t * vy), 0, H - 1);
+    const int64_t VX = (int64_t)(vx * FIXED_ONE), VY = (int64_t)(vy * FIXED_ONE);
+    double tmx = INFINITY, tmy = INFINITY;
+    int dda = 0;
+    for (;;) {
+        /* cells known empty round here: the tile's skip, else the cell's */
+        unsigned skip = coarse[(cy >> 3) * tw + (cx >> 3)];
+        if (skip < COARSE_SKIP_MIN) {
+            unsigned c = code[cell_index(tw, cx, cy)];
+            if (c == CODE_OBST) break;
+            skip = c >= SKIP_MIN ? c : 0;
+        }
+        if (skip) {
+            /* a run of skips; the landing points are more than 0.08 cells
+             * from every obstacle cell, so rounding (below 1e-7 cells)
+             * never lands in one */
+            int64_t X = (int64_t)((ux + t * vx) * FIXED_ONE);
+            int64_t Y = (int64_t)((uy + t * vy) * FIXED_ONE);
+            do {
+                double t2 = t + (double)skip;
+                if (t2 >= t1) return 0;
+                X += (int64_t)skip * VX;
+                Y += (int64_t)skip * VY;
+                t = t2;
+                cx = (int)(X >> 32);
+                cy = (int)(Y >> 32);
+                if ((unsigned)cx >= (unsigned)W) cx = cx < 0 ? 0 : W - 1;
+                if ((unsigned)cy >= (unsigned)H) cy = cy < 0 ? 0 : H - 1;
+                skip = coarse[(cy >> 3) * tw + (cx >> 3)];
+                if (skip < COARSE_SKIP_MIN) {
+                    unsigned c = code[cell_index(tw, cx, cy)];
+                    if (c == CODE_OBST) {
+                        face = 0;
+                        goto hit;
+                    }
+                    skip = c >= SKIP_MIN ? c : 0;
+                }
+            } while (skip);
+            dda = 0;
+            face = 0;
+        }
+        if (!dda) {
+            tmx = vx > 0 ? (cx + 1 - ux) * ivx : (vx < 0 ? (cx - ux) * ivx : INFINITY);
+            tmy = vy > 0 ? (cy + 1 - uy) * ivy : (vy < 0 ? (cy - uy) * ivy : INFINITY);
+            dda = 1;
+        }
+        if (tmx < tmy) {
+            if (tmx > t1) return 0;
+            t = tmx;
+            cx += stepx;
+            if ((unsigned)cx >= (unsigned)W) return 0;
+            tmx += fabs(ivx);
+            face = 1;
+        } else {
+            if (tmy > t1) return 0;
+            t = tmy;
+            cy += stepy;
+            if ((unsigned)cy >= (unsigned)H) return 0;
+            tmy += fabs(ivy);
+            face = 2;
+        }
+    }
+hit:
+    /* on an obstacle cell: its exact entry parameter (the incremental one
+     * carries rounding) */
+    if (face == 1)
+        t = ((stepx > 0 ? cx : cx + 1) - ux) / vx;
+    else if (face == 2)
+        t = ((stepy > 0 ? cy : cy + 1) - uy) / vy;
+    *t_out = t;
+    h->cx = cx;
+    h->cy = cy;
+    h->face = face;
+    h->stepx = stepx;
+    h->stepy = stepy;
+    h->vx = vx;
+    h->vy = vy;
     return 1;
 }
 
@@ -808,17 +774,39 @@ static void surface(const World *w, const Hit *h, double dx, double dy, double h
         *fy = y * NUDGE_M;
     } else {
         /* grid: away from the occupied mass of the 5x5 neighbourhood */
-        const int W = w->gw, H = w->gh;
+        const int W = w->gw, H = w->gh, X0 = h->cx, Y0 = h->cy;
         double sx = 0, sy = 0;
-        for (int j = -2; j <= 2; j++) {
-            int Y = h->cy + j;
-            if (Y < 0 || Y >= H) continue;
-            for (int i = -2; i <= 2; i++) {
-                int X = h->cx + i;
-                if (X < 0 || X >= W || (i == 0 && j == 0)) continue;
-                if (w->code[cell_index(w->gtw, X, Y)] == CODE_OBST) {
-                    sx -= i;
-                    sy -= j;
+        if (X0 >= 2 && X0 + 2 < W && Y0 >= 2 && Y0 + 2 < H) {
+            /* inside the grid: a cell's index is the sum of a part of its
+             * row and a part of its column (see cell_index) */
+            size_t col[5];
+            int isx = 0, isy = 0;
+            for (int i = 0; i < 5; i++)
+                col[i] = ((size_t)((X0 + i - 2) >> 3) << 6) | (size_t)((X0 + i - 2) & 7);
+            for (int j = -2; j <= 2; j++) {
+                const int Y = Y0 + j;
+                const uint8_t *row =
+                    w->code + (((size_t)(Y >> 3) * w->gtw) << 6) + (size_t)((Y & 7) << 3);
+                for (int i = -2; i <= 2; i++) {
+                    if ((i | j) && row[col[i + 2]] == CODE_OBST) {
+                        isx -= i;
+                        isy -= j;
+                    }
+                }
+            }
+            sx = isx;
+            sy = isy;
+        } else {
+            for (int j = -2; j <= 2; j++) {
+                int Y = Y0 + j;
+                if (Y < 0 || Y >= H) continue;
+                for (int i = -2; i <= 2; i++) {
+                    int X = X0 + i;
+                    if (X < 0 || X >= W || (i == 0 && j == 0)) continue;
+                    if (w->code[cell_index(w->gtw, X, Y)] == CODE_OBST) {
+                        sx -= i;
+                        sy -= j;
+                    }
                 }
             }
         }
@@ -1535,11 +1523,14 @@ enum {
 };
 
 typedef struct {
-    double g[GROUP_DOUBLES];
-    double px, py, hx, hy; /* world position and heading of the sensor */
+    const unsigned char *rec; /* the group's record in the packed binary */
+    double px, py, hx, hy;    /* world position and heading of the sensor */
     double raw;
     int echo;
 } GroupState;
+
+/* field f of a group's record */
+#define GF(s, f) ld((s)->rec + 8 * (f))
 
 typedef struct {
     double px, py, path;
@@ -1655,17 +1646,25 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
     const unsigned char *rays = groups + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
     int nev = 0;
     double reach = 0, offset = 0;
+    /* a laser's groups share their sensor's place: its offset is worked
+     * out once */
+    double lx = NAN, ly = NAN, o = 0;
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
-        memcpy(s->g, groups + GROUPS_HEADER + (size_t)i * GROUP_BYTES, GROUP_BYTES);
-        s->px = X + ct * s->g[G_X] - st * s->g[G_Y];
-        s->py = Y + st * s->g[G_X] + ct * s->g[G_Y];
-        s->hx = ct * s->g[G_HC] - st * s->g[G_HS];
-        s->hy = st * s->g[G_HC] + ct * s->g[G_HS];
-        s->raw = s->g[G_MAX];
+        s->rec = groups + GROUPS_HEADER + (size_t)i * GROUP_BYTES;
+        const double gx = GF(s, G_X), gy = GF(s, G_Y), maxr = GF(s, G_MAX);
+        s->px = X + ct * gx - st * gy;
+        s->py = Y + st * gx + ct * gy;
+        s->hx = ct * GF(s, G_HC) - st * GF(s, G_HS);
+        s->hy = st * GF(s, G_HC) + ct * GF(s, G_HS);
+        s->raw = maxr;
         s->echo = 0;
-        double o = sqrt(s->g[G_X] * s->g[G_X] + s->g[G_Y] * s->g[G_Y]);
-        if (o + s->g[G_MAX] > reach) reach = o + s->g[G_MAX];
+        if (!(gx == lx && gy == ly)) {
+            o = sqrt(gx * gx + gy * gy);
+            lx = gx;
+            ly = gy;
+        }
+        if (o + maxr > reach) reach = o + maxr;
         if (o > offset) offset = o;
     }
 
@@ -1691,9 +1690,9 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
     Ctx first = {w, NULL, 0};
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
-        const int n = (int)s->g[G_NRAYS], off = (int)s->g[G_RAY_OFF];
-        const int mb = (int)s->g[G_BOUNCES], ring = (int)s->g[G_RING];
-        const double maxr = s->g[G_MAX], cc = s->g[G_COS_CRIT];
+        const int n = (int)GF(s, G_NRAYS), off = (int)GF(s, G_RAY_OFF);
+        const int mb = (int)GF(s, G_BOUNCES), ring = (int)GF(s, G_RING);
+        const double maxr = GF(s, G_MAX), cc = GF(s, G_COS_CRIT);
         for (int k = 0; k < n; k++) {
             const unsigned char *p = rays + (size_t)(off + k) * 16;
             double rc = ld(p), rs = ld(p + 8);
@@ -1766,12 +1765,12 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     for (int e = 0; e < nev; e++) {
         for (int j = 0; j < ng; j++) {
             GroupState *s = &gs[j];
-            if (j == ev[e].emitter || (int)s->g[G_RING] != ev[e].ring) continue;
+            if (j == ev[e].emitter || (int)GF(s, G_RING) != ev[e].ring) continue;
             double vx = ev[e].px - s->px, vy = ev[e].py - s->py;
             double d = sqrt(vx * vx + vy * vy);
-            if (vx * s->hx + vy * s->hy < d * s->g[G_COS_HALF_FOV]) continue;
+            if (vx * s->hx + vy * s->hy < d * GF(s, G_COS_HALF_FOV)) continue;
             double arrival = 0.5 * (ev[e].path + d);
-            if (arrival < s->raw && arrival < s->g[G_MAX]) {
+            if (arrival < s->raw && arrival < GF(s, G_MAX)) {
                 s->raw = arrival;
                 s->echo = 1;
             }
@@ -1800,11 +1799,11 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     double z_spare = 0;
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
-        const double minr = s->g[G_MIN], maxr = s->g[G_MAX];
-        const double pd = s->g[G_DROPOUT], ps = s->g[G_SPIKE];
+        const double minr = GF(s, G_MIN), maxr = GF(s, G_MAX);
+        const double pd = GF(s, G_DROPOUT), ps = GF(s, G_SPIKE);
         double r = s->raw;
         if (s->echo) {
-            double sigma = s->g[G_NOISE_STD] + s->g[G_NOISE_PROP] * r, z = 0;
+            double sigma = GF(s, G_NOISE_STD) + GF(s, G_NOISE_PROP) * r, z = 0;
             if (sigma > 0) {
                 if (spare) {
                     z = z_spare;
@@ -1817,7 +1816,7 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
                     spare = 1;
                 }
             }
-            r = clampd(r + s->g[G_BIAS] + sigma * z, minr, maxr);
+            r = clampd(r + GF(s, G_BIAS) + sigma * z, minr, maxr);
         }
         /* faults: one uniform draw, dropout and spike are exclusive */
         if (pd > 0 || ps > 0) {
@@ -1825,7 +1824,7 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
             if (uf < pd) {
                 if (s->echo) r = maxr;
             } else if (uf < pd + ps) {
-                double m = s->g[G_SPIKE_MAG], uv = uniform(&rng);
+                double m = GF(s, G_SPIKE_MAG), uv = uniform(&rng);
                 r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
             }
         }
