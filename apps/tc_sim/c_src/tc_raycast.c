@@ -1703,6 +1703,16 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
                 first.b = sectors.b + sectors.start[sec];
                 first.nb = sectors.start[sec + 1] - sectors.start[sec];
             }
+            if (cc < -1.0) {
+                /* every hit echoes (a laser beam): the first leg's hit is
+                 * the reading, as cast_one would find it */
+                Hit h;
+                trace(&first, s->px, s->py, dx, dy, maxr, &h);
+                if (h.kind == HIT_NONE) continue;
+                if (h.t < s->raw) s->raw = h.t;
+                s->echo = 1;
+                continue;
+            }
             cast_one(&first, &c, s->px, s->py, dx, dy, maxr, mb, cc, &r);
             if (r.kind == HIT_NONE) continue;
             if (r.range < s->raw) s->raw = r.range;
@@ -1723,45 +1733,10 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
     return 1;
 }
 
-/* the readings as a binary of float64s (as_list 0) or a list of floats */
-static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[], int as_list)
+/* crosstalk: a bounced echo from P reaches every other transducer of the
+ * ring whose cone contains P (no line-of-sight check on the return) */
+static void scan_crosstalk(GroupState *gs, int ng, const Event *ev, int nev)
 {
-    World *w;
-    ErlNifBinary gb;
-    int arity, exclude;
-    const ERL_NIF_TERM *pose;
-    double X, Y, TH;
-    ErlNifUInt64 seed;
-    unsigned nr;
-    (void)argc;
-    if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
-        arity != 3 || !tc_number(env, pose[0], &X) || !tc_number(env, pose[1], &Y) ||
-        !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
-        !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
-        return enif_make_badarg(env);
-    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
-     * only the counts are read again here */
-    uint32_t ng32, nr32;
-    memcpy(&ng32, gb.data + 4, 4);
-    memcpy(&nr32, gb.data + 8, 4);
-    int ng = (int)ng32;
-    nr = nr32;
-
-    size_t scratch = (size_t)ng * sizeof(GroupState) + (size_t)nr * sizeof(Event);
-    GroupState *gs = enif_alloc(scratch > 0 ? scratch : 1);
-    if (!gs) return enif_make_badarg(env);
-    Event *ev = (Event *)(gs + ng);
-    int nev = 0;
-    enif_rwlock_rlock(w->lock);
-    int ok = scan_cast(w, X, Y, TH, gb.data, ng, exclude, gs, ev, &nev);
-    enif_rwlock_runlock(w->lock);
-    if (!ok) {
-        enif_free(gs);
-        return enif_make_badarg(env);
-    }
-
-    /* crosstalk: a bounced echo from P reaches every other transducer of the
-     * ring whose cone contains P (no line-of-sight check on the return) */
     for (int e = 0; e < nev; e++) {
         for (int j = 0; j < ng; j++) {
             GroupState *s = &gs[j];
@@ -1776,29 +1751,21 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
             }
         }
     }
+}
 
-    ERL_NIF_TERM out;
-    unsigned char *o = NULL;
-    ERL_NIF_TERM *cells = NULL;
-    if (as_list) {
-        cells = enif_alloc((size_t)(ng > 0 ? ng : 1) * sizeof(ERL_NIF_TERM));
-        if (!cells) {
-            enif_free(gs);
-            return enif_make_badarg(env);
-        }
-    } else {
-        o = enif_make_new_binary(env, (size_t)ng * 8, &out);
-    }
-    /* one splitmix64 stream from the hashed seed, drawn from in group
-     * order and only as needed: a Gaussian (Box-Muller, the pair's second
-     * value kept for the next noisy group) for a noisy echo, a uniform for
-     * the fault when the group has faults, another for a spike's value */
-    uint64_t rng = (uint64_t)seed;
+/* The groups' readings after noise and faults, into out[0 .. ng). One
+ * splitmix64 stream from the hashed seed, drawn from in group order and
+ * only as needed: a Gaussian (Box-Muller, the pair's second value kept
+ * for the next noisy group) for a noisy echo, a uniform for the fault
+ * when the group has faults, another for a spike's value. */
+static void scan_readings(const GroupState *gs, int ng, uint64_t seed, double *out)
+{
+    uint64_t rng = seed;
     rng = splitmix64(&rng);
     int spare = 0;
     double z_spare = 0;
     for (int i = 0; i < ng; i++) {
-        GroupState *s = &gs[i];
+        const GroupState *s = &gs[i];
         const double minr = GF(s, G_MIN), maxr = GF(s, G_MAX);
         const double pd = GF(s, G_DROPOUT), ps = GF(s, G_SPIKE);
         double r = s->raw;
@@ -1828,20 +1795,71 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
                 r = m > 0 ? clampd(r + (2 * uv - 1) * m, minr, maxr) : minr + uv * (maxr - minr);
             }
         }
-        if (as_list) {
-            cells[i] = enif_make_double(env, r);
-        } else {
+        out[i] = r;
+    }
+}
+
+/* the readings as a binary of float64s (as_list 0) or a list of floats */
+static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[], int as_list)
+{
+    World *w;
+    ErlNifBinary gb;
+    int arity, exclude;
+    const ERL_NIF_TERM *pose;
+    double X, Y, TH;
+    ErlNifUInt64 seed;
+    unsigned nr;
+    (void)argc;
+    if (!get_world(env, argv[0], &w) || !enif_get_tuple(env, argv[1], &arity, &pose) ||
+        arity != 3 || !tc_number(env, pose[0], &X) || !tc_number(env, pose[1], &Y) ||
+        !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
+        !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
+        return enif_make_badarg(env);
+    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
+     * only the counts are read again here */
+    uint32_t ng32, nr32;
+    memcpy(&ng32, gb.data + 4, 4);
+    memcpy(&nr32, gb.data + 8, 4);
+    int ng = (int)ng32;
+    nr = nr32;
+
+    size_t scratch = (size_t)ng * (sizeof(GroupState) + sizeof(double)) + (size_t)nr * sizeof(Event);
+    GroupState *gs = enif_alloc(scratch > 0 ? scratch : 1);
+    if (!gs) return enif_make_badarg(env);
+    Event *ev = (Event *)(gs + ng);
+    double *readings = (double *)(ev + nr);
+    int nev = 0;
+    enif_rwlock_rlock(w->lock);
+    int ok = scan_cast(w, X, Y, TH, gb.data, ng, exclude, gs, ev, &nev);
+    enif_rwlock_runlock(w->lock);
+    if (!ok) {
+        enif_free(gs);
+        return enif_make_badarg(env);
+    }
+    scan_crosstalk(gs, ng, ev, nev);
+    scan_readings(gs, ng, (uint64_t)seed, readings);
+
+    ERL_NIF_TERM out;
+    if (as_list) {
+        ERL_NIF_TERM *cells = enif_alloc((size_t)(ng > 0 ? ng : 1) * sizeof(ERL_NIF_TERM));
+        if (!cells) {
+            enif_free(gs);
+            return enif_make_badarg(env);
+        }
+        for (int i = 0; i < ng; i++)
+            cells[i] = enif_make_double(env, readings[i]);
+        out = enif_make_list_from_array(env, cells, (unsigned)ng);
+        enif_free(cells);
+    } else {
+        unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+        for (int i = 0; i < ng; i++) {
             uint64_t bits;
-            memcpy(&bits, &r, 8);
+            memcpy(&bits, &readings[i], 8);
             for (int b = 0; b < 8; b++)
                 o[8 * i + b] = (unsigned char)(bits >> (8 * b));
         }
     }
     enif_free(gs);
-    if (as_list) {
-        out = enif_make_list_from_array(env, cells, (unsigned)ng);
-        enif_free(cells);
-    }
     return out;
 }
 

@@ -470,6 +470,44 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert_in_delta r.range, t1 + t2, 1.0e-7
     end
 
+    test "grid walls at the grid's edges reflect as the same walls inside a larger grid" do
+      # walls 1 cell from the edges (a hit's 5 x 5 neighbourhood leaves the
+      # grid), then the same cells with 10 free cells all round
+      occupied? = fn col, row -> col >= 58 or row < 3 or (col < 2 and row > 30) end
+      edge = grid_data(60, 40, occupied?)
+
+      padded =
+        grid_data(80, 60, fn col, row ->
+          col in 10..69 and row in 10..49 and occupied?.(col - 10, row - 10)
+        end)
+
+      res = 0.05
+
+      w_edge =
+        world!(grid: %{width: 60, height: 40, resolution: res, origin: {0, 0, 0}, data: edge})
+
+      w_padded =
+        world!(
+          grid: %{width: 80, height: 60, resolution: res, origin: {-0.5, -0.5, 0}, data: padded}
+        )
+
+      opts = [max_bounces: 2, critical_angle: 0.26]
+
+      rays =
+        for k <- 0..60 do
+          {0.6 + 0.02 * k, 1.0, -3.1 + k * 0.103, 6.0}
+        end
+
+      for ray <- rays do
+        a = cast1(w_edge, ray, opts)
+        b = cast1(w_padded, ray, opts)
+        assert {a.hit, a.bounces} == {b.hit, b.bounces}, "ray #{inspect(ray)}"
+        assert_in_delta a.range, b.range, @eps
+      end
+
+      assert Enum.count(rays, &(cast1(w_edge, &1, opts).bounces > 0)) > 10
+    end
+
     test "bodies reflect off-centre hits and echo head-on ones" do
       w = world!([])
       :ok = Raycast.set_bodies(w, [{3, 0, 1}])
@@ -693,6 +731,71 @@ defmodule ThinkingCap.Sim.RaycastTest do
 
           expected =
             Raycast.cast_rays(w, rays, exclude: trial) |> Enum.map(& &1.range) |> Enum.min()
+
+          assert_in_delta reading, expected, @eps
+        end
+      end
+    end
+
+    test "in a grid among bodies, beams and reflecting cones read what cast_rays finds" do
+      :rand.seed(:exsss, {7, 7, 7})
+      grid = random_grid(300, 200, 0.05, {-7.5, -5.0, 0.3}, 0.02)
+      w = world!(grid: grid)
+
+      bodies =
+        for _ <- 1..30,
+            do: {:rand.uniform() * 12 - 6, :rand.uniform() * 8 - 4, 0.1 + :rand.uniform() * 0.3}
+
+      :ok = Raycast.set_bodies(w, bodies)
+
+      for trial <- 1..10 do
+        pose =
+          {x, y, th} = {:rand.uniform() * 4 - 2, :rand.uniform() * 4 - 2, :rand.uniform() * 7}
+
+        # beams that echo every hit (one leg), and sonar cones that may bounce
+        beams =
+          for j <- 0..35,
+              do: %{x: 0.1, heading: -1.6 + j * 0.09, max_range: 6.0}
+
+        cones =
+          for k <- 0..7 do
+            %{
+              x: 0.2 * :math.cos(k * 0.785),
+              y: 0.2 * :math.sin(k * 0.785),
+              heading: k * 0.785,
+              fov: 0.26,
+              rays: 3,
+              max_range: 5.0,
+              max_bounces: 2,
+              critical_angle: 0.26
+            }
+          end
+
+        groups = beams ++ cones
+        got = readings(Raycast.scan(w, pose, Raycast.pack_groups(groups), trial, 0))
+
+        for {g, reading} <- Enum.zip(groups, got) do
+          {gx, gy} = {g.x, Map.get(g, :y, 0.0)}
+          {fov, n} = {Map.get(g, :fov, 0.0), Map.get(g, :rays, 1)}
+
+          {sx, sy} =
+            {x + gx * :math.cos(th) - gy * :math.sin(th),
+             y + gx * :math.sin(th) + gy * :math.cos(th)}
+
+          rays =
+            for k <- 0..(n - 1),
+                do: {sx, sy, th + g.heading - fov / 2 + (k + 0.5) * fov / n, g.max_range}
+
+          opts = [
+            exclude: trial,
+            max_bounces: Map.get(g, :max_bounces, 0),
+            critical_angle: Map.get(g, :critical_angle, :math.pi() / 2)
+          ]
+
+          expected =
+            Raycast.cast_rays(w, rays, opts)
+            |> Enum.map(&if(&1.hit == :none, do: g.max_range, else: &1.range))
+            |> Enum.min()
 
           assert_in_delta reading, expected, @eps
         end
