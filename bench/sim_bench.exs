@@ -35,6 +35,10 @@ defmodule ThinkingCap.Bench.Sim do
   from them on a shared machine.
   `--only nodes` runs this part alone.
 
+  `cpu_us_rstep`: this VM's CPU time (user and system, from `/proc`)
+  over robots × steps, in µs: the cost of a robot-step whatever share of
+  the cores the run got.
+
   Real-time factor: simulated seconds per wall second. Rays: the rays of
   every sample (sonar cone rays and laser beams, without counting bounces)
   per wall second. Stage 4.3 ran the 100-robot workload at about 14× real
@@ -84,7 +88,7 @@ defmodule ThinkingCap.Bench.Sim do
         IO.puts(
           "  #{String.pad_leading(Integer.to_string(robots), 3)} robots: " <>
             "#{fmt(r.wall)} s wall, rtf #{fmt(r.rtf)}, #{fmt(r.rays_per_s / 1.0e6)} M rays/s, " <>
-            "#{r.bumps} blocked robot-steps"
+            "#{fmt(r.cpu_us)} µs CPU a robot-step, #{r.bumps} blocked robot-steps"
         )
 
         {robots, r}
@@ -94,7 +98,7 @@ defmodule ThinkingCap.Bench.Sim do
 
     IO.puts(
       "sim: robots=#{n} rtf=#{fmt(main.rtf)} rays_per_s=#{round(main.rays_per_s)} " <>
-        "rtf_1=#{fmt(results[1].rtf)} rtf_10=#{fmt(results[10].rtf)}"
+        "rtf_1=#{fmt(results[1].rtf)} rtf_10=#{fmt(results[10].rtf)} cpu_us_rstep=#{fmt(main.cpu_us)}"
     )
 
     scale_seconds = opts[:scale_seconds] || 60.0
@@ -110,12 +114,13 @@ defmodule ThinkingCap.Bench.Sim do
       "  #{10 * n} robots and #{n_walkers} walkers, warehouse tiled 5 x 2, " <>
         "#{scale_seconds} simulated s: " <>
         "#{fmt(r.wall)} s wall, rtf #{fmt(r.rtf)}, #{fmt(r.rays_per_s / 1.0e6)} M rays/s, " <>
-        "#{r.bumps} blocked robot-steps"
+        "#{fmt(r.cpu_us)} µs CPU a robot-step, #{r.bumps} blocked robot-steps"
     )
 
     IO.puts(
       "sim_scale: robots=#{10 * n} walkers=#{n_walkers} rtf=#{fmt(r.rtf)} " <>
-        "ray_ratio=#{fmt(r.rays_per_s / main.rays_per_s)} rays_per_s=#{round(r.rays_per_s)}"
+        "ray_ratio=#{fmt(r.rays_per_s / main.rays_per_s)} rays_per_s=#{round(r.rays_per_s)} " <>
+        "cpu_us_rstep=#{fmt(r.cpu_us)}"
     )
   end
 
@@ -231,18 +236,33 @@ defmodule ThinkingCap.Bench.Sim do
 
     rng = :rand.seed_s(:exsss, {42, robots, 1})
     place(sim, world, description, robots, rng)
+    ticks = ThinkingCap.Bench.ProcStat.clock_ticks()
     t0 = System.monotonic_time()
+    cpu0 = cpu_ms(ticks)
     :ok = Sim.run_for(sim, seconds)
     wall = System.convert_time_unit(System.monotonic_time() - t0, :native, :microsecond) / 1.0e6
+    cpu = cpu_ms(ticks) - cpu0
     status = Sim.status(sim)
     GenServer.stop(sim)
 
     %{
       wall: wall,
+      # CPU time of this OS process a robot-step, µs: less sensitive than
+      # the wall clock to what other programs take from the cores
+      cpu_us: cpu * 1000 / max(1, robots * status.steps),
       rtf: status.time / wall,
       rays_per_s: status.rays / wall,
       bumps: status.blocked
     }
+  end
+
+  # this OS process's CPU time (user and system), ms
+  defp cpu_ms(ticks) do
+    [_, rest] = File.read!("/proc/self/stat") |> String.split(")", parts: 2)
+    fields = String.split(rest)
+
+    (String.to_integer(Enum.at(fields, 11)) + String.to_integer(Enum.at(fields, 12))) * 1000 /
+      ticks
   end
 
   # random free places inside the building (known-free cells)
