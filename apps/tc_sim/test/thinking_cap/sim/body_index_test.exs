@@ -143,6 +143,9 @@ defmodule ThinkingCap.Sim.BodyIndexTest do
 
   ## properties
 
+  # 150 random worlds: 13-25 s alone, past the default minute on a
+  # loaded machine
+  @tag timeout: 180_000
   test "casts, scans and clearances agree with brute force on random worlds" do
     property =
       :proper.forall(world_gen(), fn {bodies, segments, rays, points, poses} ->
