@@ -8,4 +8,8 @@
  * there is none. A malloc'd array (the caller frees it), or NULL. */
 double *tc_edt2(const unsigned char *seeds, int w, int h);
 
+/* the nearest seed of every cell (its index r * w + c; -1 where there is
+ * none). A malloc'd array (the caller frees it), or NULL. */
+int *tc_edt2_nearest(const unsigned char *seeds, int w, int h);
+
 #endif

@@ -73,6 +73,11 @@ typedef struct {
     float *l; /* likelihood per cell */
 } Lgrid;
 
+/* The likelihood of a point at each cell's centre: a Gaussian of its
+ * distance to the nearest reference point. The distance is to the point
+ * itself, not to the centre of the cell it falls in: measured from cell
+ * centres, a wall lying on a cells' border is moved half a cell, and each
+ * node of a chain matched against the one before inherited that. */
 static int lgrid_build(Lgrid *g, const double *pts, int n, double margin, double res, double sigma)
 {
     double x0 = INF, y0 = INF, x1 = -INF, y1 = -INF;
@@ -90,24 +95,38 @@ static int lgrid_build(Lgrid *g, const double *pts, int n, double margin, double
     if ((double)g->w * g->h > MAX_CELLS) return 0;
     int w = g->w, h = g->h;
     unsigned char *seeds = calloc((size_t)w * h, 1);
+    /* a point of each seed cell (the last one in it) */
+    int *point = malloc(sizeof(int) * w * h);
     g->l = malloc(sizeof(float) * w * h);
-    if (!seeds || !g->l) {
-        free(seeds), free(g->l);
+    if (!seeds || !point || !g->l) {
+        free(seeds), free(point), free(g->l);
         return 0;
     }
     for (int i = 0; i < n; i++) {
         int c = (int)floor((pts[2 * i] - g->ox) / res), r = (int)floor((pts[2 * i + 1] - g->oy) / res);
-        if (c >= 0 && r >= 0 && c < w && r < h) seeds[(size_t)r * w + c] = 1;
+        if (c >= 0 && r >= 0 && c < w && r < h) seeds[(size_t)r * w + c] = 1, point[(size_t)r * w + c] = i;
     }
-    double *f = tc_edt2(seeds, w, h);
+    int *near = tc_edt2_nearest(seeds, w, h);
     free(seeds);
-    if (!f) {
-        free(g->l);
+    if (!near) {
+        free(point), free(g->l);
         return 0;
     }
-    double k = res * res / (2 * sigma * sigma);
-    for (int i = 0; i < w * h; i++) g->l[i] = isinf(f[i]) ? 0.0f : (float)exp(-f[i] * k);
-    free(f);
+    double k = 1.0 / (2 * sigma * sigma);
+    for (int r = 0; r < h; r++) {
+        double cy = g->oy + (r + 0.5) * res;
+        for (int c = 0; c < w; c++) {
+            size_t i = (size_t)r * w + c;
+            if (near[i] < 0) {
+                g->l[i] = 0.0f;
+                continue;
+            }
+            const double *p = pts + 2 * point[near[i]];
+            double dx = g->ox + (c + 0.5) * res - p[0], dy = cy - p[1];
+            g->l[i] = (float)exp(-(dx * dx + dy * dy) * k);
+        }
+    }
+    free(near), free(point);
     return 1;
 }
 

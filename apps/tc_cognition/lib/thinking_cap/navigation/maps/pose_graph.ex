@@ -11,10 +11,14 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   with an information matrix that grows looser with the distance. The
   node is placed at the node before moved by that step; then, where its
   scan matches the scans of the `local_nodes` nodes before it, at their
-  places in the graph and drawn as walls (`dense_points/3`), sharply
-  (searched within 0.3 m and 0.06 rad; not in a corridor, where it fixes
-  the place only across), the node goes where the match puts it and the
-  edge says so, with the match's spread. The chain of nodes is then a
+  places in the graph and drawn as walls (`dense_points/3`), fixing the
+  heading sharply (searched within 0.3 m and 0.06 rad, or 0.2
+  rad when the best heading lies on that border), the node goes where the match
+  puts it and the edge says so, with the match's spread: the whole pose
+  where the match fixes the place too, the heading and the place across
+  a corridor (the step along it), or else the heading alone. The edge's
+  `via` says which (`:match`, `:corridor`, `:heading`; `:estimate` when
+  the step was kept). The chain of nodes is then a
   scan matcher's against a submap of the last few metres: on generated
   buildings it drifts 0.06–0.10 m and 0.012–0.022 rad over 10 m, the
   localizer against the map it draws 0.09–0.16 m and 0.018–0.025 rad.
@@ -80,11 +84,12 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
 
   @type pose :: {float(), float(), float()}
   @type edge :: %{
-          from: non_neg_integer(),
-          to: non_neg_integer(),
-          z: pose(),
-          info: {float(), float(), float(), float(), float(), float()},
-          kind: :sequence | :odometry | :loop
+          optional(:via) => :match | :corridor | :heading | :estimate,
+          required(:from) => non_neg_integer(),
+          required(:to) => non_neg_integer(),
+          required(:z) => pose(),
+          required(:info) => {float(), float(), float(), float(), float(), float()},
+          required(:kind) => :sequence | :odometry | :loop
         }
   @type t :: %__MODULE__{
           pending: {non_neg_integer(), pose()} | nil,
@@ -125,6 +130,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # the window of the match of a node against the nodes before it: the
   # localizer's estimate is seldom further off from them
   @local_window {0.3, 0.06}
+  # and where the best lies on that window's border: in a fast turn the
+  # estimate's heading may be a tenth of a radian off
+  @local_wide_window {0.3, 0.2}
 
   @doc """
   An empty graph. Options (defaults in brackets): `node_distance` [0.3],
@@ -257,9 +265,15 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   end
 
   # the node's scan against the scans of the nodes before it, at their
-  # places in the graph, drawn as walls (`dense_points/3`): a sharp match
-  # (not in a corridor) makes the edge from the node before, with the
-  # match's spread (and a floor) as its uncertainty
+  # places in the graph, drawn as walls (`dense_points/3`). A match that
+  # fixes the heading sharply makes the edge from the node before, with
+  # the match's spread (and a floor) as its uncertainty: all of it where
+  # it fixes the place too; in a corridor, the heading and the place
+  # across it, the estimate's step along it; elsewhere the heading alone.
+  # The estimate's heading follows the odometry's turn errors, and what
+  # is left to it turns the chain. A match found on its window's border
+  # (the estimate more than 0.06 rad off, as in a fast turn) is sought
+  # again in a wider window.
   defp local_match(%{kind: :sequence, from: i, to: j, z: z} = e, %{params: %{local_nodes: k}} = g)
        when k > 0 do
     query = Map.fetch!(g.points, j)
@@ -271,29 +285,58 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
             do: dense_points(world_points(g, n), fill, g.params.wall_gap)
       )
 
+    guess = EKF.motion(pose(g, i), z)
+
     with true <- byte_size(query) >= 16 * 20 and byte_size(ref) >= 16 * 20,
-         {matched, score, {cxx, cxy, _, cyy, _, ctt} = cov, _at_guess, false}
-         when score >= g.params.min_score <-
-           GridNif.slam_match(
-             ref,
-             query,
-             EKF.motion(pose(g, i), z),
-             @local_window,
-             g.params.resolution,
-             g.params.resolution
-           ),
-         {big, _small, _} = principal(cxx, cxy, cyy),
-         true <-
-           :math.sqrt(big) <= g.params.local_sigma and
-             :math.sqrt(ctt) <= g.params.local_sigma_angle,
-         {:ok, local} <- loop_edge(g, i, j, matched, cov, 1.0) do
-      %{local | kind: :sequence}
+         {matched, score, cov, _at_guess, ridge} when score >= g.params.min_score <-
+           local_search(ref, query, guess, g.params.resolution),
+         {:ok, at, cov, via} <- local_fix(g.params, guess, matched, cov, ridge, e),
+         {:ok, local} <- loop_edge(g, i, j, at, cov, 1.0) do
+      Map.merge(local, %{kind: :sequence, via: via})
     else
-      _ -> e
+      _ -> Map.put(e, :via, :estimate)
     end
   end
 
   defp local_match(e, _g), do: e
+
+  defp local_search(ref, query, guess, res) do
+    with :none <- GridNif.slam_match(ref, query, guess, @local_window, res, res),
+         do: GridNif.slam_match(ref, query, guess, @local_wide_window, res, res)
+  end
+
+  # what of the match the edge takes: all of it, the heading and the
+  # place across a corridor, or the heading alone; the rest from the
+  # estimate's step (`e`, whose spread it keeps)
+  defp local_fix(p, {gx, gy, _}, {mx, my, mth} = matched, cov, ridge, e) do
+    {cxx, cxy, _cxt, cyy, _cyt, ctt} = cov
+    {big, small, {ex, ey}} = principal(cxx, cxy, cyy)
+    {a, _, _, _, _, _} = e.info
+    step_variance = 1.0 / a
+
+    cond do
+      :math.sqrt(ctt) > p.local_sigma_angle ->
+        :none
+
+      :math.sqrt(big) <= p.local_sigma ->
+        {:ok, matched, cov, :match}
+
+      ridge and :math.sqrt(small) <= p.local_sigma ->
+        along = (mx - gx) * ex + (my - gy) * ey
+        across = -(mx - gx) * ey + (my - gy) * ex
+
+        if abs(across) <= @ridge_move do
+          moved = {mx - along * ex, my - along * ey, mth}
+          {:ok, moved, cov} = ridge_match(moved, small, {ex, ey}, cov, step_variance)
+          {:ok, moved, cov, :corridor}
+        else
+          :none
+        end
+
+      true ->
+        {:ok, {gx, gy, mth}, {step_variance, 0.0, 0.0, step_variance, 0.0, ctt}, :heading}
+    end
+  end
 
   defp odometry_step(g, i, j) do
     case {g.odometry[i], g.odometry[j]} do
@@ -497,7 +540,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # scores run level along it through the window: `ridge`) it fixes the
   # place across the corridor but not along it: then the match moves the
   # pose only across, and the edge says next to nothing along it.
-  defp sharp(p, guess, matched, {cxx, cxy, cxt, cyy, cyt, ctt} = cov, ridge) do
+  defp sharp(p, guess, matched, {cxx, cxy, _, cyy, _, ctt} = cov, ridge) do
     {big, small, {ex, ey}} = principal(cxx, cxy, cyy)
 
     cond do
@@ -515,7 +558,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
         moved = {mx - along * ex, my - along * ey, mth}
 
         if abs(across) <= @ridge_move,
-          do: ridge_match(moved, small, {ex, ey}, cxt, cyt, ctt),
+          do: ridge_match(moved, small, {ex, ey}, cov, @along_variance),
           else: :none
 
       true ->
@@ -523,11 +566,10 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
     end
   end
 
-  defp ridge_match(moved, small, {ex, ey}, cxt, cyt, ctt) do
-    # across: the match's spread; along: loose
+  defp ridge_match(moved, small, {ex, ey}, {_, _, cxt, _, cyt, ctt}, l) do
+    # across: the match's spread; along: `l`
     {ax, ay} = {-ey, ex}
     at = cxt * ax + cyt * ay
-    l = @along_variance
 
     cov =
       {small * ax * ax + l * ex * ex, small * ax * ay + l * ex * ey, at * ax,

@@ -54,6 +54,21 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       assert :math.sqrt(max(cxx, cyy)) < 0.05 and :math.sqrt(ctt) < 0.02
     end
 
+    test "a wall on a border of the likelihood grid's cells is where it is, not half a cell off" do
+      # the grid's origin lies a whole number of cells below the lowest
+      # point: both walls fall on borders between its cells
+      walls = for y <- [0.0, 2.0], k <- 0..400, do: {k * 0.025, y}
+      truth = {5.0, 1.0, 0.0}
+      query = bin(seen(walls, truth))
+
+      {{_x, y, th}, _score, _cov, _at_guess, true} =
+        GridNif.slam_match(bin(walls), query, truth, {0.3, 0.06}, 0.05, 0.05)
+
+      # measured from the centres of the cells the points fall in: 12.5 mm
+      assert_in_delta y, 1.0, 0.003
+      assert_in_delta th, 0.0, 0.002
+    end
+
     test "a corridor's length is not fixed: the spread along it is wide" do
       walls = for k <- 0..400, y <- [0.0, 1.5], do: {k * 0.05, y}
 
@@ -240,11 +255,12 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       g =
         truth
         |> Enum.take(20)
-        |> Enum.reduce(PoseGraph.new([loop_gap: 15] ++ opts), fn pose, g ->
+        |> Enum.reduce(PoseGraph.new([loop_gap: 15, local_nodes: 0] ++ opts), fn pose, g ->
           {_id, g} = PoseGraph.add_node(g, pose, nil, bin(seen(walls, pose)))
           g
         end)
 
+      # (no node-to-node match: it would set the last node right first)
       {x, y, th} = t20 = Enum.at(truth, 20)
       {id, g} = PoseGraph.add_node(g, {x + 0.05, y, th}, nil, bin(seen(walls, t20)))
       {:closed, g, _, _} = PoseGraph.close_loop(g, id)
@@ -392,10 +408,11 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
       assert :math.sqrt((zx - tx) ** 2 + (zy - ty) ** 2) < 0.02
     end
 
-    test "in a corridor, which the scans do not fix along, the estimate makes it" do
-      walls = for k <- 0..400, y <- [0.0, 2.0], do: {k * 0.05, y}
+    test "in a corridor the scan fixes the heading and the place across it, the estimate along it" do
+      walls = for y <- [0.0, 2.0], k <- 0..400, do: {k * 0.05, y}
       truth = for k <- 0..6, do: {5.0 + 0.3 * k, 1.0, 0.0}
-      estimates = Enum.drop(truth, -1) ++ [{6.9, 1.0, 0.0}]
+      # the last estimate 0.1 m too far along, 5 cm across, 0.03 rad turned
+      estimates = Enum.drop(truth, -1) ++ [{6.9, 1.05, 0.03}]
 
       g =
         Enum.zip(truth, estimates)
@@ -404,10 +421,29 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraphTest do
           g
         end)
 
-      assert %{z: {zx, zy, zth}} = Enum.find(g.edges, &(&1.from == 5 and &1.to == 6))
-      assert_in_delta zx, 0.4, 1.0e-9
-      assert_in_delta zy, 0.0, 1.0e-9
-      assert_in_delta zth, 0.0, 1.0e-9
+      assert %{z: {zx, zy, zth}, via: :corridor} =
+               Enum.find(g.edges, &(&1.from == 5 and &1.to == 6))
+
+      assert_in_delta zx, 0.4, 0.005
+      assert_in_delta zy, 0.0, 0.01
+      assert_in_delta zth, 0.0, 0.003
+    end
+
+    test "an estimate a tenth of a radian off, as in a fast turn, is still matched" do
+      walls = room(8.0, 6.0)
+      truth = for k <- 0..6, do: {2.5 + 0.3 * k, 3.0, 0.1 + 0.05 * k}
+      {x, y, th} = List.last(truth)
+      estimates = Enum.drop(truth, -1) ++ [{x, y, th - 0.1}]
+
+      g =
+        Enum.zip(truth, estimates)
+        |> Enum.reduce(PoseGraph.new(), fn {t, e}, g ->
+          {_id, g} = PoseGraph.add_node(g, e, nil, bin(seen(walls, t)))
+          g
+        end)
+
+      assert %{z: {_, _, zth}, via: :match} = Enum.find(g.edges, &(&1.from == 5 and &1.to == 6))
+      assert_in_delta zth, 0.05, 0.005
     end
 
     test "with local_nodes: 0 the estimate alone makes it, jitter and all" do
