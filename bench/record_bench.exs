@@ -157,9 +157,8 @@ defmodule ThinkingCap.Bench.Record do
           "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time; " <>
           "garbage collection #{fmt(rec.recorder_gc_us / max(rec.tuples, 1), 1)} µs a tuple, " <>
           "#{rec.recorder_gcs} collections of #{fmt(rec.recorder_gc_us / max(rec.recorder_gcs, 1), 0)} µs; " <>
-          "longest schedule #{elem(rec.recorder_longest_us, 0)} µs in " <>
-          "#{inspect(elem(rec.recorder_longest_us, 1))}, #{rec.recorder_long} of 1 ms or more " <>
-          "on a normal scheduler); " <>
+          "longest schedules (µs, those of 1 ms or more, where): " <>
+          "#{Enum.map_join(rec.recorder_longest, ", ", &inspect/1)}); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
@@ -245,7 +244,7 @@ defmodule ThinkingCap.Bench.Record do
         do: :erlang.trace(sender, false, [:running, :garbage_collection, :timestamp])
 
       {cpu_us, runs, {gc_us, gc_n}, longest} =
-        if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}, [longest: {0, nil}, long: 0]}
+        if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}, []}
 
       {sender_us, _, _, _} =
         if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, {0, 0}, []}
@@ -271,8 +270,7 @@ defmodule ThinkingCap.Bench.Record do
         recorder_gcs: gc_n,
         sender_cpu_us: sender_us,
         recorder_runs: runs,
-        recorder_longest_us: longest[:longest],
-        recorder_long: longest[:long],
+        recorder_longest: longest,
         files:
           if(record?,
             do: Map.new(1..fleet.n, &{robot(&1), recording_files(rec_dir, robot(&1))}),
@@ -460,21 +458,25 @@ defmodule ThinkingCap.Bench.Record do
       {:stop, from} ->
         send(
           from,
-          {:cpu_us, total, runs, gc_sum,
-           longest: Process.get(:longest, {0, nil}), long: Process.get(:long, 0)}
+          {:cpu_us, total, runs, gc_sum, longest_schedules()}
         )
     end
   end
 
-  # the longest schedule (µs of CPU, and the function it began in), and
-  # how many took 1 ms or more but in the chunk's compression (a dirty
-  # scheduler's): how long a process queued behind one on its scheduler
-  # may have waited
+  # by the function a schedule began in: the longest (µs of CPU) and how
+  # many took 1 ms or more. A process queued behind a long one on a
+  # normal scheduler waits for it (the chunk's compression and the
+  # file's writes run on dirty schedulers)
   defp note_schedule(us, mfa) do
-    if us > elem(Process.get(:longest, {0, nil}), 0), do: Process.put(:longest, {us, mfa})
+    {longest, long} = Process.get({:schedules, mfa}, {0, 0})
+    Process.put({:schedules, mfa}, {max(us, longest), long + if(us >= 1000, do: 1, else: 0)})
+  end
 
-    if us >= 1000 and mfa != {ThinkingCap.MCAP.Compression, :chunk_finish, 1},
-      do: Process.put(:long, Process.get(:long, 0) + 1)
+  # the three of longest schedules: [{µs, schedules of 1 ms or more, mfa}]
+  defp longest_schedules do
+    for({{:schedules, mfa}, {us, long}} <- Process.get(), do: {us, long, mfa})
+    |> Enum.sort(:desc)
+    |> Enum.take(3)
   end
 
   defp stop_tracer(tracer) do
