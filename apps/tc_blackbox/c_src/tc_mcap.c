@@ -233,6 +233,19 @@ static void put_le(unsigned char *p, ErlNifUInt64 v, int bytes)
     for (int i = 0; i < bytes; i++) p[i] = (unsigned char)(v >> (8 * i));
 }
 
+/* Tells the scheduler how much of a process's timeslice (about 1 ms) a
+ * call on a normal scheduler took since `start` (µs), so that a process
+ * whose calls write many messages is scheduled out as soon as one whose
+ * work is in Erlang would be, and a higher-priority process queued on
+ * its scheduler (a periodic module) waits less. A call counts as one
+ * reduction otherwise, whatever it took. */
+static void consume_since(ErlNifEnv *env, ErlNifTime start)
+{
+    ErlNifTime us = enif_monotonic_time(ERL_NIF_USEC) - start;
+    if (us >= 10 && enif_thread_type() == ERL_NIF_THR_NORMAL_SCHEDULER)
+        enif_consume_timeslice(env, us >= 1000 ? 100 : (int)(us / 10));
+}
+
 /* chunk_new(Algorithm, Level) -> Stream; Algorithm 0 none, 1 zstd, 2 lz4 */
 static ERL_NIF_TERM nif_chunk_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -374,6 +387,7 @@ static ERL_NIF_TERM nif_chunk_messages(ErlNifEnv *env, int argc, const ERL_NIF_T
         ErlNifUInt64 log_time, publish_time;
         ErlNifBinary data;
     } message;
+    ErlNifTime start = enif_monotonic_time(ERL_NIF_USEC);
     message local[64];
     message *m = len <= 64 ? local : enif_alloc(len * sizeof(message));
     if (m == NULL) return raise(env, "no memory");
@@ -401,6 +415,7 @@ static ERL_NIF_TERM nif_chunk_messages(ErlNifEnv *env, int argc, const ERL_NIF_T
     enif_mutex_unlock(c->lock);
     if (m != local) enif_free(m);
     if (failed) return raise(env, failed);
+    consume_since(env, start);
     return enif_make_tuple2(env, enif_make_uint64(env, size), enif_make_uint(env, written));
 }
 
@@ -463,6 +478,7 @@ static ERL_NIF_TERM nif_chunk_held(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     if (!get_stream(env, argv[0], &c) || !enif_get_list_length(env, argv[1], &len) ||
         !enif_get_uint64(env, argv[2], &limit) || !enif_get_uint(env, argv[3], &skip))
         return enif_make_badarg(env);
+    ErlNifTime start = enif_monotonic_time(ERL_NIF_USEC);
     held_tuple local[64];
     held_tuple *h = len <= 64 ? local : enif_alloc(len * sizeof(held_tuple));
     if (h == NULL) return raise(env, "no memory");
@@ -503,6 +519,7 @@ static ERL_NIF_TERM nif_chunk_held(ErlNifEnv *env, int argc, const ERL_NIF_TERM 
     buf_free(&b);
     if (h != local) enif_free(h);
     if (failed) return raise(env, failed);
+    consume_since(env, start);
     return enif_make_tuple4(env, enif_make_uint64(env, size), enif_make_uint(env, done),
                             enif_make_uint(env, done < len ? part : 0), enif_make_uint(env, written));
 }
