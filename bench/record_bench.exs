@@ -156,7 +156,9 @@ defmodule ThinkingCap.Bench.Record do
           "(scheduled #{fmt(rec.recorder_runs / max(rec.tuples, 1), 2)} times a tuple, " <>
           "#{fmt(rec.recorder_cpu_us / max(rec.recorder_runs, 1), 1)} µs a time; " <>
           "garbage collection #{fmt(rec.recorder_gc_us / max(rec.tuples, 1), 1)} µs a tuple, " <>
-          "#{rec.recorder_gcs} collections of #{fmt(rec.recorder_gc_us / max(rec.recorder_gcs, 1), 0)} µs); " <>
+          "#{rec.recorder_gcs} collections of #{fmt(rec.recorder_gc_us / max(rec.recorder_gcs, 1), 0)} µs; " <>
+          "longest schedules (µs, those of 1 ms or more, where): " <>
+          "#{Enum.map_join(rec.recorder_longest, ", ", &inspect/1)}); " <>
           "dropped #{rec.dropped}; vm_cpu_pct #{fmt(vm_pct, 1)}; load #{load()}"
       )
 
@@ -241,8 +243,12 @@ defmodule ThinkingCap.Bench.Record do
       if sender_tracer,
         do: :erlang.trace(sender, false, [:running, :garbage_collection, :timestamp])
 
-      {cpu_us, runs, {gc_us, gc_n}} = if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}}
-      {sender_us, _, _} = if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, {0, 0}}
+      {cpu_us, runs, {gc_us, gc_n}, longest} =
+        if tracer, do: stop_tracer(tracer), else: {0, 0, {0, 0}, []}
+
+      {sender_us, _, _, _} =
+        if sender_tracer, do: tracer_total(sender_tracer), else: {0, 0, {0, 0}, []}
+
       _ = goals
 
       %{
@@ -264,6 +270,7 @@ defmodule ThinkingCap.Bench.Record do
         recorder_gcs: gc_n,
         sender_cpu_us: sender_us,
         recorder_runs: runs,
+        recorder_longest: longest,
         files:
           if(record?,
             do: Map.new(1..fleet.n, &{robot(&1), recording_files(rec_dir, robot(&1))}),
@@ -422,16 +429,18 @@ defmodule ThinkingCap.Bench.Record do
   # the part of that time their garbage collections took, and how many
   defp tracer_loop(ins, total, runs, gcs, {gc, gc_n} = gc_sum) do
     receive do
-      {:trace_ts, pid, kind, _mfa, ts} when kind in [:in, :in_exiting] ->
-        tracer_loop(Map.put(ins, pid, ts), total, runs, gcs, gc_sum)
+      {:trace_ts, pid, kind, mfa, ts} when kind in [:in, :in_exiting] ->
+        tracer_loop(Map.put(ins, pid, {ts, mfa}), total, runs, gcs, gc_sum)
 
       {:trace_ts, pid, kind, _mfa, ts} when kind in [:out, :out_exiting, :out_exited] ->
         case Map.pop(ins, pid) do
           {nil, ins} ->
             tracer_loop(ins, total, runs, gcs, gc_sum)
 
-          {t_in, ins} ->
-            tracer_loop(ins, total + :timer.now_diff(ts, t_in), runs + 1, gcs, gc_sum)
+          {{t_in, mfa}, ins} ->
+            us = :timer.now_diff(ts, t_in)
+            note_schedule(us, mfa)
+            tracer_loop(ins, total + us, runs + 1, gcs, gc_sum)
         end
 
       {:trace_ts, pid, kind, _info, ts} when kind in [:gc_minor_start, :gc_major_start] ->
@@ -447,8 +456,27 @@ defmodule ThinkingCap.Bench.Record do
         end
 
       {:stop, from} ->
-        send(from, {:cpu_us, total, runs, gc_sum})
+        send(
+          from,
+          {:cpu_us, total, runs, gc_sum, longest_schedules()}
+        )
     end
+  end
+
+  # by the function a schedule began in: the longest (µs of CPU) and how
+  # many took 1 ms or more. A process queued behind a long one on a
+  # normal scheduler waits for it (the chunk's compression and the
+  # file's writes run on dirty schedulers)
+  defp note_schedule(us, mfa) do
+    {longest, long} = Process.get({:schedules, mfa}, {0, 0})
+    Process.put({:schedules, mfa}, {max(us, longest), long + if(us >= 1000, do: 1, else: 0)})
+  end
+
+  # the three of longest schedules: [{µs, schedules of 1 ms or more, mfa}]
+  defp longest_schedules do
+    for({{:schedules, mfa}, {us, long}} <- Process.get(), do: {us, long, mfa})
+    |> Enum.sort(:desc)
+    |> Enum.take(3)
   end
 
   defp stop_tracer(tracer) do
@@ -473,7 +501,7 @@ defmodule ThinkingCap.Bench.Record do
     send(tracer, {:stop, self()})
 
     receive do
-      {:cpu_us, us, runs, gc} -> {us, runs, gc}
+      {:cpu_us, us, runs, gc, longest} -> {us, runs, gc, longest}
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
     end
@@ -505,7 +533,7 @@ defmodule ThinkingCap.Bench.Record do
     Process.exit(echo, :kill)
 
     receive do
-      {:cpu_us, us, runs, _gc} -> us / max(runs, 1)
+      {:cpu_us, us, runs, _gc, _longest} -> us / max(runs, 1)
     after
       60_000 -> Mix.raise("the CPU tracer did not answer")
     end

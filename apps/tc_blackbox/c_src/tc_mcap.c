@@ -28,10 +28,12 @@
 #include <zstd.h>
 #include <zstd_errors.h>
 
+#include "tc_json_etf.h"
+
 /* an upper bound on any size asked for, whatever the caller checks */
 #define MAX_SIZE ((ErlNifUInt64)1 << 32)
 
-static ERL_NIF_TERM A_OK, A_ERROR, A_CORRUPT, A_SIZE_MISMATCH, A_NO_MEMORY, A_NEXT;
+static ERL_NIF_TERM A_OK, A_ERROR, A_CORRUPT, A_SIZE_MISMATCH, A_NO_MEMORY, A_NEXT, A_NIL;
 
 static ERL_NIF_TERM ok(ErlNifEnv *env, ERL_NIF_TERM t) { return enif_make_tuple2(env, A_OK, t); }
 
@@ -231,6 +233,19 @@ static void put_le(unsigned char *p, ErlNifUInt64 v, int bytes)
     for (int i = 0; i < bytes; i++) p[i] = (unsigned char)(v >> (8 * i));
 }
 
+/* Tells the scheduler how much of a process's timeslice (about 1 ms) a
+ * call on a normal scheduler took since `start` (µs), so that a process
+ * whose calls write many messages is scheduled out as soon as one whose
+ * work is in Erlang would be, and a higher-priority process queued on
+ * its scheduler (a periodic module) waits less. A call counts as one
+ * reduction otherwise, whatever it took. */
+static void consume_since(ErlNifEnv *env, ErlNifTime start)
+{
+    ErlNifTime us = enif_monotonic_time(ERL_NIF_USEC) - start;
+    if (us >= 10 && enif_thread_type() == ERL_NIF_THR_NORMAL_SCHEDULER)
+        enif_consume_timeslice(env, us >= 1000 ? 100 : (int)(us / 10));
+}
+
 /* chunk_new(Algorithm, Level) -> Stream; Algorithm 0 none, 1 zstd, 2 lz4 */
 static ERL_NIF_TERM nif_chunk_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 {
@@ -372,6 +387,7 @@ static ERL_NIF_TERM nif_chunk_messages(ErlNifEnv *env, int argc, const ERL_NIF_T
         ErlNifUInt64 log_time, publish_time;
         ErlNifBinary data;
     } message;
+    ErlNifTime start = enif_monotonic_time(ERL_NIF_USEC);
     message local[64];
     message *m = len <= 64 ? local : enif_alloc(len * sizeof(message));
     if (m == NULL) return raise(env, "no memory");
@@ -399,7 +415,113 @@ static ERL_NIF_TERM nif_chunk_messages(ErlNifEnv *env, int argc, const ERL_NIF_T
     enif_mutex_unlock(c->lock);
     if (m != local) enif_free(m);
     if (failed) return raise(env, failed);
+    consume_since(env, start);
     return enif_make_tuple2(env, enif_make_uint64(env, size), enif_make_uint(env, written));
+}
+
+/* a tuple held as its external term, for chunk_held/4 */
+typedef struct {
+    unsigned channels[2], count; /* its Foxglove messages' channels */
+    unsigned term_channel;
+    int has_term;
+    ErlNifUInt64 log_time, publish_time;
+    ERL_NIF_TERM kind;
+    ErlNifBinary etf;
+} held_tuple;
+
+static int known_kind(ERL_NIF_TERM kind)
+{
+    return kind == A_GENERIC || kind == A_SCAN || kind == A_POSE || kind == A_SIM_POSE;
+}
+
+/* {Channels, TermChannel, LogTime, PublishTime, Kind, Etf}, checked */
+static int get_held(ErlNifEnv *env, ERL_NIF_TERM term, held_tuple *h)
+{
+    int arity;
+    const ERL_NIF_TERM *t;
+    ERL_NIF_TERM head, tail;
+    if (!enif_get_tuple(env, term, &arity, &t) || arity != 6) return 0;
+    h->count = 0;
+    for (tail = t[0]; enif_get_list_cell(env, tail, &head, &tail);) {
+        if (h->count == 2 || !enif_get_uint(env, head, &h->channels[h->count]) ||
+            h->channels[h->count] > 65535)
+            return 0;
+        h->count++;
+    }
+    if (!enif_is_empty_list(env, tail)) return 0;
+    h->has_term = !enif_is_identical(t[1], A_NIL);
+    if (h->has_term && (!enif_get_uint(env, t[1], &h->term_channel) || h->term_channel > 65535)) return 0;
+    h->kind = t[4];
+    return enif_get_uint64(env, t[2], &h->log_time) && enif_get_uint64(env, t[3], &h->publish_time) &&
+           known_kind(h->kind) && enif_inspect_binary(env, t[5], &h->etf);
+}
+
+/* chunk_held(Stream, [{Channels, TermChannel, LogTime, PublishTime, Kind,
+ * Etf}], Limit, Skip) -> {ChunkSize, Done, Partial, Written}: tuples held
+ * as their external terms (the recorder's), each written straight into
+ * the chunk: its Foxglove messages' JSON made from the term
+ * (messages_into/5, Kind as there), one on each of Channels, then the
+ * term itself on TermChannel (nil: not written), each as chunk_message/6
+ * writes it with the channel's next sequence. The JSON is never a
+ * binary or a term. In the list's order, until the chunk holds Limit
+ * bytes (the message that reaches it is written) or a tuple comes whose
+ * JSON C leaves to Erlang (not as many messages as Channels): Done
+ * tuples written whole, Partial messages of the next (Skip of the
+ * first were written by an earlier call, stopped by the limit), Written
+ * messages in this call. Every tuple is checked before any is written. */
+static ERL_NIF_TERM nif_chunk_held(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
+{
+    (void)argc;
+    chunk_stream *c;
+    unsigned len, skip;
+    ErlNifUInt64 limit;
+    if (!get_stream(env, argv[0], &c) || !enif_get_list_length(env, argv[1], &len) ||
+        !enif_get_uint64(env, argv[2], &limit) || !enif_get_uint(env, argv[3], &skip))
+        return enif_make_badarg(env);
+    ErlNifTime start = enif_monotonic_time(ERL_NIF_USEC);
+    held_tuple local[64];
+    held_tuple *h = len <= 64 ? local : enif_alloc(len * sizeof(held_tuple));
+    if (h == NULL) return raise(env, "no memory");
+    ERL_NIF_TERM head, tail = argv[1];
+    for (unsigned k = 0; k < len; k++) {
+        enif_get_list_cell(env, tail, &head, &tail);
+        if (!get_held(env, head, &h[k]) || (k == 0 && skip > h[k].count + h[k].has_term)) {
+            if (h != local) enif_free(h);
+            return enif_make_badarg(env);
+        }
+    }
+    buf b;
+    buf_init(&b);
+    const char *failed = NULL;
+    unsigned done = 0, part = done == 0 ? skip : 0, written = 0;
+    enif_mutex_lock(c->lock);
+    for (; done < len && !failed; done++, part = 0) {
+        held_tuple *t = &h[done];
+        size_t ends[2];
+        if (c->raw_len >= limit) break;
+        b.len = 0;
+        if (messages_into(t->kind, &t->etf, t->publish_time, &b, ends) != (int)t->count) break;
+        unsigned total = t->count + (unsigned)t->has_term;
+        for (; part < total && !failed && c->raw_len < limit; part++, written++) {
+            if (part < t->count) {
+                size_t at = part == 0 ? 0 : ends[part - 1];
+                failed = put_message(c, t->channels[part], -1, t->log_time, t->publish_time, b.data + at,
+                                     ends[part] - at);
+            } else {
+                failed = put_message(c, t->term_channel, -1, t->log_time, t->publish_time, t->etf.data,
+                                     t->etf.size);
+            }
+        }
+        if (part < total) break;
+    }
+    ErlNifUInt64 size = c->raw_len;
+    enif_mutex_unlock(c->lock);
+    buf_free(&b);
+    if (h != local) enif_free(h);
+    if (failed) return raise(env, failed);
+    consume_since(env, start);
+    return enif_make_tuple4(env, enif_make_uint64(env, size), enif_make_uint(env, done),
+                            enif_make_uint(env, done < len ? part : 0), enif_make_uint(env, written));
 }
 
 /* chunk_size(Stream) -> {Bytes, Messages}: the open chunk's */
@@ -522,6 +644,8 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info)
     A_SIZE_MISMATCH = enif_make_atom(env, "size_mismatch");
     A_NO_MEMORY = enif_make_atom(env, "no_memory");
     A_NEXT = enif_make_atom(env, "next");
+    A_NIL = enif_make_atom(env, "nil");
+    json_etf_load(env);
     CHUNK_STREAM = enif_open_resource_type(env, NULL, "tc_mcap_chunk_stream", chunk_stream_free,
                                            ERL_NIF_RT_CREATE | ERL_NIF_RT_TAKEOVER, NULL);
     return CHUNK_STREAM == NULL ? 1 : 0;
@@ -545,6 +669,7 @@ static ErlNifFunc funcs[] = {
     {"chunk_message_dirty", 6, nif_chunk_message, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"chunk_messages", 3, nif_chunk_messages, 0},
     {"chunk_messages_dirty", 3, nif_chunk_messages, ERL_NIF_DIRTY_JOB_CPU_BOUND},
+    {"chunk_held", 4, nif_chunk_held, 0},
     {"chunk_size", 1, nif_chunk_size, 0},
     {"chunk_finish", 1, nif_chunk_finish, ERL_NIF_DIRTY_JOB_CPU_BOUND},
 };

@@ -155,7 +155,8 @@ defmodule ThinkingCap.BlackBox.Foxglove do
   # nil (a map, or not a `{tag, id, payload}`).
   @spec kind(tuple()) :: :scan | :pose | :sim_pose | :generic | nil
   def kind({:map, _id, _payload}), do: nil
-  def kind({_tag, _id, %{ranges: _}}), do: :scan
+  # a scan's clause takes its angles too (a sonar reading's ranges have none)
+  def kind({_tag, _id, %{ranges: _, angle_min: _, angle_max: _}}), do: :scan
   def kind({:pose, _id, _payload}), do: :pose
   def kind({:sim_pose, _id, _payload}), do: :sim_pose
   def kind({_tag, _id, _payload}), do: :generic

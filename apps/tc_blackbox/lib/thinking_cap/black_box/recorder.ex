@@ -77,16 +77,17 @@ defmodule ThinkingCap.BlackBox.Recorder do
   list (`Core.Channels.held/1`, the subscription's `hold:`), and the
   recorder takes every tuple but a map as that binary, without copying
   the tuple out of the blackboard's table: the JSON of a
-  `thinkingcap.Tuple`, a scan or a pose is read from it in C
-  (`Core.JSON.Native.messages_etf_all/1`: a run's messages in one call,
-  parts of one binary), and a large tuple (the LPS) is decoded only for
+  `thinkingcap.Tuple`, a scan or a pose is read from it in C and
+  written straight into the chunk (`ThinkingCap.MCAP.Writer.add_held/2`:
+  a run's tuples in one call, their JSON never a binary or a term), and
+  a large tuple (the LPS) is decoded only for
   its Foxglove message, once a second; what C leaves (a map, a term
   `Core.JSON` writes otherwise) is decoded and written in Erlang. The
   tuples and callbacks come in lists, so that the
   recorder is woken once a list rather than once a tuple. The tuples
   are written 32 at a time (or at the chunk's end): their channels found
   in Erlang, all their records made in one NIF call
-  (`Core.Channels.write_held_all/3`, `ThinkingCap.MCAP.Writer.add_messages/3`);
+  (`Core.Channels.write_held_all/3`);
   a module's callbacks go into its batch a list at a time. The writer's chunk
   stream (`ThinkingCap.MCAP.Compression.stream/1`) makes each message's
   record and index entry in C and keeps the chunk there, off the heap,

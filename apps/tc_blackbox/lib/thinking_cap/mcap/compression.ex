@@ -125,6 +125,31 @@ defmodule ThinkingCap.MCAP.Compression do
   def messages(stream, messages, limit, _bytes),
     do: chunk_messages_dirty(stream, messages, limit)
 
+  @typedoc """
+  A tuple held as its external term, for `held/4`: its Foxglove
+  messages' channels, its term's channel (nil: the term not written),
+  log time, publish time, kind (`ThinkingCap.BlackBox.Foxglove.kind/1`)
+  and external term.
+  """
+  @type held ::
+          {[non_neg_integer()], non_neg_integer() | nil, non_neg_integer(), non_neg_integer(),
+           atom(), binary()}
+
+  @doc """
+  Adds tuples held as their external terms (the recorder's), in the
+  list's order, in one call: each one's Foxglove messages, their JSON
+  made here from the term (as `ThinkingCap.BlackBox.Core.JSON.Native`
+  makes it), then its term, each as `message/6` with the channel's next
+  sequence; until the chunk holds `limit` bytes (the message that
+  reaches it is written) or a tuple comes whose JSON C leaves to the
+  caller. `skip`: messages of the first tuple written already. Returns
+  the chunk's size so far, the tuples written whole, the messages
+  written of the next one, and the messages written in this call.
+  """
+  @spec held(stream(), [held()], non_neg_integer(), non_neg_integer()) ::
+          {non_neg_integer(), non_neg_integer(), non_neg_integer(), non_neg_integer()}
+  def held(stream, tuples, limit, skip), do: chunk_held(stream, tuples, limit, skip)
+
   @doc "The open chunk's size (uncompressed) and its messages."
   @spec size(stream()) :: {non_neg_integer(), non_neg_integer()}
   def size(stream), do: chunk_size(stream)
@@ -193,6 +218,8 @@ defmodule ThinkingCap.MCAP.Compression do
   @doc false
   def chunk_messages_dirty(_stream, _messages, _limit), do: :erlang.nif_error(:nif_not_loaded)
 
+  @doc false
+  def chunk_held(_stream, _tuples, _limit, _skip), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def chunk_size(_stream), do: :erlang.nif_error(:nif_not_loaded)
   @doc false

@@ -174,6 +174,32 @@ defmodule ThinkingCap.MCAP.Writer do
     end
   end
 
+  @doc """
+  Adds tuples held as their external terms (`t:Compression.held/0`: the
+  black box recorder's), in order, each as its Foxglove messages (their
+  JSON made in C from the term) then its term, as `add_message/6` would
+  with `:next` sequences; the chunk is closed and written whenever it
+  holds `chunk_bytes`. Stops at a tuple whose JSON C leaves to the
+  caller: returns it and those after it, unwritten, with the count of
+  messages written.
+  """
+  @spec add_held(t(), [Compression.held()]) ::
+          {:ok, t(), non_neg_integer(), [Compression.held()]} | {:error, term()}
+  def add_held(%__MODULE__{} = w, tuples), do: add_held(w, tuples, 0, 0)
+
+  defp add_held(w, [], _skip, n), do: {:ok, w, n, []}
+
+  defp add_held(w, tuples, skip, n) do
+    {size, done, partial, written} = Compression.held(w.stream, tuples, w.chunk_bytes, skip)
+    rest = Enum.drop(tuples, done)
+
+    if size >= w.chunk_bytes do
+      with {:ok, w} <- close_chunk(w), do: add_held(w, rest, partial, n + written)
+    else
+      {:ok, w, n + written, rest}
+    end
+  end
+
   @doc "Bytes in the open chunk (uncompressed)."
   @spec chunk_size(t()) :: non_neg_integer()
   def chunk_size(%__MODULE__{stream: stream}), do: elem(Compression.size(stream), 0)

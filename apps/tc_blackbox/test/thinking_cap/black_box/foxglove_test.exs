@@ -3,8 +3,10 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
 
   import Bitwise
 
+  alias ThinkingCap.BlackBox.Core.Channels
   alias ThinkingCap.BlackBox.Core.JSON.Native
   alias ThinkingCap.BlackBox.Foxglove
+  alias ThinkingCap.MCAP.{Reader, Writer}
   alias ThinkingCap.Navigation.OccupancyGrid
   alias ThinkingCap.Tuples
   require Tuples
@@ -201,21 +203,50 @@ defmodule ThinkingCap.BlackBox.FoxgloveTest do
     assert written > 1_500
   end
 
-  test "a run of tuples' messages in one call: each as alone, parts of one binary" do
-    items =
-      for _ <- 1..200 do
-        tuple = random_kinded()
-        {Foxglove.kind(tuple), :erlang.term_to_binary(tuple), Foxglove.stamp_ns(tuple) || 5}
+  test "tuples held as their terms are written straight into the chunk as Erlang writes them" do
+    tuples =
+      for _ <- 1..600 do
+        if :rand.uniform(4) == 1,
+          do: {:sonar, :r1, %{ranges: [5.0, 0.25, 1], headings: [0.0, 1.5], stamp: 2.5}},
+          else: random_kinded()
       end
 
-    all = Native.messages_etf_all(items)
-    assert all == Enum.map(items, fn {kind, etf, ns} -> Native.messages_etf(kind, etf, ns) end)
-    parts = all |> Enum.filter(&is_list/1) |> Enum.concat()
-    assert length(parts) > 100
-    whole = parts |> Enum.map(&byte_size/1) |> Enum.sum()
-    assert Enum.all?(parts, &(:binary.referenced_byte_size(&1) == whole))
-    assert Native.messages_etf_all([]) == []
-    assert_raise ArgumentError, fn -> Native.messages_etf_all([{:nope, "", 0}]) end
+    times = Enum.map(1..length(tuples), &(&1 * 1_000_000))
+    # small chunks, so that some close between a tuple's messages
+    new = fn -> elem(Writer.new(compression: "", chunk_bytes: 3_000), 1) end
+
+    {w, _} =
+      Enum.zip(tuples, times)
+      |> Enum.reduce({new.(), Channels.new(:r1)}, fn {t, time}, {w, chans} ->
+        {:ok, w, chans, _} = Channels.write_tuple(w, chans, t, time)
+        {w, chans}
+      end)
+
+    {:ok, in_erlang} = Writer.close(w)
+
+    {w, _, count} =
+      Enum.zip(Enum.map(tuples, &Channels.held/1), times)
+      |> Enum.chunk_every(32)
+      |> Enum.reduce({new.(), Channels.new(:r1), 0}, fn run, {w, chans, count} ->
+        {:ok, w, chans, n} = Channels.write_held_all(w, chans, run)
+        {w, chans, count + n}
+      end)
+
+    {:ok, in_c} = Writer.close(w)
+    {:ok, a} = Reader.read_binary(in_erlang)
+    {:ok, b} = Reader.read_binary(in_c)
+    assert count == length(b.messages)
+    assert b.chunks > 10
+
+    messages = fn file ->
+      for m <- file.messages do
+        channel = file.channels[m.channel_id]
+        schema = if channel.schema_id > 0, do: file.schemas[channel.schema_id].name
+        {channel.topic, schema, m.sequence, m.log_time, m.publish_time, m.data}
+      end
+    end
+
+    assert messages.(b) == messages.(a)
   end
 
   test "every schema is a JSON schema titled with its name" do

@@ -81,18 +81,93 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   def write_held(w, chans, held, time), do: write_held_all(w, chans, [{held, time}])
 
   # Writes what `held/1` made of tuples (or tuples), `[{held, time}]`
-  # oldest first, as `write_held/4` each: their channels found (and
-  # declared) one by one, their records made in one call
-  # (`Writer.add_messages/3`). The count of messages written.
+  # oldest first, as `write_held/4` each. A run of those held as their
+  # kinds' terms goes to C in one call (`Writer.add_held/2`: their JSON
+  # made from the terms straight into the chunk), their channels found
+  # (and declared) first; the others' messages are made here, a run's
+  # records in one call (`Writer.add_messages/3`). The count of messages
+  # written.
   @spec write_held_all(Writer.t(), t(), [{tuple(), non_neg_integer()}]) ::
           {:ok, Writer.t(), t(), non_neg_integer()} | {:error, term(), t()}
-  def write_held_all(w, chans, entries) do
-    # the Foxglove messages of those held as their terms, in one call
-    jsons = Native.messages_etf_all(etf_items(entries, []))
-    {w, chans, messages, bytes, n} = held_all(entries, jsons, {w, chans, [], 0, 0})
+  def write_held_all(w, chans, entries), do: write_runs(entries, w, chans, 0)
+
+  defp write_runs([], w, chans, n), do: {:ok, w, chans, n}
+
+  defp write_runs([{{__MODULE__, kind, _, _, _, _}, _} | _] = entries, w, chans, n)
+       when kind != :big do
+    case kind_items(entries, chans, []) do
+      {[], [entry | rest]} -> write_first(entry, w, chans, n) |> next_run(rest)
+      {items, rest} -> write_kinds(items, w, chans, n) |> next_run(rest)
+    end
+  end
+
+  defp write_runs(entries, w, chans, n) do
+    {others, rest} = Enum.split_while(entries, &(not held_as_kind?(&1)))
+    {w, chans, messages, bytes, k} = held_all(others, {w, chans, [], 0, 0})
 
     case Writer.add_messages(w, :lists.reverse(messages), bytes) do
-      {:ok, w} -> {:ok, w, chans, n}
+      {:ok, w} -> write_runs(rest, w, chans, n + k)
+      {:error, reason} -> {:error, reason, chans}
+    end
+  end
+
+  defp held_as_kind?({{__MODULE__, kind, _, _, _, _}, _}), do: kind != :big
+  defp held_as_kind?(_entry), do: false
+
+  defp next_run({:ok, w, chans, n}, rest), do: write_runs(rest, w, chans, n)
+  defp next_run(error, _rest), do: error
+
+  # the tuples held as their kinds' terms whose channels are known, until
+  # one that is not, as Writer.add_held/2 takes them (`Compression.held/0`)
+  defp kind_items([{{__MODULE__, kind, tag, id, stamp, etf}, time} | rest] = entries, chans, acc)
+       when kind != :big do
+    case chans.kinds do
+      %{{^kind, ^tag, ^id} => {channels, term_channel}} ->
+        kind_items(rest, chans, [{channels, term_channel, time, stamp || time, kind, etf} | acc])
+
+      _ ->
+        {:lists.reverse(acc), entries}
+    end
+  end
+
+  defp kind_items(rest, _chans, acc), do: {:lists.reverse(acc), rest}
+
+  # The first of its kind, tag and id: its channels are declared when C
+  # writes its JSON (as it will the next ones'), else it is written as a
+  # tuple, on the channels its messages name
+  defp write_first({{__MODULE__, kind, tag, id, stamp, etf}, time}, w, chans, n) do
+    if Native.messages_etf(kind, etf, stamp || time) do
+      {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
+      write_kinds([{channels, term_channel, time, stamp || time, kind, etf}], w, chans, n)
+    else
+      write_decoded(etf, time, w, chans, n)
+    end
+  end
+
+  # written in C; one whose JSON C leaves (a term Core.JSON writes
+  # otherwise) is decoded and written here, as a tuple
+  defp write_kinds(items, w, chans, n) do
+    case Writer.add_held(w, items) do
+      {:ok, w, k, []} ->
+        {:ok, w, chans, n + k}
+
+      {:ok, w, k, [{_, _, time, _, _, etf} | rest]} ->
+        case write_decoded(etf, time, w, chans, n + k) do
+          {:ok, w, chans, n} -> write_kinds(rest, w, chans, n)
+          error -> error
+        end
+
+      {:error, reason} ->
+        {:error, reason, chans}
+    end
+  end
+
+  defp write_decoded(etf, time, w, chans, n) do
+    {w, chans, messages, bytes, k} =
+      tuple(:erlang.binary_to_term(etf), etf, time, {w, chans, [], 0, 0})
+
+    case Writer.add_messages(w, :lists.reverse(messages), bytes) do
+      {:ok, w} -> {:ok, w, chans, n + k}
       {:error, reason} -> {:error, reason, chans}
     end
   end
@@ -106,23 +181,8 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   # The messages to write, newest first, with the writer and channels
   # (channels are declared as they are first used) and the bytes of the
   # messages' binaries, and their count: {w, chans, messages, bytes, n}
-  defp held_all([], [], acc), do: acc
-
-  defp held_all([{{__MODULE__, kind, tag, id, stamp, etf}, time} | rest], [jsons | more], acc)
-       when kind != :big,
-       do: held_all(rest, more, held_kind(kind, tag, id, stamp || time, etf, jsons, time, acc))
-
-  defp held_all([{held, time} | rest], jsons, acc),
-    do: held_all(rest, jsons, held(held, time, acc))
-
-  # `{kind, etf, publish time}` of each entry held as its term, in order
-  defp etf_items([], acc), do: :lists.reverse(acc)
-
-  defp etf_items([{{__MODULE__, kind, _tag, _id, stamp, etf}, time} | rest], acc)
-       when kind != :big,
-       do: etf_items(rest, [{kind, etf, stamp || time} | acc])
-
-  defp etf_items([_ | rest], acc), do: etf_items(rest, acc)
+  defp held_all([], acc), do: acc
+  defp held_all([{held, time} | rest], acc), do: held_all(rest, held(held, time, acc))
 
   defp held({__MODULE__, :big, tag, id, stamp, etf}, time, {w, chans, ms, bytes, n}) do
     publish = stamp || time
@@ -134,22 +194,6 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
 
   defp held({__MODULE__, tuple, etf}, time, acc), do: tuple(tuple, etf, time, acc)
   defp held(tuple, time, acc), do: tuple(tuple, nil, time, acc)
-
-  # its Foxglove messages' JSON, read from its term in C (false when C
-  # leaves it: the term decoded and written as a tuple), then the term
-  defp held_kind(_kind, _tag, _id, _publish, etf, false, time, acc),
-    do: tuple(:erlang.binary_to_term(etf), etf, time, acc)
-
-  defp held_kind(kind, tag, id, publish, etf, jsons, time, {w, chans, ms, bytes, n}) do
-    {channels, term_channel, w, chans} = kind_channels(w, chans, kind, tag, id)
-    {ms, bytes, n} = queue_jsons(jsons, channels, time, publish, ms, bytes, n)
-
-    if chans.terms,
-      do:
-        {w, chans, [{term_channel, :next, time, publish, etf} | ms], bytes + byte_size(etf),
-         n + 1},
-      else: {w, chans, ms, bytes, n}
-  end
 
   # `etf`: the tuple's external term, or nil to make it here
   defp tuple(tuple, etf, time, {w, chans, ms, bytes, n}) do
@@ -237,13 +281,6 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
         {channels, term_channel, w, %{chans | kinds: kinds}}
     end
   end
-
-  defp queue_jsons([json | jsons], [channel | channels], time, publish, ms, bytes, n) do
-    ms = [{channel, :next, time, publish, json} | ms]
-    queue_jsons(jsons, channels, time, publish, ms, bytes + byte_size(json), n + 1)
-  end
-
-  defp queue_jsons([], [], _time, _publish, ms, bytes, n), do: {ms, bytes, n}
 
   # what decides a call's scheduler (Compression.messages/3): a binary's
   # bytes; iodata (a few small JSON messages) counts as none, as it did

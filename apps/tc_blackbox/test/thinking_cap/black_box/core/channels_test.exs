@@ -17,6 +17,7 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     |> Kernel.++([
       {:pose, :r1, %{stamp: 2.5, pose: {1.0, 2.0, 0.5}}},
       {:laser, :r1, %{stamp: 2.6, ranges: [1.0, 2.5], angle_min: -1.0, angle_max: 1.0}},
+      {:sonar, :r1, %{stamp: 2.65, ranges: [1.0, 5.0], headings: [0.0, 1.5]}},
       {:note, :r1, %{stamp: 2.7, text: "héllo", from: self()}},
       {:pose, :r1, %{stamp: 2.75, pose: :lost}},
       {:sim_pose, :r1, %{stamp: 2.76, pose: {1, 2, 3}}},
@@ -106,6 +107,9 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert {Channels, :pose, :pose, :r1, 1_500_000_000, _} = Channels.held(pose)
     scan = {:laser, :r1, %{ranges: [1.0], angle_min: 0.0, angle_max: 0.0}}
     assert {Channels, :scan, :laser, :r1, nil, _} = Channels.held(scan)
+    # ranges without angles: not a scan's shape, a thinkingcap.Tuple
+    sonar = {:sonar, :r1, %{ranges: [1.0], headings: [0.0]}}
+    assert {Channels, :generic, :sonar, :r1, nil, _} = Channels.held(sonar)
     map = {:map, :r1, %{width: 1}}
     assert {Channels, ^map, etf} = Channels.held(map)
     assert etf == :erlang.term_to_binary(map)

@@ -39,13 +39,6 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   @spec messages_etf(atom(), binary(), non_neg_integer()) :: [binary()] | false
   def messages_etf(kind, etf, ns), do: nif_messages_etf(kind, etf, ns)
 
-  # messages_etf/3 of each `{kind, etf, ns}`, in order, in one call: their
-  # JSON parts of one binary, so that a run of tuples leaves one binary
-  # to collect, not one a message
-  @spec messages_etf_all([{atom(), binary(), non_neg_integer()}]) :: [[binary()] | false]
-  def messages_etf_all([]), do: []
-  def messages_etf_all(items), do: nif_messages_etf_all(items)
-
   # a list of numbers: floats to three decimals, integers as they are
   @spec millimetres(list()) :: binary()
   def millimetres(ranges), do: nif_millimetres(ranges)
@@ -56,8 +49,6 @@ defmodule ThinkingCap.BlackBox.Core.JSON.Native do
   def nif_tuple(_tag, _id, _payload), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_messages_etf(_kind, _etf, _ns), do: :erlang.nif_error(:nif_not_loaded)
-  @doc false
-  def nif_messages_etf_all(_items), do: :erlang.nif_error(:nif_not_loaded)
   @doc false
   def nif_millimetres(_ranges), do: :erlang.nif_error(:nif_not_loaded)
 end
