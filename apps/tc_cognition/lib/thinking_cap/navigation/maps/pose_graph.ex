@@ -148,13 +148,15 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   many of the nearest; a short stretch of the chain is true to itself,
   a long one is not), `local_nodes` [10] (how many nodes before a new
   one its scan is matched against for the edge from the node before; 0:
-  the estimate alone makes the edge), `local_sigma` [0.05 m] and
-  `local_sigma_angle` [0.03 rad] (how sharply that match must fix the
-  node for its edge; else the estimate makes it: the estimate's heading
-  follows the odometry's turn errors, so a chain left to it where
-  matches are a little less sharp turns the whole map; with 0.03 m and
-  0.01 rad a third of the nodes on generated building 1 were left to
-  it and the graph turned 0.07 rad in 150 s), `loop_heading_scale` [1.0] (how
+  the estimate alone makes the edge), `local_sigma_angle` [0.03 rad]
+  (how sharply that match must fix the heading for the edge; else the
+  estimate makes it: the estimate's heading follows the odometry's turn
+  errors, so a chain left to it where matches are a little less sharp
+  turns the whole map; with 0.01 rad a third of the nodes on generated
+  building 1 were left to it and the graph turned 0.07 rad in 150 s),
+  `local_sigma` [0.05 m] (how sharply it must fix the place too, or
+  across a corridor, for the edge to take the place from it; else the
+  edge takes the heading alone), `loop_heading_scale` [1.0] (how
   many times its match's standard deviation a loop edge's heading is
   given).
   """
