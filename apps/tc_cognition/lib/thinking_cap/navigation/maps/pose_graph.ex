@@ -310,7 +310,7 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
   # what of the match the edge takes: all of it, the heading and the
   # place across a corridor, or the heading alone; the rest from the
   # estimate's step (`e`, whose spread it keeps)
-  defp local_fix(p, {gx, gy, _}, {mx, my, mth} = matched, cov, ridge, e) do
+  defp local_fix(p, {gx, gy, _} = guess, {_, _, mth} = matched, cov, ridge, e) do
     {cxx, cxy, _cxt, cyy, _cyt, ctt} = cov
     {big, small, {ex, ey}} = principal(cxx, cxy, cyy)
     {a, _, _, _, _, _} = e.info
@@ -324,16 +324,9 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
         {:ok, matched, cov, :match}
 
       ridge and :math.sqrt(small) <= p.local_sigma ->
-        along = (mx - gx) * ex + (my - gy) * ey
-        across = -(mx - gx) * ey + (my - gy) * ex
-
-        if abs(across) <= @ridge_move do
-          moved = {mx - along * ex, my - along * ey, mth}
-          {:ok, moved, cov} = ridge_match(moved, small, {ex, ey}, cov, step_variance)
-          {:ok, moved, cov, :corridor}
-        else
-          :none
-        end
+        with {:ok, moved, cov} <-
+               ridge_match(guess, matched, small, {ex, ey}, cov, step_variance),
+             do: {:ok, moved, cov, :corridor}
 
       true ->
         {:ok, {gx, gy, mth}, {step_variance, 0.0, 0.0, step_variance, 0.0, ctt}, :heading}
@@ -553,23 +546,26 @@ defmodule ThinkingCap.Navigation.Maps.PoseGraph do
         {:ok, matched, cov}
 
       ridge ->
-        {gx, gy, _} = guess
-        {mx, my, mth} = matched
-        along = (mx - gx) * ex + (my - gy) * ey
-        across = -(mx - gx) * ey + (my - gy) * ex
-        moved = {mx - along * ex, my - along * ey, mth}
-
-        if abs(across) <= @ridge_move,
-          do: ridge_match(moved, small, {ex, ey}, cov, @along_variance),
-          else: :none
+        ridge_match(guess, matched, small, {ex, ey}, cov, @along_variance)
 
       true ->
         :none
     end
   end
 
-  defp ridge_match(moved, small, {ex, ey}, {_, _, cxt, _, cyt, ctt}, l) do
-    # across: the match's spread; along: `l`
+  # a corridor's match: the pose moved only across the corridor (at most
+  # @ridge_move), kept along it as `guess` has it; its spread across
+  # the match's, along it `l`
+  defp ridge_match({gx, gy, _}, {mx, my, mth}, small, {ex, ey}, cov, l) do
+    along = (mx - gx) * ex + (my - gy) * ey
+    across = -(mx - gx) * ey + (my - gy) * ex
+
+    if abs(across) <= @ridge_move,
+      do: ridge_cov({mx - along * ex, my - along * ey, mth}, small, {ex, ey}, cov, l),
+      else: :none
+  end
+
+  defp ridge_cov(moved, small, {ex, ey}, {_, _, cxt, _, cyt, ctt}, l) do
     {ax, ay} = {-ey, ex}
     at = cxt * ax + cyt * ay
 
