@@ -40,6 +40,7 @@ defmodule ThinkingCap.Dashboard do
   #{ThinkingCap.Dashboard.Core.Options.docs()}
   """
 
+  alias ThinkingCap.Dashboard.Core
   alias ThinkingCap.Dashboard.Core.{Access, Options, Yaws}
 
   @config {__MODULE__, :config}
@@ -136,17 +137,23 @@ defmodule ThinkingCap.Dashboard do
 
   @doc """
   Stops the dashboard (its servers and its telemetry) and removes its
-  runtime files. `stop_yaws: false` leaves the yaws application to the
-  application controller (for a node that is shutting down).
+  runtime files.
   """
-  @spec stop(keyword()) :: :ok
-  def stop(opts \\ []) do
-    # the watchdog first, or it would start the web server again
-    for {_, pid, _, _} <- DynamicSupervisor.which_children(ThinkingCap.Dashboard.Supervisor),
+  @spec stop() :: :ok
+  def stop do
+    # the watchdog first, or it would start the web server again; the web
+    # server last, once the sockets are closed
+    {watchdogs, others} =
+      ThinkingCap.Dashboard.Supervisor
+      |> DynamicSupervisor.which_children()
+      |> Enum.reject(fn {_, _, _, modules} -> modules == [Core.WebServer] end)
+      |> Enum.split_with(fn {_, _, _, modules} -> modules == [Core.Watchdog] end)
+
+    for {_, pid, _, _} <- watchdogs ++ others,
         do: DynamicSupervisor.terminate_child(ThinkingCap.Dashboard.Supervisor, pid)
 
     ThinkingCap.Dashboard.Core.Socket.close_all()
-    if Keyword.get(opts, :stop_yaws, true), do: Yaws.stop()
+    Yaws.stop()
     ThinkingCap.Dashboard.Core.RuntimeDir.remove()
 
     :persistent_term.erase(@config)

@@ -12,7 +12,9 @@ defmodule ThinkingCap.Dashboard.Application do
   #   * Core.RestartLimit, how often clients may restart modules,
   #   * Dashboard.Launcher, which starts the dashboard when an ADF that
   #     enables it starts on this node.
-  # yaws runs as its own application, started and stopped with the dashboard.
+  # yaws is loaded, not started as an application: its processes run
+  # under Dashboard.Supervisor (Core.WebServer), so they stop with the
+  # dashboard, after the robots.
   use Application
 
   @impl true
@@ -33,15 +35,13 @@ defmodule ThinkingCap.Dashboard.Application do
     Supervisor.start_link(children, strategy: :one_for_one, name: ThinkingCap.Dashboard.Root)
   end
 
-  # The top application: when the node stops, the robots stop first
-  # (ThinkingCap.Runtime.Shutdown), then the dashboard closes its sockets.
-  # yaws is an application of its own, stopped by the application
-  # controller: stopping it from here would wait on the controller, which
-  # waits on this very callback.
+  # The top application, the first the node stops: the robots stop first
+  # (ThinkingCap.Runtime.Shutdown), then the dashboard closes its sockets
+  # and its web server.
   @impl true
   def prep_stop(state) do
     ThinkingCap.Runtime.Shutdown.begin()
-    ThinkingCap.Dashboard.stop(stop_yaws: false)
+    ThinkingCap.Dashboard.stop()
     state
   end
 end

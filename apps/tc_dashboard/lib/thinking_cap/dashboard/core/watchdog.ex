@@ -4,14 +4,15 @@ defmodule ThinkingCap.Dashboard.Core.Watchdog do
   # often enough (running out of file descriptors makes its acceptor exit,
   # and its supervisor gives up): then the E-stop button and teleoperation
   # are gone while the robot drives on. The watchdog notices it two ways,
-  # at once when yaws' server process goes down and within a few seconds
+  # at once when the web server (Core.WebServer, which ends when any of
+  # yaws' processes dies) goes down and within a few seconds
   # when a listener stops accepting, and starts yaws again on the same
   # ports, retrying each second until it is back.
 
   use GenServer
   require Logger
 
-  alias ThinkingCap.Dashboard.Core.Yaws
+  alias ThinkingCap.Dashboard.Core.{WebServer, Yaws}
 
   @probe_every 1_000
   @probe_timeout 500
@@ -79,7 +80,7 @@ defmodule ThinkingCap.Dashboard.Core.Watchdog do
   end
 
   defp monitor do
-    case Process.whereis(:yaws_server) do
+    case WebServer.whereis() do
       nil -> nil
       pid -> Process.monitor(pid)
     end

@@ -4,12 +4,15 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
   # servers, the dashboard (static files from its docroot, `/ws` for the
   # page's WebSocket) and the rosbridge endpoint (every path a WebSocket).
   # Debian installs yaws outside OTP's library directory, so its ebin is
-  # put on the code path here, and the `yaws` application is told it is
-  # embedded before it starts (or it would look for /etc/yaws/yaws.conf).
+  # put on the code path here. The `yaws` application is loaded, told it
+  # is embedded (or it would look for /etc/yaws/yaws.conf), and never
+  # started: its processes run under the dashboard's supervisor
+  # (Core.WebServer), so the node stops them after its robots.
 
-  require Logger
+  alias ThinkingCap.Dashboard.Core.WebServer
 
   @id ~c"thinkingcap"
+  @supervisor ThinkingCap.Dashboard.Supervisor
 
   @doc "Puts yaws on the code path; false if it is not installed."
   @spec ensure_available() :: boolean()
@@ -43,9 +46,7 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
              gconf(limits),
              @id
            ),
-         {:ok, _} <- Application.ensure_all_started(:yaws),
-         :ok <- start_children(child_specs),
-         :ok <- :yaws_api.setconf(gc, sc_groups) do
+         {:ok, _} <- start_server(child_specs, gc, sc_groups) do
       {:ok, Map.new(servers, &{&1.name, &1.port})}
     else
       {:error, reason} -> {:error, reason}
@@ -53,11 +54,18 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
     end
   end
 
-  @doc "Stops yaws."
+  @doc "Stops yaws (its connections close, its ports are freed)."
   @spec stop() :: :ok
   def stop do
-    _ = Application.stop(:yaws)
+    with pid when is_pid(pid) <- WebServer.whereis() do
+      _ = DynamicSupervisor.terminate_child(@supervisor, pid)
+    end
+
     :ok
+  end
+
+  defp start_server(child_specs, gc, sc_groups) do
+    DynamicSupervisor.start_child(@supervisor, {WebServer, {child_specs, gc, sc_groups}})
   end
 
   defp load_yaws do
@@ -119,16 +127,6 @@ defmodule ThinkingCap.Dashboard.Core.Yaws do
       max_connections: Map.get(limits, :max_connections, :nolimit),
       keepalive_timeout: Map.get(limits, :idle_timeout, 5_000)
     ]
-  end
-
-  defp start_children(specs) do
-    Enum.reduce_while(specs, :ok, fn spec, :ok ->
-      case Supervisor.start_child(:yaws_sup, spec) do
-        {:ok, _} -> {:cont, :ok}
-        {:error, {:already_started, _}} -> {:cont, :ok}
-        {:error, reason} -> {:halt, {:error, reason}}
-      end
-    end)
   end
 
   @doc "The address of `host`, an IP address string."
