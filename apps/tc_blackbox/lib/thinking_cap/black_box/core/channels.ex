@@ -322,10 +322,16 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
   @spec trace_topic(atom(), atom()) :: String.t()
   def trace_topic(robot, name), do: "/trace" <> Foxglove.topic(robot, name)
 
-  # a topic's channel: JSON on its Foxglove schema, or a whole term (no schema)
+  # a topic's channel: JSON on its Foxglove schema, or a whole term (no
+  # schema). One per topic and schema: a tuple whose payload its kind's
+  # writer refuses (a pose `:lost`) is a `thinkingcap.Tuple` on the topic
+  # of its kind's messages, on a channel of its own, so that every
+  # channel's messages are of its schema
   defp channel(w, chans, topic, schema, metadata) do
+    key = {topic, schema}
+
     case chans.channels do
-      %{^topic => id} ->
+      %{^key => id} ->
         {id, w, chans}
 
       _ ->
@@ -333,7 +339,7 @@ defmodule ThinkingCap.BlackBox.Core.Channels do
         encoding = if schema, do: "json", else: @etf
         metadata = Map.put(metadata, "robot", Atom.to_string(chans.robot))
         {:ok, id, w} = Writer.add_channel(w, schema_id, topic, encoding, metadata)
-        {id, w, %{chans | channels: Map.put(chans.channels, topic, id)}}
+        {id, w, %{chans | channels: Map.put(chans.channels, key, id)}}
     end
   end
 

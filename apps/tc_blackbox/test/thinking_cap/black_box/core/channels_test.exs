@@ -114,4 +114,56 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     assert {Channels, ^map, etf} = Channels.held(map)
     assert etf == :erlang.term_to_binary(map)
   end
+
+  test "a pose or scan its schema's writer refuses goes to a channel of the generic schema" do
+    good_pose = {:pose, :r1, %{stamp: 1.0, pose: {1.0, 2.0, 0.5}}}
+    lost = {:pose, :r1, %{stamp: 1.1, pose: :lost}}
+    good_scan = {:laser, :r1, %{stamp: 1.2, ranges: [1.0], angle_min: 0.0, angle_max: 0.0}}
+    bad_scan = {:laser, :r1, %{stamp: 1.3, ranges: [:far], angle_min: 0.0, angle_max: 0.0}}
+
+    for write <- [&Channels.write_tuple/4, &write_held/4],
+        order <- [[good_pose, lost, good_scan, bad_scan], [lost, good_pose, bad_scan, good_scan]] do
+      {:ok, w} = Writer.new(compression: "")
+
+      {w, _} =
+        order
+        |> Enum.with_index(1)
+        |> Enum.reduce({w, Channels.new(:r1)}, fn {tuple, n}, {w, chans} ->
+          {:ok, w, chans, _} = write.(w, chans, tuple, n * 1_000_000)
+          {w, chans}
+        end)
+
+      {:ok, bytes} = Writer.close(w)
+      {:ok, read} = Reader.read_binary(bytes)
+
+      json =
+        for m <- read.messages,
+            channel = read.channels[m.channel_id],
+            channel.schema_id != 0,
+            do:
+              {channel.topic, read.schemas[channel.schema_id].name,
+               :jiffy.decode(m.data, [:return_maps])}
+
+      # each message has the fields of its channel's schema
+      for {_topic, schema, data} <- json do
+        case schema do
+          "thinkingcap.Tuple" -> assert %{"tag" => _, "payload" => _} = data
+          "foxglove.PoseInFrame" -> assert %{"pose" => %{"position" => _}} = data
+          "foxglove.FrameTransform" -> assert %{"translation" => _} = data
+          "foxglove.LaserScan" -> assert %{"ranges" => [_]} = data
+        end
+      end
+
+      assert Enum.sort(for {topic, schema, _} <- json, do: {topic, schema}) == [
+               {"/r1/laser", "foxglove.LaserScan"},
+               {"/r1/laser", "thinkingcap.Tuple"},
+               {"/r1/pose", "foxglove.PoseInFrame"},
+               {"/r1/pose", "thinkingcap.Tuple"},
+               {"/r1/tf", "foxglove.FrameTransform"}
+             ]
+    end
+  end
+
+  defp write_held(w, chans, tuple, time),
+    do: Channels.write_held(w, chans, Channels.held(tuple), time)
 end

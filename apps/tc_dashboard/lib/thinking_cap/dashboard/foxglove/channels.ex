@@ -50,13 +50,16 @@ defmodule ThinkingCap.Dashboard.Foxglove.Channels do
   end
 
   @doc """
-  The messages a tuple gives, `{topic, json}` (the black box's
+  The messages a tuple gives, `{topic, schema, json}` (the black box's
   conversion), and its time in nanoseconds: its payload's stamp, else now.
+  A tuple whose payload its tag's conversion refuses (a pose `:lost`)
+  gives a `thinkingcap.Tuple` on the same topic, which no channel here
+  has: a message goes only to a channel of its topic and schema.
   """
-  @spec messages(tuple()) :: {non_neg_integer(), [{String.t(), iodata()}]}
+  @spec messages(tuple()) :: {non_neg_integer(), [{String.t(), String.t(), iodata()}]}
   def messages(tuple) do
     now = System.os_time(:nanosecond)
     time = Convert.stamp_ns(tuple) || now
-    {time, for({topic, _schema, json} <- Convert.messages(tuple, now), do: {topic, json})}
+    {time, Convert.messages(tuple, now)}
   end
 end

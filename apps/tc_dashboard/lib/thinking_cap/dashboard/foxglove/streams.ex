@@ -67,8 +67,9 @@ defmodule ThinkingCap.Dashboard.Foxglove.Streams do
   defp frames(state, tuple, subs_of) do
     {time, messages} = Channels.messages(tuple)
 
-    Enum.reduce(messages, {[], state}, fn {topic, json}, {frames, state} ->
+    Enum.reduce(messages, {[], state}, fn {topic, schema, json}, {frames, state} ->
       with id when id != nil <- state.by_topic[topic],
+           %{schema: ^schema} <- state.channels[id],
            [_ | _] = subs <- subs_of.(id) do
         if IO.iodata_length(json) > @max_message do
           too_big(frames, state, topic)
