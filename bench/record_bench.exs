@@ -97,7 +97,7 @@ defmodule ThinkingCap.Bench.Record do
 
   alias ThinkingCap.{BlackBox, Blackboard, Config, Cycle, Runtime, Sim, Tuples}
   alias ThinkingCap.BlackBox.Replay
-  alias ThinkingCap.Bench.{NavRun, ProcStat}
+  alias ThinkingCap.Bench.{Cyclictest, NavRun, ProcStat}
   require Tuples
 
   @root Path.expand("..", __DIR__)
@@ -200,6 +200,25 @@ defmodule ThinkingCap.Bench.Record do
           else: ""
         )
     )
+
+    tails =
+      Enum.map_join(r.control_tails, "; ", fn {key, counts} ->
+        "#{key} " <>
+          if(counts == [],
+            do: "none",
+            else:
+              Enum.map_join(counts, ", ", fn {b, n} ->
+                "#{n} of #{div(2 ** (b - 1), 1000)}+ ms"
+              end)
+          )
+      end)
+
+    IO.puts("    control cycles of 8 ms and more: #{tails}")
+
+    IO.puts(
+      "    cyclictest in the same window: max #{r.machine.max} µs, p99 #{r.machine.p99} µs, " <>
+        "wake-ups 10 ms late or more #{r.machine.over}"
+    )
   end
 
   defp robot(i), do: :"rb#{i}"
@@ -235,9 +254,12 @@ defmodule ThinkingCap.Bench.Record do
       sender = if record?, do: Process.whereis(ThinkingCap.Blackboard.Core.Batches)
       sender_tracer = if sender, do: start_tracer([sender])
       before = snapshot(sim, recorders, rec_dir)
+      # the machine's own stalls in the same window (a wake-up a ms)
+      probe = Cyclictest.start(round(seconds / fleet.speed) + 600, 1_000)
       wall0 = System.monotonic_time(:microsecond)
       goals = drive(fleet, sim, before.sim_time + seconds, goals)
       wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
+      machine = Cyclictest.stop(probe, 10_000)
       after_ = snapshot(sim, recorders, rec_dir)
 
       if sender_tracer,
@@ -258,6 +280,8 @@ defmodule ThinkingCap.Bench.Record do
         lagged: after_.lagged - before.lagged,
         control_misses: misses(after_.timing, before.timing, "control_", :fallbacks),
         control_cycles: misses(after_.timing, before.timing, "control_", :cycles),
+        control_tails: tails(after_.timing, before.timing, "control_"),
+        machine: machine,
         base_misses: misses(after_.timing, before.timing, "base_", :fallbacks),
         base_cycles: misses(after_.timing, before.timing, "base_", :cycles),
         vm_cpu_ms: after_.vm_cpu_ms - before.vm_cpu_ms,
@@ -378,6 +402,26 @@ defmodule ThinkingCap.Bench.Record do
       dropped: Enum.sum(Enum.map(infos, & &1.dropped)),
       bytes: bytes
     }
+  end
+
+  # how many of the control cycles' releases, responses, cycles and CPU
+  # times fell in each power-of-two bucket of 8 ms and more (`Cycle.Stats`'
+  # histograms), summed over the robots: where a miss's time went
+  defp tails(after_, before, prefix) do
+    for key <- [:jitter_us, :response_us, :cycle_us, :cpu_us], into: %{} do
+      counts =
+        for {name, s} <- after_,
+            String.starts_with?(Atom.to_string(name), prefix),
+            {bucket, n} <- Map.get(s[key], :hist, %{}),
+            bucket >= 14,
+            reduce: %{} do
+          acc ->
+            was = get_in(before, [name, key, :hist, bucket]) || 0
+            Map.update(acc, bucket, n - was, &(&1 + n - was))
+        end
+
+      {key, counts |> Enum.reject(&(elem(&1, 1) == 0)) |> Enum.sort()}
+    end
   end
 
   defp misses(after_, before, prefix, key) do
