@@ -100,6 +100,9 @@ defmodule ThinkingCap.Bench.Record do
   alias ThinkingCap.Bench.{Cyclictest, NavRun, ProcStat}
   require Tuples
 
+  # a schedule or a collection this long is reported (OTP's system monitor)
+  @hog_ms 5
+
   @root Path.expand("..", __DIR__)
   @rdf Path.join(@root, "priv/examples/office_robot.rdf")
   @map Path.join(@root, "priv/maps/warehouse.yaml")
@@ -219,6 +222,18 @@ defmodule ThinkingCap.Bench.Record do
       "    cyclictest in the same window: max #{r.machine.max} µs, p99 #{r.machine.p99} µs, " <>
         "wake-ups 10 ms late or more #{r.machine.over}"
     )
+
+    hogs =
+      r.hogs
+      |> Enum.sort_by(fn {_, {n, _}} -> -n end)
+      |> Enum.take(6)
+      |> Enum.map_join(", ", fn {{kind, who, where}, {n, max}} ->
+        "#{n} #{kind} of #{who} (#{inspect(where)}, longest #{max} ms)"
+      end)
+
+    IO.puts(
+      "    schedules and collections of #{@hog_ms} ms or more (system monitor): #{if hogs == "", do: "none", else: hogs}"
+    )
   end
 
   defp robot(i), do: :"rb#{i}"
@@ -256,10 +271,12 @@ defmodule ThinkingCap.Bench.Record do
       before = snapshot(sim, recorders, rec_dir)
       # the machine's own stalls in the same window (a wake-up a ms)
       probe = Cyclictest.start(round(seconds / fleet.speed) + 600, 1_000)
+      hogs = start_hog_monitor()
       wall0 = System.monotonic_time(:microsecond)
       goals = drive(fleet, sim, before.sim_time + seconds, goals)
       wall = (System.monotonic_time(:microsecond) - wall0) / 1.0e6
       machine = Cyclictest.stop(probe, 10_000)
+      hogs = stop_hog_monitor(hogs)
       after_ = snapshot(sim, recorders, rec_dir)
 
       if sender_tracer,
@@ -282,6 +299,7 @@ defmodule ThinkingCap.Bench.Record do
         control_cycles: misses(after_.timing, before.timing, "control_", :cycles),
         control_tails: tails(after_.timing, before.timing, "control_"),
         machine: machine,
+        hogs: hogs,
         base_misses: misses(after_.timing, before.timing, "base_", :fallbacks),
         base_cycles: misses(after_.timing, before.timing, "base_", :cycles),
         vm_cpu_ms: after_.vm_cpu_ms - before.vm_cpu_ms,
@@ -437,6 +455,73 @@ defmodule ThinkingCap.Bench.Record do
     fields = String.split(rest)
     ticks = String.to_integer(Enum.at(fields, 11)) + String.to_integer(Enum.at(fields, 12))
     div(ticks * 1000, ProcStat.clock_ticks())
+  end
+
+  ## What held a scheduler: OTP's system monitor
+
+  # long_schedule: a process or port that ran @hog_ms or more without
+  # yielding its scheduler (a NIF, a BIF, a port's work); long_gc: a
+  # collection that long. Either keeps every other process of that
+  # scheduler waiting, the robots' hosts too.
+  defp start_hog_monitor do
+    pid = spawn(fn -> hog_loop(%{}) end)
+    :erlang.system_monitor(pid, [{:long_schedule, @hog_ms}, {:long_gc, @hog_ms}])
+    pid
+  end
+
+  defp stop_hog_monitor(pid) do
+    :erlang.system_monitor(:undefined)
+    send(pid, {:stop, self()})
+
+    receive do
+      {:hogs, hogs} -> hogs
+    after
+      5_000 -> %{}
+    end
+  end
+
+  defp hog_loop(acc) do
+    receive do
+      {:monitor, who, kind, info} when kind in [:long_schedule, :long_gc] ->
+        ms = info[:timeout]
+        # a schedule: where it began; a collection: the heap's words (young and old)
+        where =
+          if kind == :long_schedule,
+            do: info[:in],
+            else: {:words_up_to, pow2(info[:heap_block_size] + info[:old_heap_block_size])}
+
+        key = {kind, describe(who), where}
+        hog_loop(Map.update(acc, key, {1, ms}, fn {n, m} -> {n + 1, max(m, ms)} end))
+
+      {:monitor, _, _, _} ->
+        hog_loop(acc)
+
+      {:stop, from} ->
+        send(from, {:hogs, acc})
+    end
+  end
+
+  defp pow2(n), do: 2 ** ceil(:math.log2(max(n, 1)))
+
+  # a process by its registered name or the module it runs
+  defp describe(port) when is_port(port), do: "a port"
+
+  defp describe(pid) do
+    case Process.info(pid, [:registered_name, :dictionary]) do
+      [registered_name: name, dictionary: _] when is_atom(name) and name != [] ->
+        inspect(name)
+
+      [registered_name: _, dictionary: dict] ->
+        case {dict[:"$tc_spec"], dict[:"$initial_call"]} do
+          # a module's host: its module's kind, not each robot's name
+          {%{module: m}, _} -> "the host of #{inspect(m)}"
+          {_, {m, _, _}} -> inspect(m)
+          _ -> "a process"
+        end
+
+      nil ->
+        "a process gone"
+    end
   end
 
   ## CPU time of the recorders, per process
