@@ -25,11 +25,12 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
     ])
   end
 
-  defp file(write) do
+  # `tuples` written one by one with `write`, into an MCAP file's bytes
+  defp file(write, tuples \\ tuples()) do
     {:ok, w} = Writer.new(compression: "")
 
     {w, _chans} =
-      tuples()
+      tuples
       |> Enum.with_index(1)
       |> Enum.reduce({w, Channels.new(:r1)}, fn {tuple, n}, {w, chans} ->
         {:ok, w, chans, _} = write.(w, chans, tuple, n * 1_000_000)
@@ -123,18 +124,7 @@ defmodule ThinkingCap.BlackBox.Core.ChannelsTest do
 
     for write <- [&Channels.write_tuple/4, &write_held/4],
         order <- [[good_pose, lost, good_scan, bad_scan], [lost, good_pose, bad_scan, good_scan]] do
-      {:ok, w} = Writer.new(compression: "")
-
-      {w, _} =
-        order
-        |> Enum.with_index(1)
-        |> Enum.reduce({w, Channels.new(:r1)}, fn {tuple, n}, {w, chans} ->
-          {:ok, w, chans, _} = write.(w, chans, tuple, n * 1_000_000)
-          {w, chans}
-        end)
-
-      {:ok, bytes} = Writer.close(w)
-      {:ok, read} = Reader.read_binary(bytes)
+      {:ok, read} = Reader.read_binary(file(write, order))
 
       json =
         for m <- read.messages,
