@@ -262,7 +262,7 @@ defmodule ThinkingCap.Cycle do
   @spec detach_wire(name()) :: :ok
   def detach_wire(name), do: GenServer.call(__MODULE__, {:detach_wire, name})
 
-  @doc "Records how long the module took to compute the result of `release` (ns)."
+  @doc "Records how long the module took to compute the result of `release` (ns, wall clock)."
   @spec record_cpu(release(), non_neg_integer()) :: :ok
   def record_cpu(%{id: id}, ns) do
     send(__MODULE__, {:cpu, id, ns})

@@ -6,8 +6,10 @@ defmodule ThinkingCap.Cycle.Stats do
   thread woke after its timer, what `cyclictest` measures; with the
   worker's early wake-up the release itself is later only when this
   exceeds it), response time (release to result),
-  cycle time (between consecutive releases), CPU time (the module's own
-  computation of a result), with mean, standard deviation,
+  cycle time (between consecutive releases), "CPU time" (`cpu_us`: the
+  time the module's callback took, from its start to its result, on the
+  wall clock: the module's own computation, and any time its process
+  waited for a scheduler meanwhile), with mean, standard deviation,
   minimum, maximum and a log2 histogram in microseconds; plus counts of
   cycles, deadline misses (fallbacks applied), late results and releases
   skipped because the worker itself was late.
@@ -73,7 +75,7 @@ defmodule ThinkingCap.Cycle.Stats do
   def applied(s, :fallback, _response_ns), do: %{s | fallbacks: s.fallbacks + 1}
   def applied(s, :late, _response_ns), do: %{s | late: s.late + 1}
 
-  @doc "Records the time the module spent computing one cycle's result (ns)."
+  @doc "Records the time the module's callback took to compute one cycle's result (ns, wall clock)."
   @spec cpu(t(), integer()) :: t()
   def cpu(s, ns), do: %{s | cpu: add(s.cpu, ns / 1000)}
 
