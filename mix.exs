@@ -26,8 +26,9 @@ defmodule ThinkingCap.Umbrella.MixProject do
           tc_cognition: :permanent,
           tc_blackbox: :permanent,
           tc_dashboard: :permanent,
-          # loaded, not started: the dashboard starts it when an ADF wants
-          # it (apps/tc_dashboard/mix.exs puts it on the code path)
+          # loaded, never started as an application: the dashboard runs
+          # its processes under its own supervisor when an ADF wants it
+          # (apps/tc_dashboard/mix.exs puts it on the code path)
           yaws: :load
         ],
         include_executables_for: [:unix],

@@ -38,8 +38,8 @@ defmodule ThinkingCap.Dashboard.MixProject do
       elixir: "~> 1.14",
       elixirc_options: [warnings_as_errors: true],
       start_permanent: Mix.env() == :prod,
-      # yaws is started by the dashboard itself, in embedded mode, when it
-      # is wanted (not as a dependency application)
+      # yaws runs embedded under the dashboard's own supervisor when it
+      # is wanted (Core.WebServer), never as an application
       xref: [exclude: [:yaws_api, :yaws]],
       elixirc_paths: if(Mix.env() == :test, do: ["lib", "test/support"], else: ["lib"]),
       deps: [

@@ -117,7 +117,7 @@ defmodule ThinkingCap.Dashboard.EdgeTest do
 
   @tag dashboard: [estop_port: 0]
   test "a web server killed again and again is brought back on its ports", ctx do
-    # more often than yaws' own supervisor allows: the yaws application ends
+    # again and again: the web server (Core.WebServer) ends each time
     for _ <- 1..8 do
       if pid = Process.whereis(:yaws_server), do: Process.exit(pid, :kill)
       Process.sleep(20)

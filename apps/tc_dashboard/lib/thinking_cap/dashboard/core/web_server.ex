@@ -43,7 +43,8 @@ defmodule ThinkingCap.Dashboard.Core.WebServer do
   def configure(gconf, sconf_groups) do
     case :yaws_api.setconf(gconf, sconf_groups) do
       :ok -> :ignore
-      error -> {:error, error}
+      {:error, reason} -> {:error, reason}
+      other -> {:error, other}
     end
   end
 end
