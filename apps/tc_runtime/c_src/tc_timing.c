@@ -47,8 +47,8 @@
  * ends when it is detached ('X'), replaced ('W') or its activity removed
  * ('R'), and when the worker exits: the worker never opens its path again.
  *
- * The release boost: the BEAM may name its scheduler and poller threads
- * ('B'), each with a SCHED_FIFO priority. While any activity is released
+ * The release boost: the BEAM may name its scheduler (normal and dirty
+ * CPU) and poller threads ('B'), each with a SCHED_FIFO priority. While any activity is released
  * and its result not yet in (nor its fallback applied), the worker holds
  * those threads at those priorities; when none is, it puts each back as
  * it found it (unless someone changed it meanwhile: then it leaves it).
@@ -138,8 +138,10 @@ typedef struct {
 
 static activity acts[MAX_ACTIVITIES];
 
-/* the release boost: threads and their priorities while a result is pending */
-#define MAX_BOOST 64
+/* the release boost: threads and their priorities while a result is
+ * pending (a BEAM's normal and dirty CPU schedulers and its poller: 2n + 1
+ * threads on n cores) */
+#define MAX_BOOST 512
 static struct boost {
     pid_t tid;
     int priority;

@@ -235,7 +235,7 @@ defmodule ThinkingCap.CycleTest do
       priorities()
     end
 
-    test "while a result is pending the BEAM's schedulers run at 20 and its poller at 21",
+    test "while a result is pending the BEAM's schedulers (dirty CPU too) run at 20 and its poller at 21",
          %{name: name} do
       if @root do
         assert unboosted() == {[1], [2]}

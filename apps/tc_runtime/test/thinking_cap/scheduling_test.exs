@@ -19,6 +19,8 @@ defmodule ThinkingCap.Runtime.SchedulingTest do
     policies = Scheduling.policies()
     names = Map.keys(policies)
     assert "1_scheduler" in names
+    # the dirty CPU schedulers, which collect large processes' garbage, too
+    assert "1_dirty_cpu_sch" in names
     assert Enum.any?(names, &String.ends_with?(&1, "_poller"))
 
     # as root (these machines, CI) real-time priority is granted

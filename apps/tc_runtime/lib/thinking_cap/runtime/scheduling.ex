@@ -8,7 +8,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
   to be computed by the BEAM, whose threads otherwise compete with every
   process on the machine. So at start the runtime puts the BEAM's normal
   scheduler threads at **`SCHED_FIFO` priority 1** and its I/O poller
-  (through which the worker's frames arrive) at 2:
+  (through which the worker's frames arrive) at 2; its dirty CPU
+  schedulers join the normal ones at 1:
 
     * they preempt ordinary (`SCHED_OTHER`) processes, so OS-level load
       cannot delay a control cycle;
@@ -28,7 +29,19 @@ defmodule ThinkingCap.Runtime.Scheduling do
       trip took up to 420 ms while two Erlang processes kept both
       schedulers busy, and the control cycle missed most deadlines in a
       tuple flood;
-    * dirty schedulers (long NIFs, file I/O) stay at normal priority.
+    * the dirty CPU schedulers run at the schedulers' priority, because
+      they collect the garbage of large processes: OTP moves a collection
+      of 128K words or more (`ERTS_POTENTIALLY_LONG_GC_HSIZE`) to them,
+      and the process waits meanwhile. At normal priority such a thread
+      runs only while no real-time thread wants its core. In `mix
+      tc.bench record` (100 robots, 60 s) collections of
+      `ThinkingCap.Cycle`, through which every release passes, took up
+      to 104 ms, and the control cycles missed 12 to 53 deadlines (78 to
+      124 while recording); at the schedulers' priority the longest took
+      19 ms and no deadline was missed. Once running, a dirty thread is
+      not preempted by a scheduler of its own priority; under full load
+      it waits until a scheduler runs out of work;
+    * the dirty I/O schedulers (file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
   30 s): at nice −10 the module's cycle time varied by 4.4 % of the period
@@ -43,7 +56,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
   release for up to 800 ms (`mix tc.bench timing` beside other BEAMs at
   `SCHED_FIFO` 1). So while a periodic activity's result is pending
   (released, neither its result in nor its fallback applied), the timing
-  worker holds the schedulers at **`SCHED_FIFO` 20** and the poller at 21,
+  worker holds the schedulers (normal and dirty CPU) at **`SCHED_FIFO`
+  20** and the poller at 21,
   and puts them back as it found them when no result is pending
   (`release_boost/0` names the threads; the worker does the rest):
 
@@ -81,7 +95,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
   """
   require Logger
 
-  @threads ~r/^\d+_(scheduler|poller)$/
+  # the thread names: 15 characters at most, so "12_dirty_cpu_sc"
+  @threads ~r/^\d+_(scheduler|poller|dirty_cpu_s\w*)$/
 
   @typedoc "How one thread is scheduled."
   @type thread_policy :: %{
@@ -91,8 +106,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
         }
 
   @doc """
-  Puts the BEAM's scheduler threads at `SCHED_FIFO` `priority`, and its
-  I/O poller thread one above: threads of
+  Puts the BEAM's scheduler threads (normal and dirty CPU) at
+  `SCHED_FIFO` `priority`, and its I/O poller thread one above: threads of
   one `SCHED_FIFO` priority never preempt each other, so a poller at the
   schedulers' priority waits, on a machine with as many cores as
   schedulers, until a scheduler runs out of work; port data (the timing
@@ -112,7 +127,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
 
   @doc """
   The threads the timing worker boosts while a periodic result is
-  pending: each scheduler at `:periodic_priority` (default 20), the poller
+  pending: each scheduler (normal and dirty CPU) at `:periodic_priority` (default 20), the poller
   one above, with the `SCHED_FIFO` priority each has now. `[]` when the
   boost is off or the schedulers do not run at real-time priority below
   their boost.
@@ -166,7 +181,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
     end
   end
 
-  @doc "Sets the nice value of the BEAM's scheduler and poller threads (back to `SCHED_OTHER`)."
+  @doc "Sets the nice value of the BEAM's scheduler (normal and dirty CPU) and poller threads (back to `SCHED_OTHER`)."
   @spec nice(integer()) :: {:ok, [String.t()]} | {:error, String.t()}
   def nice(value) do
     each_thread(fn tid ->
@@ -175,7 +190,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
     end)
   end
 
-  @doc "How each of the BEAM's scheduler and poller threads is scheduled, by thread name."
+  @doc "How each of the BEAM's scheduler (normal and dirty CPU) and poller threads is scheduled, by thread name."
   @spec policies() :: %{String.t() => thread_policy()}
   def policies do
     for tid <- threads(), into: %{}, do: {comm(tid), thread_policy(tid)}
@@ -221,7 +236,7 @@ defmodule ThinkingCap.Runtime.Scheduling do
         case realtime(1) do
           {:ok, tids} ->
             Logger.info(
-              "BEAM scheduler threads at SCHED_FIFO 1, poller at 2 (#{length(tids)} threads)"
+              "BEAM scheduler threads (normal and dirty CPU) at SCHED_FIFO 1, poller at 2 (#{length(tids)} threads)"
             )
 
             unless busy_wait_off?() do
