@@ -107,16 +107,25 @@ defmodule ThinkingCap.Cycle do
 
   Statistics per activity (`ThinkingCap.Cycle.Stats`) are available from
   `timing/0` and published once a second on the blackboard as
-  `{:timing, name, summary}` (`ThinkingCap.Tuples.timing/2`).
+  `{:timing, name, summary}` (`ThinkingCap.Tuples.timing/2`). A process
+  of their own keeps them, linked to this one, so that this one's heap,
+  through which every release passes, stays small (its garbage is
+  collected in microseconds, on its own scheduler).
   """
   use GenServer
   require Logger
 
-  alias ThinkingCap.Blackboard
-  alias ThinkingCap.Tuples
-  require Tuples
   alias ThinkingCap.Cycle.{Clock, Stats}
-  alias ThinkingCap.Cycle.Core.{Activities, Fallbacks, Protocol, Releases, Wires, Worker}
+
+  alias ThinkingCap.Cycle.Core.{
+    Activities,
+    Fallbacks,
+    Protocol,
+    Releases,
+    Statistics,
+    Wires,
+    Worker
+  }
 
   @type name :: atom()
   @type release :: %{
@@ -264,10 +273,7 @@ defmodule ThinkingCap.Cycle do
 
   @doc "Records how long the module took to compute the result of `release` (ns, wall clock)."
   @spec record_cpu(release(), non_neg_integer()) :: :ok
-  def record_cpu(%{id: id}, ns) do
-    send(__MODULE__, {:cpu, id, ns})
-    :ok
-  end
+  def record_cpu(%{id: id}, ns), do: Statistics.cpu(id, ns)
 
   @doc """
   Sends the caller every command applied for activity `name`, from now
@@ -288,7 +294,25 @@ defmodule ThinkingCap.Cycle do
 
   @doc "Timing statistics of every activity (see `ThinkingCap.Cycle.Stats.summary/1`)."
   @spec timing() :: %{name() => map()}
-  def timing, do: GenServer.call(__MODULE__, :timing)
+  def timing do
+    activities = GenServer.call(__MODULE__, :wires)
+    summaries = Statistics.summaries()
+
+    Map.new(activities, fn {name, %{period_ns: period_ns} = a} ->
+      summary = Map.get_lazy(summaries, name, fn -> Stats.summary(Stats.new(period_ns)) end)
+      {name, Map.merge(summary, Map.delete(a, :period_ns))}
+    end)
+  end
+
+  @doc false
+  # Each activity's wire and period, by name (the statistics' keeper
+  # publishes them with its figures); empty when the cycle is not running.
+  @spec wires() :: %{name() => map()}
+  def wires do
+    GenServer.call(__MODULE__, :wires)
+  catch
+    :exit, _ -> %{}
+  end
 
   @doc false
   # The worker's OS pid (tests kill it).
@@ -301,7 +325,7 @@ defmodule ThinkingCap.Cycle do
   # release: loading a module on first call waits for the code server and
   # the file system (a first release came 23 ms late under load, most
   # likely for that)
-  @release_path [Activities, Fallbacks, Protocol, Releases, Worker, Stats, Clock]
+  @release_path [Activities, Fallbacks, Protocol, Releases, Statistics, Worker, Clock]
 
   @impl true
   def init(opts) do
@@ -309,10 +333,14 @@ defmodule ThinkingCap.Cycle do
     # the cycle's own messages go before ordinary work
     Process.flag(:priority, :high)
     Process.flag(:trap_exit, true)
+    # the worker's frames wait off the heap: a queue that grew during a
+    # stall is not copied by each collection
+    Process.flag(:message_queue_data, :off_heap)
     publish_ms = Keyword.get(opts, :publish_every, 1000)
-    if publish_ms, do: :timer.send_interval(publish_ms, :publish)
 
     state = %{
+      statistics: nil,
+      publish_ms: publish_ms,
       port: nil,
       status: nil,
       activities: %{},
@@ -327,7 +355,7 @@ defmodule ThinkingCap.Cycle do
       boost: []
     }
 
-    {:ok, open(state)}
+    {:ok, state |> start_statistics() |> open()}
   end
 
   @impl true
@@ -382,8 +410,8 @@ defmodule ThinkingCap.Cycle do
   def handle_call(:status, _from, state),
     do: {:reply, Map.put(state.status, :restarts, state.restarts), state}
 
-  def handle_call(:timing, _from, state) do
-    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, Activities.summary(a)} end), state}
+  def handle_call(:wires, _from, state) do
+    {:reply, Map.new(state.activities, fn {_, a} -> {a.name, Activities.wire(a)} end), state}
   end
 
   def handle_call(:os_pid, _from, state), do: {:reply, Worker.os_pid(state.port), state}
@@ -406,21 +434,13 @@ defmodule ThinkingCap.Cycle do
   def handle_info({:EXIT, port, reason}, %{port: port} = state),
     do: {:noreply, restart(state, "port closed (#{inspect(reason)})")}
 
+  def handle_info({:EXIT, pid, _reason}, %{statistics: pid} = state),
+    do: {:noreply, start_statistics(state)}
+
   def handle_info({:EXIT, _other, _reason}, state), do: {:noreply, state}
 
   def handle_info({:DOWN, _ref, :process, pid, _reason}, state),
     do: {:noreply, Activities.down(state, pid, &Fallbacks.remove/2)}
-
-  def handle_info({:cpu, id, ns}, state), do: {:noreply, Releases.cpu(state, id, ns)}
-
-  def handle_info(:publish, state) do
-    for {_id, a} <- state.activities do
-      {tuple, opts} = Tuples.keyed(Tuples.timing(a.name, Activities.summary(a)))
-      Blackboard.out(tuple, opts)
-    end
-
-    {:noreply, state}
-  end
 
   def handle_info(_other, state), do: {:noreply, state}
 
@@ -458,6 +478,17 @@ defmodule ThinkingCap.Cycle do
   defp handle_frame({:unknown, other}, state) do
     Logger.error("unexpected frame from the timing worker: #{inspect(other, limit: 20)}")
     state
+  end
+
+  ## Statistics
+
+  # the keeper of the statistics, with every activity held (anew after
+  # it died)
+  defp start_statistics(state) do
+    {:ok, pid} = Statistics.start_link(publish_every: state.publish_ms)
+
+    for {id, a} <- state.activities, do: Statistics.added(id, a.name, a.period_ns)
+    %{state | statistics: pid}
   end
 
   ## Worker

@@ -192,6 +192,28 @@ defmodule ThinkingCap.CycleTest do
                     1.0
   end
 
+  test "the statistics live in a process of their own: killed, it comes back, the cycle unmoved",
+       %{name: name} do
+    :ok = Cycle.add(name, period: 0.01, deadline: 0.005)
+    for _ <- 1..5, do: name |> release() |> Cycle.result(:go)
+    cycle = Process.whereis(Cycle)
+    stats = Process.whereis(ThinkingCap.Cycle.Core.Statistics)
+    assert is_pid(stats) and stats != cycle
+    assert Cycle.timing()[name].cycles >= 5
+
+    Process.exit(stats, :kill)
+
+    ThinkingCap.Testing.Cluster.wait_until(fn ->
+      pid = Process.whereis(ThinkingCap.Cycle.Core.Statistics)
+      pid != nil and pid != stats
+    end)
+
+    assert Process.whereis(Cycle) == cycle
+    # the new keeper was told of the activity: its releases are counted
+    for _ <- 1..3, do: name |> release() |> Cycle.result(:go)
+    assert Cycle.timing()[name].cycles >= 3
+  end
+
   test "a killed worker is restarted; its activities stay stopped until a fresh command", %{
     name: name
   } do

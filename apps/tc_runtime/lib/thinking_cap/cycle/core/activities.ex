@@ -2,12 +2,11 @@ defmodule ThinkingCap.Cycle.Core.Activities do
   @moduledoc false
   # The activities ThinkingCap.Cycle holds, in its state: ids by name (an
   # id is kept for a name for good, so a module restarted gets its slot
-  # back), each activity's owner, wire and statistics, and the processes
-  # watching each name. Every applied command goes to the owner and the
-  # watchers (tell/3).
+  # back), each activity's owner and wire, and the processes watching each
+  # name. Every applied command goes to the owner and the watchers
+  # (tell/3). Their statistics are Core.Statistics'.
 
-  alias ThinkingCap.Cycle.Core.{Protocol, Worker}
-  alias ThinkingCap.Cycle.Stats
+  alias ThinkingCap.Cycle.Core.{Protocol, Statistics, Worker}
 
   @doc "Adds an activity (or adds it again: its wire is kept on both sides) and tells the worker."
   def add(state, name, owner, period, deadline, lead, priority, fallback) do
@@ -28,12 +27,12 @@ defmodule ThinkingCap.Cycle.Core.Activities do
       owner: owner,
       wire: Map.get(old, :wire),
       wire_errors: Map.get(old, :wire_errors, 0),
-      stats: Stats.new(round(period * 1.0e9)),
       # the last release: {cycle, released_ns}
       release: nil
     }
 
     Worker.command(state.port, Protocol.add(activity))
+    Statistics.added(id, name, activity.period_ns)
     put_in(state.activities[id], activity)
   end
 
@@ -97,12 +96,9 @@ defmodule ThinkingCap.Cycle.Core.Activities do
     :ok
   end
 
-  @doc "An activity's statistics, with its wire."
-  def summary(a) do
-    a.stats
-    |> Stats.summary()
-    |> Map.merge(%{wire: a.wire && a.wire.device, wire_errors: a.wire_errors})
-  end
+  @doc "An activity's wire (its device or nil), its wire's errors and its period."
+  def wire(a),
+    do: %{wire: a.wire && a.wire.device, wire_errors: a.wire_errors, period_ns: a.period_ns}
 
   defp id_for(state, name) do
     case state.ids do

@@ -5,7 +5,7 @@ defmodule ThinkingCap.Cycle.Core.Fallbacks do
   # or crashed), and every activity when the worker died. A missed
   # deadline's fallback is the worker's own report (Core.Releases).
 
-  alias ThinkingCap.Cycle.Core.{Activities, Protocol, Worker}
+  alias ThinkingCap.Cycle.Core.{Activities, Protocol, Statistics, Worker}
 
   @doc """
   Removes activity `name`: the worker applies its fallback (its fallback
@@ -28,6 +28,7 @@ defmodule ThinkingCap.Cycle.Core.Fallbacks do
           applied_ns: nil
         })
 
+        Statistics.removed(id)
         %{state | activities: Map.delete(state.activities, id)}
 
       :error ->

@@ -3,16 +3,17 @@ defmodule ThinkingCap.Cycle.Core.Releases do
   # What the worker reports of each cycle, handled for ThinkingCap.Cycle:
   # a release goes to the activity's owner; an applied command (fresh,
   # the fallback of a missed deadline, or a late result) to the owner and
-  # the watchers; both, and the module's CPU time, into the activity's
-  # statistics.
+  # the watchers; both into the activity's statistics (Core.Statistics).
 
-  alias ThinkingCap.Cycle.Core.{Activities, Protocol}
-  alias ThinkingCap.Cycle.Stats
+  alias ThinkingCap.Cycle.Core.{Activities, Protocol, Statistics}
 
   @doc "A release of activity `id`: to its owner, and into its statistics."
   def release(state, id, cycle, {scheduled, released, timer_late}) do
     case state.activities do
       %{^id => a} ->
+        # into the statistics first: what the owner was told is there
+        # when it asks for timing/0
+        Statistics.release(id, scheduled, released, timer_late)
         # released lead_ns early: the owner waits for the scheduled instant
         send(
           a.owner,
@@ -26,9 +27,7 @@ defmodule ThinkingCap.Cycle.Core.Releases do
            }}
         )
 
-        stats = a.stats |> Stats.release(scheduled, released) |> Stats.timer(timer_late)
-        a = %{a | stats: stats, release: {cycle, released}}
-        put_in(state.activities[id], a)
+        put_in(state.activities[id].release, {cycle, released})
 
       _ ->
         state
@@ -48,19 +47,12 @@ defmodule ThinkingCap.Cycle.Core.Releases do
           applied_ns: applied_ns(a.release, cycle, kind, response)
         }
 
+        Statistics.applied(id, kind, response)
         Activities.tell(state, a, event)
-        put_in(state.activities[id].stats, Stats.applied(a.stats, kind, response))
+        state
 
       _ ->
         state
-    end
-  end
-
-  @doc "The module's own computation of a result of activity `id` (ns)."
-  def cpu(state, id, ns) do
-    case state.activities do
-      %{^id => a} -> put_in(state.activities[id].stats, Stats.cpu(a.stats, ns))
-      _ -> state
     end
   end
 
