@@ -413,7 +413,7 @@ defmodule ThinkingCap.Bench.Record do
     %{
       sim_time: status.time,
       lagged: Map.get(status, :lagged, 0),
-      timing: GenServer.call(Cycle, :timing, 120_000),
+      timing: Cycle.timing(),
       vm_cpu_ms: vm_cpu_ms(),
       tuples: Enum.sum(Enum.map(infos, &(&1.messages - &1.callbacks))),
       messages: Enum.sum(Enum.map(infos, & &1.messages)),

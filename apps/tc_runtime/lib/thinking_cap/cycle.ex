@@ -295,7 +295,7 @@ defmodule ThinkingCap.Cycle do
   @doc "Timing statistics of every activity (see `ThinkingCap.Cycle.Stats.summary/1`)."
   @spec timing() :: %{name() => map()}
   def timing do
-    activities = GenServer.call(__MODULE__, :wires)
+    activities = GenServer.call(__MODULE__, :wires, 120_000)
     summaries = Statistics.summaries()
 
     Map.new(activities, fn {name, %{period_ns: period_ns} = a} ->

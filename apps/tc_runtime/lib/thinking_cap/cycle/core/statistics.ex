@@ -19,6 +19,10 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   alias ThinkingCap.Tuples
   require Tuples
 
+  # timing/0 on a loaded node (a simulated fleet) waits for the events
+  # queued before it
+  @call_timeout 120_000
+
   @doc "Starts it, linked to the caller, with `:publish_every` ms (nil: never)."
   def start_link(opts), do: GenServer.start_link(__MODULE__, opts, name: __MODULE__)
 
@@ -38,10 +42,15 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   @doc "The module's own computation of a result (ns)."
   def cpu(id, ns), do: tell({:cpu, id, ns})
 
-  @doc "Each activity's summary (`ThinkingCap.Cycle.Stats.summary/1`), by name."
+  @doc """
+  Each activity's summary (`ThinkingCap.Cycle.Stats.summary/1`), by name;
+  empty while the keeper is restarted. A keeper behind a long queue of
+  events (a loaded node) answers when it has taken them.
+  """
   def summaries do
-    GenServer.call(__MODULE__, :summaries)
+    GenServer.call(__MODULE__, :summaries, @call_timeout)
   catch
+    :exit, {:timeout, _} = reason -> exit(reason)
     :exit, _ -> %{}
   end
 
