@@ -56,11 +56,7 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
 
   # a message to the keeper if it runs (the cycle restarts it)
   defp tell(message) do
-    case Process.whereis(__MODULE__) do
-      nil -> :ok
-      pid -> send(pid, message)
-    end
-
+    if pid = Process.whereis(__MODULE__), do: send(pid, message)
     :ok
   end
 
