@@ -485,7 +485,16 @@ defmodule ThinkingCap.Cycle do
   # the keeper of the statistics, with every activity held (anew after
   # it died)
   defp start_statistics(state) do
-    {:ok, pid} = Statistics.start_link(publish_every: state.publish_ms)
+    pid =
+      case Statistics.start_link(publish_every: state.publish_ms) do
+        {:ok, pid} ->
+          pid
+
+        # a keeper left from a cycle that crashed, not yet gone
+        {:error, {:already_started, pid}} ->
+          Process.link(pid)
+          pid
+      end
 
     for {id, a} <- state.activities, do: Statistics.added(id, a.name, a.period_ns)
     %{state | statistics: pid}
