@@ -25,7 +25,9 @@ defmodule ThinkingCap.Dashboard.Test.StopProbe do
                 do: "robots stopped first",
                 else: "web server stopped first"
 
-            File.write!(path, first)
+            # written whole, then named: the test waits for the name
+            File.write!(path <> ".part", first)
+            File.rename!(path <> ".part", path)
         end
       end)
 

@@ -38,9 +38,12 @@ defmodule ThinkingCap.Runtime.Scheduling do
       `ThinkingCap.Cycle`, through which every release passes, took up
       to 104 ms, and the control cycles missed 12 to 53 deadlines (78 to
       124 while recording); at the schedulers' priority the longest took
-      19 ms and no deadline was missed. Once running, a dirty thread is
+      19 to 43 ms, and the control cycles missed none but in a stall of
+      the machine itself (the cycle now keeps its statistics in another
+      process, so its own heap stays small). Once running, a dirty thread is
       not preempted by a scheduler of its own priority; under full load
-      it waits until a scheduler runs out of work;
+      it waits until a scheduler runs out of work, and its CPU counts
+      toward the kernel's real-time throttling;
     * the dirty I/O schedulers (file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
