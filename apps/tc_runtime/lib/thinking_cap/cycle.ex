@@ -109,8 +109,9 @@ defmodule ThinkingCap.Cycle do
   `timing/0` and published once a second on the blackboard as
   `{:timing, name, summary}` (`ThinkingCap.Tuples.timing/2`). A process
   of their own keeps them, linked to this one, so that this one's heap,
-  through which every release passes, stays small (its garbage is
-  collected in microseconds, on its own scheduler).
+  through which every release passes, stays small: its collections take
+  microseconds and stay on its own scheduler (OTP moves those of 128K
+  words or more to a dirty one, see `ThinkingCap.Runtime.Scheduling`).
   """
   use GenServer
   require Logger
