@@ -48,10 +48,11 @@
  * ('R'), and when the worker exits: the worker never opens its path again.
  *
  * The release boost: the BEAM may name its scheduler (normal and dirty
- * CPU) and poller threads ('B'), each with a SCHED_FIFO priority. While any activity is released
- * and its result not yet in (nor its fallback applied), the worker holds
- * those threads at those priorities; when none is, it puts each back as
- * it found it (unless someone changed it meanwhile: then it leaves it).
+ * CPU) and poller threads ('B'), each with a SCHED_FIFO priority. While
+ * any activity is released and its result not yet in (nor its fallback
+ * applied), the worker holds those threads at those priorities; when none
+ * is, it puts each back as it found it (unless someone changed it
+ * meanwhile: then it leaves it).
  * So the BEAM computes a periodic result above other programs' low
  * real-time threads, and for no longer than the activities' deadlines.
  *

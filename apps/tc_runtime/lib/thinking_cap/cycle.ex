@@ -497,7 +497,7 @@ defmodule ThinkingCap.Cycle do
           pid
       end
 
-    for {id, a} <- state.activities, do: Statistics.added(id, a.name, a.period_ns)
+    for {id, a} <- state.activities, do: Statistics.added(pid, id, a.name, a.period_ns)
     %{state | statistics: pid}
   end
 

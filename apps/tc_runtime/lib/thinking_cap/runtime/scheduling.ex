@@ -40,8 +40,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
       124 while recording); at the schedulers' priority the longest took
       19 to 43 ms, and the control cycles missed none but in a stall of
       the machine itself (the cycle now keeps its statistics in another
-      process, so its own heap stays small). Once running, a dirty thread is
-      not preempted by a scheduler of its own priority; under full load
+      process, so its own heap stays small). Once running, a dirty
+      thread is not preempted by a scheduler of its own priority; under full load
       it waits until a scheduler runs out of work, and its CPU counts
       toward the kernel's real-time throttling;
     * the dirty I/O schedulers (file I/O) stay at normal priority.
@@ -130,8 +130,9 @@ defmodule ThinkingCap.Runtime.Scheduling do
 
   @doc """
   The threads the timing worker boosts while a periodic result is
-  pending: each scheduler (normal and dirty CPU) at `:periodic_priority` (default 20), the poller
-  one above, with the `SCHED_FIFO` priority each has now. `[]` when the
+  pending: each scheduler (normal and dirty CPU) at `:periodic_priority`
+  (default 20), the poller one above, with the `SCHED_FIFO` priority
+  each has now. `[]` when the
   boost is off or the schedulers do not run at real-time priority below
   their boost.
   """
@@ -184,7 +185,10 @@ defmodule ThinkingCap.Runtime.Scheduling do
     end
   end
 
-  @doc "Sets the nice value of the BEAM's scheduler (normal and dirty CPU) and poller threads (back to `SCHED_OTHER`)."
+  @doc """
+  Sets the nice value of the BEAM's scheduler (normal and dirty CPU) and
+  poller threads (back to `SCHED_OTHER`).
+  """
   @spec nice(integer()) :: {:ok, [String.t()]} | {:error, String.t()}
   def nice(value) do
     each_thread(fn tid ->
@@ -193,7 +197,10 @@ defmodule ThinkingCap.Runtime.Scheduling do
     end)
   end
 
-  @doc "How each of the BEAM's scheduler (normal and dirty CPU) and poller threads is scheduled, by thread name."
+  @doc """
+  How each of the BEAM's scheduler (normal and dirty CPU) and poller
+  threads is scheduled, by thread name.
+  """
   @spec policies() :: %{String.t() => thread_policy()}
   def policies do
     for tid <- threads(), into: %{}, do: {comm(tid), thread_policy(tid)}

@@ -32,7 +32,7 @@ defmodule ThinkingCap.Cycle.Core.Activities do
     }
 
     Worker.command(state.port, Protocol.add(activity))
-    Statistics.added(id, name, activity.period_ns)
+    Statistics.added(state.statistics, id, name, activity.period_ns)
     put_in(state.activities[id], activity)
   end
 

@@ -28,7 +28,7 @@ defmodule ThinkingCap.Cycle.Core.Fallbacks do
           applied_ns: nil
         })
 
-        Statistics.removed(id)
+        Statistics.removed(state.statistics, id)
         %{state | activities: Map.delete(state.activities, id)}
 
       :error ->

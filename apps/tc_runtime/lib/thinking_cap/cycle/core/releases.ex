@@ -13,7 +13,7 @@ defmodule ThinkingCap.Cycle.Core.Releases do
       %{^id => a} ->
         # into the statistics first: what the owner was told is there
         # when it asks for timing/0
-        Statistics.release(id, scheduled, released, timer_late)
+        Statistics.release(state.statistics, id, scheduled, released, timer_late)
         # released lead_ns early: the owner waits for the scheduled instant
         send(
           a.owner,
@@ -47,7 +47,7 @@ defmodule ThinkingCap.Cycle.Core.Releases do
           applied_ns: applied_ns(a.release, cycle, kind, response)
         }
 
-        Statistics.applied(id, kind, response)
+        Statistics.applied(state.statistics, id, kind, response)
         Activities.tell(state, a, event)
         state
 

@@ -26,21 +26,25 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   @doc "Starts it, linked to the caller, with `:publish_every` ms (nil: never)."
   def start_link(opts), do: GenServer.start_link(__MODULE__, opts, name: __MODULE__)
 
+  # The cycle tells `keeper` (the pid it holds: no name lookup on the
+  # release path; a keeper gone meanwhile takes nothing), hosts find it
+  # by name.
+
   @doc "An activity added (or added again: its figures start anew)."
-  def added(id, name, period_ns), do: tell({:added, id, name, period_ns})
+  def added(keeper, id, name, period_ns), do: tell(keeper, {:added, id, name, period_ns})
 
   @doc "An activity removed."
-  def removed(id), do: tell({:removed, id})
+  def removed(keeper, id), do: tell(keeper, {:removed, id})
 
   @doc "A release: scheduled and released (ns), the worker's timer late by `timer_late` ns."
-  def release(id, scheduled, released, timer_late),
-    do: tell({:release, id, scheduled, released, timer_late})
+  def release(keeper, id, scheduled, released, timer_late),
+    do: tell(keeper, {:release, id, scheduled, released, timer_late})
 
   @doc "What the worker applied (`:fresh`, `:fallback` or `:late`) and the response (ns)."
-  def applied(id, kind, response), do: tell({:applied, id, kind, response})
+  def applied(keeper, id, kind, response), do: tell(keeper, {:applied, id, kind, response})
 
-  @doc "The module's own computation of a result (ns)."
-  def cpu(id, ns), do: tell({:cpu, id, ns})
+  @doc "The module's own computation of a result (ns), from its host."
+  def cpu(id, ns), do: tell(Process.whereis(__MODULE__), {:cpu, id, ns})
 
   @doc """
   Each activity's summary (`ThinkingCap.Cycle.Stats.summary/1`), by name;
@@ -54,9 +58,10 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
     :exit, _ -> %{}
   end
 
-  # a message to the keeper if it runs (the cycle restarts it)
-  defp tell(message) do
-    if pid = Process.whereis(__MODULE__), do: send(pid, message)
+  defp tell(nil, _message), do: :ok
+
+  defp tell(keeper, message) do
+    send(keeper, message)
     :ok
   end
 
