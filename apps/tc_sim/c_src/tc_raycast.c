@@ -1612,38 +1612,53 @@ static int build_sectors(SectorTable *t, const Body *b, int nb, double x, double
     return 1;
 }
 
-/* validates the packed groups; returns the group count or -1 */
+/* Checks the packed groups' header (magic, counts, size) and reads the
+ * ray budget it claims; returns the group count or -1. The groups
+ * themselves are checked as scan_cast reads them (group_ok), which
+ * refuses the scan when they do not add up to the claimed budget: one
+ * pass over the groups, not two. */
 static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget)
 {
-    uint32_t ng, nr;
+    uint32_t ng, nr, b;
     if (gb->size < GROUPS_HEADER || memcmp(gb->data, "TCG1", 4) != 0) return -1;
     memcpy(&ng, gb->data + 4, 4);
     memcpy(&nr, gb->data + 8, 4);
+    memcpy(&b, gb->data + 12, 4);
     if (ng > 1000000 || nr > 100000000) return -1;
     if (gb->size != GROUPS_HEADER + (size_t)ng * GROUP_BYTES + (size_t)nr * 16) return -1;
-    double b = 0;
-    for (uint32_t i = 0; i < ng; i++) {
-        const unsigned char *p = gb->data + GROUPS_HEADER + (size_t)i * GROUP_BYTES;
-        double n = ld(p + 8 * G_NRAYS), off = ld(p + 8 * G_RAY_OFF), mb = ld(p + 8 * G_BOUNCES);
-        if (!(n >= 1) || !(off >= 0) || !(off + n <= nr) || !(mb >= 0 && mb <= MAX_BOUNCES_LIMIT))
-            return -1;
-        b += n * (1 + mb);
-    }
     *nrays = nr;
     *budget = b;
     return (int)ng;
 }
 
-/* Casts the rays of the ng groups at `groups` (validated) from a robot at
- * (X, Y, TH), not seeing body `exclude`: sets each group's state in gs
- * (its position, heading, nearest echo) and appends the bounced echoes
- * to ev (room for every ray). The caller holds the world's read lock.
- * Returns 0 when out of memory. */
+/* whether a group's rays lie within the nr rays of the binary, with a
+ * whole count of rays and of bounces (at most MAX_BOUNCES_LIMIT); adds
+ * its rays x (1 + bounces) to *budget */
+static int group_ok(const unsigned char *rec, uint32_t nr, double *budget)
+{
+    double n = ld(rec + 8 * G_NRAYS), off = ld(rec + 8 * G_RAY_OFF), mb = ld(rec + 8 * G_BOUNCES);
+    if (!(n >= 1) || !(off >= 0) || !(off + n <= nr) || !(mb >= 0 && mb <= MAX_BOUNCES_LIMIT) ||
+        n != floor(n) || off != floor(off) || mb != floor(mb))
+        return 0;
+    *budget += n * (1 + mb);
+    return 1;
+}
+
+/* Casts the rays of the ng groups at `groups` (header checked) from a
+ * robot at (X, Y, TH), not seeing body `exclude`: sets each group's state
+ * in gs (its position, heading, nearest echo) and appends the bounced
+ * echoes to ev (room for every ray). The caller holds the world's read
+ * lock. Returns 1, 0 when out of memory, -1 when a group is malformed or
+ * the groups do not add up to the header's budget. */
 static int scan_cast(const World *w, double X, double Y, double TH, const unsigned char *groups,
                      int ng, int exclude, GroupState *gs, Event *ev, int *nev_out)
 {
     const double ct = cos(TH), st = sin(TH);
     const unsigned char *rays = groups + GROUPS_HEADER + (size_t)ng * GROUP_BYTES;
+    uint32_t nr, claimed;
+    memcpy(&nr, groups + 8, 4);
+    memcpy(&claimed, groups + 12, 4);
+    double budget = 0;
     int nev = 0;
     double reach = 0, offset = 0;
     /* a laser's groups share their sensor's place: its offset is worked
@@ -1652,6 +1667,7 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
     for (int i = 0; i < ng; i++) {
         GroupState *s = &gs[i];
         s->rec = groups + GROUPS_HEADER + (size_t)i * GROUP_BYTES;
+        if (!group_ok(s->rec, nr, &budget)) return -1;
         const double gx = GF(s, G_X), gy = GF(s, G_Y), maxr = GF(s, G_MAX);
         s->px = X + ct * gx - st * gy;
         s->py = Y + st * gx + ct * gy;
@@ -1730,7 +1746,7 @@ static int scan_cast(const World *w, double X, double Y, double TH, const unsign
     if (bodies) enif_free(bodies);
     if (sectors.b) enif_free(sectors.b);
     *nev_out = nev;
-    return 1;
+    return budget == (double)claimed ? 1 : -1;
 }
 
 /* crosstalk: a bounced echo from P reaches every other transducer of the
@@ -1815,8 +1831,8 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         !tc_number(env, pose[2], &TH) || !enif_inspect_binary(env, argv[2], &gb) ||
         !enif_get_int(env, argv[3], &exclude) || !enif_get_uint64(env, argv[4], &seed))
         return enif_make_badarg(env);
-    /* the groups were checked by nif_scan / nif_scan_list (scan_check):
-     * only the counts are read again here */
+    /* the header was checked by nif_scan / nif_scan_list (scan_check):
+     * only the counts are read again here; scan_cast checks the groups */
     uint32_t ng32, nr32;
     memcpy(&ng32, gb.data + 4, 4);
     memcpy(&nr32, gb.data + 8, 4);
@@ -1832,7 +1848,7 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
     enif_rwlock_rlock(w->lock);
     int ok = scan_cast(w, X, Y, TH, gb.data, ng, exclude, gs, ev, &nev);
     enif_rwlock_runlock(w->lock);
-    if (!ok) {
+    if (ok != 1) {
         enif_free(gs);
         return enif_make_badarg(env);
     }
@@ -1852,12 +1868,16 @@ static ERL_NIF_TERM scan_core(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[
         enif_free(cells);
     } else {
         unsigned char *o = enif_make_new_binary(env, (size_t)ng * 8, &out);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+        memcpy(o, readings, (size_t)ng * 8);
+#else
         for (int i = 0; i < ng; i++) {
             uint64_t bits;
             memcpy(&bits, &readings[i], 8);
             for (int b = 0; b < 8; b++)
                 o[8 * i + b] = (unsigned char)(bits >> (8 * b));
         }
+#endif
     }
     enif_free(gs);
     return out;

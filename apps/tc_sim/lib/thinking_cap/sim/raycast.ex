@@ -2,6 +2,8 @@ defmodule ThinkingCap.Sim.Raycast do
   # rays x (1 + max_bounces) above which a call runs on a dirty CPU
   # scheduler: DIRTY_RAY_BUDGET in c_src/tc_raycast.c
   @dirty_budget 4000
+  # a scan's rays with their bounces: the packed header holds 32 bits
+  @max_budget 0xFFFFFFFF
 
   @moduledoc """
   Ray casting for the simulator: a NIF (`c_src/tc_raycast.c`, built by the
@@ -372,26 +374,28 @@ defmodule ThinkingCap.Sim.Raycast do
     doubles = Enum.reverse(records) ++ Enum.reverse(rays)
     nrays = rays |> Enum.map(&length/1) |> Enum.sum()
 
+    budget =
+      for [_, _, _, _, _, n, _, _, _, mb | _] <- records, reduce: 0 do
+        acc -> acc + n * (1 + mb)
+      end
+
+    if budget > @max_budget,
+      do:
+        raise(ArgumentError, "groups: #{budget} rays with their bounces, at most #{@max_budget}")
+
     body = for d <- List.flatten(doubles), into: <<>>, do: <<d::float-native-64>>
-    <<"TCG1", length(groups)::native-32, nrays::native-32, 0::32, body::binary>>
+    <<"TCG1", length(groups)::native-32, nrays::native-32, budget::native-32, body::binary>>
   end
 
   @doc """
   The ray budget of a packed groups binary: rays × (1 + max_bounces) summed
-  over the groups. `scan/5` runs on a dirty CPU scheduler above #{@dirty_budget}.
+  over the groups, as `pack_groups/1` wrote it in the header. `scan/5` runs
+  on a dirty CPU scheduler above #{@dirty_budget}, and refuses groups that
+  do not add up to their header's budget.
   """
   @spec ray_budget(binary()) :: non_neg_integer()
-  def ray_budget(<<"TCG1", ng::native-32, _nrays::native-32, _::32, rest::binary>>) do
-    <<records::binary-size(ng * 160), _::binary>> = rest
-
-    for <<record::binary-size(160) <- records>>, reduce: 0 do
-      acc ->
-        <<_::binary-size(40), n::float-native-64, _::binary-size(24), mb::float-native-64,
-          _::binary>> = record
-
-        acc + trunc(n) * (1 + trunc(mb))
-    end
-  end
+  def ray_budget(<<"TCG1", _ng::native-32, _nrays::native-32, budget::native-32, _::binary>>),
+    do: budget
 
   @doc """
   The distance from (`x`, `y`) to the nearest obstacle — an enabled segment,

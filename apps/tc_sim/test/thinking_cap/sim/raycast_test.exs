@@ -840,6 +840,25 @@ defmodule ThinkingCap.Sim.RaycastTest do
       end
     end
 
+    test "groups that do not add up to their header, or reach past its rays, are refused",
+         %{world: w} do
+      packed = Raycast.pack_groups([%{max_range: 5.0, rays: 3, max_bounces: 2}])
+      assert Raycast.ray_budget(packed) == 9
+      assert byte_size(Raycast.scan(w, {0, 0, 0}, packed, -1, 0)) == 8
+
+      # a header claiming fewer rays than the groups hold (a long scan
+      # passed off as short)
+      <<head::binary-size(12), 9::native-32, rest::binary>> = packed
+      lying = <<head::binary, 1::native-32, rest::binary>>
+      assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, lying, -1, 0) end
+
+      # the group's rays start at 1 of 3: its last ray is past the end
+      <<head::binary-size(64), 0.0::float-native-64, rest::binary>> = packed
+      past = <<head::binary, 1.0::float-native-64, rest::binary>>
+      assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, past, -1, 0) end
+      assert_raise ArgumentError, fn -> Raycast.scan_list(w, {0, 0, 0}, past, -1, 0) end
+    end
+
     test "a large scan (dirty scheduler) gives the same reading as cast_rays", %{world: w} do
       g = %{max_range: 5.0, heading: 0.4, fov: 0.5, rays: 5000}
       packed = Raycast.pack_groups([g])
