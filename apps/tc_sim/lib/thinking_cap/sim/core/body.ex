@@ -70,32 +70,36 @@ defmodule ThinkingCap.Sim.Core.Body do
     {true_twist, odom_twist, err} = OdometryError.step(body.err, twist, dt)
     pose = Kinematics.integrate(body.pose, true_twist, dt)
 
-    # each disc of the footprint clear, or at least no nearer an obstacle
-    # than it was (so a robot that touches may back away)
-    discs =
-      for {cx, cy, r} <- body.circles do
-        {clearance(world, body, at(pose, cx, cy)), r, {cx, cy}}
-      end
+    case discs_free(body.circles, world, body, pose, false) do
+      {:free, touching} ->
+        %{
+          body
+          | pose: pose,
+            odom: Kinematics.integrate(body.odom, odom_twist, dt),
+            odom_twist: odom_twist,
+            twist: twist,
+            err: err,
+            bumped: touching
+        }
 
-    free? =
-      Enum.all?(discs, fn {c, r, {cx, cy}} ->
-        c >= r or c >= clearance(world, body, at(body.pose, cx, cy))
-      end)
-
-    if free? do
-      %{
-        body
-        | pose: pose,
-          odom: Kinematics.integrate(body.odom, odom_twist, dt),
-          odom_twist: odom_twist,
-          twist: twist,
-          err: err,
-          bumped: Enum.any?(discs, fn {c, r, _} -> c < r end)
-      }
-    else
-      # blocked: the bumper closes and the robot stops where it is
-      %{body | twist: {0.0, 0.0}, odom_twist: {0.0, 0.0}, err: err, bumped: true}
+      :blocked ->
+        # blocked: the bumper closes and the robot stops where it is
+        %{body | twist: {0.0, 0.0}, odom_twist: {0.0, 0.0}, err: err, bumped: true}
     end
+  end
+
+  # Each disc of the footprint at `pose` clear, or at least no nearer an
+  # obstacle than it was (so a robot that touches may back away):
+  # `{:free, touching}`, touching when a disc touches; else `:blocked`.
+  # (Recursion, not closures: this runs for every robot at every step.)
+  defp discs_free([], _world, _body, _pose, touching), do: {:free, touching}
+
+  defp discs_free([{cx, cy, r} | rest], world, body, pose, touching) do
+    c = clearance(world, body, at(pose, cx, cy))
+
+    if c >= r or c >= clearance(world, body, at(body.pose, cx, cy)),
+      do: discs_free(rest, world, body, pose, touching or c < r),
+      else: :blocked
   end
 
   @doc """
@@ -125,24 +129,35 @@ defmodule ThinkingCap.Sim.Core.Body do
   """
   def sense(body, world, step, time, seed, publish \\ false) do
     packed = body.packed and match?({:controller, _}, body.sink) and not publish
+    at = {body, world, step, time, seed, packed}
+    {sensors, readings, rays, rng} = sense_each(body.sensors, at, [], [], 0, body.rng)
+    {readings, %{body | sensors: sensors, rng: rng, rays: rays}}
+  end
 
-    {sensors, {readings, rays, rng}} =
-      Enum.map_reduce(body.sensors, {[], 0, body.rng}, fn sensor, {acc, rays, rng} ->
-        if Sensors.due?(sensor, step) do
-          scan_seed = :erlang.phash2({seed, body.index, step, sensor.index}, 4_294_967_296)
-          packed = packed and not MapSet.member?(body.publish, sensor.name)
+  # the sensors in order, each read when due (recursion, not a closure:
+  # this runs for every robot at every step)
+  defp sense_each([], _at, sensors, readings, rays, rng),
+    do: {:lists.reverse(sensors), :lists.reverse(readings), rays, rng}
 
-          {payload, sensor, rng} =
-            Sensors.read(sensor, %{body | rng: rng}, world, time, scan_seed, packed)
+  defp sense_each([sensor | rest], at, sensors, readings, rays, rng) do
+    {body, world, step, time, seed, packed} = at
 
-          acc = if payload, do: [{sensor.name, payload} | acc], else: acc
-          {sensor, {acc, rays + if(payload, do: sensor.rays, else: 0), rng}}
-        else
-          {sensor, {acc, rays, rng}}
-        end
-      end)
+    if Sensors.due?(sensor, step) do
+      scan_seed = :erlang.phash2({seed, body.index, step, sensor.index}, 4_294_967_296)
+      packed = packed and not MapSet.member?(body.publish, sensor.name)
 
-    {Enum.reverse(readings), %{body | sensors: sensors, rng: rng, rays: rays}}
+      {payload, sensor, rng} =
+        Sensors.read(sensor, %{body | rng: rng}, world, time, scan_seed, packed)
+
+      {readings, rays} =
+        if payload,
+          do: {[{sensor.name, payload} | readings], rays + sensor.rays},
+          else: {readings, rays}
+
+      sense_each(rest, at, [sensor | sensors], readings, rays, rng)
+    else
+      sense_each(rest, at, [sensor | sensors], readings, rays, rng)
+    end
   end
 
   @doc "Runs the in-process controller on fresh readings."

@@ -200,8 +200,13 @@ defmodule ThinkingCap.Sim.Core.Sensors do
   defp do_read(%{type: :odometry} = sensor, robot, _world, time, _seed, _packed),
     do: {%{pose: robot.odom, twist: robot.odom_twist, stamp: time}, sensor, robot.rng}
 
-  defp dead?(sensor, time),
-    do: Enum.any?(sensor.faults, &(&1.type == :dead and &1.holds and time >= &1.after))
+  # (these run for every sensor of every robot at every step: recursion,
+  # no closures)
+  defp dead?(sensor, time), do: dead_fault?(sensor.faults, time)
+
+  defp dead_fault?([], _time), do: false
+  defp dead_fault?([%{type: :dead, holds: true, after: t} | _], time) when time >= t, do: true
+  defp dead_fault?([_ | rest], time), do: dead_fault?(rest, time)
 
   # The ray groups packed for the NIF, once for each set of per-reading
   # faults that can be active: they start one after the other, so the sets
@@ -240,10 +245,10 @@ defmodule ThinkingCap.Sim.Core.Sensors do
     end
   end
 
-  defp packed_groups(sensor, time) do
-    {_start, packed} = Enum.find(sensor.packed, fn {start, _} -> time >= start end)
-    packed
-  end
+  defp packed_groups(sensor, time), do: started(sensor.packed, time)
+
+  defp started([{start, packed} | _], time) when time >= start, do: packed
+  defp started([_ | rest], time), do: started(rest, time)
 
   defp apply_faults(group, active) do
     Enum.reduce(active, group, fn
@@ -261,7 +266,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
     do: ranges |> drift(sensor, time) |> stuck(sensor, time)
 
   defp faults(ranges, sensor, time) do
-    if Enum.any?(sensor.faults, &stateful?(&1, time)) do
+    if any_stateful?(sensor.faults, time) do
       list = for <<r::float-little-64 <- ranges>>, do: r
       {list, sensor} = faults(list, sensor, time)
       {for(r <- list, into: <<>>, do: <<r::float-little-64>>), sensor}
@@ -269,6 +274,9 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       {ranges, sensor}
     end
   end
+
+  defp any_stateful?([], _time), do: false
+  defp any_stateful?([f | rest], time), do: stateful?(f, time) or any_stateful?(rest, time)
 
   defp stateful?(%{type: :drift, holds: true} = f, time), do: time >= f.after
   defp stateful?(%{type: :stuck, groups: [_ | _]} = f, time), do: time >= f.after
