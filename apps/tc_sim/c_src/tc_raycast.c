@@ -1785,9 +1785,10 @@ static void scan_crosstalk(GroupState *gs, int ng, const Event *ev, int nev)
 
 /* The groups' readings after noise and faults, into out[0 .. ng). One
  * splitmix64 stream from the hashed seed, drawn from in group order and
- * only as needed: a Gaussian (Box-Muller, the pair's second value kept
- * for the next noisy group) for a noisy echo, a uniform for the fault
- * when the group has faults, another for a spike's value. */
+ * only as needed: a Gaussian (Marsaglia's polar method, the pair's
+ * second value kept for the next noisy group) for a noisy echo, a
+ * uniform for the fault when the group has faults, another for a
+ * spike's value. */
 static void scan_readings(const GroupState *gs, int ng, uint64_t seed, double *out)
 {
     uint64_t rng = seed;
@@ -1806,10 +1807,18 @@ static void scan_readings(const GroupState *gs, int ng, uint64_t seed, double *o
                     z = z_spare;
                     spare = 0;
                 } else {
-                    double u1 = uniform(&rng), u2 = uniform(&rng);
-                    double m = sqrt(-2.0 * log(1.0 - u1)), a = 2.0 * M_PI * u2;
-                    z = m * cos(a);
-                    z_spare = m * sin(a);
+                    /* Marsaglia's polar method: a point drawn in the unit
+                     * disc, no sine or cosine (they took 2 % of the
+                     * simulator's CPU) */
+                    double u, v, q;
+                    do {
+                        u = 2.0 * uniform(&rng) - 1.0;
+                        v = 2.0 * uniform(&rng) - 1.0;
+                        q = u * u + v * v;
+                    } while (q >= 1.0 || q == 0.0);
+                    double m = sqrt(-2.0 * log(q) / q);
+                    z = u * m;
+                    z_spare = v * m;
                     spare = 1;
                 }
             }
