@@ -13,7 +13,9 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   # given @read_timeout ms to send its request; beyond the cap a
   # connection gets a 503 at once and is closed. Nor can running out of
   # file descriptors: it holds a spare one (/dev/null open), which it
-  # gives up to accept when the node has no other left.
+  # gives up to accept when the node has no other left, and accepts until
+  # a descriptor is free (another part of the node may take the spare's
+  # first).
 
   use GenServer
   require Logger
@@ -24,6 +26,8 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   @max_open 16
   @read_timeout 1_000
   @max_headers 32
+  # how long a connection may wait for a descriptor when the node has none
+  @spare_wait 2_000
 
   @doc "Starts the listener on `estop_port` (0: a free port) of `host`."
   @spec start_link(%{host: String.t(), estop_port: :inet.port_number()}) :: GenServer.on_start()
@@ -71,17 +75,34 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     end
   end
 
-  defp accept_on_spare(%{spare: nil} = state) do
-    Process.sleep(50)
+  # The spare descriptor, closed, is free for the next one the node
+  # opens, and that may be another part of it (the web server's watchdog,
+  # restarting it, takes descriptors and gives them back when it fails).
+  # So the listener keeps accepting until a descriptor is free, up to
+  # @spare_wait ms, rather than once: a connection then waits for the
+  # next free one, and never for the node to free many.
+  defp accept_on_spare(state) do
+    if state.spare, do: File.close(state.spare)
+    deadline = System.monotonic_time(:millisecond) + @spare_wait
+
+    # served here, not in a process of its own: descriptors are short
+    with {:ok, socket} <- accept_when_free(state.listen, deadline), do: handle(socket)
     %{state | spare: spare()}
   end
 
-  defp accept_on_spare(state) do
-    File.close(state.spare)
+  defp accept_when_free(listen, deadline) do
+    case Acceptor.accept(listen, "E-stop port") do
+      :no_descriptor ->
+        if System.monotonic_time(:millisecond) < deadline do
+          Process.sleep(5)
+          accept_when_free(listen, deadline)
+        else
+          :none
+        end
 
-    # served here, not in a process of its own: descriptors are short
-    with {:ok, socket} <- Acceptor.accept(state.listen, "E-stop port"), do: handle(socket)
-    %{state | spare: spare()}
+      accepted_or_none ->
+        accepted_or_none
+    end
   end
 
   defp serve(socket, state) do
