@@ -41,9 +41,9 @@ defmodule ThinkingCap.Runtime.Scheduling do
       19 to 43 ms, and the control cycles missed none but in a stall of
       the machine itself (the cycle now keeps its statistics in another
       process, so its own heap stays small). Once running, a dirty
-      thread is not preempted by a scheduler of its own priority; under full load
-      it waits until a scheduler runs out of work, and its CPU counts
-      toward the kernel's real-time throttling;
+      thread is not preempted by a scheduler of its own priority; under
+      full load it waits until a scheduler runs out of work, and its CPU
+      counts toward the kernel's real-time throttling;
     * the dirty I/O schedulers (file I/O) stay at normal priority.
 
   Measured with `mix tc.bench timing` (100 Hz, deadline 3 ms, two CPU hogs,
@@ -132,9 +132,8 @@ defmodule ThinkingCap.Runtime.Scheduling do
   The threads the timing worker boosts while a periodic result is
   pending: each scheduler (normal and dirty CPU) at `:periodic_priority`
   (default 20), the poller one above, with the `SCHED_FIFO` priority
-  each has now. `[]` when the
-  boost is off or the schedulers do not run at real-time priority below
-  their boost.
+  each has now. `[]` when the boost is off or the schedulers do not run
+  at real-time priority below their boost.
   """
   @spec release_boost() :: [boost()]
   def release_boost do

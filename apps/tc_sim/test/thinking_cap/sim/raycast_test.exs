@@ -857,6 +857,17 @@ defmodule ThinkingCap.Sim.RaycastTest do
       past = <<head::binary, 1.0::float-native-64, rest::binary>>
       assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, past, -1, 0) end
       assert_raise ArgumentError, fn -> Raycast.scan_list(w, {0, 0, 0}, past, -1, 0) end
+
+      # two rays from half a ray in: within the binary, and adding up to a
+      # header that says 6, but not a whole ray
+      <<head::binary-size(12), 9::native-32, groups::binary-size(40), 3.0::float-native-64,
+        0.0::float-native-64, rest::binary>> = packed
+
+      half =
+        <<head::binary, 6::native-32, groups::binary, 2.0::float-native-64, 0.5::float-native-64,
+          rest::binary>>
+
+      assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, half, -1, 0) end
     end
 
     test "a large scan (dirty scheduler) gives the same reading as cast_rays", %{world: w} do
