@@ -676,7 +676,9 @@ static void seg_trace(const World *w, double px, double py, double dx, double dy
             int id = w->sitems[k];
             double t;
             if (!w->seg_on[id]) continue;
-            if (seg_hit(&w->seg[id], px, py, dx, dy, &t) && t < h->t) {
+            /* (a segment wins a tie with a body, see trace) */
+            if (seg_hit(&w->seg[id], px, py, dx, dy, &t) &&
+                (t < h->t || (t == h->t && h->kind == HIT_BODY))) {
                 h->t = t;
                 h->kind = HIT_SEG;
                 h->id = id;
@@ -707,7 +709,10 @@ static inline void grid_frame(const World *w, double px, double py, double dx, d
     *vy = -dx * w->gs + dy * w->gc;
 }
 
-/* nearest hit along p + t d (|d| = 1), 0 <= t <= tmax */
+/* Nearest hit along p + t d (|d| = 1), 0 <= t <= tmax. The bodies are
+ * tested first: a ray that meets one (one in six in the raycast
+ * benchmark) marches the grid only up to it, not on to the wall behind. The grid and the segments win ties, as when they were tested
+ * first. */
 static void trace(const Ctx *c, double px, double py, double dx, double dy, double tmax, Hit *h)
 {
     const World *w = c->w;
@@ -718,15 +723,6 @@ static void trace(const Ctx *c, double px, double py, double dx, double dy, doub
     h->cx = h->cy = h->face = h->stepx = h->stepy = 0;
     h->vx = dx;
     h->vy = dy;
-    if (w->has_grid) {
-        double ux, uy, vx, vy, tc;
-        grid_frame(w, px, py, dx, dy, &ux, &uy, &vx, &vy);
-        if (grid_march(w, ux, uy, vx, vy, tmax * w->inv_res, &tc, h)) {
-            h->t = tc * w->res;
-            h->kind = HIT_GRID;
-        }
-    }
-    if (w->nseg_on > 0) seg_trace(w, px, py, dx, dy, h);
     for (int i = 0; i < c->nb; i++) {
         const Body *b = &c->b[i];
         double mx = px - b->x, my = py - b->y;
@@ -744,6 +740,17 @@ static void trace(const Ctx *c, double px, double py, double dx, double dy, doub
             h->body = b;
         }
     }
+    if (w->has_grid) {
+        double ux, uy, vx, vy, tc;
+        grid_frame(w, px, py, dx, dy, &ux, &uy, &vx, &vy);
+        if (grid_march(w, ux, uy, vx, vy, h->t * w->inv_res, &tc, h) && tc * w->res <= h->t) {
+            h->t = tc * w->res;
+            h->kind = HIT_GRID;
+            h->id = -1;
+            h->body = NULL;
+        }
+    }
+    if (w->nseg_on > 0) seg_trace(w, px, py, dx, dy, h);
 }
 
 /* Surface normal at a hit (unit, facing the incoming ray) and the nudge
@@ -787,11 +794,14 @@ static void surface(const World *w, const Hit *h, double dx, double dy, double h
                 const int Y = Y0 + j;
                 const uint8_t *row =
                     w->code + (((size_t)(Y >> 3) * w->gtw) << 6) + (size_t)((Y & 7) << 3);
+                /* no branch on the cells: a sonar echo's neighbourhood is
+                 * a mix a predictor cannot learn (a third of a cast's
+                 * mispredictions, cachegrind). The centre cell counts 0 in
+                 * both sums. */
                 for (int i = -2; i <= 2; i++) {
-                    if ((i | j) && row[col[i + 2]] == CODE_OBST) {
-                        isx -= i;
-                        isy -= j;
-                    }
+                    const int o = row[col[i + 2]] == CODE_OBST;
+                    isx -= i * o;
+                    isy -= j * o;
                 }
             }
             sx = isx;

@@ -48,6 +48,21 @@ defmodule ThinkingCap.Sim.RaycastTest do
     |> Enum.min(fn -> nil end)
   end
 
+  # entry distance of the ray (unit direction) into a disc: 0 from inside,
+  # nil when it misses
+  defp ray_circle({x, y, dx, dy}, {cx, cy, r}) do
+    {mx, my} = {x - cx, y - cy}
+    b = mx * dx + my * dy
+    c = mx * mx + my * my - r * r
+    disc = b * b - c
+
+    cond do
+      c <= 0 -> 0.0
+      b > 0 or disc < 0 -> nil
+      true -> -b - :math.sqrt(disc)
+    end
+  end
+
   defp point_polygons({x, y}, polygons) do
     polygons
     |> Enum.flat_map(fn poly -> Enum.zip(poly, tl(poly) ++ [hd(poly)]) end)
@@ -250,6 +265,65 @@ defmodule ThinkingCap.Sim.RaycastTest do
       :rand.seed(:exsss, {4, 5, 6})
       grid = random_grid(200, 160, 0.05, {1.0, -2.0, 0.0}, 0.004)
       check_grid_rays(grid, {1.0, 11.0, -2.0, 6.0}, 200, 15.0)
+    end
+
+    # A trace tests the bodies first and marches the grid only up to the
+    # nearest one: bodies in front of walls, behind them and inside
+    # obstacle cells must all give the nearer of the two.
+    test "bodies among obstacle cells: the nearer of wall and body, as brute force" do
+      :rand.seed(:exsss, {8, 6, 4})
+      grid = random_grid(120, 90, 0.05, {-1.0, -1.5, 0.4}, 0.01)
+      polygons = obstacle_polygons(grid)
+
+      bodies =
+        for _ <- 1..40,
+            do:
+              {-2.0 + :rand.uniform() * 6.0, -1.0 + :rand.uniform() * 6.0,
+               0.05 + 0.2 * :rand.uniform()}
+
+      world = world!(grid: grid)
+      :ok = Raycast.set_bodies(world, bodies)
+
+      # from free cells (inside an obstacle cell a ray reads 0)
+      rays =
+        for _ <- 1..400,
+            ray =
+              {-2.0 + :rand.uniform() * 6.0, -1.0 + :rand.uniform() * 6.0,
+               :rand.uniform() * 2 * :math.pi(), 4.0},
+            (cell_at(grid, {elem(ray, 0), elem(ray, 1)}) || 0) < 50,
+            do: ray
+
+      kinds =
+        for {{x, y, a, max} = ray, got} <- Enum.zip(rays, Raycast.cast_rays(world, rays)) do
+          wall = ray_polygons(ray, polygons)
+          {dx, dy} = {:math.cos(a), :math.sin(a)}
+          body = bodies |> Enum.map(&ray_circle({x, y, dx, dy}, &1)) |> Enum.min(fn -> nil end)
+
+          case Enum.reject([{wall, :grid}, {body, :body}], &(elem(&1, 0) == nil)) do
+            [] ->
+              assert got.hit == :none and got.range == max
+              :none
+
+            candidates ->
+              {t, kind} = Enum.min_by(candidates, &elem(&1, 0))
+
+              if t > max do
+                assert got.hit == :none
+                :none
+              else
+                assert got.hit == kind,
+                       "ray #{inspect(ray)}: #{inspect(got)}, expected #{kind} at #{t}"
+
+                assert_in_delta got.range, t, 1.0e-7
+                kind
+              end
+          end
+        end
+
+      # both kinds of hit occur, and misses
+      assert Enum.count(kinds, &(&1 == :body)) > 20
+      assert Enum.count(kinds, &(&1 == :grid)) > 20
+      assert :none in kinds
     end
 
     test "a rotated random grid matches the analytic entry distance" do
