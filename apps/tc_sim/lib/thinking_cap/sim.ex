@@ -28,8 +28,9 @@ defmodule ThinkingCap.Sim do
   occupied map cell, another robot or a walker) is refused and closes the
   bumper. Walkers (`add_walker/3`) then take their step.
   Then each sensor due at this step reads (its `rate` from the RDF), seeing
-  the world and the other robots (as discs of their footprint radius, where
-  they stood at the start of the step). Robots are stepped in parallel, in
+  the world, the other robots (as discs of their footprint radius) and
+  the walkers where they stand after this step's moves: a reading and the
+  true poses of its stamp agree. Robots are stepped in parallel, in
   shards of 16 robots spread over the schedulers (see `:shards`), regrouped
   by place now and then so that a shard's rays stay in one part of the
   map; moves that ran two robots into each other are taken back (both
@@ -128,7 +129,8 @@ defmodule ThinkingCap.Sim do
   robot of another region and every walker within sensor reach of its
   robots (the longest sensor range of any robot, plus its footprint and
   a margin for the step's move); the contacts among the moves and the
-  walkers' step are found here; then every shard senses. When the robots
+  walkers' step are found here; then each node gets the bodies it must
+  see where they stand after the moves, and every shard senses. When the robots
   are regrouped (`:regroup_every`), a robot now in another node's strip
   is handed over to a shard of that node whole: body, sensors, random
   state and controller state (an owner pid works from any node). Body

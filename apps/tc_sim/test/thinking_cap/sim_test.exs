@@ -150,6 +150,35 @@ defmodule ThinkingCap.SimTest do
       assert message =~ "not free"
     end
 
+    test "a reading sees robots and walkers where they stand after the step's moves", %{
+      tmp_dir: dir
+    } do
+      sim = sim(T.world!(dir, walls: T.box(12, 10)))
+      robot = T.robot!(dir, sensors: [@laser])
+      :ok = Sim.add_robot(sim, :a, description: robot, at: {2, 5, 0}, owner: self())
+      :ok = Sim.add_robot(sim, :b, description: robot, at: {4, 5, 0}, owner: self())
+      # a walker coming down towards :a's left side, on x = 2
+      :ok = Sim.add_walker(sim, :person, route: [{2, 9}, {2, 6.5}], speed: 1.0)
+      Sim.command(sim, :b, {:velocity, 0.5, 0.0})
+      flush(:a)
+
+      moved =
+        for _ <- 1..6 do
+          :ok = Sim.step(sim)
+          assert_receive {:tc_sim, :readings, :a, readings}, 1000
+          ranges = Map.new(readings).laser.ranges
+          {:ok, {bx, 5.0, _}} = Sim.pose(sim, :b)
+          %{person: {2.0, wy}} = Sim.walkers(sim)
+          # ahead: :b (radius 0.2) where it stands now; left: the walker (0.25)
+          assert_in_delta Enum.at(ranges, 90), bx - 0.2 - 2, 1.0e-6
+          assert_in_delta Enum.at(ranges, 180), wy - 0.25 - 5, 1.0e-6
+          {bx, wy}
+        end
+
+      # both moved at every step, so a reading a step late would differ
+      for {{b0, w0}, {b1, w1}} <- Enum.zip(moved, tl(moved)), do: assert(b1 > b0 and w1 < w0)
+    end
+
     test "a publishing simulation writes readings and true poses to the blackboard", %{
       tmp_dir: dir
     } do

@@ -126,14 +126,16 @@ defmodule ThinkingCap.Sim.Core.Region do
     {:noreply, %{state | waiting: {:moved, ref, length(state.shards), []}}}
   end
 
-  # the second phase: the shards sense
-  def handle_info({:sense, ref, _step, _time, _taken_back} = sense, state) do
-    Enum.each(state.shards, &GenServer.cast(&1, sense))
+  # the second phase: the bodies where they stand after the moves (and
+  # the walkers' step), then the shards sense
+  def handle_info({:sense, ref, step, time, taken_back, n, bodies}, state) do
+    :ok = Raycast.set_bodies_packed(state.world.raycast, n, bodies)
+    Enum.each(state.shards, &GenServer.cast(&1, {:sense, ref, step, time, taken_back}))
     {:noreply, %{state | waiting: {:stepped, ref, length(state.shards), []}}}
   end
 
   # the shards' answers, sent on together once all are in
-  def handle_info({:moved, ref, moves}, %{waiting: {:moved, ref, left, acc}} = state),
+  def handle_info({:moved, ref, _shard, moves}, %{waiting: {:moved, ref, left, acc}} = state),
     do: {:noreply, answered(state, :moved, ref, left, [moves | acc])}
 
   def handle_info(
@@ -147,7 +149,7 @@ defmodule ThinkingCap.Sim.Core.Region do
   defp answered(state, phase, ref, 1, acc) do
     message =
       case phase do
-        :moved -> {:moved, ref, IO.iodata_to_binary(acc)}
+        :moved -> {:moved, ref, node(), IO.iodata_to_binary(acc)}
         :stepped -> {:stepped_all, ref, acc}
       end
 

@@ -368,7 +368,7 @@ defmodule ThinkingCap.Sim.Core.Server do
 
   def handle_info({:stepped, _ref, _shard, _records}, state), do: {:noreply, state}
   def handle_info({:stepped_all, _ref, _records}, state), do: {:noreply, state}
-  def handle_info({:moved, _ref, _moves}, state), do: {:noreply, state}
+  def handle_info({:moved, _ref, _from, _moves}, state), do: {:noreply, state}
 
   def handle_info(message, state) do
     Logger.debug("ThinkingCap.Sim: unexpected message #{inspect(message, limit: 10)}")
@@ -384,10 +384,12 @@ defmodule ThinkingCap.Sim.Core.Server do
   end
 
   # One step: every shard moves its robots in parallel; the moves that ran
-  # two robots into each other are taken back (Contacts); every shard reads
-  # its robots' sensors and runs their controllers in parallel, while the
-  # walkers step here among the robots where they now stand; then the
-  # bodies move in the ray caster.
+  # two robots into each other are taken back (Contacts); the walkers step
+  # among the robots where they now stand; the ray caster (and each
+  # region's, across nodes) takes the bodies where they now are; then every
+  # shard reads its robots' sensors and runs their controllers in parallel.
+  # So a reading sees the other robots and the walkers where they are at
+  # its stamp, not where they were a step before.
   defp do_step(state) do
     state = regroup(state)
     ref = make_ref()
@@ -395,19 +397,32 @@ defmodule ThinkingCap.Sim.Core.Server do
     shards = Tuple.to_list(state.shards)
     state = start_moves(state, shards, ref)
     answering = if state.regions, do: length(state.regions), else: length(shards)
-    moves = collect_moves(ref, answering, [])
+    moved = collect_moves(ref, answering, [])
+    moves = Enum.map(moved, &elem(&1, 1))
     taken_back = Contacts.taken_back(moves)
+    standing = Enum.map(moved, fn {from, bin} -> {from, standing(bin, taken_back)} end)
+    robots = IO.iodata_to_binary(Enum.map(standing, &elem(&1, 1)))
+    walkers = Walkers.step(state.walkers, discs(robots, state.walkers), state.dt)
+    state = %{state | walkers: walkers}
+    walker_records = walker_records(walkers)
+    bodies = IO.iodata_to_binary([robots | walker_records])
+    :ok = Raycast.set_bodies_packed(state.world.raycast, state.next_index, bodies)
     sense = {:sense, ref, state.step, time, taken_back}
 
-    if state.regions,
-      do: for({_node, pid} <- state.regions, do: send(pid, sense)),
-      else: Enum.each(shards, &GenServer.cast(&1, sense))
+    if state.regions do
+      own = Enum.group_by(standing, &elem(&1, 0), &elem(&1, 1))
+      own = Map.merge(Map.new(state.regions, &{elem(&1, 0), []}), own)
+      bodies = Ghosts.bodies(own, IO.iodata_to_binary(walker_records), state.reach)
 
-    walkers = Walkers.step(state.walkers, standing(moves, taken_back, state.walkers), state.dt)
+      for {node, pid} <- state.regions,
+          do:
+            send(pid, {:sense, ref, state.step, time, taken_back, state.next_index, bodies[node]})
+    else
+      Enum.each(shards, &GenServer.cast(&1, sense))
+    end
+
     records = collect(ref, answering, state.records)
-    state = %{state | step: state.step + 1, records: records, walkers: walkers}
-    set_bodies(state)
-    state
+    %{state | step: state.step + 1, records: records}
   end
 
   # The first phase of a step. On one node the shards move at once; across
@@ -593,28 +608,37 @@ defmodule ThinkingCap.Sim.Core.Server do
   defp route(_world, other),
     do: {:error, "walker route: #{inspect(other, limit: 5)} is not a list of two points or more"}
 
-  # where the robots stand after this step's moves: {x, y, radius}
-  defp standing(_moves, _taken_back, walkers) when map_size(walkers) == 0, do: <<>>
-
-  # the robots where they stand after the moves, as Walkers.step/3 takes
-  # them (gathered as iodata: built by appending, the binary took 5x as
-  # long, 1 ms a step for 2,000 robots)
-  defp standing(moves, taken_back, _walkers) do
-    moves
-    |> Enum.map(fn bin ->
-      for <<i::float-native-64, x0::binary-size(16), x1::binary-size(16),
+  # Where the robots of a binary of moves stand after them, as body
+  # records: a move taken back leaves its robot where it stood. (Gathered
+  # as iodata: built by appending, the binary took 5x as long, 1 ms a
+  # step for 2,000 robots.)
+  defp standing(bin, taken_back) do
+    records =
+      for <<id::binary-size(8), x0::binary-size(16), x1::binary-size(16),
             r::binary-size(8) <- bin>> do
-        if MapSet.member?(taken_back, trunc(i)), do: [x0 | r], else: [x1 | r]
+        <<i::float-native-64>> = id
+        if MapSet.member?(taken_back, trunc(i)), do: [id, x0 | r], else: [id, x1 | r]
       end
-    end)
-    |> IO.iodata_to_binary()
+
+    IO.iodata_to_binary(records)
+  end
+
+  # body records as the walkers' step takes the robots: x, y, radius
+  defp discs(_records, walkers) when map_size(walkers) == 0, do: <<>>
+
+  defp discs(records, _walkers),
+    do: for(<<_i::binary-size(8), disc::binary-size(24) <- records>>, into: <<>>, do: disc)
+
+  defp walker_records(walkers) do
+    for {_id, %{at: {x, y}} = w} <- walkers, do: Raycast.body_record(w.index, x, y, w.radius)
   end
 
   defp collect_moves(_ref, 0, moves), do: moves
 
+  # the moves of each shard, or (across nodes) of each region: [{from, binary}]
   defp collect_moves(ref, n, moves) do
     receive do
-      {:moved, ^ref, more} -> collect_moves(ref, n - 1, [more | moves])
+      {:moved, ^ref, from, more} -> collect_moves(ref, n - 1, [{from, more} | moves])
     end
   end
 
@@ -631,11 +655,7 @@ defmodule ThinkingCap.Sim.Core.Server do
   # every robot (its shard's records) and walker to the ray caster; the
   # indexes no body holds are parked far away
   defp set_bodies(state) do
-    walkers =
-      for {_id, %{at: {x, y}} = w} <- state.walkers,
-          do: Raycast.body_record(w.index, x, y, w.radius)
-
-    data = IO.iodata_to_binary([Map.values(state.records) | walkers])
+    data = IO.iodata_to_binary([Map.values(state.records) | walker_records(state.walkers)])
     :ok = Raycast.set_bodies_packed(state.world.raycast, state.next_index, data)
   end
 

@@ -133,7 +133,7 @@ defmodule ThinkingCap.Sim.Core.Shard do
         Raycast.move_record(b.index, x0, y0, x1, y1, b.radius)
       end
 
-    send(state.server, {:moved, ref, moves})
+    send(state.server, {:moved, ref, self(), moves})
     {:noreply, %{state | bodies: moved, before: state.bodies}}
   end
 
