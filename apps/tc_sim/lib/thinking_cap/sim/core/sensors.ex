@@ -41,7 +41,8 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       noise: s.noise,
       faults: faults,
       stuck: %{},
-      static: static_payload(s, groups)
+      # a ranged sensor's payload with every key, filled in at each reading
+      payload: payload_template(s, groups, min_range, max_range)
     }
 
     {sensor, rng}
@@ -111,6 +112,14 @@ defmodule ThinkingCap.Sim.Core.Sensors do
     }
   end
 
+  defp payload_template(%{type: type} = s, groups, min_range, max_range) when type in @ranged do
+    s
+    |> static_payload(groups)
+    |> Map.merge(%{ranges: [], range_min: min_range * 1.0, range_max: max_range * 1.0, stamp: 0.0})
+  end
+
+  defp payload_template(_s, _groups, _min_range, _max_range), do: %{}
+
   defp static_payload(%{type: :sonar}, groups),
     do: %{headings: Enum.map(groups, & &1.heading)}
 
@@ -124,8 +133,6 @@ defmodule ThinkingCap.Sim.Core.Sensors do
       angle_increment: if(s.beams > 1, do: s.fov / (s.beams - 1), else: 0.0)
     }
   end
-
-  defp static_payload(_s, _groups), do: %{}
 
   # Whether each fault holds for this robot at all (stuck: per reading
   # group; dead and drift: the whole sensor), drawn once.
@@ -178,13 +185,7 @@ defmodule ThinkingCap.Sim.Core.Sensors do
 
     {ranges, sensor} = faults(ranges, sensor, time)
 
-    payload =
-      Map.merge(sensor.static, %{
-        ranges: ranges,
-        range_min: sensor.min_range,
-        range_max: sensor.max_range,
-        stamp: time
-      })
+    payload = %{sensor.payload | ranges: ranges, stamp: time}
 
     {payload, sensor, robot.rng}
   end

@@ -123,37 +123,62 @@ defmodule ThinkingCap.Sim.Core.Shard do
   # moves that ran two robots into each other, and every robot senses and
   # runs its controller.
   def handle_cast({:move, ref}, state) do
-    moved =
-      Map.new(state.bodies, fn {id, body} -> {id, Body.move(body, state.world, state.dt)} end)
-
-    moves =
-      for {id, b} <- moved, into: <<>> do
-        {x0, y0, _} = state.bodies[id].pose
-        {x1, y1, _} = b.pose
-        Raycast.move_record(b.index, x0, y0, x1, y1, b.radius)
-      end
-
-    send(state.server, {:moved, ref, self(), moves})
-    {:noreply, %{state | bodies: moved, before: state.bodies}}
+    {moved, moves} = move_all(Map.to_list(state.bodies), state, [], [])
+    send(state.server, {:moved, ref, self(), IO.iodata_to_binary(moves)})
+    {:noreply, %{state | bodies: :maps.from_list(moved), before: state.bodies}}
   end
 
   def handle_cast({:sense, ref, step, time, taken_back}, state) do
-    bodies =
-      Map.new(state.bodies, fn {id, body} ->
-        body =
-          if MapSet.member?(taken_back, body.index),
-            do: Body.block(state.before[id], body),
-            else: body
+    taken_back = if MapSet.size(taken_back) == 0, do: nil, else: taken_back
+    at = {step, time, taken_back}
 
-        {id, sense_body(body, step, time, state)}
-      end)
+    {sensed, rays, blocked, records} =
+      sense_all(Map.to_list(state.bodies), at, state, [], 0, 0, [])
 
-    rays = Enum.reduce(bodies, 0, fn {_id, b}, acc -> acc + b.rays end)
-    blocked = Enum.count(bodies, fn {_id, b} -> b.bumped end)
     if rays > 0, do: :counters.add(state.counters, 1, rays)
     if blocked > 0, do: :counters.add(state.counters, 2, blocked)
-    send(state.server, {:stepped, ref, self(), records(bodies)})
-    {:noreply, %{state | bodies: bodies, before: %{}}}
+    send(state.server, {:stepped, ref, self(), IO.iodata_to_binary(records)})
+    {:noreply, %{state | bodies: :maps.from_list(sensed), before: %{}}}
+  end
+
+  # One pass over the robots for each phase, recursion rather than
+  # closures: these run for every robot at every step. The moves and the
+  # body records keep the robots' order.
+  defp move_all([], _state, moved, moves), do: {moved, :lists.reverse(moves)}
+
+  defp move_all([{id, body} | rest], state, moved, moves) do
+    b = Body.move(body, state.world, state.dt)
+    {x0, y0, _} = body.pose
+    {x1, y1, _} = b.pose
+    move = Raycast.move_record(b.index, x0, y0, x1, y1, b.radius)
+    move_all(rest, state, [{id, b} | moved], [move | moves])
+  end
+
+  defp sense_all([], _at, _state, sensed, rays, blocked, records),
+    do: {sensed, rays, blocked, :lists.reverse(records)}
+
+  defp sense_all(
+         [{id, body} | rest],
+         {step, time, taken_back} = at,
+         state,
+         sensed,
+         rays,
+         blocked,
+         records
+       ) do
+    body =
+      if taken_back != nil and MapSet.member?(taken_back, body.index),
+        do: Body.block(state.before[id], body),
+        else: body
+
+    body = sense_body(body, step, time, state)
+    %{pose: {x, y, _}, bumped: bumped} = body
+    record = Raycast.body_record(body.index, x, y, body.radius)
+    blocked = if bumped, do: blocked + 1, else: blocked
+
+    sense_all(rest, at, state, [{id, body} | sensed], rays + body.rays, blocked, [
+      record | records
+    ])
   end
 
   defp records(bodies) do
@@ -182,8 +207,24 @@ defmodule ThinkingCap.Sim.Core.Shard do
       _ -> :ok
     end
 
+    cond do
+      publish -> publish_all(readings, body.id)
+      MapSet.size(body.publish) == 0 -> :ok
+      true -> publish_some(readings, body)
+    end
+  end
+
+  # (recursion: this runs for every robot at every step)
+  defp publish_all([], _id), do: :ok
+
+  defp publish_all([{sensor, payload} | rest], id) do
+    Blackboard.out(Tuples.reading(sensor, id, payload), key: {sensor, id})
+    publish_all(rest, id)
+  end
+
+  defp publish_some(readings, body) do
     for {sensor, payload} <- readings,
-        publish or MapSet.member?(body.publish, sensor),
+        MapSet.member?(body.publish, sensor),
         do: Blackboard.out(Tuples.reading(sensor, body.id, payload), key: {sensor, body.id})
 
     :ok
