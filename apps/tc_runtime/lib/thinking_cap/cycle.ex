@@ -284,12 +284,18 @@ defmodule ThinkingCap.Cycle do
   @spec subscribe(name()) :: :ok
   def subscribe(name), do: GenServer.call(__MODULE__, {:subscribe, name, self()})
 
-  @doc "Whether the OS granted SCHED_FIFO and mlockall to the worker, and its own words."
+  @doc """
+  Whether the OS granted SCHED_FIFO and mlockall to the worker, and its
+  own words; `restarts` of the worker; `statistics_dropped`, the timing
+  samples dropped because the node was too busy for the statistics'
+  keeper (its queue is bounded: `timing/0` then undercounts).
+  """
   @spec status() :: %{
           sched_fifo: boolean(),
           mlockall: boolean(),
           message: String.t(),
-          restarts: non_neg_integer()
+          restarts: non_neg_integer(),
+          statistics_dropped: non_neg_integer()
         }
   def status, do: GenServer.call(__MODULE__, :status)
 
@@ -408,8 +414,14 @@ defmodule ThinkingCap.Cycle do
   def handle_call({:subscribe, name, pid}, _from, state),
     do: {:reply, :ok, Activities.watch(state, name, pid)}
 
-  def handle_call(:status, _from, state),
-    do: {:reply, Map.put(state.status, :restarts, state.restarts), state}
+  def handle_call(:status, _from, state) do
+    status =
+      state.status
+      |> Map.put(:restarts, state.restarts)
+      |> Map.put(:statistics_dropped, Statistics.dropped())
+
+    {:reply, status, state}
+  end
 
   def handle_call(:wires, _from, state) do
     {:reply, Map.new(state.activities, fn {_, a} -> {a.name, Activities.wire(a)} end), state}

@@ -214,6 +214,33 @@ defmodule ThinkingCap.CycleTest do
     assert Cycle.timing()[name].cycles >= 3
   end
 
+  test "a keeper left behind queues a bounded number of samples; the rest are counted dropped",
+       %{name: name} do
+    alias ThinkingCap.Cycle.Core.Statistics
+    :ok = Cycle.add(name, period: 0.01, deadline: 0.005)
+    keeper = Process.whereis(Statistics)
+    before = Statistics.max_backlog(200)
+    on_exit(fn -> Statistics.max_backlog(before) end)
+    dropped = Cycle.status().statistics_dropped
+
+    # the keeper stalled (as on a node whose schedulers other work
+    # keeps busy) while the cycle and the hosts keep sending
+    :ok = :sys.suspend(keeper)
+    for _ <- 1..10, do: name |> release() |> Cycle.result(:go)
+    for i <- 1..1_000, do: Statistics.cpu(0, i)
+    {:message_queue_len, queued} = Process.info(keeper, :message_queue_len)
+    :ok = :sys.resume(keeper)
+
+    # at most the bound queued (activities added and removed pass too)
+    assert queued <= 200 + 5
+    assert Cycle.status().statistics_dropped - dropped >= 1_000 - 200
+
+    # the keeper takes its queue and counts on
+    Statistics.max_backlog(before)
+    for _ <- 1..3, do: name |> release() |> Cycle.result(:go)
+    assert Cycle.timing()[name].cycles >= 3
+  end
+
   test "a killed worker is restarted; its activities stay stopped until a fresh command", %{
     name: name
   } do

@@ -12,7 +12,17 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   #
   # The cycle starts it, linked; when it dies the cycle starts another
   # and names its activities again (their figures start anew).
+  #
+  # Its queue is bounded. It runs at normal priority, so a node saturated
+  # by other work (a simulated fleet on every scheduler) may leave it
+  # behind while the cycle keeps sending. Past @max_backlog queued
+  # samples (releases, applied results, CPU times) the senders count a
+  # sample dropped instead of sending it, so the queue and the node's
+  # memory stay bounded and the loss is counted: dropped/0, in
+  # ThinkingCap.Cycle.status/0, and a warning at the next publication.
+  # Activities added and removed are always sent.
   use GenServer
+  require Logger
 
   alias ThinkingCap.Blackboard
   alias ThinkingCap.Cycle.Stats
@@ -22,6 +32,15 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   # timing/0 on a loaded node (a simulated fleet) waits for the events
   # queued before it
   @call_timeout 120_000
+
+  # about 10 MB of queued samples
+  @max_backlog 100_000
+
+  # counters shared by the senders and the keeper, made once a node
+  @counters {__MODULE__, :counters}
+  @backlog 1
+  @dropped 2
+  @bound 3
 
   @doc "Starts it, linked to the caller, with `:publish_every` ms (nil: never)."
   def start_link(opts), do: GenServer.start_link(__MODULE__, opts, name: __MODULE__)
@@ -38,13 +57,25 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
 
   @doc "A release: scheduled and released (ns), the worker's timer late by `timer_late` ns."
   def release(keeper, id, scheduled, released, timer_late),
-    do: tell(keeper, {:release, id, scheduled, released, timer_late})
+    do: sample(keeper, {:release, id, scheduled, released, timer_late})
 
   @doc "What the worker applied (`:fresh`, `:fallback` or `:late`) and the response (ns)."
-  def applied(keeper, id, kind, response), do: tell(keeper, {:applied, id, kind, response})
+  def applied(keeper, id, kind, response), do: sample(keeper, {:applied, id, kind, response})
 
   @doc "The module's own computation of a result (ns), from its host."
-  def cpu(id, ns), do: tell(Process.whereis(__MODULE__), {:cpu, id, ns})
+  def cpu(id, ns), do: sample(Process.whereis(__MODULE__), {:cpu, id, ns})
+
+  @doc "Samples dropped on this node because the keeper was too far behind."
+  def dropped, do: :counters.get(counters(), @dropped)
+
+  @doc false
+  # the bound on queued samples (tests lower it); returns the one before
+  def max_backlog(n) when is_integer(n) and n >= 0 do
+    c = counters()
+    before = :counters.get(c, @bound)
+    :counters.put(c, @bound, n)
+    before
+  end
 
   @doc """
   Each activity's summary (`ThinkingCap.Cycle.Stats.summary/1`), by name;
@@ -65,12 +96,44 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
     :ok
   end
 
+  defp sample(nil, _message), do: :ok
+
+  defp sample(keeper, message) do
+    c = counters()
+
+    if :counters.get(c, @backlog) >= :counters.get(c, @bound) do
+      :counters.add(c, @dropped, 1)
+    else
+      :counters.add(c, @backlog, 1)
+      send(keeper, message)
+    end
+
+    :ok
+  end
+
+  # made by the first keeper of the node and kept (persistent_term: a
+  # later put would make every process check its heap)
+  defp counters do
+    case :persistent_term.get(@counters, nil) do
+      nil ->
+        c = :counters.new(3, [:write_concurrency])
+        :counters.put(c, @bound, @max_backlog)
+        :persistent_term.put(@counters, c)
+        c
+
+      c ->
+        c
+    end
+  end
+
   @impl true
   def init(opts) do
     # the events can come faster than a loaded scheduler runs this
     Process.flag(:message_queue_data, :off_heap)
     publish_ms = Keyword.get(opts, :publish_every)
     if publish_ms, do: :timer.send_interval(publish_ms, :publish)
+    # a new keeper's queue is empty, whatever its predecessor left
+    :counters.put(counters(), @backlog, 0)
     {:ok, %{}}
   end
 
@@ -83,17 +146,24 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
 
   def handle_info({:removed, id}, state), do: {:noreply, Map.delete(state, id)}
 
-  def handle_info({:release, id, scheduled, released, timer_late}, state),
-    do:
-      {:noreply,
-       update(state, id, &(&1 |> Stats.release(scheduled, released) |> Stats.timer(timer_late)))}
+  def handle_info({:release, id, scheduled, released, timer_late}, state) do
+    taken()
+    update = &(&1 |> Stats.release(scheduled, released) |> Stats.timer(timer_late))
+    {:noreply, update(state, id, update)}
+  end
 
-  def handle_info({:applied, id, kind, response}, state),
-    do: {:noreply, update(state, id, &Stats.applied(&1, kind, response))}
+  def handle_info({:applied, id, kind, response}, state) do
+    taken()
+    {:noreply, update(state, id, &Stats.applied(&1, kind, response))}
+  end
 
-  def handle_info({:cpu, id, ns}, state), do: {:noreply, update(state, id, &Stats.cpu(&1, ns))}
+  def handle_info({:cpu, id, ns}, state) do
+    taken()
+    {:noreply, update(state, id, &Stats.cpu(&1, ns))}
+  end
 
   def handle_info(:publish, state) do
+    warn_dropped()
     wires = ThinkingCap.Cycle.wires()
 
     for {name, summary} <- summaries(state) do
@@ -106,6 +176,23 @@ defmodule ThinkingCap.Cycle.Core.Statistics do
   end
 
   def handle_info(_other, state), do: {:noreply, state}
+
+  defp taken, do: :counters.sub(counters(), @backlog, 1)
+
+  # once a publication, when samples were dropped since the last one
+  defp warn_dropped do
+    dropped = dropped()
+    before = Process.get(:dropped_warned, 0)
+
+    if dropped > before do
+      Process.put(:dropped_warned, dropped)
+
+      Logger.warning(
+        "timing statistics: #{dropped - before} samples dropped (#{dropped} in all): " <>
+          "the node is too busy for its statistics keeper; figures undercount"
+      )
+    end
+  end
 
   defp update(state, id, fun) do
     case state do
