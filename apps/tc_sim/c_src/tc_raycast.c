@@ -1653,11 +1653,13 @@ static int groups_header(const ErlNifBinary *gb, unsigned *nrays, double *budget
 static int group_ok(const unsigned char *rec, uint32_t nr, double *budget)
 {
     double n = ld(rec + 8 * G_NRAYS), off = ld(rec + 8 * G_RAY_OFF), mb = ld(rec + 8 * G_BOUNCES);
-    /* in range first, so the whole-number checks convert safely (a
-     * conversion, not a call to floor: this runs for every group of every
-     * scan) */
+    double ring = ld(rec + 8 * G_RING);
+    /* in range first, so the whole-number checks and the casts' int
+     * conversions are defined (a conversion, not a call to floor: this
+     * runs for every group of every scan) */
     if (!(n >= 1) || !(off >= 0) || !(off + n <= nr) || !(mb >= 0 && mb <= MAX_BOUNCES_LIMIT) ||
-        n != (double)(int64_t)n || off != (double)(int64_t)off || mb != (double)(int64_t)mb)
+        !(ring >= -1 && ring <= INT32_MAX) || n != (double)(int64_t)n ||
+        off != (double)(int64_t)off || mb != (double)(int64_t)mb)
         return 0;
     *budget += n * (1 + mb);
     return 1;

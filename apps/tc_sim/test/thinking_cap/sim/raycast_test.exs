@@ -942,6 +942,14 @@ defmodule ThinkingCap.Sim.RaycastTest do
           rest::binary>>
 
       assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, half, -1, 0) end
+
+      # a crosstalk ring no int holds (its conversion would be undefined)
+      <<head::binary-size(104), -1.0::float-native-64, rest::binary>> = packed
+
+      for ring <- [1.0e300, -2.0] do
+        bad = <<head::binary, ring::float-native-64, rest::binary>>
+        assert_raise ArgumentError, fn -> Raycast.scan(w, {0, 0, 0}, bad, -1, 0) end
+      end
     end
 
     test "a large scan (dirty scheduler) gives the same reading as cast_rays", %{world: w} do
