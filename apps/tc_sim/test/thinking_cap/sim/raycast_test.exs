@@ -659,6 +659,52 @@ defmodule ThinkingCap.Sim.RaycastTest do
       assert_in_delta std, 0.07, 0.07 * 0.08
     end
 
+    # the noise's shape, not only its first two moments: the share within
+    # 1, 2 and 3 standard deviations, the fourth moment, and draws from
+    # the tail beyond the ziggurat's base (3.44 sigma)
+    test "Gaussian noise: its shape and its tails" do
+      # a wall 20 m away: no reading near the range's ends, so none clamped
+      w = world!(segments: [{{20, -50}, {20, 50}}])
+      groups = for k <- 0..49, do: sonar(%{heading: k * 0.01, noise_std: 1.0, max_range: 100.0})
+      g = Raycast.pack_groups(groups)
+
+      clean =
+        readings(
+          Raycast.scan(
+            w,
+            {0, 0, 0},
+            Raycast.pack_groups(Enum.map(groups, &Map.put(&1, :noise_std, 0.0))),
+            -1,
+            0
+          )
+        )
+
+      zs =
+        for seed <- 1..600,
+            {r, r0} <- Enum.zip(readings(Raycast.scan(w, {0, 0, 0}, g, -1, seed)), clean),
+            do: r - r0
+
+      n = length(zs)
+      share = fn k -> Enum.count(zs, &(abs(&1) < k)) / n end
+      mean = Enum.sum(zs) / n
+      var = Enum.sum(for z <- zs, do: (z - mean) * (z - mean)) / n
+      kurtosis = Enum.sum(for z <- zs, do: :math.pow(z - mean, 4)) / n / (var * var)
+
+      assert n == 30_000
+      assert_in_delta mean, 0.0, 0.025
+      assert_in_delta :math.sqrt(var), 1.0, 0.02
+      assert_in_delta share.(1), 0.6827, 0.01
+      assert_in_delta share.(2), 0.9545, 0.005
+      assert_in_delta share.(3), 0.9973, 0.0012
+      assert_in_delta kurtosis, 3.0, 0.15
+      # expected about 17 beyond the base on both sides
+      beyond = Enum.count(zs, &(abs(&1) > 3.4426))
+      assert beyond in 5..40
+      assert Enum.any?(zs, &(&1 > 3.4426)) and Enum.any?(zs, &(&1 < -3.4426))
+      # and the tail itself is drawn, not only its start (about 10 expected)
+      assert Enum.count(zs, &(abs(&1) > 3.6)) >= 2
+    end
+
     test "noise is clamped to the range, echo-less readings get none", %{world: w} do
       g = Raycast.pack_groups([sonar(%{min_range: 1.9, max_range: 2.1, noise_std: 1.0})])
       rs = for seed <- 1..500, do: scan1(w, {0, 0, 0}, g, -1, seed)
