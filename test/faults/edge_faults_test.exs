@@ -59,6 +59,7 @@ defmodule ThinkingCap.FaultSuite.EdgeFaultsTest do
     :ok = Cluster.call(node, Blackboard, :out, [{:robot, robot, %{}}, [key: {:robot, robot}]])
     assert "HTTP/1.1 200" <> _ = page(info)
 
+    listener = Cluster.call(node, Process, :whereis, [ThinkingCap.Dashboard.Core.EstopListener])
     Tally.injected()
     {hog, _} = Cluster.call(node, Code, :eval_string, [@hog])
     Process.sleep(500)
@@ -67,8 +68,22 @@ defmodule ThinkingCap.FaultSuite.EdgeFaultsTest do
     # watchdog), and the page is unreachable
     Cluster.wait_until(fn -> not match?("HTTP/1.1 200" <> _, page(info)) end)
 
-    # the E-stop port gives up its spare descriptor and serves
-    assert "HTTP/1.1 200" <> _ = http(info.estop_port, "POST /estop/#{robot} HTTP/1.0\r\n\r\n")
+    # the E-stop port gives up its spare descriptor and serves (what the
+    # listener was doing, if not: the failure seen once in about 50 runs)
+    answer = http(info.estop_port, "POST /estop/#{robot} HTTP/1.0\r\n\r\n")
+
+    unless match?("HTTP/1.1 200" <> _, answer) do
+      now = Cluster.call(node, Process, :whereis, [ThinkingCap.Dashboard.Core.EstopListener])
+      what = [:status, :current_stacktrace, :message_queue_len, :dictionary]
+      engaged = Cluster.call(node, Blackboard, :rdp, [{:estop, robot, :_}])
+
+      flunk("""
+      the E-stop port answered #{inspect(answer)}
+      listener before #{inspect(listener)}, now #{inspect(now)}: \
+      #{inspect(Cluster.call(node, Process, :info, [now || listener, what]))}
+      engaged: #{inspect(engaged)}
+      """)
+    end
 
     assert {:ok, {:estop, ^robot, %{engaged: true, by: :estop_port}}} =
              Cluster.call(node, Blackboard, :rdp, [{:estop, robot, :_}])

@@ -86,8 +86,23 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     deadline = System.monotonic_time(:millisecond) + @spare_wait
 
     # served here, not in a process of its own: descriptors are short
-    with {:ok, socket} <- accept_when_free(state.listen, deadline), do: handle(socket)
+    with {:ok, socket} <- accept_when_free(state.listen, deadline), do: handle_here(socket)
     %{state | spare: spare()}
+  end
+
+  # Whatever goes wrong with a request served in the listener itself must
+  # not take the listener down: restarted with no descriptor left, it
+  # could not listen again.
+  defp handle_here(socket) do
+    handle(socket)
+  catch
+    kind, reason ->
+      Logger.error(
+        "dashboard: E-stop port: a request failed: " <>
+          Exception.format(kind, reason, __STACKTRACE__)
+      )
+
+      :gen_tcp.close(socket)
   end
 
   defp accept_when_free(listen, deadline) do
