@@ -48,14 +48,15 @@ defmodule ThinkingCap.Dashboard.Core.Acceptor do
   end
 
   @doc """
-  Accepts a connection, waiting at most #{@accept_wait} ms: the socket,
-  `:none` (nobody came, or an error that was logged and waited out), or
-  `:no_descriptor` (the node has no file descriptor left).
+  Accepts a connection, waiting at most `wait` ms (#{@accept_wait} by
+  default): the socket, `:none` (nobody came, or an error that was logged
+  and waited out), or `:no_descriptor` (the node has no file descriptor
+  left; Linux says so whether or not a connection is waiting).
   """
-  @spec accept(:gen_tcp.socket(), String.t()) ::
+  @spec accept(:gen_tcp.socket(), String.t(), non_neg_integer()) ::
           {:ok, :gen_tcp.socket()} | :none | :no_descriptor
-  def accept(listen, what) do
-    case :gen_tcp.accept(listen, @accept_wait) do
+  def accept(listen, what, wait \\ @accept_wait) do
+    case :gen_tcp.accept(listen, wait) do
       {:ok, socket} ->
         {:ok, socket}
 

@@ -12,10 +12,10 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   # cannot block it either: at most @max_open connections at once, each
   # given @read_timeout ms to send its request; beyond the cap a
   # connection gets a 503 at once and is closed. Nor can running out of
-  # file descriptors: it holds a spare one (/dev/null open), which it
-  # gives up to accept when the node has no other left, and accepts until
-  # a descriptor is free (another part of the node may take the spare's
-  # first).
+  # file descriptors: it holds @spares spare ones (/dev/null open), and
+  # gives them up one at a time to accept when the node has no other left
+  # (another part of the node may take a freed descriptor first), then
+  # accepts until a descriptor is free.
 
   use GenServer
   require Logger
@@ -28,6 +28,11 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   @max_headers 32
   # how long a connection may wait for a descriptor when the node has none
   @spare_wait 2_000
+  # descriptors held in reserve, for when another part of the node takes
+  # a freed one first (see accept_on_spare)
+  @spares 4
+  # ms between turns while the node has no descriptor and nobody connects
+  @idle_turn 5
 
   @doc "Starts the listener on `estop_port` (0: a free port) of `host`."
   @spec start_link(%{host: String.t(), estop_port: :inet.port_number()}) :: GenServer.on_start()
@@ -40,8 +45,11 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   @impl true
   def init(%{host: host, estop_port: port}) do
     case Acceptor.listen(port, host, [], "E-stop port") do
-      {:ok, listen, port} -> {:ok, %{listen: listen, port: port, open: %{}, spare: spare()}, 0}
-      {:error, message} -> {:stop, message}
+      {:ok, listen, port} ->
+        {:ok, %{listen: listen, port: port, open: %{}, spares: refill([])}, 0}
+
+      {:error, message} ->
+        {:stop, message}
     end
   end
 
@@ -52,11 +60,15 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   # (waiting a little) between its messages, which always get their turn
   @impl true
   def handle_info(:timeout, state) do
+    # spares given up when descriptors ran out come back once they are free
+    state =
+      if length(state.spares) < @spares, do: %{state | spares: refill(state.spares)}, else: state
+
     state =
       case Acceptor.accept(state.listen, "E-stop port") do
         {:ok, socket} -> serve(socket, state)
         :none -> state
-        # no descriptor left: the spare one serves this connection
+        # no descriptor left: a spare one serves this connection
         :no_descriptor -> accept_on_spare(state)
       end
 
@@ -75,20 +87,44 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     end
   end
 
-  # The spare descriptor, closed, is free for the next one the node
-  # opens, and that may be another part of it (the web server's watchdog,
-  # restarting it, takes descriptors and gives them back when it fails).
-  # So the listener keeps accepting until a descriptor is free, up to
-  # @spare_wait ms, rather than once: a connection then waits for the
-  # next free one, and never for the node to free many.
+  # A spare descriptor, closed, is free for the next one the node opens,
+  # and that may be another part of it (the web server's watchdog,
+  # restarting yaws, takes descriptors and keeps them for seconds). And
+  # Linux refuses an accept for want of a descriptor whether or not a
+  # connection waits, so while the node is out of them the listener comes
+  # here at every turn. So it closes one spare and accepts without
+  # waiting: nobody there, it takes the spare back at once (the
+  # descriptor was free for microseconds, not for an accept's 200 ms, in
+  # which yaws took it: one run in five of the descriptor fault test lost
+  # every spare that way, then its E-stop request); a connection there,
+  # it serves it; the descriptor taken meanwhile, it closes the next
+  # spare. With none left it accepts until a descriptor is free, up to
+  # @spare_wait ms: a connection waits for the next free one, and never
+  # for the node to free many.
   defp accept_on_spare(state) do
-    if state.spare, do: File.close(state.spare)
     deadline = System.monotonic_time(:millisecond) + @spare_wait
+    {accepted, spares} = accept_releasing(state.listen, state.spares, deadline)
 
-    # served here, not in a process of its own: descriptors are short
-    with {:ok, socket} <- accept_when_free(state.listen, deadline), do: handle_here(socket)
-    %{state | spare: spare()}
+    case accepted do
+      # served here, not in a process of its own: descriptors are short
+      {:ok, socket} -> handle_here(socket)
+      # nobody came: the loop turns again soon, not at once
+      :none -> Process.sleep(@idle_turn)
+    end
+
+    %{state | spares: refill(spares)}
   end
+
+  defp accept_releasing(listen, [spare | rest], deadline) do
+    File.close(spare)
+
+    case Acceptor.accept(listen, "E-stop port", 0) do
+      :no_descriptor -> accept_releasing(listen, rest, deadline)
+      accepted_or_none -> {accepted_or_none, rest}
+    end
+  end
+
+  defp accept_releasing(listen, [], deadline), do: {accept_when_free(listen, deadline), []}
 
   # Whatever goes wrong with a request served in the listener itself must
   # not take the listener down: restarted with no descriptor left, it
@@ -103,6 +139,18 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
       )
 
       :gen_tcp.close(socket)
+  end
+
+  # as many spares as @spares, or as the node's descriptors allow
+  defp refill(spares) do
+    if length(spares) >= @spares do
+      spares
+    else
+      case spare() do
+        nil -> spares
+        file -> refill([file | spares])
+      end
+    end
   end
 
   defp accept_when_free(listen, deadline) do
