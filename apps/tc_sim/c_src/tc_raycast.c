@@ -711,8 +711,10 @@ static inline void grid_frame(const World *w, double px, double py, double dx, d
 
 /* Nearest hit along p + t d (|d| = 1), 0 <= t <= tmax. The bodies are
  * tested first: a ray that meets one (one in six in the raycast
- * benchmark) marches the grid only up to it, not on to the wall behind. The grid and the segments win ties, as when they were tested
- * first. */
+ * benchmark) marches the grid only up to it, not on to the wall behind.
+ * The grid and the segments win ties, as when they were tested first. A
+ * grid hit found and then refused (rounding put it past the body) leaves
+ * its cell fields in h; they are read only for grid hits. */
 static void trace(const Ctx *c, double px, double py, double dx, double dy, double tmax, Hit *h)
 {
     const World *w = c->w;
