@@ -27,6 +27,17 @@ defmodule ThinkingCap.Control.Blender do
     * `{:drive, robot, %{command: {:velocity, v, w}}}` (key `{:drive, robot}`);
     * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`).
 
+  ## Bumper reflex
+
+  When a bumper closes while the robot drives forwards or turns, the
+  robot backs off for `back_off_time` at `back_off_speed`, its front
+  turning away from the contact, and then the blend drives again
+  (`ThinkingCap.Control.BackOff`). The bumpers are the RDF's sensors of
+  type `:bumper` (or the `bumpers` param); their readings,
+  `{name, robot, %{pressed: boolean}}`, are subscribed to. With bumpers,
+  the activations carry `back_off` (1.0 while backing off, else 0.0;
+  the behaviours' are then 0.0).
+
   A car-like robot (tricycle, Ackermann in the RDF) cannot turn on the
   spot: a blended twist sharper than its steering allows is made one it
   can drive (`ThinkingCap.Control.Steering.feasible/4`: creep along the
@@ -67,7 +78,11 @@ defmodule ThinkingCap.Control.Blender do
       kinematics' limits, which they default to; without one, defaults 0.5
       m/s and 1.5 rad/s;
     * `radius` (0.2 m) - used only without an RDF: with one, the radius
-      comes from its footprint.
+      comes from its footprint;
+    * `bumpers` - the sensors whose presses start a back-off; default the
+      RDF's sensors of type `:bumper`, none without an RDF;
+    * `back_off_time` (1.0 s), `back_off_speed` (0.1 m/s, at most
+      `max_speed`) - the back-off (see "Bumper reflex").
 
   `max_speed` and `max_turn_rate` are **live parameters**
   (`ThinkingCap.Module`): set while the robot runs
@@ -80,7 +95,7 @@ defmodule ThinkingCap.Control.Blender do
   """
   use ThinkingCap.Module
 
-  alias ThinkingCap.Control.{Blend, Steering}
+  alias ThinkingCap.Control.{BackOff, Blend, Steering}
 
   alias ThinkingCap.Perception.LPS
   alias ThinkingCap.Robot.{Description, Kinematics}
@@ -116,7 +131,17 @@ defmodule ThinkingCap.Control.Blender do
       {{:number_range, 0.0, 20.0},
        default: nil, doc: "rad/s, the top turn rate (at most the RDF's, its default; else 1.5)"},
     radius:
-      {:pos_number, default: 0.2, read_only: true, doc: "m, the robot's radius without an RDF"}
+      {:pos_number, default: 0.2, read_only: true, doc: "m, the robot's radius without an RDF"},
+    bumpers:
+      {{:list, :atom},
+       default: nil,
+       read_only: true,
+       doc: "sensors whose presses start a back-off (RDF's bumpers)"},
+    back_off_time:
+      {{:number_range, 0.0, 10.0}, default: 1.0, read_only: true, doc: "s, a back-off's length"},
+    back_off_speed:
+      {{:number_range, 0.0, 10.0},
+       default: 0.1, read_only: true, doc: "m/s, a back-off's speed (at most max_speed)"}
   ]
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
@@ -128,7 +153,7 @@ defmodule ThinkingCap.Control.Blender do
   def init(params, context) do
     params = if is_map(params), do: Map.to_list(params), else: params || []
     robot = context.robot
-    {ceiling, radius, curvature} = robot_limits(params, context)
+    {ceiling, radius, curvature, rdf_bumpers} = robot_limits(params, context)
 
     # the params bound the RDF's limits, never raise them
     limits =
@@ -153,6 +178,7 @@ defmodule ThinkingCap.Control.Blender do
       ceiling: if(is_binary(context[:rdf]), do: ceiling),
       radius: radius,
       curvature: curvature,
+      reflex: reflex(params, rdf_bumpers, limits),
       stop_states: Keyword.get(params, :stop_states, @stop_states),
       lps: nil,
       pose: nil,
@@ -160,11 +186,12 @@ defmodule ThinkingCap.Control.Blender do
       last: {0.0, 0.0}
     }
 
-    subscribe = [
-      subscribe: Tuples.lps(robot),
-      subscribe: Tuples.pose(robot),
-      subscribe: Tuples.plan(robot)
-    ]
+    subscribe =
+      [
+        subscribe: Tuples.lps(robot),
+        subscribe: Tuples.pose(robot),
+        subscribe: Tuples.plan(robot)
+      ] ++ for(bumper <- state.reflex.bumpers, do: {:subscribe, Tuples.reading(bumper, robot)})
 
     # the limits it drives within, as its params: shown and recorded
     shown = for {key, value} <- limits, do: {:set_param, key, value}
@@ -173,6 +200,15 @@ defmodule ThinkingCap.Control.Blender do
 
   defp number(x) when is_number(x), do: x * 1.0
   defp number(_), do: nil
+
+  defp reflex(params, rdf_bumpers, limits) do
+    speed = number(Keyword.get(params, :back_off_speed)) || 0.1
+
+    BackOff.new(Keyword.get(params, :bumpers) || rdf_bumpers,
+      time: number(Keyword.get(params, :back_off_time)) || 1.0,
+      speed: min(speed, limits.max_speed)
+    )
+  end
 
   @doc """
   A live change of `max_speed` or `max_turn_rate` (the others are
@@ -195,8 +231,11 @@ defmodule ThinkingCap.Control.Blender do
       {:ok, description} ->
         limits = Kinematics.limits(description.kinematics)
 
+        bumpers = for %{type: :bumper, name: name} <- description.sensors, do: name
+
         {%{max_speed: limits.max_speed * 1.0, max_turn_rate: limits.max_turn_rate * 1.0},
-         description.footprint.radius * 1.0, Steering.max_curvature(description.kinematics)}
+         description.footprint.radius * 1.0, Steering.max_curvature(description.kinematics),
+         bumpers}
 
       {:error, message} ->
         raise ArgumentError, "#{inspect(context[:name])}: rdf: #{message}"
@@ -207,7 +246,7 @@ defmodule ThinkingCap.Control.Blender do
     {%{
        max_speed: number(Keyword.get(params, :max_speed)) || 0.5,
        max_turn_rate: number(Keyword.get(params, :max_turn_rate)) || 1.5
-     }, (number(Keyword.get(params, :radius)) || 0.2) * 1.0, :infinity}
+     }, (number(Keyword.get(params, :radius)) || 0.2) * 1.0, :infinity, []}
   end
 
   defp spec(name) when is_map_key(@named, name), do: {name, @named[name], [], []}
@@ -242,23 +281,36 @@ defmodule ThinkingCap.Control.Blender do
   def handle_tuple(Tuples.plan(robot, plan), %{robot: robot} = state) when is_map(plan),
     do: {[], %{state | plan: plan}}
 
+  def handle_tuple(Tuples.reading(sensor, robot, %{} = payload), %{robot: robot} = state)
+      when is_atom(sensor) do
+    if BackOff.bumper?(state.reflex, sensor),
+      do: {[], %{state | reflex: BackOff.reading(state.reflex, payload)}},
+      else: {[], state}
+  end
+
   def handle_tuple(_tuple, state), do: {[], state}
 
   @impl true
-  def handle_cycle(_release, state) do
-    {command, activations} =
+  def handle_cycle(release, state) do
+    {command, activations, reflex} =
       case inputs(state) do
         nil ->
-          {@stop, Map.new(Blend.names(state.blend), &{&1, 0.0})}
+          {@stop, idle(state, 0.0), %{state.reflex | until: nil, contact: nil}}
 
         inputs ->
-          inputs = Map.put(inputs, :last, state.last)
-          %{command: {v, w}, activations: activations} = Blend.run(state.blend, inputs)
-          {v, w} = Steering.feasible({v, w}, state.curvature, state.lps, radius: state.radius)
-          {{:velocity, v, w}, activations}
+          inputs = Map.merge(inputs, %{last: state.last, curvature: state.curvature})
+
+          case BackOff.command(state.reflex, release.scheduled_ns / 1.0e9, inputs) do
+            {nil, reflex} ->
+              {command, activations} = blend(state, inputs)
+              {command, reflexes(activations, state, 0.0), reflex}
+
+            {{v, w}, reflex} ->
+              {{:velocity, v, w}, idle(state, 1.0), reflex}
+          end
       end
 
-    state = %{state | last: last(command)}
+    state = %{state | last: last(command), reflex: reflex}
 
     robot = state.robot
 
@@ -269,6 +321,19 @@ defmodule ThinkingCap.Control.Blender do
 
     {actions, state}
   end
+
+  defp blend(state, inputs) do
+    %{command: {v, w}, activations: activations} = Blend.run(state.blend, inputs)
+    {v, w} = Steering.feasible({v, w}, state.curvature, state.lps, radius: state.radius)
+    {{:velocity, v, w}, activations}
+  end
+
+  # every behaviour at 0 (standing still, or the reflex driving)
+  defp idle(state, back_off),
+    do: state.blend |> Blend.names() |> Map.new(&{&1, 0.0}) |> reflexes(state, back_off)
+
+  defp reflexes(activations, %{reflex: %{bumpers: []}}, _degree), do: activations
+  defp reflexes(activations, _state, degree), do: Map.put(activations, :back_off, degree)
 
   defp last({:velocity, v, w}), do: {v * 1.0, w * 1.0}
   defp last(_stop), do: {0.0, 0.0}

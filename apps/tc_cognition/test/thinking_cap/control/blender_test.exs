@@ -229,6 +229,137 @@ defmodule ThinkingCap.Control.BlenderTest do
     end
   end
 
+  describe "bumper reflex" do
+    # a cycle at time `t` (s): the command, the activations and the state
+    defp cycle_at(state, t) do
+      release = %{@release | scheduled_ns: round(t * 1.0e9)}
+
+      {[out: {{:drive, :r1, %{command: command}}, _}, out: {{:activation, :r1, act}, _}], state} =
+        Blender.handle_cycle(release, state)
+
+      {command, act, state}
+    end
+
+    # driving to a goal ahead, an obstacle touching the robot's front left
+    defp pressed_left(params \\ []) do
+      touching = LPS.from_points([{0.12, 0.16}])
+      plan = {:plan, :r1, %{goal: {3.0, -1.0}, state: :going}}
+      state = feed(start([bumpers: [:bumper]] ++ params), [{:lps, :r1, touching}, @pose, plan])
+      assert {{:velocity, v, _}, %{back_off: +0.0}, state} = cycle_at(state, 0.0)
+      assert v > 0.0
+      state
+    end
+
+    @tag :tmp_dir
+    test "the RDF's bumpers are subscribed to; without any, no back_off activation",
+         %{tmp_dir: dir} do
+      rdf = Path.join(dir, "robot.rdf")
+
+      File.write!(
+        rdf,
+        String.replace(
+          @rdf,
+          "kinematics:",
+          "sensors: [[name: :front, type: :bumper]], kinematics:"
+        )
+      )
+
+      {actions, state} = Blender.init([], context(rdf))
+      assert {:subscribe, {:front, :r1, :_}} in actions
+      assert state.reflex.bumpers == [:front]
+
+      {actions, _} = Blender.init([bumpers: [:left_bumper]], context(rdf))
+      assert {:subscribe, {:left_bumper, :r1, :_}} in actions
+      refute {:subscribe, {:front, :r1, :_}} in actions
+
+      {actions, state} = Blender.init([], context(nil))
+      refute Enum.any?(actions, &match?({:subscribe, {:bumper, _, _}}, &1))
+      state = feed(state, [{:lps, :r1, LPS.empty()}, @pose, {:plan, :r1, %{goal: {3.0, 0.0}}}])
+      {_, activations} = cycle(state)
+      refute Map.has_key?(activations, :back_off)
+    end
+
+    test "a press while driving: backs off, its front turning away from the contact, then drives" do
+      state = pressed_left() |> feed([{:bumper, :r1, %{pressed: true, stamp: 0.0}}])
+
+      assert {{:velocity, v, w}, activations, state} = cycle_at(state, 0.1)
+      assert v == -0.1
+      # the contact on the left: clockwise, the front swinging right
+      assert w < -0.5
+      assert activations.back_off == 1.0
+      assert Enum.all?(@all, &(activations[&1] == 0.0))
+
+      # the bumper released: the back-off runs its time (1 s), then the blend drives
+      state = feed(state, [{:bumper, :r1, %{pressed: false, stamp: 0.1}}])
+      assert {{:velocity, -0.1, ^w}, %{back_off: 1.0}, state} = cycle_at(state, 1.0)
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 1.1)
+      assert v > 0.0
+    end
+
+    test "the reading's side wins over the LPS's; back_off_time and back_off_speed are params" do
+      state =
+        pressed_left(back_off_time: 0.5, back_off_speed: 0.05)
+        |> feed([{:bumper, :r1, %{pressed: true, left: false, right: true}}])
+
+      assert {{:velocity, -0.05, w}, _, state} = cycle_at(state, 0.1)
+      assert w > 0.0
+      assert {{:velocity, -0.05, _}, _, state} = cycle_at(state, 0.5)
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 0.6)
+      assert v > 0.0
+    end
+
+    test "a press during the back-off (something behind) ends it" do
+      state = pressed_left() |> feed([{:bumper, :r1, %{pressed: true}}])
+      assert {{:velocity, -0.1, _}, _, state} = cycle_at(state, 0.1)
+      state = feed(state, [{:bumper, :r1, %{pressed: true}}])
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 0.2)
+      assert v >= 0.0
+    end
+
+    test "no back-off for a press while standing still, or while the plan stops the robot" do
+      state = pressed_left()
+      still = %{state | last: {0.0, 0.0}} |> feed([{:bumper, :r1, %{pressed: true}}])
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(still, 0.1)
+      assert v > 0.0
+
+      done = feed(state, [{:plan, :r1, %{state: :done}}, {:bumper, :r1, %{pressed: true}}])
+      assert {{:velocity, +0.0, +0.0}, %{back_off: +0.0}, done} = cycle_at(done, 0.1)
+      # the press is forgotten, not acted on when the plan resumes
+      resumed = feed(done, [{:plan, :r1, %{goal: {3.0, -1.0}, state: :going}}])
+
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} =
+               cycle_at(%{resumed | last: state.last}, 0.2)
+
+      assert v > 0.0
+    end
+
+    @tag :tmp_dir
+    test "a car-like robot backs off along an arc its steering allows", %{tmp_dir: dir} do
+      rdf = Path.join(dir, "car.rdf")
+
+      File.write!(rdf, """
+      [
+        name: "car",
+        footprint: [radius: 0.25],
+        sensors: [[name: :bumper, type: :bumper]],
+        kinematics: [type: :ackermann, wheelbase: 0.5, track: 0.3, max_steering: 0.5,
+                     max_speed: 1.0, max_turn_rate: 2.0]
+      ]
+      """)
+
+      {_, state} = Blender.init([back_off_speed: 0.2], context(rdf))
+      touching = LPS.from_points([{0.2, 0.2}])
+      plan = {:plan, :r1, %{goal: {3.0, 0.0}, state: :going}}
+      state = feed(state, [{:lps, :r1, touching}, @pose, plan])
+      state = %{state | last: {0.3, 0.0}} |> feed([{:bumper, :r1, %{pressed: true}}])
+
+      assert {{:velocity, -0.2, w}, %{back_off: 1.0}, _} = cycle_at(state, 0.1)
+      assert w < 0.0
+      # tan(0.5) / 0.5 = 1.09 per metre, at 0.2 m/s
+      assert_in_delta abs(w), 0.2 * :math.tan(0.5) / 0.5, 1.0e-9
+    end
+  end
+
   test "runs as a periodic module: subscriptions honoured, drive written each period" do
     lock =
       Lockstep.new(robot: :r1, modules: [control: {Blender, [], period: 0.1}])

@@ -113,4 +113,32 @@ defmodule ThinkingCap.Integration.AutonomyTest do
     assert plan.reached == [:desk]
     assert Sim.status(sim).blocked == 0
   end
+
+  test "a robot pressed against a door jamb backs off and goes through", %{tmp_dir: dir} do
+    # where a patrol of the office (seed 4) met the east jamb of office A's
+    # door (9, 3) with its front left, 0.2 m from it, turning in: the blend
+    # kept asking for a slow arc into the jamb, and before the bumper
+    # reflex the robot stayed there until the task failed "no progress"
+    at = {9.09, 2.82, 0.93}
+    wdf = Path.join(dir, "office.wdf")
+
+    File.write!(
+      wdf,
+      String.replace(
+        File.read!(@office),
+        "[name: :dock, at: {1.0, 1.0, 0.0}],",
+        "[name: :dock, at: {1.0, 1.0, 0.0}], [name: :start, at: #{inspect(at)}],"
+      )
+    )
+
+    {:ok, sim} = Sim.start_link(world: wdf, mode: :fast, running: false, step: 0.05, seed: 4)
+    robot(sim, wdf, {:visit, [:desk_a]}, :start)
+
+    assert {:ok, plan} = run_until(sim, 60, &(&1.state in [:done, :failed]))
+    assert plan.state == :done
+    assert plan.reached == [:desk_a]
+    # pressed for a step or two before each back-off, no more
+    blocked = Sim.status(sim).blocked
+    assert blocked in 1..6
+  end
 end
