@@ -2,8 +2,8 @@ defmodule ThinkingCap.Control.BackOff do
   @moduledoc """
   The bumper reflex of `ThinkingCap.Control.Blender`: when a bumper
   closes while the robot drives forwards or turns, the robot backs off
-  for `time` seconds at `speed`, turning its front away from the
-  contact, and then the blend drives again.
+  straight for `time` seconds at `speed`, turns on the spot by `angle`
+  away from the contact, and then the blend drives again.
 
   Without it a robot whose side met a door jamb stayed pressed there: the
   blend kept asking for a slow arc into the jamb, the move was refused at
@@ -13,12 +13,15 @@ defmodule ThinkingCap.Control.BackOff do
   The contact's side comes from the reading when it says so (`left:`,
   `right:`, as a Create 2 bumper does), else from the LPS: the side, left
   or right of the heading, with the nearer obstacle; with neither, it
-  backs off straight. A contact on the left turns the robot clockwise as it backs off, swinging its front to
-  the right.
+  only backs off. A contact on the left turns the robot clockwise.
+  Backing off straight first matters: a robot backing along a clockwise
+  arc from a wall on its left swings its rear into the wall, and its
+  centre towards it.
 
   A new contact during the back-off (something behind) ends it: the
-  robot does not push on. A car-like robot backs off along an arc its
-  steering allows (`|w| <= speed * max_curvature`).
+  robot does not push on. A car-like robot cannot turn on the spot: it
+  backs off along an arc its steering allows (`|w| <= speed *
+  max_curvature`) that swings its front away.
 
   This module holds the reflex's state; it is pure and the Blender
   calls it.
@@ -27,21 +30,21 @@ defmodule ThinkingCap.Control.BackOff do
   alias ThinkingCap.Control.Geometry
   alias ThinkingCap.Perception.LPS
 
-  defstruct bumpers: [], time: 1.0, speed: 0.1, turn: 0.5, contact: nil, until: nil, w: 0.0
+  defstruct bumpers: [], time: 1.0, speed: 0.1, angle: 0.5, turn: 0.5, contact: nil, steps: []
 
   @typedoc """
   `contact` is the side of a press not yet acted on (`:left`, `:right`,
-  or `:unknown`); `until` the time the back-off under way ends, and `w`
-  its turn rate.
+  or `:unknown`); `steps` the back-off under way, each command with the
+  time it ends.
   """
   @type t :: %__MODULE__{
           bumpers: [atom()],
           time: float(),
           speed: float(),
+          angle: float(),
           turn: float(),
           contact: :left | :right | :unknown | nil,
-          until: float() | nil,
-          w: float()
+          steps: [{float(), {float(), float()}}]
         }
 
   # a forward speed (m/s) or turn rate (rad/s) below which the robot is
@@ -50,7 +53,8 @@ defmodule ThinkingCap.Control.BackOff do
 
   @doc """
   A reflex watching the sensors `bumpers`: `time` (s) and `speed` (m/s)
-  of a back-off, `turn` its turn rate as a fraction of the top turn rate.
+  of the straight back-off, `angle` (rad) of the turn after it, `turn`
+  the turn rate as a fraction of the top turn rate.
   """
   @spec new([atom()], keyword()) :: t()
   def new(bumpers, opts \\ []) do
@@ -58,6 +62,7 @@ defmodule ThinkingCap.Control.BackOff do
       bumpers: bumpers,
       time: Keyword.get(opts, :time, 1.0) * 1.0,
       speed: Keyword.get(opts, :speed, 0.1) * 1.0,
+      angle: Keyword.get(opts, :angle, 0.5) * 1.0,
       turn: Keyword.get(opts, :turn, 0.5) * 1.0
     }
   end
@@ -79,13 +84,14 @@ defmodule ThinkingCap.Control.BackOff do
 
   @doc "Whether a back-off is under way at `now` (s)."
   @spec active?(t(), number()) :: boolean()
-  def active?(%__MODULE__{until: until}, now), do: until != nil and now < until
+  def active?(%__MODULE__{steps: steps}, now),
+    do: Enum.any?(steps, fn {until, _} -> now < until end)
 
   @doc """
   The reflex's command at `now` (s): `{v, w}` while backing off, or `nil`
-  when the blend drives. `last` is the command of the cycle before,
-  `limits` the top speed and turn rate, `curvature` the tightest the
-  steering allows (`:infinity` for a robot that turns on the spot).
+  when the blend drives. `inputs` are the blend's, with `last` (the
+  command of the cycle before) and `curvature` (the tightest the
+  steering allows, `:infinity` for a robot that turns on the spot).
   """
   @spec command(t(), number(), map()) :: {{float(), float()} | nil, t()}
   def command(%__MODULE__{} = reflex, now, %{last: {v, w}} = inputs) do
@@ -94,35 +100,47 @@ defmodule ThinkingCap.Control.BackOff do
 
     cond do
       active?(reflex, now) and contact != nil ->
-        # pressed again while backing: something behind, stop pushing
-        {nil, %{reflex | until: nil}}
+        # pressed again while backing off: something behind, stop pushing
+        {nil, %{reflex | steps: []}}
 
       active?(reflex, now) ->
-        {{-reflex.speed, reflex.w}, reflex}
+        steps = Enum.drop_while(reflex.steps, fn {until, _} -> now >= until end)
+        [{_, command} | _] = steps
+        {command, %{reflex | steps: steps}}
 
       contact != nil and v > -@moving and (v > @moving or abs(w) > @moving) ->
-        w = turn_away(reflex, contact, inputs)
-        {{-reflex.speed, w}, %{reflex | until: now + reflex.time, w: w}}
+        steps = steps(reflex, now, contact_side(contact, inputs), inputs)
+        command(%{reflex | steps: steps}, now, inputs)
 
       true ->
-        {nil, %{reflex | until: nil}}
+        {nil, %{reflex | steps: []}}
     end
   end
 
-  defp turn_away(reflex, contact, inputs) do
-    %{limits: %{max_turn_rate: wmax}, curvature: curvature} = inputs
+  # straight back, then on the spot away from the contact; a car-like
+  # robot backs along an arc swinging its front away
+  defp steps(reflex, now, side, %{limits: %{max_turn_rate: wmax}, curvature: :infinity}) do
+    back = {now + reflex.time, {-reflex.speed, 0.0}}
+    rate = reflex.turn * wmax
 
-    wmax =
-      if curvature == :infinity,
-        do: reflex.turn * wmax,
-        else: min(reflex.turn * wmax, curvature * reflex.speed)
+    case away(side) do
+      sign when sign != 0 and rate > 0 ->
+        [back, {now + reflex.time + reflex.angle / rate, {0.0, sign * rate}}]
 
-    case contact_side(contact, inputs) do
-      :left -> -wmax
-      :right -> wmax
-      :unknown -> 0.0
+      _ ->
+        [back]
     end
   end
+
+  defp steps(reflex, now, side, %{limits: %{max_turn_rate: wmax}, curvature: k}) do
+    rate = min(reflex.turn * wmax, k * reflex.speed)
+    [{now + reflex.time, {-reflex.speed, away(side) * rate}}]
+  end
+
+  # the sign of the turn that swings the front away from the contact
+  defp away(:left), do: -1.0
+  defp away(:right), do: 1.0
+  defp away(:unknown), do: 0.0
 
   defp contact_side(:unknown, %{lps: %LPS{} = lps, radius: r}) do
     left = Geometry.clearance(lps, 0.0, 1.571, r)
@@ -135,6 +153,5 @@ defmodule ThinkingCap.Control.BackOff do
     end
   end
 
-  defp contact_side(:unknown, _inputs), do: :unknown
   defp contact_side(side, _inputs), do: side
 end

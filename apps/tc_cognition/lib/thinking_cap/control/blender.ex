@@ -30,8 +30,9 @@ defmodule ThinkingCap.Control.Blender do
   ## Bumper reflex
 
   When a bumper closes while the robot drives forwards or turns, the
-  robot backs off for `back_off_time` at `back_off_speed`, its front
-  turning away from the contact, and then the blend drives again
+  robot backs off straight for `back_off_time` at `back_off_speed`,
+  turns on the spot by `back_off_angle` away from the contact (a car-like
+  robot backs along an arc instead), and then the blend drives again
   (`ThinkingCap.Control.BackOff`). The bumpers are the RDF's sensors of
   type `:bumper` (or the `bumpers` param); their readings,
   `{name, robot, %{pressed: boolean}}`, are subscribed to. With bumpers,
@@ -82,7 +83,8 @@ defmodule ThinkingCap.Control.Blender do
     * `bumpers` - the sensors whose presses start a back-off; default the
       RDF's sensors of type `:bumper`, none without an RDF;
     * `back_off_time` (1.0 s), `back_off_speed` (0.1 m/s, at most
-      `max_speed`) - the back-off (see "Bumper reflex").
+      `max_speed`), `back_off_angle` (0.5 rad) - the back-off (see
+      "Bumper reflex").
 
   `max_speed` and `max_turn_rate` are **live parameters**
   (`ThinkingCap.Module`): set while the robot runs
@@ -141,7 +143,10 @@ defmodule ThinkingCap.Control.Blender do
       {{:number_range, 0.0, 10.0}, default: 1.0, read_only: true, doc: "s, a back-off's length"},
     back_off_speed:
       {{:number_range, 0.0, 10.0},
-       default: 0.1, read_only: true, doc: "m/s, a back-off's speed (at most max_speed)"}
+       default: 0.1, read_only: true, doc: "m/s, a back-off's speed (at most max_speed)"},
+    back_off_angle:
+      {{:number_range, 0.0, 3.15},
+       default: 0.5, read_only: true, doc: "rad, the turn away from the contact after backing off"}
   ]
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
@@ -206,7 +211,8 @@ defmodule ThinkingCap.Control.Blender do
 
     BackOff.new(Keyword.get(params, :bumpers) || rdf_bumpers,
       time: number(Keyword.get(params, :back_off_time)) || 1.0,
-      speed: min(speed, limits.max_speed)
+      speed: min(speed, limits.max_speed),
+      angle: number(Keyword.get(params, :back_off_angle)) || 0.5
     )
   end
 
@@ -295,7 +301,7 @@ defmodule ThinkingCap.Control.Blender do
     {command, activations, reflex} =
       case inputs(state) do
         nil ->
-          {@stop, idle(state, 0.0), %{state.reflex | until: nil, contact: nil}}
+          {@stop, idle(state, 0.0), %{state.reflex | steps: [], contact: nil}}
 
         inputs ->
           inputs = Map.merge(inputs, %{last: state.last, curvature: state.curvature})

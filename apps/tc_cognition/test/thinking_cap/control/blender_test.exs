@@ -279,32 +279,41 @@ defmodule ThinkingCap.Control.BlenderTest do
       refute Map.has_key?(activations, :back_off)
     end
 
-    test "a press while driving: backs off, its front turning away from the contact, then drives" do
+    test "a press while driving: backs off straight, turns away from the contact, then drives" do
       state = pressed_left() |> feed([{:bumper, :r1, %{pressed: true, stamp: 0.0}}])
 
-      assert {{:velocity, v, w}, activations, state} = cycle_at(state, 0.1)
-      assert v == -0.1
-      # the contact on the left: clockwise, the front swinging right
-      assert w < -0.5
+      assert {{:velocity, -0.1, +0.0}, activations, state} = cycle_at(state, 0.1)
       assert activations.back_off == 1.0
       assert Enum.all?(@all, &(activations[&1] == 0.0))
 
-      # the bumper released: the back-off runs its time (1 s), then the blend drives
+      # the bumper released: the back-off runs its time (1 s), then the
+      # turn on the spot: the contact on the left, clockwise, at half the
+      # top turn rate (1.5 rad/s without an RDF) for 0.5 rad
       state = feed(state, [{:bumper, :r1, %{pressed: false, stamp: 0.1}}])
-      assert {{:velocity, -0.1, ^w}, %{back_off: 1.0}, state} = cycle_at(state, 1.0)
-      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 1.1)
+      assert {{:velocity, -0.1, +0.0}, %{back_off: 1.0}, state} = cycle_at(state, 1.0)
+      assert {{:velocity, +0.0, -0.75}, %{back_off: 1.0}, state} = cycle_at(state, 1.1)
+      assert {{:velocity, +0.0, -0.75}, %{back_off: 1.0}, state} = cycle_at(state, 1.7)
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 1.8)
       assert v > 0.0
     end
 
-    test "the reading's side wins over the LPS's; back_off_time and back_off_speed are params" do
+    test "the reading's side wins over the LPS's; the back-off's time, speed, angle are params" do
       state =
-        pressed_left(back_off_time: 0.5, back_off_speed: 0.05)
+        pressed_left(back_off_time: 0.5, back_off_speed: 0.05, back_off_angle: 0.15)
         |> feed([{:bumper, :r1, %{pressed: true, left: false, right: true}}])
 
-      assert {{:velocity, -0.05, w}, _, state} = cycle_at(state, 0.1)
-      assert w > 0.0
-      assert {{:velocity, -0.05, _}, _, state} = cycle_at(state, 0.5)
-      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 0.6)
+      assert {{:velocity, -0.05, +0.0}, _, state} = cycle_at(state, 0.1)
+      assert {{:velocity, +0.0, 0.75}, _, state} = cycle_at(state, 0.6)
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 0.8)
+      assert v > 0.0
+    end
+
+    test "a press on no known side: backs off, no turn" do
+      plan = {:plan, :r1, %{goal: {3.0, 0.0}, state: :going}}
+      state = feed(start(bumpers: [:bumper]), [{:lps, :r1, LPS.empty()}, @pose, plan])
+      state = %{state | last: {0.3, 0.0}} |> feed([{:bumper, :r1, %{pressed: true}}])
+      assert {{:velocity, -0.1, +0.0}, _, state} = cycle_at(state, 0.0)
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 1.0)
       assert v > 0.0
     end
 
@@ -353,10 +362,13 @@ defmodule ThinkingCap.Control.BlenderTest do
       state = feed(state, [{:lps, :r1, touching}, @pose, plan])
       state = %{state | last: {0.3, 0.0}} |> feed([{:bumper, :r1, %{pressed: true}}])
 
-      assert {{:velocity, -0.2, w}, %{back_off: 1.0}, _} = cycle_at(state, 0.1)
-      assert w < 0.0
-      # tan(0.5) / 0.5 = 1.09 per metre, at 0.2 m/s
-      assert_in_delta abs(w), 0.2 * :math.tan(0.5) / 0.5, 1.0e-9
+      # along the tightest arc, tan(0.5) / 0.5 = 1.09 per metre at 0.2
+      # m/s, the front swinging away from the contact on the left; no
+      # turn on the spot after it
+      assert {{:velocity, -0.2, w}, %{back_off: 1.0}, state} = cycle_at(state, 0.1)
+      assert_in_delta w, -0.2 * :math.tan(0.5) / 0.5, 1.0e-9
+      assert {{:velocity, -0.2, ^w}, %{back_off: 1.0}, state} = cycle_at(state, 1.0)
+      assert {_, %{back_off: +0.0}, _} = cycle_at(state, 1.1)
     end
   end
 
