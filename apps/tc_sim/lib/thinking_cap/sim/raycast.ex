@@ -289,10 +289,9 @@ defmodule ThinkingCap.Sim.Raycast do
 
   Deterministic: the noise and faults draw from one splitmix64 stream
   seeded from `seed` (< 2⁶⁴), in group order and only as needed (a
-  Gaussian by Marsaglia's polar method for a noisy echo, its pair's
-  second value going to the next noisy group; a uniform for the fault of
-  a group with faults; another for a spike's value), so the same inputs
-  give the same bytes.
+  Gaussian by the ziggurat method for a noisy echo; a uniform for the
+  fault of a group with faults; another for a spike's value), so the
+  same inputs give the same bytes.
   """
   @spec scan(world(), {number(), number(), number()}, binary(), integer(), non_neg_integer()) ::
           binary()
