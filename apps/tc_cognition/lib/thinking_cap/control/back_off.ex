@@ -18,6 +18,10 @@ defmodule ThinkingCap.Control.BackOff do
   arc from a wall on its left swings its rear into the wall, and its
   centre towards it.
 
+  The planner may ask for the same back-off (`recoveries/2`): a robot
+  found making no progress backs off before it follows its new plan,
+  bumper or not, the side from the LPS.
+
   A new contact during the back-off (something behind) ends it: the
   robot does not push on. A car-like robot cannot turn on the spot: it
   backs off along an arc its steering allows (`|w| <= speed *
@@ -30,12 +34,21 @@ defmodule ThinkingCap.Control.BackOff do
   alias ThinkingCap.Control.Geometry
   alias ThinkingCap.Perception.LPS
 
-  defstruct bumpers: [], time: 1.0, speed: 0.1, angle: 0.5, turn: 0.5, contact: nil, steps: []
+  defstruct bumpers: [],
+            time: 1.0,
+            speed: 0.1,
+            angle: 0.5,
+            turn: 0.5,
+            contact: nil,
+            steps: [],
+            recoveries: nil,
+            requested: false
 
   @typedoc """
   `contact` is the side of a press not yet acted on (`:left`, `:right`,
   or `:unknown`); `steps` the back-off under way, each command with the
-  time it ends.
+  time it ends; `recoveries` the planner's count of recoveries last seen
+  (nil before its first plan), `requested` a recovery not yet acted on.
   """
   @type t :: %__MODULE__{
           bumpers: [atom()],
@@ -44,7 +57,9 @@ defmodule ThinkingCap.Control.BackOff do
           angle: float(),
           turn: float(),
           contact: :left | :right | :unknown | nil,
-          steps: [{float(), {float(), float()}}]
+          steps: [{float(), {float(), float()}}],
+          recoveries: non_neg_integer() | nil,
+          requested: boolean()
         }
 
   # a forward speed (m/s) or turn rate (rad/s) below which the robot is
@@ -82,6 +97,20 @@ defmodule ThinkingCap.Control.BackOff do
   defp side(%{left: false, right: true}), do: :right
   defp side(_payload), do: :unknown
 
+  @doc """
+  Takes the planner's count of recoveries (`ThinkingCap.Planner.Monitor`:
+  the times it found the robot making no progress): a count above the
+  last one seen asks for a back-off, whatever the robot is doing. The
+  first count seen asks for nothing: it may be old.
+  """
+  @spec recoveries(t(), non_neg_integer()) :: t()
+  def recoveries(%__MODULE__{recoveries: nil} = reflex, n), do: %{reflex | recoveries: n}
+
+  def recoveries(%__MODULE__{recoveries: seen} = reflex, n) when n > seen,
+    do: %{reflex | recoveries: n, requested: true}
+
+  def recoveries(%__MODULE__{} = reflex, _n), do: reflex
+
   @doc "Whether a back-off is under way at `now` (s)."
   @spec active?(t(), number()) :: boolean()
   def active?(%__MODULE__{steps: steps}, now),
@@ -95,8 +124,8 @@ defmodule ThinkingCap.Control.BackOff do
   """
   @spec command(t(), number(), map()) :: {{float(), float()} | nil, t()}
   def command(%__MODULE__{} = reflex, now, %{last: {v, w}} = inputs) do
-    contact = reflex.contact
-    reflex = %{reflex | contact: nil}
+    %{contact: contact, requested: requested} = reflex
+    reflex = %{reflex | contact: nil, requested: false}
 
     cond do
       active?(reflex, now) and contact != nil ->
@@ -108,8 +137,8 @@ defmodule ThinkingCap.Control.BackOff do
         [{_, command} | _] = steps
         {command, %{reflex | steps: steps}}
 
-      contact != nil and v > -@moving and (v > @moving or abs(w) > @moving) ->
-        steps = steps(reflex, now, contact_side(contact, inputs), inputs)
+      requested or (contact != nil and v > -@moving and (v > @moving or abs(w) > @moving)) ->
+        steps = steps(reflex, now, contact_side(contact || :unknown, inputs), inputs)
         command(%{reflex | steps: steps}, now, inputs)
 
       true ->

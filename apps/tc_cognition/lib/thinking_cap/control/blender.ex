@@ -35,9 +35,12 @@ defmodule ThinkingCap.Control.Blender do
   robot backs along an arc instead), and then the blend drives again
   (`ThinkingCap.Control.BackOff`). The bumpers are the RDF's sensors of
   type `:bumper` (or the `bumpers` param); their readings,
-  `{name, robot, %{pressed: boolean}}`, are subscribed to. With bumpers,
-  the activations carry `back_off` (1.0 while backing off, else 0.0;
-  the behaviours' are then 0.0).
+  `{name, robot, %{pressed: boolean}}`, are subscribed to. The plan may
+  ask for the same back-off: when its `recoveries` count rises
+  (`ThinkingCap.Planner.Monitor`, a robot making no progress), the
+  robot backs off whatever it is doing, bumper or not. The activations
+  carry `back_off` (1.0 while backing off, else 0.0; the behaviours' are
+  then 0.0).
 
   A car-like robot (tricycle, Ackermann in the RDF) cannot turn on the
   spot: a blended twist sharper than its steering allows is made one it
@@ -284,8 +287,15 @@ defmodule ThinkingCap.Control.Blender do
   def handle_tuple(Tuples.pose(robot, %{pose: {_, _, _} = pose}), %{robot: robot} = state),
     do: {[], %{state | pose: pose}}
 
-  def handle_tuple(Tuples.plan(robot, plan), %{robot: robot} = state) when is_map(plan),
-    do: {[], %{state | plan: plan}}
+  def handle_tuple(Tuples.plan(robot, plan), %{robot: robot} = state) when is_map(plan) do
+    reflex =
+      case plan do
+        %{recoveries: n} when is_integer(n) and n >= 0 -> BackOff.recoveries(state.reflex, n)
+        _ -> state.reflex
+      end
+
+    {[], %{state | plan: plan, reflex: reflex}}
+  end
 
   def handle_tuple(Tuples.reading(sensor, robot, %{} = payload), %{robot: robot} = state)
       when is_atom(sensor) do
@@ -301,7 +311,7 @@ defmodule ThinkingCap.Control.Blender do
     {command, activations, reflex} =
       case inputs(state) do
         nil ->
-          {@stop, idle(state, 0.0), %{state.reflex | steps: [], contact: nil}}
+          {@stop, idle(state, 0.0), %{state.reflex | steps: [], contact: nil, requested: false}}
 
         inputs ->
           inputs = Map.merge(inputs, %{last: state.last, curvature: state.curvature})
@@ -309,7 +319,7 @@ defmodule ThinkingCap.Control.Blender do
           case BackOff.command(state.reflex, release.scheduled_ns / 1.0e9, inputs) do
             {nil, reflex} ->
               {command, activations} = blend(state, inputs)
-              {command, reflexes(activations, state, 0.0), reflex}
+              {command, Map.put(activations, :back_off, 0.0), reflex}
 
             {{v, w}, reflex} ->
               {{:velocity, v, w}, idle(state, 1.0), reflex}
@@ -336,10 +346,7 @@ defmodule ThinkingCap.Control.Blender do
 
   # every behaviour at 0 (standing still, or the reflex driving)
   defp idle(state, back_off),
-    do: state.blend |> Blend.names() |> Map.new(&{&1, 0.0}) |> reflexes(state, back_off)
-
-  defp reflexes(activations, %{reflex: %{bumpers: []}}, _degree), do: activations
-  defp reflexes(activations, _state, degree), do: Map.put(activations, :back_off, degree)
+    do: state.blend |> Blend.names() |> Map.new(&{&1, 0.0}) |> Map.put(:back_off, back_off)
 
   defp last({:velocity, v, w}), do: {v * 1.0, w * 1.0}
   defp last(_stop), do: {0.0, 0.0}

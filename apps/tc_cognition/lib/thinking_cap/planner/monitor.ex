@@ -70,8 +70,13 @@ defmodule ThinkingCap.Planner.Monitor do
   replan.
 
   **Published** as `{:plan, robot, %{task:, state:, waypoint:, goal:,
-  heading:, docking:, path:, door:, closed_doors:, replans:, reached:,
-  given_up:, reason:, source:, planning:, planned_at:}}` (latest value):
+  heading:, docking:, path:, door:, closed_doors:, replans:, recoveries:,
+  reached:, given_up:, reason:, source:, planning:, planned_at:}}` (latest
+  value): `recoveries` counts the times the robot was found making no
+  progress, over the whole run; each one asks the control module to back
+  the robot off before it follows the new plan (`ThinkingCap.Control.Blender`:
+  a robot pressed against a door jamb with no bumper to tell it stayed
+  there until the task failed);
   `heading` is the waypoint's heading (or nil), `docking` the RDF's
   docking tolerances (or nil); `state` is `:waiting` (no pose or
   no map yet), `:moving`, `:blocked`, `:unreachable`, `:done` (every
@@ -252,6 +257,7 @@ defmodule ThinkingCap.Planner.Monitor do
       given_up: [],
       rounds: 1,
       replans: 0,
+      recoveries: 0,
       progress: nil,
       blocked_at: nil,
       planned_at: nil,
@@ -622,7 +628,8 @@ defmodule ThinkingCap.Planner.Monitor do
         {[out: seen], plan(state)}
 
       stuck?(state, to_go) ->
-        retry(state)
+        # the control module backs the robot off (recoveries below)
+        retry(%{state | recoveries: state.recoveries + 1})
 
       replan_due?(state) ->
         {[], plan(state, keep_progress: true)}
@@ -1213,6 +1220,7 @@ defmodule ThinkingCap.Planner.Monitor do
       door: door_to_cross(state),
       closed_doors: MapSet.to_list(state.closed),
       replans: state.replans,
+      recoveries: state.recoveries,
       reached: Enum.reverse(state.reached),
       given_up: Enum.reverse(state.given_up),
       reason: state.reason,

@@ -130,7 +130,7 @@ defmodule ThinkingCap.Control.BlenderTest do
     test "stops until it has an LPS, a pose and a plan" do
       state = start()
       assert {{:velocity, +0.0, +0.0}, activations} = cycle(state)
-      assert activations == Map.new(@all, &{&1, 0.0})
+      assert activations == Map.new([:back_off | @all], &{&1, 0.0})
 
       plan = {:plan, :r1, %{goal: {3.0, 0.0}, path: nil, door: nil, state: :going}}
       assert {{:velocity, +0.0, +0.0}, _} = cycle(feed(state, [@pose, plan]))
@@ -184,7 +184,7 @@ defmodule ThinkingCap.Control.BlenderTest do
         ])
 
       {{:velocity, v, w}, activations} = cycle(state)
-      assert Map.keys(activations) |> Enum.sort() == Enum.sort(@all)
+      assert Map.keys(activations) |> Enum.sort() == Enum.sort([:back_off | @all])
       assert activations.avoid > 0.8
       assert activations.go_to < 0.2
       assert activations.follow_path == 0.0
@@ -251,7 +251,7 @@ defmodule ThinkingCap.Control.BlenderTest do
     end
 
     @tag :tmp_dir
-    test "the RDF's bumpers are subscribed to; without any, no back_off activation",
+    test "the RDF's bumpers are subscribed to, or the bumpers param's",
          %{tmp_dir: dir} do
       rdf = Path.join(dir, "robot.rdf")
 
@@ -272,11 +272,8 @@ defmodule ThinkingCap.Control.BlenderTest do
       assert {:subscribe, {:left_bumper, :r1, :_}} in actions
       refute {:subscribe, {:front, :r1, :_}} in actions
 
-      {actions, state} = Blender.init([], context(nil))
+      {actions, _} = Blender.init([], context(nil))
       refute Enum.any?(actions, &match?({:subscribe, {:bumper, _, _}}, &1))
-      state = feed(state, [{:lps, :r1, LPS.empty()}, @pose, {:plan, :r1, %{goal: {3.0, 0.0}}}])
-      {_, activations} = cycle(state)
-      refute Map.has_key?(activations, :back_off)
     end
 
     test "a press while driving: backs off straight, turns away from the contact, then drives" do
@@ -339,6 +336,30 @@ defmodule ThinkingCap.Control.BlenderTest do
       assert {{:velocity, v, _}, %{back_off: +0.0}, _} =
                cycle_at(%{resumed | last: state.last}, 0.2)
 
+      assert v > 0.0
+    end
+
+    test "a rise of the plan's recoveries backs the robot off, bumper or not" do
+      # no bumper; driving to a goal ahead, something touching its front left
+      touching = LPS.from_points([{0.12, 0.16}])
+      plan = %{goal: {3.0, -1.0}, state: :moving, recoveries: 2}
+      state = feed(start(), [{:lps, :r1, touching}, @pose, {:plan, :r1, plan}])
+
+      # the first count seen asks for nothing (it may be old), the same
+      # count again neither
+      assert {{:velocity, v, _}, %{back_off: +0.0}, state} = cycle_at(state, 0.0)
+      assert v > 0.0
+      state = feed(state, [{:plan, :r1, plan}])
+      assert {{:velocity, v, _}, %{back_off: +0.0}, state} = cycle_at(state, 0.1)
+      assert v > 0.0
+
+      # stuck: the count rises; standing still does not matter
+      state = %{state | last: {0.0, 0.0}} |> feed([{:plan, :r1, %{plan | recoveries: 3}}])
+      assert {{:velocity, -0.1, +0.0}, %{back_off: 1.0}, state} = cycle_at(state, 0.2)
+      # the turn away from the LPS's nearer side (left): clockwise
+      assert {{:velocity, +0.0, w}, %{back_off: 1.0}, state} = cycle_at(state, 1.2)
+      assert w < 0.0
+      assert {{:velocity, v, _}, %{back_off: +0.0}, _} = cycle_at(state, 2.0)
       assert v > 0.0
     end
 

@@ -13,22 +13,22 @@ defmodule ThinkingCap.Integration.AutonomyTest do
   @rdf Path.expand("../../../../../priv/examples/office_robot.rdf", __DIR__)
   @office Path.expand("../../../../../priv/examples/office.wdf", __DIR__)
 
-  defp stack(task) do
+  defp stack(task, control) do
     [
       perception: {ThinkingCap.Perception.Fuser, []},
       localization:
         {ThinkingCap.Navigation.Localizer, [initial: :start, initial_sigma: {0.1, 0.05}]},
-      control: {ThinkingCap.Control.Blender, [], period: 0.1},
+      control: {ThinkingCap.Control.Blender, control, period: 0.1},
       planner: {ThinkingCap.Planner.Monitor, [task: task], period: 0.5}
     ]
   end
 
-  defp robot(sim, wdf, task, at) do
+  defp robot(sim, wdf, task, at, control \\ []) do
     :ok =
       Sim.add_robot(sim, :r,
         rdf: @rdf,
         at: at,
-        controller: {Sim.LockstepController, modules: stack(task), rdf: @rdf, wdf: wdf}
+        controller: {Sim.LockstepController, modules: stack(task, control), rdf: @rdf, wdf: wdf}
       )
   end
 
@@ -114,11 +114,11 @@ defmodule ThinkingCap.Integration.AutonomyTest do
     assert Sim.status(sim).blocked == 0
   end
 
-  test "a robot pressed against a door jamb backs off and goes through", %{tmp_dir: dir} do
-    # where a patrol of the office (seed 4) met the east jamb of office A's
-    # door (9, 3) with its front left, 0.2 m from it, turning in: the blend
-    # kept asking for a slow arc into the jamb, and before the bumper
-    # reflex the robot stayed there until the task failed "no progress"
+  # where a patrol of the office (seed 4) met the east jamb of office A's
+  # door (9, 3) with its front left, 0.2 m from it, turning in: the blend
+  # kept asking for a slow arc into the jamb, and before the back-off the
+  # robot stayed there until the task failed "no progress"
+  defp at_the_jamb(dir, control) do
     at = {9.09, 2.82, 0.93}
     wdf = Path.join(dir, "office.wdf")
 
@@ -132,13 +132,29 @@ defmodule ThinkingCap.Integration.AutonomyTest do
     )
 
     {:ok, sim} = Sim.start_link(world: wdf, mode: :fast, running: false, step: 0.05, seed: 4)
-    robot(sim, wdf, {:visit, [:desk_a]}, :start)
+    robot(sim, wdf, {:visit, [:desk_a]}, :start, control)
+    sim
+  end
 
+  test "a robot pressed against a door jamb backs off on its bumper and goes through", %{
+    tmp_dir: dir
+  } do
+    sim = at_the_jamb(dir, [])
     assert {:ok, plan} = run_until(sim, 60, &(&1.state in [:done, :failed]))
     assert plan.state == :done
     assert plan.reached == [:desk_a]
-    # pressed for a step or two before each back-off, no more
-    blocked = Sim.status(sim).blocked
-    assert blocked in 1..6
+    # pressed for a step or two before the back-off, no more
+    assert Sim.status(sim).blocked in 1..6
+    assert plan.recoveries == 0
+  end
+
+  test "without a bumper, the planner finds it stuck and has it back off", %{tmp_dir: dir} do
+    sim = at_the_jamb(dir, bumpers: [])
+    assert {:ok, plan} = run_until(sim, 60, &(&1.state in [:done, :failed]))
+    assert plan.state == :done
+    assert plan.reached == [:desk_a]
+    # pressed until the planner's stuck_after (12 s at 20 steps a second)
+    assert plan.recoveries == 1
+    assert Sim.status(sim).blocked in 200..260
   end
 end

@@ -510,16 +510,28 @@ defmodule ThinkingCap.Planner.MonitorTest do
   test "a robot that makes no progress gets a new plan, then gives the waypoint up" do
     state = start(@office, {:visit, [:desk_a, :dock]})
     state = pose(state, {5.0, 1.0, 0.0})
-    {_plan, _, state} = cycle(state, 0.0)
+    {first, _, state} = cycle(state, 0.0)
+    assert first.recoveries == 0
 
-    {plan, _, _state} =
-      Enum.reduce(1..100, {nil, nil, state}, fn i, {_, _, state} -> cycle(state, i * 0.5) end)
+    {plans, _state} =
+      Enum.map_reduce(1..100, state, fn i, state ->
+        {plan, _, state} = cycle(state, i * 0.5)
+        {plan, state}
+      end)
 
     # 50 s without moving: three replans (every 12 s), then desk_a given up
+    plan = List.last(plans)
     assert plan.waypoint == :dock
     assert plan.reached == []
     assert plan.given_up == [:desk_a]
     assert plan.state == :moving
+
+    # each time it found the robot stuck it asked for a back-off: the
+    # recoveries count rose with each replan and at the giving up, and
+    # never fell (it counts over the run, not the waypoint)
+    rises = plans |> Enum.map(& &1.recoveries) |> Enum.dedup()
+    assert rises == [0, 1, 2, 3, 4]
+    assert Enum.find(plans, &(&1.recoveries == 1)).replans == 1
   end
 
   @tag :tmp_dir
