@@ -48,7 +48,7 @@ defmodule ThinkingCap.Tuples do
      "benchmarks, tests"},
     {:plan, :robot,
      "`%{task:, state:, waypoint:, goal:, heading:, docking:, path:, door:, closed_doors:, " <>
-       "replans:, reached:, given_up:, reason:, source:, planning:, planned_at:}` " <>
+       "replans:, recoveries:, reached:, given_up:, reason:, source:, planning:, planned_at:}` " <>
        "(`ThinkingCap.Planner.Monitor`)", "Monitor",
      "Blender, VehicleDrive, dashboard, benchmarks"},
     {:task, :robot, "`%{task: task}`, e.g. `{:go_to, place}`", "dashboard, rosbridge", "Monitor"},

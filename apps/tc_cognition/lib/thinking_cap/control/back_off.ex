@@ -153,7 +153,7 @@ defmodule ThinkingCap.Control.BackOff do
     rate = reflex.turn * wmax
 
     case away(side) do
-      sign when sign != 0 and rate > 0 ->
+      sign when sign != 0.0 and rate > 0 ->
         [back, {now + reflex.time + reflex.angle / rate, {0.0, sign * rate}}]
 
       _ ->

@@ -25,7 +25,8 @@ defmodule ThinkingCap.Control.Blender do
   Writes, every cycle:
 
     * `{:drive, robot, %{command: {:velocity, v, w}}}` (key `{:drive, robot}`);
-    * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`).
+    * `{:activation, robot, %{behaviour => degree}}` (key `{:activation, robot}`),
+      with `back_off` (see "Bumper reflex").
 
   ## Bumper reflex
 
