@@ -21,7 +21,14 @@ defmodule ThinkingCap.Bench.Cyclictest do
 
   @doc """
   Starts cyclictest for `seconds` with a period of `interval_us`
-  microseconds. Returns nil when the executable is missing.
+  microseconds, and returns once it measures: its thread on each CPU
+  running and two periods gone. Returns nil when the executable is
+  missing.
+
+  Returning at once was not enough: a fault window of a few milliseconds
+  (a node killed, the wheels' stop seen) could end before cyclictest's
+  threads had woken once. It then reported a worst latency of 0, and a
+  fault test took that for a machine that had not stalled.
   """
   @spec start(pos_integer(), pos_integer()) :: t()
   def start(seconds, interval_us \\ 10_000) do
@@ -34,7 +41,25 @@ defmodule ThinkingCap.Bench.Cyclictest do
         # alone); -h: a histogram in microseconds
         args = ["-m", "-S", "-p80", "-i#{interval_us}", "-D", "#{seconds}s", "-q", "-h", "20000"]
 
-        Port.open({:spawn_executable, exe}, [:binary, :exit_status, args: args])
+        port = Port.open({:spawn_executable, exe}, [:binary, :exit_status, args: args])
+        await_threads(port, System.monotonic_time(:millisecond) + 2_000)
+        Process.sleep(max(1, div(2 * interval_us, 1000)))
+        port
+    end
+  end
+
+  # cyclictest's main thread and one measuring thread a CPU (up to a
+  # deadline: without /proc, or if it failed, the caller reads what it
+  # printed)
+  defp await_threads(port, deadline) do
+    with {:os_pid, pid} <- Port.info(port, :os_pid),
+         {:ok, tasks} <- File.ls("/proc/#{pid}/task"),
+         true <- length(tasks) <= :erlang.system_info(:logical_processors_online),
+         true <- System.monotonic_time(:millisecond) < deadline do
+      Process.sleep(1)
+      await_threads(port, deadline)
+    else
+      _ -> :ok
     end
   end
 
