@@ -38,6 +38,19 @@ defmodule ThinkingCap.Integration.AutonomyTest do
     plan
   end
 
+  # the office with a waypoint :start at `at`, written in `dir`
+  defp office_from(dir, at) do
+    wdf = Path.join(dir, "office.wdf")
+    dock = "[name: :dock, at: {1.0, 1.0, 0.0}],"
+
+    File.write!(
+      wdf,
+      String.replace(File.read!(@office), dock, "#{dock} [name: :start, at: #{inspect(at)}],")
+    )
+
+    wdf
+  end
+
   # runs until `done?` holds for the plan, or the time limit
   defp run_until(sim, limit, done?) do
     :ok = Sim.run_for(sim, 1.0)
@@ -54,17 +67,7 @@ defmodule ThinkingCap.Integration.AutonomyTest do
     tmp_dir: dir
   } do
     # the office, with a start waypoint at the dock
-    wdf = Path.join(dir, "office.wdf")
-
-    File.write!(
-      wdf,
-      String.replace(
-        File.read!(@office),
-        "[name: :dock, at: {1.0, 1.0, 0.0}],",
-        "[name: :dock, at: {1.0, 1.0, 0.0}], [name: :start, at: {1.0, 1.0, 0.0}],"
-      )
-    )
-
+    wdf = office_from(dir, {1.0, 1.0, 0.0})
     {:ok, sim} = Sim.start_link(world: wdf, mode: :fast, running: false, step: 0.05, seed: 11)
     robot(sim, wdf, {:visit, [:lab_bench, :desk_a]}, :dock)
 
@@ -119,18 +122,7 @@ defmodule ThinkingCap.Integration.AutonomyTest do
   # kept asking for a slow arc into the jamb, and before the back-off the
   # robot stayed there until the task failed "no progress"
   defp at_the_jamb(dir, control) do
-    at = {9.09, 2.82, 0.93}
-    wdf = Path.join(dir, "office.wdf")
-
-    File.write!(
-      wdf,
-      String.replace(
-        File.read!(@office),
-        "[name: :dock, at: {1.0, 1.0, 0.0}],",
-        "[name: :dock, at: {1.0, 1.0, 0.0}], [name: :start, at: #{inspect(at)}],"
-      )
-    )
-
+    wdf = office_from(dir, {9.09, 2.82, 0.93})
     {:ok, sim} = Sim.start_link(world: wdf, mode: :fast, running: false, step: 0.05, seed: 4)
     robot(sim, wdf, {:visit, [:desk_a]}, :start, control)
     sim
