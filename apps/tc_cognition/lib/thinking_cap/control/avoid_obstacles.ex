@@ -19,7 +19,10 @@ defmodule ThinkingCap.Control.AvoidObstacles do
 
   **The freer side is a crisp choice**: the side whose clearance (from 0°
   to 70° on that side) is larger, and **ties break to the left**: the left
-  is chosen unless the right is freer by more than `tie` (0.05 m). **A
+  is chosen unless the right is freer by more than `tie` (0.05 m). An
+  obstacle further round, up to 110°, counts when it touches the robot
+  (within `touch` of its edge): a door jamb at 73° touching the robot's
+  left left the left side "free", and the robot turned into it. **A
   planned path decides first**: when the path's point 0.6 m ahead lies
   more than 0.3 rad off to one side and that side has 0.1 m of clearance,
   that side is chosen. A path through a gap beside a pillar otherwise had
@@ -47,7 +50,7 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   `margin: 0.02` (m: the corridor 2 cm wider than the robot on each
   side; with 0.05, on `mix tc.bench nav_unknown` the robot turned back
   at gaps among boxes its planned path went through, 0.6 to 0.7 m wide
-  for a robot of 0.4), `tie: 0.05` (m), `keep_turn: 0.5` (rad/s).
+  for a robot of 0.4), `tie: 0.05` (m), `keep_turn: 0.5` (rad/s), `touch: 0.03` (m).
   """
   use ThinkingCap.Control.Behaviour
 
@@ -56,7 +59,13 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   # clearance (m) a side needs for the path's side to be chosen
   @passable 0.1
 
-  defstruct stop: 0.15, slow: 0.45, near: 0.5, margin: 0.02, tie: 0.05, keep_turn: 0.5
+  defstruct stop: 0.15,
+            slow: 0.45,
+            near: 0.5,
+            margin: 0.02,
+            tie: 0.05,
+            keep_turn: 0.5,
+            touch: 0.03
 
   @type t :: %__MODULE__{}
 
@@ -106,8 +115,8 @@ defmodule ThinkingCap.Control.AvoidObstacles do
   def freer_side(%{lps: lps, radius: r} = inputs, p) do
     case turning(inputs, p) do
       nil ->
-        left = Geometry.clearance(lps, 0.0, 1.22, r)
-        right = Geometry.clearance(lps, -1.22, 0.0, r)
+        left = side_clearance(lps, :left, r, p)
+        right = side_clearance(lps, :right, r, p)
 
         case path_side(inputs) do
           :left when left >= @passable -> :left
@@ -119,6 +128,24 @@ defmodule ThinkingCap.Control.AvoidObstacles do
         side
     end
   end
+
+  # The clearance of a side, 0 to 70 degrees off the heading; and a side
+  # the robot's edge touches further round, up to 110 degrees, is that
+  # close. Beside a door jamb at 73 degrees on its left, touching it, the
+  # robot saw its left side free and turned into the jamb (office, seed
+  # 4).
+  defp side_clearance(lps, :left, r, p),
+    do: touching(Geometry.clearance(lps, 0.0, 1.22, r), Geometry.clearance(lps, 1.22, 1.92, r), p)
+
+  defp side_clearance(lps, :right, r, p),
+    do:
+      touching(
+        Geometry.clearance(lps, -1.22, 0.0, r),
+        Geometry.clearance(lps, -1.92, -1.22, r),
+        p
+      )
+
+  defp touching(front, beside, p), do: if(beside < p.touch, do: min(front, beside), else: front)
 
   # a planned path that turns off to one side (its lookahead point more
   # than 0.3 rad off the heading) says which side to go round by

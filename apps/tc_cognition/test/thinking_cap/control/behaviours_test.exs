@@ -138,6 +138,24 @@ defmodule ThinkingCap.Control.BehavioursTest do
       assert w < -0.3 * @wmax
     end
 
+    test "a side that touches the robot beside it, past its 70 degrees, is not the freer side" do
+      # the LPS of a robot pressed against a door jamb (office, seed 4):
+      # the jamb at 73 and 77 degrees on its left, touching; a wall a
+      # metre off on its right. Seeing its left free it turned into the
+      # jamb, and crossing the door kept it creeping forwards.
+      at = fn d, a -> {d * :math.cos(a), d * :math.sin(a)} end
+      jamb = [at.(0.158, 1.27), at.(0.255, 1.35)]
+      wall = [at.(1.0, -0.8)]
+      scene = inputs(jamb ++ wall)
+      assert AvoidObstacles.freer_side(scene, AvoidObstacles.init()) == :right
+      assert {_, _, w} = run(AvoidObstacles, [], scene)
+      assert w < -0.3 * @wmax
+
+      # the jamb 10 cm off the robot's edge: the sides' 70 degrees decide
+      near = [at.(0.3, 1.27)]
+      assert AvoidObstacles.freer_side(inputs(near ++ wall), AvoidObstacles.init()) == :left
+    end
+
     test "a planned path that turns off to one side says which side to go round by" do
       # a pillar ahead and another on the left: the right is the freer side
       pillar = line({0.45, -0.1}, {0.45, 0.1}) ++ [{0.25, 0.3}]

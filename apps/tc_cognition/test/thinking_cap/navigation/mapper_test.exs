@@ -14,10 +14,7 @@ defmodule ThinkingCap.Navigation.MapperTest do
   @office Path.expand("../../../../../priv/examples/office.wdf", __DIR__)
 
   # the office robot patrolling the office, localized on the beacons, its
-  # map builder given `mapper_wdf` (the office itself, or nothing). On
-  # the way to office A it grazes the door's west jamb (a step or two
-  # blocked, 80 s in) and its bumper reflex backs it off; `blocked <= 4`
-  # below says it never presses on.
+  # map builder given `mapper_wdf` (the office itself, or nothing)
   defp patrol(dir, mapper_wdf, seconds, world \\ @office) do
     {:ok, sim} = Sim.start_link(world: world, mode: :fast, running: false, step: 0.05, seed: 3)
     on_exit(fn -> if Process.alive?(sim), do: GenServer.stop(sim) end)
@@ -84,7 +81,7 @@ defmodule ThinkingCap.Navigation.MapperTest do
     tmp_dir: dir
   } do
     {sim, lock} = patrol(dir, nil, 120)
-    assert Sim.status(sim).blocked <= 4
+    assert Sim.status(sim).blocked == 0
 
     assert {:map, :r, %OccupancyGrid{} = map} = Lockstep.latest(lock, {:map, :r, :_})
     assert map.version > 50
@@ -141,7 +138,7 @@ defmodule ThinkingCap.Navigation.MapperTest do
     {:ok, c} = Sim.controller_state(sim, :r)
     {:topology, :r, topology} = Lockstep.latest(c.lock, {:topology, :r, :_})
     assert Topology.place_of(topology, {x, y}) == lab
-    assert Sim.status(sim).blocked <= 4
+    assert Sim.status(sim).blocked == 0
   end
 
   test "a map given a WDF learns the box it was not told about", %{tmp_dir: dir} do
