@@ -103,7 +103,13 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
   # for the node to free many.
   defp accept_on_spare(state) do
     deadline = System.monotonic_time(:millisecond) + @spare_wait
-    {accepted, spares} = accept_releasing(state.listen, state.spares, deadline)
+
+    accept = fn
+      :now -> Acceptor.accept(state.listen, "E-stop port", 0)
+      :wait -> Acceptor.accept(state.listen, "E-stop port")
+    end
+
+    {accepted, spares} = accept_releasing(accept, state.spares, deadline)
 
     case accepted do
       # served here, not in a process of its own: descriptors are short
@@ -115,16 +121,27 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     %{state | spares: refill(spares)}
   end
 
-  defp accept_releasing(listen, [spare | rest], deadline) do
+  @doc false
+  # The spares given up for one connection (accept_on_spare): closes one
+  # and calls accept.(:now) (no wait) until a connection or nobody is
+  # there; :no_descriptor means another part of the node took the
+  # descriptor just freed, so the next spare goes. With none left,
+  # accept.(:wait) (an accept's usual wait) until a descriptor is free
+  # or `deadline`. Returns what the last accept gave and the spares
+  # still held. (Public for its test, which stands in for accept and
+  # for the descriptor's thief.)
+  @spec accept_releasing((:now | :wait -> term()), [File.io_device()], integer()) ::
+          {{:ok, :gen_tcp.socket()} | :none, [File.io_device()]}
+  def accept_releasing(accept, [spare | rest], deadline) do
     File.close(spare)
 
-    case Acceptor.accept(listen, "E-stop port", 0) do
-      :no_descriptor -> accept_releasing(listen, rest, deadline)
+    case accept.(:now) do
+      :no_descriptor -> accept_releasing(accept, rest, deadline)
       accepted_or_none -> {accepted_or_none, rest}
     end
   end
 
-  defp accept_releasing(listen, [], deadline), do: {accept_when_free(listen, deadline), []}
+  def accept_releasing(accept, [], deadline), do: {accept_when_free(accept, deadline), []}
 
   # Whatever goes wrong with a request served in the listener itself must
   # not take the listener down: restarted with no descriptor left, it
@@ -153,12 +170,12 @@ defmodule ThinkingCap.Dashboard.Core.EstopListener do
     end
   end
 
-  defp accept_when_free(listen, deadline) do
-    case Acceptor.accept(listen, "E-stop port") do
+  defp accept_when_free(accept, deadline) do
+    case accept.(:wait) do
       :no_descriptor ->
         if System.monotonic_time(:millisecond) < deadline do
           Process.sleep(5)
-          accept_when_free(listen, deadline)
+          accept_when_free(accept, deadline)
         else
           :none
         end
