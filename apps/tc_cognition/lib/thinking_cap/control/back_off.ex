@@ -111,6 +111,13 @@ defmodule ThinkingCap.Control.BackOff do
 
   def recoveries(%__MODULE__{} = reflex, _n), do: reflex
 
+  @doc """
+  Forgets a back-off under way and a press or a request not acted on:
+  for a robot the plan stops. The recoveries count seen is kept.
+  """
+  @spec reset(t()) :: t()
+  def reset(%__MODULE__{} = reflex), do: %{reflex | steps: [], contact: nil, requested: false}
+
   @doc "Whether a back-off is under way at `now` (s)."
   @spec active?(t(), number()) :: boolean()
   def active?(%__MODULE__{steps: steps}, now),

@@ -312,7 +312,7 @@ defmodule ThinkingCap.Control.Blender do
     {command, activations, reflex} =
       case inputs(state) do
         nil ->
-          {@stop, idle(state, 0.0), %{state.reflex | steps: [], contact: nil, requested: false}}
+          {@stop, idle(state, 0.0), BackOff.reset(state.reflex)}
 
         inputs ->
           inputs = Map.merge(inputs, %{last: state.last, curvature: state.curvature})
