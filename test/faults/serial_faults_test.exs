@@ -89,6 +89,52 @@ defmodule ThinkingCap.FaultSuite.SerialFaultsTest do
     Tally.survived()
   end
 
+  test "the node driving a Create 2 freezes for 15 s: its timing worker stops the wheels every cycle",
+       %{tmp_dir: dir} do
+    {emu, node} = driving_create2(dir)
+    os_pid = Cluster.call(node, System, :pid, [])
+    Process.sleep(200)
+
+    # the BEAM stopped as a debugger or a swapped-out machine would stop
+    # it: it reads nothing from its timing worker. The worker goes on
+    # releasing, missing deadlines and putting the fallback (the stop) on
+    # the wire every 10 ms, and its frames to the BEAM pile up in the
+    # pipe between them.
+    probe = start_stall_probe()
+    Tally.injected()
+    {_, 0} = System.cmd("kill", ["-STOP", os_pid])
+    frozen_at = System.monotonic_time()
+    Process.sleep(15_000)
+    thawed_at = System.monotonic_time()
+    {_, 0} = System.cmd("kill", ["-CONT", os_pid])
+    machine = machine_stalls(probe)
+
+    # the stops while it was frozen
+    window =
+      emu
+      |> Create2Emulator.commands()
+      |> Enum.filter(&(&1.at >= frozen_at and &1.at < thawed_at))
+      |> Enum.filter(&(&1.command == {:drive_direct, 0, 0}))
+
+    gaps =
+      window
+      |> Enum.chunk_every(2, 1, :discard)
+      |> Enum.map(fn [a, b] ->
+        System.convert_time_unit(b.at - a.at, :native, :microsecond) / 1000
+      end)
+
+    # a stop a cycle (10 ms) for the whole 15 s; a gap no longer than a
+    # cycle and the deadline plus the machine's own worst stall. With the
+    # pipe at its default 64 KB the worker's write to its BEAM blocked
+    # about 11 s in, and the stops with it.
+    assert length(window) >= 1_000, "#{length(window)} stops in 15 s"
+    last = System.convert_time_unit(List.last(window).at - frozen_at, :native, :millisecond)
+    assert last >= 14_900, "the last stop came #{last} ms into the 15 s"
+    assert_uncommanded_within(Enum.max(gaps), 13, machine)
+
+    Tally.survived()
+  end
+
   test "SIGTERM on the node driving a Create 2: the stop is the last frame, the node gone in 5 s",
        %{tmp_dir: dir} do
     {emu, node} = driving_create2(dir)

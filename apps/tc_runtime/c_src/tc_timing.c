@@ -170,6 +170,8 @@ static uint64_t get64(const uint8_t *p) { uint64_t v = 0; for (int i = 0; i < 8;
  * pipe may block while the BEAM is busy, and under the lock it held the
  * other thread back (the timing thread's next release). */
 #define OUTBOX_BYTES 65536
+/* the size asked for the pipe to the BEAM (see main) */
+#define OUT_PIPE_BYTES (1 << 20)
 static __thread uint8_t outbox[OUTBOX_BYTES];
 static __thread uint32_t outbox_len;
 static __thread int deferring;
@@ -694,6 +696,13 @@ int main(int argc, char **argv) {
     if (parse_args(argc, argv) < 0) return 2;
     /* a write to a BEAM that is gone must fail, not kill the worker */
     signal(SIGPIPE, SIG_IGN);
+    /* The frames to the BEAM pile up in the pipe while it reads nothing
+     * (stopped, swapped out), and the timing thread's write blocks once
+     * the pipe is full: no releases, no deadlines, no fallback bytes on
+     * the wires. At the default 64 KB that came 11 s into a frozen BEAM
+     * (a fault test); at 1 MB it is over two minutes. A pipe kept at its
+     * size (F_SETPIPE_SZ refused) only shortens that. */
+    (void)fcntl(STDOUT_FILENO, F_SETPIPE_SZ, OUT_PIPE_BYTES);
     /* SIGUSR1 interrupts the timing thread's sleep (no SA_RESTART) */
     struct sigaction wake = {0};
     wake.sa_handler = on_wake;
