@@ -67,19 +67,27 @@ defmodule ThinkingCap.Control.BackOff do
   @moving 1.0e-3
 
   @doc """
-  A reflex watching the sensors `bumpers`: `time` (s) and `speed` (m/s)
-  of the straight back-off, `angle` (rad) of the turn after it, `turn`
-  the turn rate as a fraction of the top turn rate.
+  A reflex watching the sensors `bumpers`: `time` (s, default 1.0) and
+  `speed` (m/s, 0.1) of the straight back-off, `angle` (rad, 0.5) of the
+  turn after it, `turn` (0.5) the turn rate as a fraction of the top
+  turn rate; `max_speed` (m/s) caps `speed`. An option given as nil
+  keeps its default.
   """
   @spec new([atom()], keyword()) :: t()
   def new(bumpers, opts \\ []) do
-    %__MODULE__{
-      bumpers: bumpers,
-      time: Keyword.get(opts, :time, 1.0) * 1.0,
-      speed: Keyword.get(opts, :speed, 0.1) * 1.0,
-      angle: Keyword.get(opts, :angle, 0.5) * 1.0,
-      turn: Keyword.get(opts, :turn, 0.5) * 1.0
-    }
+    given =
+      for {key, value} <- opts,
+          key in [:time, :speed, :angle, :turn],
+          is_number(value),
+          into: %{},
+          do: {key, value * 1.0}
+
+    reflex = Map.merge(%__MODULE__{bumpers: bumpers}, given)
+
+    case Keyword.get(opts, :max_speed) do
+      max when is_number(max) -> %{reflex | speed: min(reflex.speed, max * 1.0)}
+      _ -> reflex
+    end
   end
 
   @doc "Whether `sensor` is one of the bumpers watched."

@@ -119,6 +119,8 @@ defmodule ThinkingCap.Control.Blender do
   }
 
   @stop {:velocity, 0.0, 0.0}
+  # the back-off's defaults
+  @back_off %BackOff{}
   @stop_states [:idle, :done, :failed, :blocked, :unreachable, :waiting]
 
   @params [
@@ -144,13 +146,18 @@ defmodule ThinkingCap.Control.Blender do
        read_only: true,
        doc: "sensors whose presses start a back-off (RDF's bumpers)"},
     back_off_time:
-      {{:number_range, 0.0, 10.0}, default: 1.0, read_only: true, doc: "s, a back-off's length"},
+      {{:number_range, 0.0, 10.0},
+       default: @back_off.time, read_only: true, doc: "s, a back-off's length"},
     back_off_speed:
       {{:number_range, 0.0, 10.0},
-       default: 0.1, read_only: true, doc: "m/s, a back-off's speed (at most max_speed)"},
+       default: @back_off.speed,
+       read_only: true,
+       doc: "m/s, a back-off's speed (at most max_speed)"},
     back_off_angle:
       {{:number_range, 0.0, 3.15},
-       default: 0.5, read_only: true, doc: "rad, the turn away from the contact after backing off"}
+       default: @back_off.angle,
+       read_only: true,
+       doc: "rad, the turn away from the contact after backing off"}
   ]
 
   @doc "The params this module takes (`c:ThinkingCap.Module.params/0`)."
@@ -210,13 +217,13 @@ defmodule ThinkingCap.Control.Blender do
   defp number(x) when is_number(x), do: x * 1.0
   defp number(_), do: nil
 
+  # the params' back-off, BackOff's defaults for those not given
   defp reflex(params, rdf_bumpers, limits) do
-    speed = number(Keyword.get(params, :back_off_speed)) || 0.1
-
     BackOff.new(Keyword.get(params, :bumpers) || rdf_bumpers,
-      time: number(Keyword.get(params, :back_off_time)) || 1.0,
-      speed: min(speed, limits.max_speed),
-      angle: number(Keyword.get(params, :back_off_angle)) || 0.5
+      time: Keyword.get(params, :back_off_time),
+      speed: Keyword.get(params, :back_off_speed),
+      angle: Keyword.get(params, :back_off_angle),
+      max_speed: limits.max_speed
     )
   end
 
